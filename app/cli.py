@@ -1,0 +1,124 @@
+"""The ``sweepcast`` command: ``serve``, ``worker``, ``openapi`` and one verb per engine."""
+from __future__ import annotations
+
+import argparse
+import ipaddress
+import json
+import os
+import shutil
+import socket
+import sys
+from pathlib import Path
+
+ENGINE_CLIS = ("workers.orientation.cli",)
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        try:
+            return ipaddress.ip_address(socket.gethostbyname(host)).is_loopback
+        except (OSError, ValueError):
+            return False
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from app.main import create_app
+    from app.settings import Settings
+
+    overrides = {k: v for k, v in {"host": args.host, "port": args.port, "data_dir": args.data_dir}.items() if v is not None}
+    settings = Settings(**overrides)
+    if not _is_loopback(settings.host) and not settings.api_keys and not args.insecure:
+        print(
+            f"refusing to listen on {settings.host} without API keys: set SWEEPCAST_API_KEYS=<key>[,<key>...] "
+            "or pass --insecure to serve without authentication",
+            file=sys.stderr,
+        )
+        return 2
+    print(f"sweepcast: serving on http://{settings.host}:{settings.port} (data in {settings.data_dir.resolve()})",
+          file=sys.stderr)
+    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level=args.log_level)
+    return 0
+
+
+def cmd_worker(args: argparse.Namespace) -> int:
+    """Join this machine to a Ray cluster as a worker node (runs ``ray start --block``)."""
+    ray_bin = shutil.which("ray", path=os.path.dirname(sys.executable)) or shutil.which("ray")
+    if ray_bin is None:
+        print("the 'ray' command is not installed in this environment", file=sys.stderr)
+        return 2
+    argv = [ray_bin, "start", "--address", args.address, "--block"]
+    if args.num_cpus is not None:
+        argv += ["--num-cpus", str(args.num_cpus)]
+    if args.num_gpus is not None:
+        argv += ["--num-gpus", str(args.num_gpus)]
+    if args.resources:
+        try:
+            json.loads(args.resources)
+        except json.JSONDecodeError as exc:
+            print(f"--resources must be a JSON object such as '{{\"renderer\": 1}}': {exc}", file=sys.stderr)
+            return 2
+        argv += ["--resources", args.resources]
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    os.execv(ray_bin, argv)
+
+
+def cmd_openapi(args: argparse.Namespace) -> int:
+    from app.openapi_doc import render_openapi
+
+    text = render_openapi()
+    if args.check:
+        current = Path(args.out).read_text() if Path(args.out).exists() else ""
+        if current != text:
+            print(f"{args.out} is out of date: run 'sweepcast openapi'", file=sys.stderr)
+            return 1
+        return 0
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(text)
+    print(f"wrote {args.out}", file=sys.stderr)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="sweepcast", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("serve", help="run the HTTP/WebSocket service (local Ray, SQLite and a data folder by default)")
+    p.add_argument("--host", help="address to listen on (default 127.0.0.1; SWEEPCAST_HOST)")
+    p.add_argument("--port", type=int, help="port (default 8000; SWEEPCAST_PORT)")
+    p.add_argument("--data-dir", type=Path, help="data folder (default ./sweepcast-data; SWEEPCAST_DATA_DIR)")
+    p.add_argument("--insecure", action="store_true", help="allow a non-loopback host without API keys")
+    p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
+    p.set_defaults(func=cmd_serve)
+
+    p = sub.add_parser("worker", help="join this machine to a Ray cluster as a worker node")
+    p.add_argument("--address", required=True, help="the Ray head, host:port (as printed by 'ray start --head')")
+    p.add_argument("--num-cpus", type=int)
+    p.add_argument("--num-gpus", type=int)
+    p.add_argument("--resources", help="custom resources as JSON, e.g. '{\"renderer\": 1}'")
+    p.set_defaults(func=cmd_worker)
+
+    p = sub.add_parser("openapi", help="write (or --check) the committed OpenAPI document")
+    p.add_argument("--out", default="openapi/openapi.json")
+    p.add_argument("--check", action="store_true", help="exit 1 when the file differs from the app's schema")
+    p.set_defaults(func=cmd_openapi)
+
+    import importlib
+
+    for module in ENGINE_CLIS:
+        importlib.import_module(module).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,209 @@
+"""Submitting jobs to Ray, following their events, retrying lost workers, recovering on start.
+
+One dispatcher per API process. It owns the jobs it holds the lease of: it renews their
+leases while it follows them and gives them back on a clean shutdown. A sweep claims jobs
+whose lease expired (their owner died), so jobs survive a restart of the service or the
+loss of a replica; the job table, not Ray, is the source of truth.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import os
+import socket
+import time
+import uuid
+from dataclasses import asdict
+from typing import Any
+
+import ray
+import ray.exceptions
+
+from app.events import EventHub
+from app.jobstore import Job, JobState, JobStore, job_public
+from app.settings import Settings
+from workers.registry import get_kind
+from workers.runtime import JobSpec
+
+log = logging.getLogger("sweepcast.dispatcher")
+
+# A lost worker or node: worth another attempt. Anything else from Ray is a bug or a cancel.
+_RETRYABLE = (
+    ray.exceptions.WorkerCrashedError,
+    ray.exceptions.NodeDiedError,
+    ray.exceptions.ObjectLostError,
+    ray.exceptions.OwnerDiedError,
+    ray.exceptions.LocalRayletDiedError,
+    ray.exceptions.RaySystemError,
+)
+_PROGRESS_WRITE_INTERVAL_S = 0.25
+
+
+class Dispatcher:
+    def __init__(self, settings: Settings, jobs: JobStore, hub: EventHub, store_url: str) -> None:
+        self.settings = settings
+        self.jobs = jobs
+        self.hub = hub
+        self.store_url = store_url
+        self.owner = f"{socket.gethostname()}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        self._tasks: dict[str, asyncio.Task] = {}
+        self._refs: dict[str, Any] = {}
+        self._cancelled: set[str] = set()
+        self._loops: list[asyncio.Task] = []
+        self.ray_ready = asyncio.Event()
+        """Set once Ray is connected; attempts wait for it (a submit before that would start a stray Ray)."""
+
+    @property
+    def lease_s(self) -> float:
+        return self.settings.job_lease_seconds
+
+    async def start(self) -> None:
+        """Recover what earlier runs left, then keep leases fresh and sweep for orphans."""
+        await self.recover()
+        self._loops = [asyncio.create_task(self._renew_loop()), asyncio.create_task(self._sweep_loop())]
+
+    async def recover(self) -> int:
+        """Claim and resubmit every active job whose lease expired; return how many."""
+        claimed = await asyncio.to_thread(self.jobs.claim_expired, self.owner, self.lease_s)
+        for job in claimed:
+            if job.id not in self._tasks:
+                log.info("recovering job %s (%s, %d attempts so far)", job.id, job.kind, job.attempts)
+                self.submit(job.id)
+        return len(claimed)
+
+    def submit(self, job_id: str) -> None:
+        """Start following a committed job this dispatcher holds the lease of."""
+        task = asyncio.create_task(self._drive(job_id), name=f"job-{job_id}")
+        self._tasks[job_id] = task
+        task.add_done_callback(lambda _t: self._tasks.pop(job_id, None))
+
+    def active_count(self) -> int:
+        return len(self._tasks)
+
+    async def cancel(self, job_id: str) -> bool:
+        """Stop a job: kill its Ray task and mark it cancelled. False when it had already finished."""
+        self._cancelled.add(job_id)
+        ref = self._refs.get(job_id)
+        if ref is not None:
+            try:
+                ray.cancel(ref, force=True)
+            except Exception as exc:  # noqa: BLE001 - the task may have just finished
+                log.debug("cancel of %s: %s", job_id, exc)
+        done = await asyncio.to_thread(self.jobs.finish, job_id, None, JobState.cancelled, None, "cancelled by the user")
+        if done:
+            await self._publish_final(job_id)
+        return done
+
+    async def shutdown(self) -> None:
+        """Stop following jobs and give their leases back so the next start resumes them at once."""
+        for loop in self._loops:
+            loop.cancel()
+        held = list(self._tasks)
+        for job_id in held:
+            ref = self._refs.get(job_id)
+            if ref is not None:
+                try:
+                    ray.cancel(ref, force=True)
+                except Exception:  # noqa: BLE001
+                    pass
+            self._tasks[job_id].cancel()
+        await asyncio.gather(*[t for t in list(self._tasks.values())], return_exceptions=True)
+        for job_id in held:
+            await asyncio.to_thread(self.jobs.release, job_id, self.owner)
+
+    async def _renew_loop(self) -> None:
+        while True:
+            await asyncio.sleep(self.lease_s / 3)
+            try:
+                await asyncio.to_thread(self.jobs.renew_leases, list(self._tasks), self.owner, self.lease_s)
+            except Exception:  # noqa: BLE001 - a database hiccup must not end the loop
+                log.exception("lease renewal failed")
+
+    async def _sweep_loop(self) -> None:
+        while True:
+            await asyncio.sleep(max(self.lease_s / 2, 0.5))
+            try:
+                await self.recover()
+            except Exception:  # noqa: BLE001
+                log.exception("recovery sweep failed")
+
+    async def _drive(self, job_id: str) -> None:
+        try:
+            await self.ray_ready.wait()
+            while True:
+                job = await asyncio.to_thread(self.jobs.begin_attempt, job_id, self.owner, self.lease_s)
+                if job is None or job_id in self._cancelled:
+                    return
+                if job.attempts > self.settings.job_max_attempts:
+                    await self._fail(job_id, f"the worker running this job was lost {job.attempts - 1} times; giving up")
+                    return
+                if await self._run_attempt(job):
+                    return
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - never leave a row in "running" because of a bug here
+            log.exception("dispatcher failed on job %s", job_id)
+            await self._fail(job_id, f"internal error in the dispatcher: {type(exc).__name__}: {exc}")
+        finally:
+            self._refs.pop(job_id, None)
+
+    async def _run_attempt(self, job: Job) -> bool:
+        """Run one attempt; True when the job reached a final state, False to try again."""
+        kind = get_kind(job.kind)
+        spec = JobSpec(job.id, job.kind, job.params, job.inputs, job.input_meta or {}, job.attempts, self.store_url)
+        options: dict[str, Any] = {"num_cpus": kind.num_cpus}
+        if self.settings.job_resources:
+            options["resources"] = dict(self.settings.job_resources)
+        from workers.ray_tasks import run_job_task
+
+        gen = run_job_task.options(**options).remote(asdict(spec))
+        self._refs[job.id] = gen
+        last_write = 0.0
+        worker: dict[str, Any] = {}
+        try:
+            async for ref in gen:
+                event = await ref
+                etype = event.get("type")
+                if etype == "started":
+                    worker = {"node_id": event.get("node_id"), "pid": event.get("pid")}
+                    await asyncio.to_thread(self.jobs.mark_running, job.id, self.owner)
+                    self.hub.publish(job.id, {**event, "job_id": job.id, "state": "running"})
+                elif etype == "progress":
+                    self.hub.publish(job.id, {**event, "job_id": job.id, "attempt": job.attempts})
+                    now = time.monotonic()
+                    if now - last_write >= _PROGRESS_WRITE_INTERVAL_S or event["fraction"] >= 1.0:
+                        last_write = now
+                        await asyncio.to_thread(self.jobs.set_progress, job.id, self.owner, event["fraction"], event["stage"])
+                elif etype == "succeeded":
+                    result = {**event["manifest"], "attempt": job.attempts, "worker": worker}
+                    await asyncio.to_thread(self.jobs.finish, job.id, self.owner, JobState.succeeded, result, None)
+                    await self._publish_final(job.id)
+                    return True
+                elif etype == "failed":
+                    await self._fail(job.id, event["error"])
+                    return True
+        except ray.exceptions.TaskCancelledError:
+            return True
+        except _RETRYABLE as exc:
+            if job.id in self._cancelled:
+                return True
+            log.warning("job %s attempt %d lost its worker: %s", job.id, job.attempts, type(exc).__name__)
+            self.hub.publish(job.id, {"type": "retrying", "job_id": job.id, "attempt": job.attempts,
+                                      "reason": type(exc).__name__, "time": time.time()})
+            return False
+        except ray.exceptions.RayTaskError as exc:
+            await self._fail(job.id, f"internal error on the worker: {exc.cause!r}" if exc.cause else str(exc))
+            return True
+        if job.id in self._cancelled:
+            return True
+        log.warning("job %s attempt %d ended without a final event", job.id, job.attempts)
+        return False
+
+    async def _fail(self, job_id: str, error: str) -> None:
+        if await asyncio.to_thread(self.jobs.finish, job_id, self.owner, JobState.failed, None, error):
+            await self._publish_final(job_id)
+
+    async def _publish_final(self, job_id: str) -> None:
+        job = await asyncio.to_thread(self.jobs.get, job_id)
+        if job is not None:
+            self.hub.publish(job_id, {"type": "final", "job_id": job_id, "time": time.time(), "job": job_public(job)})

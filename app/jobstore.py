@@ -1,0 +1,256 @@
+"""The job table: the source of truth for every batch job (SQLAlchemy 2; SQLite or PostgreSQL).
+
+Ray keeps nothing across a restart, so a row is committed before its job is submitted, and a
+replica owns a job only while it holds the row's lease. Claiming is a single conditional
+UPDATE, so two replicas (or a replica and its own recovery sweep) never run the same attempt.
+"""
+from __future__ import annotations
+
+import datetime as dt
+import enum
+import uuid
+from typing import Any, Iterable
+
+from sqlalchemy import JSON, DateTime, Float, Integer, String, Text, create_engine, event, select, update
+from sqlalchemy.engine import Engine
+from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sessionmaker
+
+
+class JobState(str, enum.Enum):
+    queued = "queued"
+    running = "running"
+    succeeded = "succeeded"
+    failed = "failed"
+    cancelled = "cancelled"
+
+    @property
+    def finished(self) -> bool:
+        return self in (JobState.succeeded, JobState.failed, JobState.cancelled)
+
+
+ACTIVE = (JobState.queued.value, JobState.running.value)
+
+
+def utcnow() -> dt.datetime:
+    return dt.datetime.now(dt.timezone.utc)
+
+
+class Base(DeclarativeBase):
+    pass
+
+
+class Job(Base):
+    __tablename__ = "jobs"
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    kind: Mapped[str] = mapped_column(String(64), index=True)
+    params: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    inputs: Mapped[dict[str, str]] = mapped_column(JSON, default=dict)
+    input_meta: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    state: Mapped[str] = mapped_column(String(16), index=True, default=JobState.queued.value)
+    progress: Mapped[float] = mapped_column(Float, default=0.0)
+    stage: Mapped[str] = mapped_column(String(200), default="queued")
+    result: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
+    error: Mapped[str | None] = mapped_column(Text, nullable=True)
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    lease_owner: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    lease_expires_at: Mapped[dt.datetime | None] = mapped_column(DateTime(timezone=True), nullable=True, index=True)
+    created_at: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    updated_at: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    started_at: Mapped[dt.datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+    finished_at: Mapped[dt.datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {c.name: getattr(self, c.name) for c in self.__table__.columns}
+
+
+def _as_utc(value: dt.datetime | None) -> dt.datetime | None:
+    # SQLite returns naive datetimes even for timezone=True columns.
+    if value is not None and value.tzinfo is None:
+        return value.replace(tzinfo=dt.timezone.utc)
+    return value
+
+
+def make_engine(url: str) -> Engine:
+    """An engine for ``url``; SQLite gets WAL mode and a busy timeout for concurrent writers."""
+    if url.startswith("sqlite"):
+        engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
+
+        @event.listens_for(engine, "connect")
+        def _pragmas(dbapi_conn: Any, _record: Any) -> None:
+            cur = dbapi_conn.cursor()
+            cur.execute("PRAGMA journal_mode=WAL")
+            cur.execute("PRAGMA synchronous=NORMAL")
+            cur.close()
+
+        return engine
+    return create_engine(url, pool_pre_ping=True)
+
+
+class JobStore:
+    """Every read and write of the job table. Methods are blocking: call them off the event loop."""
+
+    def __init__(self, url: str) -> None:
+        self.engine = make_engine(url)
+        Base.metadata.create_all(self.engine)
+        self._session = sessionmaker(self.engine, expire_on_commit=False)
+
+    def close(self) -> None:
+        self.engine.dispose()
+
+    def ping(self) -> None:
+        with self.engine.connect() as conn:
+            conn.exec_driver_sql("SELECT 1")
+
+    def create(
+        self,
+        kind: str,
+        params: dict[str, Any],
+        inputs: dict[str, str],
+        input_meta: dict[str, Any],
+        owner: str,
+        lease_seconds: float,
+        job_id: str | None = None,
+    ) -> Job:
+        """Commit a new queued job leased to ``owner`` (who submits it next)."""
+        now = utcnow()
+        job = Job(
+            id=job_id or str(uuid.uuid4()),
+            kind=kind,
+            params=params,
+            inputs=inputs,
+            input_meta=input_meta,
+            state=JobState.queued.value,
+            stage="queued",
+            progress=0.0,
+            attempts=0,
+            lease_owner=owner,
+            lease_expires_at=now + dt.timedelta(seconds=lease_seconds),
+            created_at=now,
+            updated_at=now,
+        )
+        with self._session.begin() as s:
+            s.add(job)
+        return job
+
+    def get(self, job_id: str) -> Job | None:
+        with self._session() as s:
+            return s.get(Job, job_id)
+
+    def list(self, state: str | None = None, kind: str | None = None, limit: int = 50, offset: int = 0) -> list[Job]:
+        query = select(Job).order_by(Job.created_at.desc(), Job.id).limit(limit).offset(offset)
+        if state:
+            query = query.where(Job.state == state)
+        if kind:
+            query = query.where(Job.kind == kind)
+        with self._session() as s:
+            return list(s.scalars(query))
+
+    def claim_expired(self, owner: str, lease_seconds: float, limit: int = 100) -> list[Job]:
+        """Take over active jobs whose lease has expired (their owner is gone); return them."""
+        now = utcnow()
+        with self._session() as s:
+            candidates = list(s.scalars(
+                select(Job.id).where(Job.state.in_(ACTIVE), Job.lease_expires_at < now).limit(limit)
+            ))
+        claimed = []
+        for job_id in candidates:
+            if self._conditional_update(
+                job_id,
+                [Job.state.in_(ACTIVE), Job.lease_expires_at < now],
+                lease_owner=owner,
+                lease_expires_at=now + dt.timedelta(seconds=lease_seconds),
+                state=JobState.queued.value,
+                stage="recovered, queued again",
+            ):
+                claimed.append(self.get(job_id))
+        return [j for j in claimed if j is not None]
+
+    def begin_attempt(self, job_id: str, owner: str, lease_seconds: float) -> Job | None:
+        """Count a new attempt of a job this owner holds; None when it is no longer ours or active."""
+        with self._session.begin() as s:
+            job = s.get(Job, job_id, with_for_update=True)
+            if job is None or job.state not in ACTIVE or job.lease_owner != owner:
+                return None
+            job.attempts += 1
+            job.lease_expires_at = utcnow() + dt.timedelta(seconds=lease_seconds)
+            job.updated_at = utcnow()
+        return job
+
+    def mark_running(self, job_id: str, owner: str) -> bool:
+        now = utcnow()
+        return self._conditional_update(
+            job_id, [Job.state.in_(ACTIVE), Job.lease_owner == owner],
+            state=JobState.running.value, started_at=now, stage="running",
+        )
+
+    def set_progress(self, job_id: str, owner: str, fraction: float, stage: str) -> bool:
+        return self._conditional_update(
+            job_id, [Job.state.in_(ACTIVE), Job.lease_owner == owner], progress=fraction, stage=stage[:200],
+        )
+
+    def renew_leases(self, job_ids: Iterable[str], owner: str, lease_seconds: float) -> None:
+        ids = list(job_ids)
+        if not ids:
+            return
+        with self._session.begin() as s:
+            s.execute(
+                update(Job)
+                .where(Job.id.in_(ids), Job.lease_owner == owner, Job.state.in_(ACTIVE))
+                .values(lease_expires_at=utcnow() + dt.timedelta(seconds=lease_seconds))
+            )
+
+    def release(self, job_id: str, owner: str) -> bool:
+        """Give an active job back (on shutdown): anyone may claim it at once."""
+        return self._conditional_update(
+            job_id, [Job.state.in_(ACTIVE), Job.lease_owner == owner],
+            state=JobState.queued.value, stage="queued (service restarted)", lease_expires_at=utcnow(),
+        )
+
+    def finish(self, job_id: str, owner: str | None, state: JobState, result: dict | None = None,
+               error: str | None = None) -> bool:
+        """Move an active job to a final state (owner None: whoever holds it, e.g. a cancel)."""
+        conditions = [Job.state.in_(ACTIVE)]
+        if owner is not None:
+            conditions.append(Job.lease_owner == owner)
+        values: dict[str, Any] = dict(state=state.value, finished_at=utcnow(), result=result, error=error,
+                                      lease_expires_at=None, stage=state.value)
+        if state is JobState.succeeded:
+            values["progress"] = 1.0
+        return self._conditional_update(job_id, conditions, **values)
+
+    def delete(self, job_id: str) -> bool:
+        with self._session.begin() as s:
+            job = s.get(Job, job_id)
+            if job is None:
+                return False
+            s.delete(job)
+        return True
+
+    def _conditional_update(self, job_id: str, conditions: list, **values: Any) -> bool:
+        values.setdefault("updated_at", utcnow())
+        with self._session.begin() as s:
+            result = s.execute(update(Job).where(Job.id == job_id, *conditions).values(**values))
+        return result.rowcount == 1
+
+
+def job_public(job: Job) -> dict[str, Any]:
+    """The API view of a row."""
+    return {
+        "id": job.id,
+        "kind": job.kind,
+        "state": job.state,
+        "progress": {"fraction": job.progress, "stage": job.stage},
+        "params": job.params,
+        "inputs": [
+            {"name": name, **{k: v for k, v in (job.input_meta or {}).get(name, {}).items() if k in ("filename", "size")}}
+            for name in sorted(job.inputs or {})
+        ],
+        "result": job.result,
+        "error": job.error,
+        "attempts": job.attempts,
+        "created_at": _as_utc(job.created_at),
+        "started_at": _as_utc(job.started_at),
+        "finished_at": _as_utc(job.finished_at),
+        "updated_at": _as_utc(job.updated_at),
+    }

@@ -1,0 +1,102 @@
+"""The FastAPI application: ``create_app(settings)``."""
+from __future__ import annotations
+
+import asyncio
+import logging
+from contextlib import asynccontextmanager
+from typing import AsyncIterator
+
+from fastapi import FastAPI
+
+from app import raycluster
+from app.errors import install_error_handlers
+from app.limits import BodyLimitMiddleware
+from app.services import Services, build_services
+from app.settings import Settings
+
+log = logging.getLogger("sweepcast")
+
+# Routes whose uploads are batches or media (the larger body limit applies).
+BATCH_UPLOAD_PATHS = ("/v1/photos/batches", "/v1/reconstructions", "/v1/depth/videos", "/v1/face-models", "/v1/rigs")
+
+API_DESCRIPTION = """
+sweepcast takes synchronised camera streams or uploaded media, queues jobs to worker processes
+and streams results back.
+
+Every `/v1` route and socket needs `Authorization: Bearer <key>` when the service has API keys.
+Errors are JSON: `{"error": "<code>", "detail": "<what was wrong>"}`.
+"""
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings or Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        svc = await asyncio.to_thread(build_services, settings)
+        app.state.services = svc
+        starter = asyncio.create_task(_start_ray(svc))
+        try:
+            yield
+        finally:
+            starter.cancel()
+            await svc.dispatcher.shutdown()
+            if svc.ray_owned:
+                import ray
+
+                await asyncio.to_thread(ray.shutdown)
+            svc.jobs.close()
+
+    app = FastAPI(
+        title="sweepcast",
+        version=_version(),
+        description=API_DESCRIPTION,
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    install_error_handlers(app)
+
+    def limit_for(path: str) -> int:
+        if path.startswith(BATCH_UPLOAD_PATHS):
+            return settings.max_batch_bytes
+        return settings.max_upload_bytes
+
+    app.add_middleware(BodyLimitMiddleware, limit_for=limit_for)
+
+    from app.routers import jobs, photos, system
+
+    app.include_router(system.router)
+    app.include_router(jobs.router)
+    app.include_router(jobs.ws_router)
+    app.include_router(photos.router)
+    return app
+
+
+async def _start_ray(svc: Services) -> None:
+    """Connect Ray off the event loop (it takes seconds), then recover and start dispatching."""
+    try:
+        svc.ray_owned = await asyncio.to_thread(
+            raycluster.connect, svc.settings.ray_address, svc.settings.ray_num_cpus, worker_env(svc.settings))
+    except Exception as exc:  # noqa: BLE001 - reported by /readyz and the log; the API still answers
+        svc.ray_error = f"{type(exc).__name__}: {exc}"
+        log.exception("could not start or reach Ray")
+        return
+    svc.dispatcher.ray_ready.set()
+    await svc.dispatcher.start()
+
+
+def worker_env(settings: Settings) -> dict[str, str]:
+    """Settings the engines read on the workers, passed to every Ray worker of this service."""
+    env = {"SWEEPCAST_MAX_IMAGE_PIXELS": str(settings.max_image_pixels)}
+    if settings.orientation_yunet_model is not None:
+        env["SWEEPCAST_ORIENTATION_YUNET_MODEL"] = str(settings.orientation_yunet_model.resolve())
+    return env
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("sweepcast")
+    except PackageNotFoundError:
+        return "0.0.0"

@@ -1,0 +1,172 @@
+"""Batch jobs: list, inspect, fetch results, cancel or delete, follow events."""
+from __future__ import annotations
+
+import asyncio
+import datetime as dt
+from typing import Any, Literal
+
+from fastapi import APIRouter, Depends, Query, WebSocket, WebSocketDisconnect
+from fastapi.responses import Response, StreamingResponse
+from pydantic import BaseModel
+
+from app.auth import require_key, websocket_key_ok
+from app.errors import ApiError
+from app.jobstore import JobState, job_public
+from app.services import Services, services
+from workers.runtime import inputs_prefix, results_prefix
+from workers.storage import BlobNotFound
+
+router = APIRouter(prefix="/v1/jobs", tags=["jobs"], dependencies=[Depends(require_key)])
+ws_router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
+
+
+class JobProgress(BaseModel):
+    fraction: float
+    stage: str
+
+
+class JobInput(BaseModel):
+    name: str
+    filename: str | None = None
+    size: int | None = None
+
+
+class JobOut(BaseModel):
+    id: str
+    kind: str
+    state: Literal["queued", "running", "succeeded", "failed", "cancelled"]
+    progress: JobProgress
+    params: dict[str, Any]
+    inputs: list[JobInput]
+    result: dict[str, Any] | None
+    error: str | None
+    attempts: int
+    created_at: dt.datetime
+    started_at: dt.datetime | None
+    finished_at: dt.datetime | None
+    updated_at: dt.datetime
+
+
+class JobList(BaseModel):
+    jobs: list[JobOut]
+    limit: int
+    offset: int
+
+
+async def load_job(job_id: str, svc: Services) -> Any:
+    job = await asyncio.to_thread(svc.jobs.get, job_id)
+    if job is None:
+        raise ApiError(404, f"no job with id {job_id!r}", "job_not_found")
+    return job
+
+
+@router.get("", response_model=JobList, summary="List jobs, newest first")
+async def list_jobs(
+    state: Literal["queued", "running", "succeeded", "failed", "cancelled"] | None = None,
+    kind: str | None = None,
+    limit: int = Query(50, ge=1, le=500),
+    offset: int = Query(0, ge=0),
+    svc: Services = Depends(services),
+) -> dict[str, Any]:
+    rows = await asyncio.to_thread(svc.jobs.list, state, kind, limit, offset)
+    return {"jobs": [job_public(j) for j in rows], "limit": limit, "offset": offset}
+
+
+@router.get("/{job_id}", response_model=JobOut, summary="One job: state, progress, result manifest or error")
+async def get_job(job_id: str, svc: Services = Depends(services)) -> dict[str, Any]:
+    return job_public(await load_job(job_id, svc))
+
+
+@router.get("/{job_id}/results/{name:path}", summary="Download one result file of a succeeded job",
+            response_class=Response, responses={200: {"content": {"application/octet-stream": {}}}})
+async def get_result(job_id: str, name: str, svc: Services = Depends(services)) -> StreamingResponse:
+    job = await load_job(job_id, svc)
+    if job.state != JobState.succeeded.value:
+        raise ApiError(409, f"job {job_id} has no results: it is {job.state}", "job_not_succeeded")
+    files = {f["name"]: f for f in (job.result or {}).get("files", [])}
+    if name not in files:
+        raise ApiError(404, f"job {job_id} has no result named {name!r}; it has: {', '.join(sorted(files))}",
+                       "result_not_found")
+    try:
+        handle = await asyncio.to_thread(svc.store.open, f"{results_prefix(job_id)}/{name}")
+    except BlobNotFound:
+        raise ApiError(410, f"result {name!r} of job {job_id} is no longer stored", "result_gone") from None
+
+    def chunks() -> Any:
+        with handle:
+            while chunk := handle.read(1 << 20):
+                yield chunk
+
+    filename = name.rsplit("/", 1)[-1]
+    return StreamingResponse(
+        chunks(), media_type=files[name]["content_type"],
+        headers={"Content-Length": str(files[name]["size"]),
+                 "Content-Disposition": f'attachment; filename="{filename}"'},
+    )
+
+
+@router.delete("/{job_id}", summary="Cancel an active job, or delete a finished one and its files",
+               responses={200: {"model": JobOut, "description": "the job was active and is now cancelled"},
+                          204: {"description": "the finished job and its files were deleted"}})
+async def delete_job(job_id: str, svc: Services = Depends(services)) -> Any:
+    job = await load_job(job_id, svc)
+    if not JobState(job.state).finished:
+        if await svc.dispatcher.cancel(job_id):
+            return job_public(await load_job(job_id, svc))
+        job = await load_job(job_id, svc)  # it finished meanwhile: fall through to delete
+    await asyncio.to_thread(svc.jobs.delete, job_id)
+    await asyncio.to_thread(svc.store.delete_prefix, results_prefix(job_id))
+    await asyncio.to_thread(svc.store.delete_prefix, inputs_prefix(job_id))
+    return Response(status_code=204)
+
+
+@ws_router.websocket("/{job_id}/events")
+async def job_events(websocket: WebSocket, job_id: str) -> None:
+    """Progress events as JSON text messages, then ``{"type": "final", "job": ...}``, then close."""
+    if not websocket_key_ok(websocket):
+        await websocket.close(code=1008, reason="missing or wrong API key")
+        return
+    svc: Services = websocket.app.state.services
+    queue = svc.hub.subscribe(job_id)
+    try:
+        job = await asyncio.to_thread(svc.jobs.get, job_id)
+        await websocket.accept()
+        if job is None:
+            await websocket.send_json({"type": "error", "detail": f"no job with id {job_id!r}"})
+            await websocket.close(code=1008, reason="unknown job")
+            return
+        public = job_public(job)
+        if JobState(job.state).finished:
+            await websocket.send_json({"type": "final", "job_id": job_id, "job": _jsonable(public)})
+            await websocket.close()
+            return
+        await websocket.send_json({"type": "snapshot", "job_id": job_id, "state": job.state,
+                                   "fraction": job.progress, "stage": job.stage, "attempts": job.attempts})
+        while True:
+            try:
+                event = await asyncio.wait_for(queue.get(), timeout=svc.settings.job_lease_seconds)
+            except asyncio.TimeoutError:
+                # No event for a while: look at the row (the job may have been finished elsewhere).
+                job = await asyncio.to_thread(svc.jobs.get, job_id)
+                if job is None or JobState(job.state).finished:
+                    event = {"type": "final", "job_id": job_id, "job": job_public(job) if job else None}
+                else:
+                    continue
+            await websocket.send_json(_jsonable(event))
+            if event.get("type") == "final":
+                await websocket.close()
+                return
+    except WebSocketDisconnect:
+        pass
+    finally:
+        svc.hub.unsubscribe(job_id, queue)
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, dt.datetime):
+        return value.isoformat()
+    return value

@@ -1,0 +1,98 @@
+"""EXIF orientation of face photos: detect, write the tag, or fix a whole batch as a job."""
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter, Depends, File, Form, UploadFile
+from fastapi.responses import JSONResponse, Response
+from starlette.concurrency import run_in_threadpool
+
+from app.auth import require_key
+from app.errors import ApiError
+from app.jobstore import job_public
+from app.routers.jobs import JobOut
+from app.services import Services, Upload, create_job, services
+from workers.orientation import errors
+from workers.orientation.service import DetectorConfig, OrientationReport, analyze, get_detector, orient_jpeg
+
+router = APIRouter(prefix="/v1/photos", tags=["photos"], dependencies=[Depends(require_key)])
+
+_STATUS = {
+    errors.EmptyFile: 400,
+    errors.NotAnImage: 415,
+    errors.UnsupportedFormat: 415,
+    errors.TooManyPixels: 413,
+    errors.TruncatedImage: 422,
+    errors.CorruptImage: 422,
+    errors.UnwritableExif: 422,
+}
+
+
+def _detector(svc: Services) -> Any:
+    return get_detector(DetectorConfig(yunet_model=svc.settings.orientation_yunet_model))
+
+
+async def _read_upload(file: UploadFile, limit: int) -> bytes:
+    if file.size is not None and file.size > limit:
+        raise ApiError(413, f"{file.filename or 'the file'} is {file.size} bytes; the limit is {limit}", "payload_too_large")
+    return await file.read()
+
+
+def _as_api_error(exc: errors.OrientationInputError, filename: str | None) -> ApiError:
+    status = next((s for cls, s in _STATUS.items() if isinstance(exc, cls)), 400)
+    name = f"{filename}: " if filename else ""
+    return ApiError(status, f"{name}{exc}", exc.code)
+
+
+@router.post("/orientation", response_model=OrientationReport,
+             summary="Detect which way is up in a face photo (stored pixels; the EXIF tag is ignored)")
+async def detect_orientation(file: UploadFile = File(..., description="a JPEG, PNG or WebP photo"),
+                             svc: Services = Depends(services)) -> OrientationReport:
+    data = await _read_upload(file, svc.settings.max_upload_bytes)
+    try:
+        return await run_in_threadpool(analyze, data, _detector(svc), svc.settings.max_image_pixels)
+    except errors.OrientationInputError as exc:
+        raise _as_api_error(exc, file.filename) from None
+
+
+@router.post("/orient", response_class=Response,
+             summary="Return the same JPEG with its EXIF Orientation tag set (image data untouched)",
+             responses={200: {"content": {"image/jpeg": {}},
+                              "description": "the JPEG; header X-Orientation carries the tag written (or 'rejected')"}})
+async def orient_photo(file: UploadFile = File(..., description="a JPEG (or WebP) photo"),
+                       force: bool = Form(False, description="replace an existing tag other than 1"),
+                       svc: Services = Depends(services)) -> Response:
+    data = await _read_upload(file, svc.settings.max_upload_bytes)
+    try:
+        new_bytes, report = await run_in_threadpool(orient_jpeg, data, _detector(svc), force,
+                                                    svc.settings.max_image_pixels)
+    except errors.OrientationInputError as exc:
+        raise _as_api_error(exc, file.filename) from None
+    tag = report.written_orientation if report.written_orientation is not None else "rejected"
+    media = "image/webp" if new_bytes[:4] == b"RIFF" else "image/jpeg"
+    return Response(new_bytes, media_type=media, headers={
+        "X-Orientation": str(tag),
+        "X-Orientation-Decision": report.decision,
+    })
+
+
+@router.post("/batches", status_code=202, response_model=JobOut,
+             summary="Fix many photos in one upload: a job with a report per photo and the fixed files")
+async def create_batch(files: list[UploadFile] = File(..., description="the photos (repeat the field)"),
+                       force: bool = Form(False, description="replace existing tags other than 1"),
+                       svc: Services = Depends(services)) -> JSONResponse:
+    limit = svc.settings.max_batch_files
+    if len(files) > limit:
+        raise ApiError(413, f"{len(files)} files in one batch; the limit is {limit}", "too_many_files")
+    for f in files:
+        if f.size is not None and f.size > svc.settings.max_upload_bytes:
+            raise ApiError(413, f"{f.filename}: {f.size} bytes; the limit per photo is {svc.settings.max_upload_bytes}",
+                           "payload_too_large")
+    uploads = [
+        Upload(f"photo-{i:04d}", f.file, {"filename": f.filename or f"photo-{i:04d}", "content_type": f.content_type})
+        for i, f in enumerate(files)
+    ]
+    job = await create_job(svc, "orientation.batch", {"force": force}, uploads)
+    body = job_public(job)
+    return JSONResponse(JobOut.model_validate(body).model_dump(mode="json"), 202,
+                        headers={"Location": f"/v1/jobs/{job.id}"})

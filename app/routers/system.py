@@ -1,0 +1,44 @@
+"""Liveness, readiness and the front page."""
+from __future__ import annotations
+
+import asyncio
+
+from fastapi import APIRouter, Depends
+from fastapi.responses import HTMLResponse, JSONResponse
+
+from app import raycluster
+from app.services import Services, services
+
+router = APIRouter(tags=["system"])
+
+
+@router.get("/", response_class=HTMLResponse, include_in_schema=False)
+def index() -> str:
+    return (
+        "<!doctype html><title>sweepcast</title><h1>sweepcast</h1>"
+        "<p>Streaming video-processing service. <a href='/docs'>API documentation</a> · "
+        "<a href='/openapi.json'>OpenAPI</a></p>"
+    )
+
+
+@router.get("/healthz", summary="Liveness: the process answers")
+def healthz() -> dict[str, str]:
+    return {"status": "ok"}
+
+
+@router.get("/readyz", summary="Readiness: the database and Ray are reachable",
+            responses={503: {"description": "not ready; the body says which part is missing"}})
+async def readyz(svc: Services = Depends(services)) -> JSONResponse:
+    checks: dict[str, dict[str, object]] = {}
+    try:
+        await asyncio.to_thread(svc.jobs.ping)
+        checks["database"] = {"ok": True}
+    except Exception as exc:  # noqa: BLE001 - reported, not raised
+        checks["database"] = {"ok": False, "detail": f"{type(exc).__name__}: {exc}"}
+    if svc.ray_error:
+        checks["ray"] = {"ok": False, "detail": svc.ray_error}
+    else:
+        ok, detail = await asyncio.to_thread(raycluster.ready)
+        checks["ray"] = {"ok": ok and svc.dispatcher.ray_ready.is_set(), "detail": detail}
+    ready = all(c["ok"] for c in checks.values())
+    return JSONResponse({"status": "ready" if ready else "not ready", "checks": checks}, 200 if ready else 503)

@@ -1,0 +1,87 @@
+"""The service's long-lived parts, created at start-up and shared by the routes."""
+from __future__ import annotations
+
+import asyncio
+import logging
+import uuid
+from dataclasses import dataclass, field
+from typing import Any, BinaryIO
+
+from fastapi import Request
+from pydantic import ValidationError
+
+from app.dispatcher import Dispatcher
+from app.errors import ApiError
+from app.events import EventHub
+from app.jobstore import Job, JobStore
+from app.settings import Settings
+from workers.registry import get_kind
+from workers.runtime import inputs_prefix
+from workers.storage import BlobStore, open_store
+
+log = logging.getLogger("sweepcast")
+
+
+@dataclass
+class Services:
+    settings: Settings
+    jobs: JobStore
+    store: BlobStore
+    hub: EventHub
+    dispatcher: Dispatcher
+    ray_owned: bool = False
+    ray_error: str | None = None
+
+
+def build_services(settings: Settings) -> Services:
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    jobs = JobStore(settings.resolved_database_url)
+    store = open_store(settings.resolved_storage_url)
+    hub = EventHub()
+    return Services(settings, jobs, store, hub, Dispatcher(settings, jobs, hub, store.url))
+
+
+def services(request: Request) -> Services:
+    return request.app.state.services
+
+
+@dataclass
+class Upload:
+    """One input of a new job: its name in the job, a readable file and what to record about it."""
+
+    name: str
+    file: BinaryIO | bytes
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+def validate_params(kind: str, params: dict[str, Any]) -> dict[str, Any]:
+    """The kind's parameters with defaults filled in; 422 that names the bad fields otherwise."""
+    try:
+        return get_kind(kind).validate(params)
+    except ValidationError as exc:
+        problems = "; ".join(f"{'.'.join(str(p) for p in e['loc']) or 'params'}: {e['msg']}" for e in exc.errors())
+        raise ApiError(422, f"invalid parameters: {problems}", "invalid_parameters") from None
+
+
+async def create_job(svc: Services, kind: str, params: dict[str, Any], uploads: list[Upload]) -> Job:
+    """Store the inputs, commit the row, then submit: the row exists before Ray hears of the job."""
+    params = validate_params(kind, params)
+    job_id = str(uuid.uuid4())
+    prefix = inputs_prefix(job_id)
+    inputs: dict[str, str] = {}
+    meta: dict[str, Any] = {}
+    try:
+        for up in uploads:
+            key = f"{prefix}/{up.name}"
+            size = await asyncio.to_thread(svc.store.put, key, up.file)
+            inputs[up.name] = key
+            meta[up.name] = {**up.meta, "size": size}
+        job = await asyncio.to_thread(
+            svc.jobs.create, kind, params, inputs, meta, svc.dispatcher.owner,
+            svc.settings.job_lease_seconds, job_id,
+        )
+    except BaseException:
+        await asyncio.to_thread(svc.store.delete_prefix, prefix)
+        raise
+    svc.dispatcher.submit(job.id)
+    return job

@@ -1,0 +1,50 @@
+"""Service settings, read from the environment (prefix ``SWEEPCAST_``) or a ``.env`` file."""
+from __future__ import annotations
+
+from functools import cached_property
+from pathlib import Path
+from typing import Annotated, Any
+
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+MiB = 1 << 20
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="SWEEPCAST_", env_file=".env", extra="ignore")
+
+    data_dir: Path = Field(Path("./sweepcast-data"), description="Blob store, SQLite file and Ray temp files.")
+    database_url: str | None = Field(None, description="SQLAlchemy URL; default SQLite inside data_dir.")
+    storage_url: str | None = Field(None, description="Blob store URL; default file://<data_dir>/blobs.")
+    ray_address: str | None = Field(None, description="Existing Ray cluster (host:port or ray://...); default: start a local one.")
+    ray_num_cpus: int | None = Field(None, ge=1, description="CPUs of the local Ray cluster (default: all).")
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=1, le=65535)
+    api_keys: Annotated[list[str], NoDecode] = Field(default_factory=list, description="Comma-separated bearer keys; empty: no auth.")
+
+    max_upload_bytes: int = Field(64 * MiB, ge=1, description="Largest request body of single-file endpoints.")
+    max_batch_bytes: int = Field(1024 * MiB, ge=1, description="Largest request body of batch uploads.")
+    max_image_pixels: int = Field(64_000_000, ge=1, description="Largest image (width x height) decoded.")
+    max_batch_files: int = Field(500, ge=1, description="Most files in one batch upload.")
+
+    job_max_attempts: int = Field(3, ge=1, le=10, description="Attempts per job when a worker is lost.")
+    job_lease_seconds: float = Field(30.0, gt=0, description="A running job whose lease is this old is resubmitted.")
+    job_resources: dict[str, float] = Field(default_factory=dict, description="Custom Ray resources every batch job requires (JSON).")
+
+    orientation_yunet_model: Path | None = Field(None, description="YuNet ONNX model for the stronger face detector.")
+
+    @field_validator("api_keys", mode="before")
+    @classmethod
+    def _split_keys(cls, value: Any) -> Any:
+        if isinstance(value, str):
+            return [k.strip() for k in value.split(",") if k.strip()]
+        return value
+
+    @cached_property
+    def resolved_database_url(self) -> str:
+        return self.database_url or f"sqlite:///{(self.data_dir / 'sweepcast.db').resolve()}"
+
+    @cached_property
+    def resolved_storage_url(self) -> str:
+        return self.storage_url or (self.data_dir / "blobs").resolve().as_uri()

@@ -1,0 +1,82 @@
+import datetime as dt
+import time
+
+import pytest
+
+from app.jobstore import JobState, JobStore, job_public
+
+
+@pytest.fixture
+def jobs(tmp_path):
+    store = JobStore(f"sqlite:///{tmp_path / 'jobs.db'}")
+    yield store
+    store.close()
+
+
+def _new(jobs, owner="A", lease=30.0):
+    return jobs.create("orientation.batch", {"force": False}, {"photo-0000": "k"}, {"photo-0000": {"filename": "a.jpg"}},
+                       owner, lease)
+
+
+def test_create_and_read_back(jobs):
+    job = _new(jobs)
+    got = jobs.get(job.id)
+    assert got.state == "queued" and got.attempts == 0 and got.lease_owner == "A"
+    public = job_public(got)
+    assert public["inputs"] == [{"name": "photo-0000", "filename": "a.jpg"}]
+    assert public["created_at"].tzinfo is not None
+
+
+def test_attempts_progress_and_finish_need_the_lease(jobs):
+    job = _new(jobs)
+    assert jobs.begin_attempt(job.id, "B", 30) is None  # B does not hold the lease
+    assert jobs.begin_attempt(job.id, "A", 30).attempts == 1
+    assert jobs.mark_running(job.id, "A")
+    assert jobs.set_progress(job.id, "A", 0.5, "half")
+    assert not jobs.set_progress(job.id, "B", 0.9, "not mine")
+    assert jobs.finish(job.id, "A", JobState.succeeded, {"files": []})
+    done = jobs.get(job.id)
+    assert done.state == "succeeded" and done.progress == 1.0 and done.finished_at is not None
+    # A final state is final: nothing moves it again.
+    assert not jobs.finish(job.id, None, JobState.cancelled)
+    assert not jobs.set_progress(job.id, "A", 0.1, "late")
+
+
+def test_expired_leases_are_claimed_once(jobs):
+    stale = _new(jobs, owner="dead", lease=0.01)
+    fresh = _new(jobs, owner="alive", lease=60)
+    time.sleep(0.05)
+    claimed = jobs.claim_expired("B", 30)
+    assert [j.id for j in claimed] == [stale.id]
+    assert jobs.get(stale.id).lease_owner == "B"
+    assert jobs.claim_expired("C", 30) == []  # B's lease is fresh now
+    assert jobs.get(fresh.id).lease_owner == "alive"
+
+
+def test_release_hands_a_job_to_the_next_claimer(jobs):
+    job = _new(jobs, owner="A", lease=60)
+    jobs.begin_attempt(job.id, "A", 60)
+    jobs.mark_running(job.id, "A")
+    assert jobs.release(job.id, "A")
+    assert jobs.get(job.id).state == "queued"
+    assert [j.id for j in jobs.claim_expired("B", 30)] == [job.id]
+
+
+def test_list_filters_and_orders_newest_first(jobs):
+    a = _new(jobs)
+    b = _new(jobs)
+    jobs.begin_attempt(b.id, "A", 30)
+    jobs.finish(b.id, "A", JobState.failed, error="bad")
+    assert [j.id for j in jobs.list()] == [b.id, a.id]
+    assert [j.id for j in jobs.list(state="failed")] == [b.id]
+    assert jobs.list(kind="nope") == []
+    assert jobs.delete(a.id) and jobs.get(a.id) is None
+
+
+def test_renew_extends_only_own_active_leases(jobs):
+    job = _new(jobs, owner="A", lease=0.01)
+    other = _new(jobs, owner="B", lease=0.01)
+    jobs.renew_leases([job.id, other.id], "A", 60)
+    now = dt.datetime.now(dt.timezone.utc).replace(tzinfo=None)
+    assert jobs.get(job.id).lease_expires_at.replace(tzinfo=None) > now + dt.timedelta(seconds=50)
+    assert jobs.get(other.id).lease_expires_at.replace(tzinfo=None) < now + dt.timedelta(seconds=5)

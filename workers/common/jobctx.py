@@ -1,0 +1,51 @@
+"""The contract between the job system and an engine's job entry point.
+
+An engine's job function has the signature ``run(ctx: JobContext) -> dict``. It reads its
+inputs and parameters from ``ctx``, reports progress with ``ctx.progress``, writes each
+result file with ``ctx.write_result`` (or into ``ctx.result_path``), and returns a small
+JSON-able summary that becomes part of the job's result manifest.
+
+A failure the user caused (a file that is not a video, absurd intrinsics, ...) is raised
+as :class:`JobInputError` with a message a person understands: the job fails at once with
+that message and is not retried. Any other exception is treated as a bug or a lost worker:
+the job is retried and, when the retries are spent, fails with the exception's summary.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Protocol
+
+
+class JobInputError(Exception):
+    """The job's input is unusable; the message is shown to the user as the job's error."""
+
+
+class JobCancelled(Exception):
+    """Raised inside a job when its cancellation was requested."""
+
+
+class JobContext(Protocol):
+    """What a job function sees of the job system (implemented by workers.runtime)."""
+
+    job_id: str
+    kind: str
+    params: dict[str, Any]
+    inputs: dict[str, str]
+    """Input name -> blob key. Names are chosen by the API route (e.g. ``photo-0003``)."""
+    input_meta: dict[str, dict[str, Any]]
+    """Input name -> metadata recorded at upload (e.g. ``{"filename": "IMG_1.jpg", "size": 123}``)."""
+
+    def input_path(self, name: str) -> Path:
+        """A local file holding input ``name`` (downloaded first when the store is remote)."""
+
+    def read_input(self, name: str) -> bytes:
+        """The bytes of input ``name``."""
+
+    def result_path(self, name: str) -> Path:
+        """A local path to write result ``name`` to; it is published when the job succeeds."""
+
+    def write_result(self, name: str, data: bytes) -> None:
+        """Write result ``name`` (published atomically with the others when the job succeeds)."""
+
+    def progress(self, fraction: float, stage: str) -> None:
+        """Report progress: ``fraction`` in [0, 1] of the whole job, ``stage`` a short text."""

@@ -1,0 +1,174 @@
+"""Running one job attempt: the JobContext implementation and the event stream.
+
+``execute_job`` runs a job function in a thread and yields its events as plain dicts:
+
+- ``{"type": "started", "attempt", "node_id", "pid"}`` once, first;
+- ``{"type": "progress", "fraction", "stage"}`` as the job reports;
+- last, ``{"type": "succeeded", "manifest"}`` or ``{"type": "failed", "error", "user_error"}``.
+
+Results are written to a local staging folder, copied to a temporary prefix of the blob
+store and published to ``jobs/<id>/results`` only when the job function returned, so a
+retried attempt replaces, never mixes with, an earlier one (delivery is at-least-once).
+The Ray task in :mod:`workers.ray_tasks` is a thin wrapper around this generator.
+"""
+from __future__ import annotations
+
+import mimetypes
+import os
+import queue
+import shutil
+import tempfile
+import threading
+import time
+import traceback
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+from pydantic import ValidationError
+
+from workers.common.jobctx import JobInputError
+from workers.registry import get_kind
+from workers.storage import BlobStore, check_key, open_store
+
+_DONE = object()
+
+
+@dataclass
+class JobSpec:
+    """Everything a worker needs to run one attempt of a job (no bytes: keys only)."""
+
+    job_id: str
+    kind: str
+    params: dict[str, Any]
+    inputs: dict[str, str]
+    input_meta: dict[str, dict[str, Any]] = field(default_factory=dict)
+    attempt: int = 1
+    store_url: str = ""
+
+
+def results_prefix(job_id: str) -> str:
+    return f"jobs/{job_id}/results"
+
+
+def inputs_prefix(job_id: str) -> str:
+    return f"jobs/{job_id}/inputs"
+
+
+class StoreJobContext:
+    """A :class:`workers.common.jobctx.JobContext` over a blob store and a staging folder."""
+
+    def __init__(self, spec: JobSpec, store: BlobStore, staging: Path, emit: Callable[[dict], None]):
+        self.job_id = spec.job_id
+        self.kind = spec.kind
+        self.params = spec.params
+        self.inputs = dict(spec.inputs)
+        self.input_meta = dict(spec.input_meta)
+        self._store = store
+        self._staging = staging
+        self._emit = emit
+        self._last_fraction = 0.0
+
+    def _key(self, name: str) -> str:
+        try:
+            return self.inputs[name]
+        except KeyError:
+            raise KeyError(f"job {self.job_id} has no input named {name!r}") from None
+
+    def input_path(self, name: str) -> Path:
+        return self._store.local_path(self._key(name))
+
+    def read_input(self, name: str) -> bytes:
+        return self._store.read(self._key(name))
+
+    def result_path(self, name: str) -> Path:
+        path = self._staging / check_key(name)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return path
+
+    def write_result(self, name: str, data: bytes) -> None:
+        self.result_path(name).write_bytes(data)
+
+    def progress(self, fraction: float, stage: str) -> None:
+        fraction = min(max(float(fraction), 0.0), 1.0)
+        self._last_fraction = fraction
+        self._emit({"type": "progress", "fraction": fraction, "stage": str(stage)[:200]})
+
+
+def _manifest(staging: Path, summary: dict[str, Any]) -> dict[str, Any]:
+    files = []
+    for path in sorted(p for p in staging.rglob("*") if p.is_file()):
+        name = path.relative_to(staging).as_posix()
+        files.append({
+            "name": name,
+            "size": path.stat().st_size,
+            "content_type": mimetypes.guess_type(name)[0] or "application/octet-stream",
+        })
+    return {"files": files, "summary": summary}
+
+
+def _publish(store: BlobStore, job_id: str, staging: Path) -> None:
+    tmp_prefix = f"jobs/{job_id}/tmp-{uuid.uuid4().hex}"
+    try:
+        for path in sorted(p for p in staging.rglob("*") if p.is_file()):
+            with open(path, "rb") as f:
+                store.put(f"{tmp_prefix}/{path.relative_to(staging).as_posix()}", f)
+        store.publish(tmp_prefix, results_prefix(job_id))
+    finally:
+        store.delete_prefix(tmp_prefix)
+
+
+def _node_id() -> str | None:
+    try:
+        import ray
+
+        if ray.is_initialized():
+            return ray.get_runtime_context().get_node_id()
+    except Exception:  # noqa: BLE001 - outside Ray there is simply no node id
+        pass
+    return None
+
+
+def execute_job(spec: JobSpec) -> Iterator[dict[str, Any]]:
+    """Run one attempt of ``spec`` and yield its events (see the module docstring)."""
+    yield {"type": "started", "attempt": spec.attempt, "node_id": _node_id(), "pid": os.getpid()}
+    events: queue.Queue = queue.Queue()
+    staging = Path(tempfile.mkdtemp(prefix=f"sweepcast-{spec.job_id[:8]}-"))
+    outcome: dict[str, Any] = {}
+
+    def work() -> None:
+        try:
+            kind = get_kind(spec.kind)
+            params = kind.load_params().model_validate(spec.params).model_dump(mode="json")
+            spec_ok = JobSpec(**{**spec.__dict__, "params": params})
+            store = open_store(spec.store_url)
+            ctx = StoreJobContext(spec_ok, store, staging, events.put)
+            summary = kind.load_entry()(ctx) or {}
+            manifest = _manifest(staging, summary)
+            _publish(store, spec.job_id, staging)
+            outcome["event"] = {"type": "succeeded", "manifest": manifest}
+        except JobInputError as exc:
+            outcome["event"] = {"type": "failed", "error": str(exc), "user_error": True}
+        except ValidationError as exc:
+            outcome["event"] = {"type": "failed", "error": f"invalid parameters: {exc}", "user_error": True}
+        except Exception as exc:  # noqa: BLE001 - reported as the job's error, not raised into Ray
+            traceback.print_exc()
+            outcome["event"] = {
+                "type": "failed",
+                "error": f"internal error: {type(exc).__name__}: {exc}",
+                "user_error": False,
+            }
+        finally:
+            events.put(_DONE)
+
+    thread = threading.Thread(target=work, name=f"job-{spec.job_id[:8]}", daemon=True)
+    thread.start()
+    try:
+        while (event := events.get()) is not _DONE:
+            event["time"] = time.time()
+            yield event
+        thread.join()
+        yield {**outcome["event"], "time": time.time()}
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
