@@ -10,7 +10,7 @@ import socket
 import sys
 from pathlib import Path
 
-ENGINE_CLIS = ("workers.orientation.cli",)
+ENGINE_CLIS = ("workers.orientation.cli", "workers.depth.cli")
 
 
 def _is_loopback(host: str) -> bool:
@@ -85,7 +85,7 @@ def cmd_openapi(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="sweepcast", description=__doc__)
+    parser = argparse.ArgumentParser(prog="sweepcast", description="sweepcast: the service and its engines from the command line.")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("serve", help="run the HTTP/WebSocket service (local Ray, SQLite and a data folder by default)")

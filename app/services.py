@@ -5,10 +5,10 @@ import asyncio
 import logging
 import uuid
 from dataclasses import dataclass, field
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, TypeVar
 
 from fastapi import Request
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from app.dispatcher import Dispatcher
 from app.errors import ApiError
@@ -20,6 +20,7 @@ from workers.runtime import inputs_prefix
 from workers.storage import BlobStore, open_store
 
 log = logging.getLogger("sweepcast")
+M = TypeVar("M", bound=BaseModel)
 
 
 @dataclass
@@ -54,13 +55,27 @@ class Upload:
     meta: dict[str, Any] = field(default_factory=dict)
 
 
+def _invalid(exc: ValidationError) -> ApiError:
+    problems = "; ".join(f"{'.'.join(str(p) for p in e['loc']) or 'params'}: {e['msg']}" for e in exc.errors())
+    return ApiError(422, f"invalid parameters: {problems}", "invalid_parameters")
+
+
 def validate_params(kind: str, params: dict[str, Any]) -> dict[str, Any]:
     """The kind's parameters with defaults filled in; 422 that names the bad fields otherwise."""
     try:
         return get_kind(kind).validate(params)
     except ValidationError as exc:
-        problems = "; ".join(f"{'.'.join(str(p) for p in e['loc']) or 'params'}: {e['msg']}" for e in exc.errors())
-        raise ApiError(422, f"invalid parameters: {problems}", "invalid_parameters") from None
+        raise _invalid(exc) from None
+
+
+def parse_params(model: type[M], text: str | None) -> M:
+    """A request's ``params`` form field (a JSON object) as ``model``; 422 naming the problem otherwise."""
+    try:
+        return model.model_validate_json(text or "{}")
+    except ValidationError as exc:
+        if any(e["type"] == "json_invalid" for e in exc.errors()):
+            raise ApiError(422, f"params must be a JSON object: {exc.errors()[0]['msg']}", "invalid_parameters") from None
+        raise _invalid(exc) from None
 
 
 async def create_job(svc: Services, kind: str, params: dict[str, Any], uploads: list[Upload]) -> Job:

@@ -46,6 +46,7 @@ JOB_KINDS: dict[str, JobKind] = {
             "workers.orientation.job:run_orientation_batch",
             "workers.orientation.job:OrientationBatchParams",
         ),
+        JobKind("depth.video", "workers.depth.job:run_depth_video", "workers.depth.params:DepthVideoParams"),
     ]
 }
 

@@ -6,7 +6,7 @@ import datetime as dt
 from typing import Any, Literal
 
 from fastapi import APIRouter, Depends, Query, WebSocket, WebSocketDisconnect
-from fastapi.responses import Response, StreamingResponse
+from fastapi.responses import JSONResponse, Response, StreamingResponse
 from pydantic import BaseModel
 
 from app.auth import require_key, websocket_key_ok
@@ -51,6 +51,12 @@ class JobList(BaseModel):
     jobs: list[JobOut]
     limit: int
     offset: int
+
+
+def job_accepted(job: Any) -> JSONResponse:
+    """202 with the new job and its Location, as every route that starts a job answers."""
+    body = JobOut.model_validate(job_public(job)).model_dump(mode="json")
+    return JSONResponse(body, 202, headers={"Location": f"/v1/jobs/{job.id}"})
 
 
 async def load_job(job_id: str, svc: Services) -> Any:

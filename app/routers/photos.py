@@ -9,9 +9,9 @@ from starlette.concurrency import run_in_threadpool
 
 from app.auth import require_key
 from app.errors import ApiError
-from app.jobstore import job_public
-from app.routers.jobs import JobOut
+from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, services
+from app.uploads import check_size, read_upload
 from workers.orientation import errors
 from workers.orientation.service import DetectorConfig, OrientationReport, analyze, get_detector, orient_jpeg
 
@@ -32,12 +32,6 @@ def _detector(svc: Services) -> Any:
     return get_detector(DetectorConfig(yunet_model=svc.settings.orientation_yunet_model))
 
 
-async def _read_upload(file: UploadFile, limit: int) -> bytes:
-    if file.size is not None and file.size > limit:
-        raise ApiError(413, f"{file.filename or 'the file'} is {file.size} bytes; the limit is {limit}", "payload_too_large")
-    return await file.read()
-
-
 def _as_api_error(exc: errors.OrientationInputError, filename: str | None) -> ApiError:
     status = next((s for cls, s in _STATUS.items() if isinstance(exc, cls)), 400)
     name = f"{filename}: " if filename else ""
@@ -48,7 +42,7 @@ def _as_api_error(exc: errors.OrientationInputError, filename: str | None) -> Ap
              summary="Detect which way is up in a face photo (stored pixels; the EXIF tag is ignored)")
 async def detect_orientation(file: UploadFile = File(..., description="a JPEG, PNG or WebP photo"),
                              svc: Services = Depends(services)) -> OrientationReport:
-    data = await _read_upload(file, svc.settings.max_upload_bytes)
+    data = await read_upload(file, svc.settings.max_upload_bytes)
     try:
         return await run_in_threadpool(analyze, data, _detector(svc), svc.settings.max_image_pixels)
     except errors.OrientationInputError as exc:
@@ -62,7 +56,7 @@ async def detect_orientation(file: UploadFile = File(..., description="a JPEG, P
 async def orient_photo(file: UploadFile = File(..., description="a JPEG (or WebP) photo"),
                        force: bool = Form(False, description="replace an existing tag other than 1"),
                        svc: Services = Depends(services)) -> Response:
-    data = await _read_upload(file, svc.settings.max_upload_bytes)
+    data = await read_upload(file, svc.settings.max_upload_bytes)
     try:
         new_bytes, report = await run_in_threadpool(orient_jpeg, data, _detector(svc), force,
                                                     svc.settings.max_image_pixels)
@@ -85,14 +79,9 @@ async def create_batch(files: list[UploadFile] = File(..., description="the phot
     if len(files) > limit:
         raise ApiError(413, f"{len(files)} files in one batch; the limit is {limit}", "too_many_files")
     for f in files:
-        if f.size is not None and f.size > svc.settings.max_upload_bytes:
-            raise ApiError(413, f"{f.filename}: {f.size} bytes; the limit per photo is {svc.settings.max_upload_bytes}",
-                           "payload_too_large")
+        check_size(f, svc.settings.max_upload_bytes)
     uploads = [
         Upload(f"photo-{i:04d}", f.file, {"filename": f.filename or f"photo-{i:04d}", "content_type": f.content_type})
         for i, f in enumerate(files)
     ]
-    job = await create_job(svc, "orientation.batch", {"force": force}, uploads)
-    body = job_public(job)
-    return JSONResponse(JobOut.model_validate(body).model_dump(mode="json"), 202,
-                        headers={"Location": f"/v1/jobs/{job.id}"})
+    return job_accepted(await create_job(svc, "orientation.batch", {"force": force}, uploads))

@@ -24,3 +24,13 @@ def batch_files(n: int, corrupt_at: int | None = None, **kwargs) -> list[tuple[s
             data = data[: len(data) // 3]
         files.append(("files", (f"photo {i}.jpg", data, "image/jpeg")))
     return files
+
+
+def gradient_jpeg(width: int = 640, height: int = 480) -> bytes:
+    """A JPEG of a smooth colour gradient: nothing a face detector could take for a face."""
+    x = np.linspace(0, 255, width, dtype=np.float32)[None, :, None]
+    y = np.linspace(0, 255, height, dtype=np.float32)[:, None, None]
+    image = np.concatenate([x + 0 * y, y + 0 * x, (x + y) / 2], axis=2).astype(np.uint8)
+    ok, buf = cv2.imencode(".jpg", image)
+    assert ok
+    return buf.tobytes()

@@ -1,0 +1,107 @@
+"""Depth maps of multi-view-plus-depth video: post-filter one map, a whole sequence, synthesise a view."""
+from __future__ import annotations
+
+import base64
+
+import cv2
+import numpy as np
+
+from fastapi import APIRouter, Depends, File, Form, UploadFile
+from fastapi.responses import JSONResponse, Response
+from pydantic import BaseModel, Field
+from starlette.concurrency import run_in_threadpool
+
+from app.auth import require_key
+from app.errors import ApiError
+from app.routers.jobs import JobOut, job_accepted
+from app.services import Services, Upload, create_job, parse_params, services
+from app.uploads import check_size, read_upload
+from workers.depth.errors import DepthInputError
+from workers.depth.io import YuvFormat, yuv_frame_count
+from workers.depth.params import DepthFilterParams, DepthVideoParams, SynthesizeParams
+from workers.depth.service import filter_depth_bytes, synthesize_bytes
+
+router = APIRouter(prefix="/v1/depth", tags=["depth"], dependencies=[Depends(require_key)])
+
+PARAMS_HELP = "JSON object of {model} (see the schema of that name); default {{}}"
+
+
+class SynthesisOut(BaseModel):
+    image_png: str = Field(description="the synthesised view, PNG, base64")
+    holes_png: str = Field(description="8-bit mask, 255 where no source view saw the pixel (before hole filling), PNG, base64")
+    holes_fraction: float = Field(description="share of pixels no source view saw")
+
+
+def _bad_input(exc: DepthInputError) -> ApiError:
+    return ApiError(400, str(exc), "bad_depth_input")
+
+
+@router.post("/filter", response_class=Response,
+             summary="Upsample and post-filter one depth map (PNG/PGM, 8 or 16 bit) -> filtered depth PNG",
+             responses={200: {"content": {"image/png": {}}}})
+async def filter_depth(
+    depth: UploadFile = File(..., description="decoded depth map: PNG or PGM, 8 or 16 bit inverse-depth levels"),
+    texture: UploadFile | None = File(None, description="texture at the output size (guided methods: wmf)"),
+    params: str | None = Form(None, description=PARAMS_HELP.format(model="DepthFilterParams")),
+    svc: Services = Depends(services),
+) -> Response:
+    p = parse_params(DepthFilterParams, params)
+    depth_bytes = await read_upload(depth, svc.settings.max_upload_bytes)
+    texture_bytes = await read_upload(texture, svc.settings.max_upload_bytes) if texture is not None else None
+    try:
+        out = await run_in_threadpool(filter_depth_bytes, depth_bytes, p, texture_bytes)
+    except DepthInputError as exc:
+        raise _bad_input(exc) from None
+    return Response(out, media_type="image/png", headers={"X-Depth-Method": p.method})
+
+
+@router.post("/synthesize", response_model=SynthesisOut,
+             summary="Synthesise a virtual view from texture + depth of one or two views (DIBR)")
+async def synthesize(
+    textures: list[UploadFile] = File(..., description="one texture per source view, in camera order"),
+    depths: list[UploadFile] = File(..., description="one depth map per source view, same order"),
+    params: str = Form(..., description=PARAMS_HELP.format(model="SynthesizeParams")),
+    svc: Services = Depends(services),
+) -> SynthesisOut:
+    p = parse_params(SynthesizeParams, params)
+    if len(textures) != len(depths):
+        raise ApiError(422, f"got {len(textures)} textures and {len(depths)} depth maps: give one of each per view",
+                       "invalid_request")
+    views = [(await read_upload(t, svc.settings.max_upload_bytes), await read_upload(d, svc.settings.max_upload_bytes))
+             for t, d in zip(textures, depths)]
+    try:
+        image, holes = await run_in_threadpool(synthesize_bytes, views, p)
+    except DepthInputError as exc:
+        raise _bad_input(exc) from None
+    return SynthesisOut(image_png=base64.b64encode(image).decode(), holes_png=base64.b64encode(holes).decode(),
+                        holes_fraction=await run_in_threadpool(_hole_fraction, holes))
+
+
+def _hole_fraction(holes_png: bytes) -> float:
+    mask = cv2.imdecode(np.frombuffer(holes_png, np.uint8), cv2.IMREAD_GRAYSCALE)
+    return float((mask > 0).mean())
+
+
+@router.post("/videos", status_code=202, response_model=JobOut,
+             summary="Post-filter a raw YUV depth sequence: a job with progress per frame")
+async def filter_video(
+    depth: UploadFile = File(..., description="raw planar YUV depth frames (4:0:0 or 4:2:0, 8 or 16 bit LE)"),
+    texture: UploadFile | None = File(None, description="8-bit 4:2:0 texture at the output size (method wmf)"),
+    params: str = Form(..., description=PARAMS_HELP.format(model="DepthVideoParams") + "; width and height required"),
+    svc: Services = Depends(services),
+) -> JSONResponse:
+    p = parse_params(DepthVideoParams, params)
+    uploads = [Upload("depth", depth.file, {"filename": depth.filename})]
+    if texture is not None:
+        check_size(texture, svc.settings.max_batch_bytes)
+        uploads.append(Upload("texture", texture.file, {"filename": texture.filename}))
+    _check_yuv(depth, p)
+    return job_accepted(await create_job(svc, "depth.video", p.model_dump(mode="json"), uploads))
+
+
+def _check_yuv(depth: UploadFile, p: DepthVideoParams) -> None:
+    """Refuse at once a sequence whose size is not a whole number of frames (the job would fail anyway)."""
+    try:
+        yuv_frame_count(depth.size or 0, YuvFormat(p.width, p.height, p.bits, p.chroma))
+    except DepthInputError as exc:
+        raise ApiError(422, f"{depth.filename or 'depth'}: {exc}", "bad_depth_input") from None

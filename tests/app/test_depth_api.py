@@ -1,0 +1,127 @@
+"""The depth routes over HTTP: filter, synthesise, the video job, and bad input."""
+from __future__ import annotations
+
+import base64
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from tests.app.test_jobs_e2e import wait_final
+from tests.depth.scene import Scene
+
+
+def png(array: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".png", array)
+    assert ok
+    return buf.tobytes()
+
+
+def square_depth(size=32, fg=200, bg=50) -> np.ndarray:
+    depth = np.full((size, size), bg, np.uint8)
+    depth[8:24, 8:24] = fg
+    return depth
+
+
+@pytest.fixture
+def client(client_factory):
+    return client_factory()
+
+
+def test_filter_upsamples_and_dilates(client):
+    r = client.post("/v1/depth/filter", files={"depth": ("d.png", png(square_depth()), "image/png")},
+                    data={"params": json.dumps({"method": "dilation", "scale": 2, "window": 3})})
+    assert r.status_code == 200, r.text
+    out = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert out.shape == (64, 64) and out.dtype == np.uint8
+    # Nearest x2 puts the square at [16, 48); a 3x3 dilation grows it by one pixel each side.
+    assert out[15, 30] == 200 and out[14, 30] == 50 and out[48, 30] == 200 and out[49, 30] == 50
+
+
+def test_filter_keeps_16_bit_maps_16_bit(client):
+    depth = (square_depth().astype(np.uint16) * 257)
+    r = client.post("/v1/depth/filter", files={"depth": ("d.png", png(depth), "image/png")},
+                    data={"params": json.dumps({"method": "modified_morph"})})
+    assert r.status_code == 200, r.text
+    out = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert out.dtype == np.uint16 and out.max() == 200 * 257
+
+
+@pytest.mark.parametrize("params,fragment", [
+    ({"method": "median"}, "method"),
+    ({"scale": 0}, "scale"),
+    ({"window": 4}, "odd"),
+])
+def test_bad_filter_parameters_are_422_naming_the_field(client, params, fragment):
+    r = client.post("/v1/depth/filter", files={"depth": ("d.png", png(square_depth()), "image/png")},
+                    data={"params": json.dumps(params)})
+    assert r.status_code == 422 and r.json()["error"] == "invalid_parameters"
+    assert fragment in r.json()["detail"]
+
+
+def test_params_that_are_not_json_are_422(client):
+    r = client.post("/v1/depth/filter", files={"depth": ("d.png", png(square_depth()), "image/png")},
+                    data={"params": "{method: dilation"})
+    assert r.status_code == 422 and "JSON" in r.json()["detail"]
+
+
+def test_wrong_bit_depth_and_mismatched_texture_are_400(client):
+    r = client.post("/v1/depth/filter", files={"depth": ("d.png", png(square_depth()), "image/png")},
+                    data={"params": json.dumps({"bits": 16})})
+    assert r.status_code == 400 and "16" in r.json()["detail"]
+    texture = np.zeros((10, 10, 3), np.uint8)
+    r = client.post("/v1/depth/filter",
+                    files={"depth": ("d.png", png(square_depth()), "image/png"),
+                           "texture": ("t.png", png(texture), "image/png")},
+                    data={"params": json.dumps({"method": "wmf", "scale": 2})})
+    assert r.status_code == 400 and r.json()["error"] == "bad_depth_input"
+
+
+def test_synthesis_reproduces_the_target_where_visible(client):
+    scene = Scene()
+    (tex0, disp0), (tex2, disp2), (target, _) = scene.render(0), scene.render(2), scene.render(1)
+    files = [("textures", ("t0.png", png(tex0), "image/png")), ("textures", ("t2.png", png(tex2), "image/png")),
+             ("depths", ("d0.png", png(disp0.astype(np.uint8)), "image/png")),
+             ("depths", ("d2.png", png(disp2.astype(np.uint8)), "image/png"))]
+    params = {"depth_units": "disparity", "positions": [0, 2], "target_position": 1, "boundary_width": 0}
+    r = client.post("/v1/depth/synthesize", files=files, data={"params": json.dumps(params)})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    image = cv2.imdecode(np.frombuffer(base64.b64decode(body["image_png"]), np.uint8), cv2.IMREAD_COLOR)
+    holes = cv2.imdecode(np.frombuffer(base64.b64decode(body["holes_png"]), np.uint8), cv2.IMREAD_GRAYSCALE)
+    seen = (scene.visible_from(0, 1) | scene.visible_from(2, 1)) & (holes == 0)
+    assert seen.mean() > 0.8
+    assert np.array_equal(image[seen], target[seen])
+
+
+def test_synthesis_with_mismatched_view_counts_is_refused(client):
+    tex = png(np.zeros((8, 8, 3), np.uint8))
+    params = {"depth_units": "disparity", "positions": [0, 2], "target_position": 1}
+    r = client.post("/v1/depth/synthesize", files=[("textures", ("a.png", tex, "image/png")),
+                                                   ("depths", ("a.png", tex, "image/png")),
+                                                   ("depths", ("b.png", tex, "image/png"))],
+                    data={"params": json.dumps(params)})
+    assert r.status_code == 422
+
+
+def test_video_job_filters_every_frame(client):
+    frames = np.stack([np.roll(square_depth(), i, axis=1) for i in range(5)])
+    params = {"width": 32, "height": 32, "method": "modified_morph", "scale": 2}
+    r = client.post("/v1/depth/videos", files={"depth": ("seq.yuv", frames.tobytes(), "application/octet-stream")},
+                    data={"params": json.dumps(params)})
+    assert r.status_code == 202, r.text
+    job = wait_final(client, r.json()["id"])
+    assert job["state"] == "succeeded", job
+    out = client.get(f"/v1/jobs/{job['id']}/results/filtered.yuv").content
+    assert len(out) == 5 * 64 * 64
+    report = client.get(f"/v1/jobs/{job['id']}/results/report.json").json()
+    assert report["frames"] == 5
+
+
+def test_yuv_that_is_not_whole_frames_is_refused_at_upload(client):
+    params = {"width": 32, "height": 32}
+    r = client.post("/v1/depth/videos", files={"depth": ("seq.yuv", b"\x00" * (32 * 32 * 2 + 7), "application/octet-stream")},
+                    data={"params": json.dumps(params)})
+    assert r.status_code == 422 and r.json()["error"] == "bad_depth_input"
+    assert client.get("/v1/jobs").json()["jobs"] == []

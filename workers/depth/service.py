@@ -1,0 +1,91 @@
+"""Synchronous entry points for the web layer and the CLI: encoded images in, encoded images out.
+
+User-caused problems raise :class:`DepthInputError` (a ValueError): map it to a 4xx.
+"""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from workers.camera import CameraError
+
+from . import dibr, io
+from .errors import DepthInputError
+from .levels import levels_to_depth, levels_to_disparity
+from .methods import postprocess
+from .params import DepthFilterParams, SynthesizeParams
+
+
+def filter_depth_bytes(
+    depth: bytes, params: DepthFilterParams | dict[str, Any], texture: bytes | None = None
+) -> bytes:
+    """Upsample and post-filter one depth map.
+
+    depth: PNG/PGM bytes (8- or 16-bit grey levels). texture: image bytes at the output size, needed
+    by guided methods ("wmf"); its size also sets the output size when no scale/size is given.
+    Returns the filtered depth as PNG bytes with the input's bit depth.
+    """
+    p = params if isinstance(params, DepthFilterParams) else DepthFilterParams.model_validate(params)
+    levels, bits = io.decode_depth(depth, p.bits)
+    guide = io.decode_texture(texture) if texture is not None else None
+    out = postprocess(
+        levels, p.method, scale=p.scale, size=p.out_size(), upsampler=p.upsampler, guide=guide,
+        options=p.options(bits),
+    )
+    return io.encode_depth(out, "png")
+
+
+def synthesize_bytes(
+    views: Sequence[tuple[bytes, bytes]], params: SynthesizeParams | dict[str, Any]
+) -> tuple[bytes, bytes]:
+    """Synthesise a virtual view from texture + depth of one or more views.
+
+    views: (texture image bytes, depth PNG/PGM bytes) per source view, in the order of
+    ``positions``/``cameras``. Returns (synthesised view PNG (BGR 8-bit), hole mask PNG: 8-bit,
+    255 where no source view saw the pixel, before hole filling).
+    """
+    p = params if isinstance(params, SynthesizeParams) else SynthesizeParams.model_validate(params)
+    if len(views) != p.view_count:
+        raise DepthInputError(
+            f"got {len(views)} views but the parameters describe {p.view_count} camera(s): they must match"
+        )
+    textures, depths = [], []
+    for i, (tex_bytes, depth_bytes) in enumerate(views):
+        tex = io.decode_texture(tex_bytes)
+        levels, bits = io.decode_depth(depth_bytes, p.bits)
+        dibr.check_texture_depth(tex, levels, f"depth map of view {i}")
+        textures.append(tex)
+        depths.append((levels, bits))
+    result = synthesize_levels(textures, depths, p)
+    return io.encode_png(result.image), io.encode_png(result.holes.astype(np.uint8) * 255)
+
+
+def synthesize_levels(
+    textures: Sequence[np.ndarray], depths: Sequence[tuple[np.ndarray, int]], p: SynthesizeParams
+) -> dibr.Synthesis:
+    """Synthesis from decoded views: textures (H, W, 3) uint8, depths (levels (H, W), bits)."""
+    kw = dict(hole_fill=p.hole_fill, depth_tolerance=p.depth_tolerance, boundary_width=p.boundary_width)
+    if p.geometry == "rectified":
+        disparities = [_reference_disparity(levels, bits, p) for levels, bits in depths]
+        shifts = [p.target_position - x for x in p.positions]
+        return dibr.synthesize_rectified(textures, disparities, shifts, **kw)
+    h, w = depths[0][0].shape
+    try:
+        cams = [c.camera(f"view {i}", *textures[i].shape[1::-1]) for i, c in enumerate(p.cameras)]
+        target = p.target_camera.camera("target", w, h)
+    except CameraError as exc:
+        raise DepthInputError(str(exc)) from None
+    metres = [
+        levels_to_depth(levels, p.z_near, p.z_far, bits, p.larger_is_nearer) for levels, bits in depths
+    ]
+    return dibr.synthesize_general(textures, metres, cams, target, **kw)
+
+
+def _reference_disparity(levels: np.ndarray, bits: int, p: SynthesizeParams) -> np.ndarray:
+    """Disparity (H, W) float32 for one unit of ``positions``: pixels per metre of baseline for
+    inverse depth (f / Z), or level / disparity_scale (NaN where the level is 0) for disparity."""
+    if p.depth_units == "disparity":
+        d = levels.astype(np.float32) / np.float32(p.disparity_scale)
+        return np.where(levels > 0, d, np.nan).astype(np.float32)
+    return levels_to_disparity(levels, p.z_near, p.z_far, p.focal_px, bits, p.larger_is_nearer)
