@@ -71,8 +71,17 @@ def _as_utc(value: dt.datetime | None) -> dt.datetime | None:
     return value
 
 
+def normalise_url(url: str) -> str:
+    """Plain ``postgresql://`` (or ``postgres://``) URLs use psycopg 3, the driver we install."""
+    for prefix in ("postgresql://", "postgres://"):
+        if url.startswith(prefix):
+            return "postgresql+psycopg://" + url[len(prefix):]
+    return url
+
+
 def make_engine(url: str) -> Engine:
     """An engine for ``url``; SQLite gets WAL mode and a busy timeout for concurrent writers."""
+    url = normalise_url(url)
     if url.startswith("sqlite"):
         engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
 
@@ -91,8 +100,10 @@ class JobStore:
     """Every read and write of the job table. Methods are blocking: call them off the event loop."""
 
     def __init__(self, url: str) -> None:
+        from app.migrate import upgrade
+
         self.engine = make_engine(url)
-        Base.metadata.create_all(self.engine)
+        upgrade(self.engine)
         self._session = sessionmaker(self.engine, expire_on_commit=False)
 
     def close(self) -> None:

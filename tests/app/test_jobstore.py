@@ -6,9 +6,16 @@ import pytest
 from app.jobstore import JobState, JobStore, job_public
 
 
+@pytest.fixture(params=["sqlite", "postgresql"])
+def database_url(request, tmp_path):
+    if request.param == "sqlite":
+        return f"sqlite:///{tmp_path / 'jobs.db'}"
+    return request.getfixturevalue("postgres_url")
+
+
 @pytest.fixture
-def jobs(tmp_path):
-    store = JobStore(f"sqlite:///{tmp_path / 'jobs.db'}")
+def jobs(database_url):
+    store = JobStore(database_url)
     yield store
     store.close()
 
@@ -80,3 +87,18 @@ def test_renew_extends_only_own_active_leases(jobs):
     now = dt.datetime.now(dt.timezone.utc).replace(tzinfo=None)
     assert jobs.get(job.id).lease_expires_at.replace(tzinfo=None) > now + dt.timedelta(seconds=50)
     assert jobs.get(other.id).lease_expires_at.replace(tzinfo=None) < now + dt.timedelta(seconds=5)
+
+
+def test_migrations_match_the_model_and_run_twice(database_url):
+    from alembic.autogenerate import compare_metadata
+    from alembic.migration import MigrationContext
+
+    from app.jobstore import Base
+
+    first = JobStore(database_url)
+    first.close()
+    store = JobStore(database_url)  # a second start finds the schema current
+    with store.engine.connect() as conn:
+        diff = compare_metadata(MigrationContext.configure(conn), Base.metadata)
+    store.close()
+    assert diff == []

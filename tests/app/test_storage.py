@@ -1,13 +1,16 @@
 import io
 
+import numpy as np
 import pytest
 
 from workers.storage import BlobNotFound, DirectoryBlobStore, InvalidKey, check_key, new_key, open_store, safe_name
 
 
-@pytest.fixture
-def store(tmp_path):
-    return DirectoryBlobStore(tmp_path / "blobs")
+@pytest.fixture(params=["directory", "s3"])
+def store(request, tmp_path):
+    if request.param == "directory":
+        return DirectoryBlobStore(tmp_path / "blobs")
+    return open_store(request.getfixturevalue("s3_url"))
 
 
 def test_put_read_list_delete(store):
@@ -48,16 +51,41 @@ def test_publish_replaces_the_destination_whole(store):
     assert store.list("jobs/j/tmp-2") == []
 
 
+def test_large_upload_goes_in_parts_and_comes_back_whole(store):
+    rng = np.random.default_rng(0)
+    data = rng.integers(0, 256, 20 * 2**20 + 12345, dtype=np.uint8).tobytes()  # over the 8 MiB part size
+    assert store.put("jobs/v/inputs/video", io.BytesIO(data)) == len(data)
+    assert store.size("jobs/v/inputs/video") == len(data)
+    local = store.local_path("jobs/v/inputs/video")
+    assert local.read_bytes() == data
+    with store.open("jobs/v/inputs/video") as f:
+        assert f.read(10) == data[:10]
+
+
+def test_missing_keys_raise_blob_not_found(store):
+    for call in (store.read, store.size, store.local_path, store.open):
+        with pytest.raises(BlobNotFound):
+            call("jobs/none/here")
+    assert not store.exists("jobs/none/here")
+    store.delete("jobs/none/here")  # deleting what is not there is fine
+
+
 def test_a_failed_write_leaves_no_partial_blob(store):
     class Broken(io.RawIOBase):
+        """A stream that fails after 12 MiB, like an upload cut off half way."""
+
         def __init__(self):
-            self.calls = 0
+            self.sent = 0
+
+        def readable(self):
+            return True
 
         def read(self, n=-1):
-            self.calls += 1
-            if self.calls > 2:
-                raise OSError("disk went away")
-            return b"x" * 10
+            if n is None or n < 0 or self.sent >= 12 << 20:
+                raise OSError("the client went away")
+            size = min(n, 5 << 20)
+            self.sent += size
+            return b"x" * size
 
     with pytest.raises(OSError):
         store.put("jobs/k/big", Broken())
@@ -71,3 +99,7 @@ def test_open_store_from_url(tmp_path):
     assert open_store(str(tmp_path / "b")).read("a") == b"1"
     with pytest.raises(ValueError, match="unsupported storage URL"):
         open_store("ftp://example/x")
+    with pytest.raises(ValueError, match="no bucket"):
+        open_store("s3:///prefix")
+    with pytest.raises(ValueError, match="unknown storage URL option"):
+        open_store("s3://bucket/p?colour=blue")
