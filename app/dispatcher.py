@@ -39,6 +39,24 @@ _RETRYABLE = (
 _PROGRESS_WRITE_INTERVAL_S = 0.25
 
 
+class _Unschedulable(Exception):
+    """No live node offers what the job needs."""
+
+
+def _describe(options: dict[str, Any]) -> str:
+    return ", ".join(f"{k}={v:g}" for k, v in {"CPU": options.get("num_cpus", 1), **options.get("resources", {})}.items())
+
+
+def _schedulable(options: dict[str, Any]) -> bool:
+    """Whether some live node has, in total, every resource the task asks for."""
+    need = {"CPU": float(options.get("num_cpus", 1)), **{k: float(v) for k, v in options.get("resources", {}).items()}}
+    for node in ray.nodes():
+        have = node.get("Resources", {}) if node.get("Alive") else {}
+        if all(have.get(k, 0.0) >= v for k, v in need.items() if v > 0):
+            return True
+    return False
+
+
 class Dispatcher:
     def __init__(self, settings: Settings, jobs: JobStore, hub: EventHub, store_url: str) -> None:
         self.settings = settings
@@ -156,12 +174,16 @@ class Dispatcher:
             options["resources"] = dict(self.settings.job_resources)
         from workers.ray_tasks import run_job_task
 
+        missing = await self._wait_schedulable(options)
+        if missing:
+            await self._fail(job.id, missing)
+            return True
         gen = run_job_task.options(**options).remote(asdict(spec))
         self._refs[job.id] = gen
         last_write = 0.0
         worker: dict[str, Any] = {}
         try:
-            async for ref in gen:
+            async for ref in self._events(gen, options):
                 event = await ref
                 etype = event.get("type")
                 if etype == "started":
@@ -184,6 +206,9 @@ class Dispatcher:
                     return True
         except ray.exceptions.TaskCancelledError:
             return True
+        except _Unschedulable as exc:
+            await self._fail(job.id, str(exc))
+            return True
         except _RETRYABLE as exc:
             if job.id in self._cancelled:
                 return True
@@ -198,6 +223,40 @@ class Dispatcher:
             return True
         log.warning("job %s attempt %d ended without a final event", job.id, job.attempts)
         return False
+
+    async def _wait_schedulable(self, options: dict[str, Any]) -> str | None:
+        """Wait until some live node offers the resources; after the limit, say why it cannot run."""
+        limit = self.settings.job_unschedulable_seconds
+        deadline = time.monotonic() + limit
+        while not await asyncio.to_thread(_schedulable, options):
+            if time.monotonic() > deadline:
+                return (f"no live Ray node offers the resources this job needs ({_describe(options)}) "
+                        f"for {limit:g} s; add one with 'sweepcast worker --address ... --resources ...'")
+            await asyncio.sleep(1.0)
+        return None
+
+    async def _events(self, gen: Any, options: dict[str, Any]) -> Any:
+        """The attempt's event refs; while waiting for the first one, give up if the job became
+        unschedulable (its node died before it started) for longer than the limit."""
+        first = asyncio.ensure_future(gen.__anext__())
+        unschedulable_since: float | None = None
+        while True:
+            done, _ = await asyncio.wait({first}, timeout=1.0)
+            if done:
+                break
+            if await asyncio.to_thread(_schedulable, options):
+                unschedulable_since = None
+            elif unschedulable_since is None:
+                unschedulable_since = time.monotonic()
+            elif time.monotonic() - unschedulable_since > self.settings.job_unschedulable_seconds:
+                ray.cancel(gen, force=True)
+                raise _Unschedulable(f"no live Ray node offers the resources this job needs ({_describe(options)})")
+        try:
+            yield first.result()
+        except StopAsyncIteration:
+            return
+        async for ref in gen:
+            yield ref
 
     async def _fail(self, job_id: str, error: str) -> None:
         if await asyncio.to_thread(self.jobs.finish, job_id, self.owner, JobState.failed, None, error):

@@ -31,6 +31,7 @@ class Settings(BaseSettings):
     job_max_attempts: int = Field(3, ge=1, le=10, description="Attempts per job when a worker is lost.")
     job_lease_seconds: float = Field(30.0, gt=0, description="A running job whose lease is this old is resubmitted.")
     job_resources: dict[str, float] = Field(default_factory=dict, description="Custom Ray resources every batch job requires (JSON).")
+    job_unschedulable_seconds: float = Field(120.0, gt=0, description="Fail a job when no live Ray node offers its resources for this long.")
 
     orientation_yunet_model: Path | None = Field(None, description="YuNet ONNX model for the stronger face detector.")
 

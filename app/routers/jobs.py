@@ -18,6 +18,7 @@ from workers.storage import BlobNotFound
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"], dependencies=[Depends(require_key)])
 ws_router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
+_POLL_S = 0.5  # how often a socket looks at the row when its own replica sends nothing
 
 
 class JobProgress(BaseModel):
@@ -148,16 +149,24 @@ async def job_events(websocket: WebSocket, job_id: str) -> None:
             return
         await websocket.send_json({"type": "snapshot", "job_id": job_id, "state": job.state,
                                    "fraction": job.progress, "stage": job.stage, "attempts": job.attempts})
+        seen = (job.state, job.progress, job.stage)
         while True:
             try:
-                event = await asyncio.wait_for(queue.get(), timeout=svc.settings.job_lease_seconds)
+                event = await asyncio.wait_for(queue.get(), timeout=_POLL_S)
             except asyncio.TimeoutError:
-                # No event for a while: look at the row (the job may have been finished elsewhere).
+                # Nothing from this replica's dispatcher: the job may be followed by another replica
+                # (or finished there). The row is the shared truth; relay what changed in it.
                 job = await asyncio.to_thread(svc.jobs.get, job_id)
                 if job is None or JobState(job.state).finished:
                     event = {"type": "final", "job_id": job_id, "job": job_public(job) if job else None}
+                elif (job.state, job.progress, job.stage) != seen:
+                    seen = (job.state, job.progress, job.stage)
+                    event = {"type": "progress", "job_id": job_id, "state": job.state, "fraction": job.progress,
+                             "stage": job.stage, "attempt": job.attempts, "source": "table"}
                 else:
                     continue
+            if event.get("type") == "progress":
+                seen = (event.get("state", "running"), event["fraction"], event["stage"])
             await websocket.send_json(_jsonable(event))
             if event.get("type") == "final":
                 await websocket.close()

@@ -119,3 +119,11 @@ def test_a_job_routed_by_resource_runs_on_the_second_node():
     result = json.loads(out.stdout.strip().splitlines()[-1])
     assert result["state"] == "succeeded"
     assert result["ran_on"] == result["second_node"] != result["head_node"]
+
+
+def test_a_job_no_node_can_run_fails_with_the_reason(client_factory):
+    client = client_factory(job_resources={"gpu_renderer": 1}, job_unschedulable_seconds=1.0)
+    job = client.post("/v1/photos/batches", files=batch_files(1)).json()
+    final = wait_final(client, job["id"], timeout=30)
+    assert final["state"] == "failed"
+    assert "gpu_renderer=1" in final["error"] and "sweepcast worker" in final["error"]

@@ -1,0 +1,133 @@
+"""Scale-out on one machine: a real Ray cluster (`ray start`), two API replicas, PostgreSQL and S3.
+
+A client watching a job on replica A sees the progress of a job submitted through replica B; the
+node running the job loses its raylet mid-job and the job finishes on the other node.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+from websockets.sync.client import connect
+
+from tests.app.photos import batch_files
+
+ROOT = Path(__file__).resolve().parents[2]
+BIN = Path(sys.executable).parent
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def parent_pid(pid: int) -> int:
+    stat = Path(f"/proc/{pid}/stat").read_text()
+    return int(stat[stat.rindex(")") + 2:].split()[1])
+
+
+def processes_mentioning(text: str) -> list[int]:
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if text in (entry / "cmdline").read_bytes().decode(errors="replace"):
+                    pids.append(int(entry.name))
+            except OSError:
+                pass
+    return pids
+
+
+def wait_ready(base: str, timeout: float = 90) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            if httpx.get(f"{base}/readyz", timeout=2).status_code == 200:
+                return
+        except httpx.HTTPError:
+            pass
+        time.sleep(0.3)
+    raise AssertionError(f"{base} not ready")
+
+
+@pytest.fixture
+def ray_cluster():
+    """A head without CPUs for tasks and two worker nodes, as `ray start` makes them."""
+    temp = tempfile.mkdtemp(prefix="scray-")  # short: Ray's socket paths must fit 107 bytes
+    port = free_port()
+    env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
+    ray = str(BIN / "ray")
+    common = [f"--temp-dir={temp}", "--disable-usage-stats"]
+    try:
+        subprocess.run([ray, "start", "--head", f"--port={port}", "--num-cpus=0", "--include-dashboard=false",
+                        *common], check=True, capture_output=True, env=env, timeout=120)
+        for _ in range(2):
+            subprocess.run([ray, "start", f"--address=127.0.0.1:{port}", "--num-cpus=1",
+                            '--resources={"sweepcast_worker": 1}', *common],
+                           check=True, capture_output=True, env=env, timeout=120)
+        yield f"127.0.0.1:{port}"
+    finally:
+        for pid in processes_mentioning(temp):
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+
+@pytest.mark.slow
+def test_two_replicas_share_jobs_and_survive_a_lost_node(ray_cluster, postgres_url, s3_url, tmp_path):
+    replicas = []
+    try:
+        for name in ("a", "b"):
+            port = free_port()
+            env = {**os.environ, "RAY_AUTH_MODE": "disabled", "SWEEPCAST_RAY_ADDRESS": ray_cluster,
+                   "SWEEPCAST_DATABASE_URL": postgres_url, "SWEEPCAST_STORAGE_URL": s3_url,
+                   "SWEEPCAST_DATA_DIR": str(tmp_path / name), "SWEEPCAST_JOB_LEASE_SECONDS": "5",
+                   "SWEEPCAST_JOB_RESOURCES": '{"sweepcast_worker": 1}'}
+            proc = subprocess.Popen([sys.executable, "-m", "app", "serve", "--port", str(port)], cwd=ROOT, env=env,
+                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            replicas.append((proc, f"http://127.0.0.1:{port}"))
+        (_, base_a), (_, base_b) = replicas
+        wait_ready(base_a)
+        wait_ready(base_b)
+
+        files = [("files", f) for _, f in batch_files(40, width=1600, height=1200)]
+        job = httpx.post(f"{base_b}/v1/photos/batches", files=files, timeout=60).json()
+        ws_b = connect(f"{base_b.replace('http', 'ws')}/v1/jobs/{job['id']}/events")
+        ws_a = connect(f"{base_a.replace('http', 'ws')}/v1/jobs/{job['id']}/events")
+        while (event := json.loads(ws_b.recv(timeout=120)))["type"] != "started":
+            assert event["type"] in ("snapshot", "progress"), event
+        first_node = event["node_id"]
+        raylet = parent_pid(event["pid"])
+        while json.loads(ws_b.recv(timeout=120))["type"] != "progress":
+            pass
+        os.kill(raylet, signal.SIGKILL)  # the node running the job goes away mid-job
+
+        seen_on_a = []
+        while (event := json.loads(ws_a.recv(timeout=240)))["type"] != "final":
+            seen_on_a.append(event)
+        final = event["job"]
+        assert final["state"] == "succeeded", final
+        assert final["attempts"] >= 2
+        assert final["result"]["worker"]["node_id"] != first_node
+        assert any(e["type"] == "progress" for e in seen_on_a), seen_on_a
+        report = httpx.get(f"{base_a}/v1/jobs/{job['id']}/results/report.json").json()
+        assert len(report) == 40
+    finally:
+        for proc, _ in replicas:
+            proc.terminate()
+        for proc, _ in replicas:
+            try:
+                proc.wait(30)
+            except subprocess.TimeoutExpired:
+                proc.kill()

@@ -1,0 +1,159 @@
+"""Reading photos: formats and sizes from headers, reduced decoding of stored pixels, and every bad input."""
+from __future__ import annotations
+
+import struct
+
+import cv2
+import numpy as np
+import pytest
+
+from tests.orientation.builders import asymmetric_image, encode, insert_app1, jpeg, rich_exif
+from workers.orientation.decode import (CorruptImage, EmptyFile, NotAnImage, OrientationInputError, TooManyPixels,
+                                        TruncatedImage, UnsupportedFormat, decode_gray, reduction_factor)
+from workers.orientation.exif import write_orientation
+from workers.orientation.headers import parse_header, sniff_format
+
+
+@pytest.mark.parametrize("ext,params,fmt", [
+    (".jpg", [cv2.IMWRITE_JPEG_QUALITY, 90], "jpeg"),
+    (".jpg", [cv2.IMWRITE_JPEG_PROGRESSIVE, 1], "jpeg"),
+    (".jpg", [cv2.IMWRITE_JPEG_RST_INTERVAL, 2], "jpeg"),
+    (".png", [], "png"),
+    (".webp", [cv2.IMWRITE_WEBP_QUALITY, 80], "webp"),
+    (".webp", [cv2.IMWRITE_WEBP_QUALITY, 101], "webp"),  # lossless VP8L
+])
+def test_header_gives_format_and_size_without_decoding(ext, params, fmt):
+    data = encode(asymmetric_image(77, 131), ext, params)
+    header = parse_header(data)
+    assert (header.format, header.width, header.height, header.damage) == (fmt, 131, 77, None)
+
+
+def test_vp8x_webp_size_comes_from_the_extended_header():
+    data = write_orientation(encode(asymmetric_image(77, 131), ".webp", [cv2.IMWRITE_WEBP_QUALITY, 80]), 6)
+    assert data[12:16] == b"VP8X"
+    assert (parse_header(data).width, parse_header(data).height) == (131, 77)
+
+
+def test_reduction_factor_brings_the_long_side_under_the_working_size():
+    assert reduction_factor(800, 600) == 1
+    assert reduction_factor(2000, 1500) == 2
+    assert reduction_factor(4000, 3000) == 4
+    assert reduction_factor(6000, 4000) == 8
+    assert reduction_factor(20000, 100) == 8
+
+
+def test_large_jpeg_is_decoded_reduced_with_its_scale():
+    data = jpeg(asymmetric_image(1500, 4000), 80)
+    decoded = decode_gray(data)
+    assert decoded.gray.shape == (375, 1000) and decoded.gray.dtype == np.uint8
+    assert decoded.scale_x == pytest.approx(4.0) and decoded.scale_y == pytest.approx(4.0)
+
+
+def test_beyond_eighth_size_the_image_is_resized_to_the_working_size():
+    decoded = decode_gray(encode(asymmetric_image(60, 9000), ".png"))
+    assert max(decoded.gray.shape) == 1024
+    assert decoded.scale_x == pytest.approx(9000 / 1024)
+
+
+def test_decoding_ignores_the_exif_orientation_tag():
+    """The detector must see the stored pixels: a tag 6 (show turned 90) must not turn them."""
+    image = asymmetric_image(120, 200)
+    tagged = write_orientation(jpeg(image), 6)
+    assert cv2.imdecode(np.frombuffer(tagged, np.uint8), cv2.IMREAD_GRAYSCALE).shape == (200, 120)  # sanity
+    gray = decode_gray(tagged).gray
+    expected = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    assert gray.shape == (120, 200)
+    assert np.abs(gray.astype(int) - expected).mean() < 3
+
+
+def test_trailing_bytes_after_the_end_marker_are_accepted():
+    data = jpeg() + b"motion-photo trailer" * 10
+    assert decode_gray(data).gray.shape == (120, 200)
+
+
+def test_empty_file():
+    with pytest.raises(EmptyFile, match="empty"):
+        decode_gray(b"")
+
+
+@pytest.mark.parametrize("data", [b"hello, this is text", b"%PDF-1.7\n", b"\x00" * 64, b"\xff\xd8"])
+def test_not_an_image(data):
+    with pytest.raises(NotAnImage, match="not an image"):
+        decode_gray(data)
+
+
+@pytest.mark.parametrize("data,name", [
+    (b"GIF89a" + b"\0" * 20, "GIF"), (b"BM" + b"\0" * 40, "BMP"), (b"II*\x00" + b"\0" * 20, "TIFF"),
+    (b"\0\0\0\x18ftypheic" + b"\0" * 20, "HEIC"),
+])
+def test_recognised_but_unsupported_formats(data, name):
+    with pytest.raises(UnsupportedFormat, match=name):
+        sniff_format(data)
+
+
+@pytest.mark.parametrize("cut", [0.3, 0.6, 0.95])
+def test_truncated_jpeg(cut):
+    data = jpeg(asymmetric_image(300, 400))
+    with pytest.raises(TruncatedImage, match="truncated"):
+        decode_gray(data[:int(len(data) * cut)])
+
+
+def test_truncated_jpeg_is_caught_even_with_an_end_marker_inside_its_thumbnail():
+    """The EXIF thumbnail holds its own FF D9: looking for that marker alone would be fooled."""
+    data = insert_app1(jpeg(asymmetric_image(300, 400)), rich_exif())
+    assert b"\xff\xd9" in data[:len(data) // 2]
+    with pytest.raises(TruncatedImage):
+        decode_gray(data[:len(data) // 2])
+
+
+def test_truncated_before_the_size_is_known():
+    data = insert_app1(jpeg(), rich_exif())
+    with pytest.raises(TruncatedImage):
+        decode_gray(data[:200])
+
+
+def test_truncated_png_and_webp():
+    with pytest.raises(TruncatedImage):
+        decode_gray(encode(asymmetric_image(), ".png")[:-40])
+    with pytest.raises(TruncatedImage):
+        decode_gray(encode(asymmetric_image(), ".webp")[:-40])
+
+
+def test_damaged_jpeg_structure():
+    data = jpeg()
+    app0_end = parse_header(data).segments[0].end
+    with pytest.raises(CorruptImage, match="expected a marker"):
+        decode_gray(data[:app0_end] + b"garbage" + data[app0_end:])
+
+
+def _jpeg_header_claiming(width: int, height: int) -> bytes:
+    """A 40-byte file: SOI, a baseline frame header announcing width x height, EOI (no pixel data)."""
+    sof = b"\xff\xc0" + struct.pack(">HBHHB", 17, 8, height, width, 3) + b"\x01\x22\x00\x02\x11\x01\x03\x11\x01"
+    return b"\xff\xd8\xff\xe0" + struct.pack(">H", 16) + b"JFIF\0\x01\x01\0\0\x01\0\x01\0\0" + sof + b"\xff\xd9"
+
+
+def test_decompression_bomb_is_refused_from_its_header():
+    bomb = _jpeg_header_claiming(60000, 60000)
+    assert len(bomb) < 64
+    with pytest.raises(TooManyPixels, match=r"60000x60000 = 3,600,000,000 pixels; the limit is 64,000,000"):
+        decode_gray(bomb, max_pixels=64_000_000)
+
+
+def test_png_bomb_is_refused_from_its_header():
+    ihdr = struct.pack(">II5B", 100000, 100000, 8, 0, 0, 0, 0)
+    bomb = b"\x89PNG\r\n\x1a\n" + struct.pack(">I", 13) + b"IHDR" + ihdr + b"\0\0\0\0"
+    with pytest.raises(TooManyPixels, match="limit is 1,000"):
+        decode_gray(bomb, max_pixels=1000)
+
+
+def test_real_image_over_the_limit():
+    with pytest.raises(TooManyPixels):
+        decode_gray(jpeg(asymmetric_image(100, 100)), max_pixels=9999)
+    assert decode_gray(jpeg(asymmetric_image(100, 100)), max_pixels=10000).gray.shape == (100, 100)
+
+
+def test_all_input_errors_share_one_base_class_with_a_code():
+    for cls in (EmptyFile, NotAnImage, UnsupportedFormat, TruncatedImage, CorruptImage, TooManyPixels):
+        assert issubclass(cls, OrientationInputError) and issubclass(cls, ValueError)
+    assert len({cls.code for cls in (EmptyFile, NotAnImage, UnsupportedFormat, TruncatedImage, CorruptImage,
+                                     TooManyPixels)}) == 6

@@ -1,0 +1,111 @@
+"""The real detectors: configuration, the YuNet grouping and voting rule, and real faces when the data is there."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.orientation.builders import asymmetric_image, jpeg
+from workers.common.datasets import data_root, dataset
+from workers.orientation.detect import (YUNET_MARGIN, YUNET_MIN_SCORE, DetectorConfig, Track, get_detector,
+                                        group_tracks, yunet_votes)
+from workers.orientation.faces import Candidate
+from workers.orientation.geometry import ROTATIONS, rotate_view
+from workers.orientation.parts import PART_CROP, PartSpec, PartVerifier
+from workers.orientation.service import analyze
+
+YUNET = data_root().parent / "models" / "yunet" / "face_detection_yunet_2023mar.onnx"
+FACES = dataset("faces", "dev")
+
+
+def test_auto_config_is_paper_without_a_model_and_combined_with_one(tmp_path):
+    assert DetectorConfig().resolved_method() == "paper"
+    assert DetectorConfig(yunet_model=tmp_path / "m.onnx").resolved_method() == "combined"
+    assert DetectorConfig(method="yunet", yunet_model=tmp_path / "m.onnx").resolved_method() == "yunet"
+
+
+def test_detectors_are_built_once_per_configuration():
+    assert get_detector(DetectorConfig()) is get_detector(DetectorConfig(method="paper"))
+    assert get_detector(DetectorConfig()).name == "paper"
+
+
+def test_yunet_methods_need_a_model(tmp_path):
+    for method in ("yunet", "combined"):
+        with pytest.raises(ValueError, match="YuNet model"):
+            get_detector(DetectorConfig(method=method))
+    with pytest.raises(FileNotFoundError, match="not found"):
+        get_detector(DetectorConfig(yunet_model=tmp_path / "missing.onnx"))
+    (tmp_path / "junk.onnx").write_bytes(b"not a network")
+    with pytest.raises(FileNotFoundError, match="cannot load"):
+        get_detector(DetectorConfig(yunet_model=tmp_path / "junk.onnx"))
+
+
+def test_paper_detector_rejects_a_photo_without_faces():
+    report = analyze(jpeg(asymmetric_image(300, 400)), get_detector(DetectorConfig()))
+    assert report.decision == "rejected" and report.faces == [] and report.accepted_rotations == []
+
+
+def test_parts_are_not_found_in_a_blank_face():
+    verifier = PartVerifier(PartSpec.opencv())
+    parts = verifier.parts(np.full((PART_CROP, PART_CROP), 128, np.uint8))
+    assert parts == () and not verifier.accepts(parts)
+
+
+def test_group_tracks_joins_one_face_seen_in_several_views():
+    """A face at x 100..150, y 20..80 of a 400x300 image, seen upright (view 0) and upside down."""
+    views = {0: [Candidate((100, 20, 50, 60), 0.93)],
+             180: [Candidate((250, 220, 50, 60), 0.87), Candidate((10, 10, 30, 30), 0.6)]}
+    tracks = group_tracks(views, 400, 300)
+    assert len(tracks) == 2
+    assert tracks[0].box == pytest.approx((100, 20, 50, 60)) and set(tracks[0].views) == {0, 180}
+    rotation, score, margin = tracks[0].best()
+    assert (rotation, score) == (0, 0.93) and margin == pytest.approx(0.06)
+
+
+def _track(**scores: float) -> Track:
+    track = Track((0, 0, 10, 10))
+    for name, s in scores.items():
+        track.views[int(name[1:])] = Candidate((0, 0, 10, 10), s)
+    return track
+
+
+def test_yunet_votes_need_a_score_and_decide_only_with_a_margin():
+    clear = _track(r0=0.93, r180=0.5)
+    close = _track(r0=0.93, r180=0.88)  # YuNet fires on upside-down faces too
+    weak = _track(r90=YUNET_MIN_SCORE - 0.05)
+    votes = yunet_votes([clear, close, weak], YUNET_MIN_SCORE, YUNET_MARGIN)
+    assert votes == {(0, 0): ((), True), (1, 0): ((), False)}
+
+
+REAL = ["openface/clapton-2.jpg", "face_recognition/examples_obama_small.jpg"]
+
+
+def _configs() -> list[DetectorConfig]:
+    configs = [DetectorConfig(method="paper")]
+    if YUNET.is_file():
+        configs.append(DetectorConfig(method="combined", yunet_model=YUNET))
+    return configs
+
+
+@pytest.mark.skipif(FACES is None, reason="needs $SWEEPCAST_DATA/faces/dev")
+@pytest.mark.parametrize("name", REAL)
+def test_real_faces_are_found_upright_in_every_rotation(name):
+    import cv2
+
+    upright = cv2.imread(str(FACES / name), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
+    for config in _configs():
+        detector = get_detector(config)
+        for rotation in ROTATIONS:
+            stored = jpeg(rotate_view(upright, (360 - rotation) % 360))
+            report = analyze(stored, detector)
+            assert report.rotation_degrees == rotation, (config.resolved_method(), rotation, report.message)
+
+
+@pytest.mark.skipif(FACES is None, reason="needs $SWEEPCAST_DATA/faces/dev")
+def test_dog_photo_is_never_given_a_wrong_rotation():
+    import cv2
+
+    upright = cv2.imread(str(FACES / "dlib_examples_faces" / "dogs.jpg"), cv2.IMREAD_COLOR)
+    for config in _configs():
+        for rotation in (0, 90):
+            report = analyze(jpeg(rotate_view(upright, (360 - rotation) % 360)), get_detector(config))
+            assert report.rotation_degrees in (None, rotation)

@@ -1,0 +1,180 @@
+"""The batch job with a fake context, and the ``sweepcast orient`` command."""
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.orientation.builders import FakeDetector, asymmetric_image, encode, jpeg
+from workers.common.jobctx import JobInputError
+from workers.orientation import cli, job
+from workers.orientation.exif import read_exif, write_orientation
+from workers.orientation.job import OrientationBatchParams, run_orientation_batch, sanitize_filename
+
+
+@dataclass
+class FakeContext:
+    root: Path
+    params: dict[str, Any]
+    inputs: dict[str, str] = field(default_factory=dict)
+    input_meta: dict[str, dict[str, Any]] = field(default_factory=dict)
+    job_id: str = "job-1"
+    kind: str = "orientation.batch"
+    events: list[tuple[float, str]] = field(default_factory=list)
+
+    def add(self, name: str, filename: str, data: bytes) -> None:
+        (self.root / "in").mkdir(parents=True, exist_ok=True)
+        (self.root / "in" / name).write_bytes(data)
+        self.inputs[name] = name
+        self.input_meta[name] = {"filename": filename, "size": len(data)}
+
+    def input_path(self, name: str) -> Path:
+        return self.root / "in" / self.inputs[name]
+
+    def read_input(self, name: str) -> bytes:
+        return self.input_path(name).read_bytes()
+
+    def result_path(self, name: str) -> Path:
+        path = self.root / "out" / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return path
+
+    def write_result(self, name: str, data: bytes) -> None:
+        self.result_path(name).write_bytes(data)
+
+    def progress(self, fraction: float, stage: str) -> None:
+        self.events.append((fraction, stage))
+
+
+@pytest.fixture
+def fake_detector(monkeypatch):
+    """Every photo is found turned: rotate 90 degrees clockwise (EXIF 6)."""
+    detector = FakeDetector((90,))
+    monkeypatch.setattr(job, "get_detector", lambda config: detector)
+    monkeypatch.setattr(cli, "get_detector", lambda config: detector)
+    return detector
+
+
+def test_batch_with_one_corrupt_photo_among_good_ones(tmp_path, fake_detector):
+    good = jpeg()
+    ctx = FakeContext(tmp_path, {"force": False})
+    ctx.add("photo-0000", "../../IMG 0001 (copy).JPG", good)
+    ctx.add("photo-0001", "broken.jpg", good[:len(good) // 2])
+    ctx.add("photo-0002", "scan.png", encode(asymmetric_image(), ".png"))
+    ctx.add("photo-0003", "tagged.jpg", write_orientation(good, 8))
+
+    summary = run_orientation_batch(ctx)
+
+    assert summary == {"photos": 4, "upright": 0, "rotated": 3, "rejected": 0, "errors": 1, "written": 1}
+    assert [round(f, 2) for f, _ in ctx.events] == [0.25, 0.5, 0.75, 1.0]  # one event per photo
+    assert "broken.jpg: error: truncated_image" in ctx.events[1][1]
+    entries = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert [e["filename"] for e in entries] == ["../../IMG 0001 (copy).JPG", "broken.jpg", "scan.png", "tagged.jpg"]
+    first, broken, png, tagged = entries
+    assert first["report"]["orientation"] == 6 and first["fixed_file"] == "fixed/0000-IMG_0001_copy.jpg"
+    fixed = (tmp_path / "out" / first["fixed_file"]).read_bytes()
+    assert read_exif(fixed).orientation == 6
+    assert broken["report"] is None and broken["error"]["code"] == "truncated_image"
+    assert "truncated" in broken["error"]["message"]
+    assert png["report"]["orientation"] == 6 and png["fixed_file"] is None and "PNG" in png["note"]
+    assert tagged["report"]["action"] == "kept_existing" and tagged["fixed_file"] is None
+    assert sorted(p.name for p in (tmp_path / "out" / "fixed").iterdir()) == ["0000-IMG_0001_copy.jpg"]
+
+
+def test_batch_force_and_report_only(tmp_path, fake_detector):
+    ctx = FakeContext(tmp_path, {"force": True})
+    ctx.add("photo-0000", "tagged.jpg", write_orientation(jpeg(), 8))
+    assert run_orientation_batch(ctx)["written"] == 1
+
+    ctx = FakeContext(tmp_path / "b", {"write": False})
+    ctx.add("photo-0000", "a.jpg", jpeg())
+    assert run_orientation_batch(ctx)["written"] == 0
+    assert not (tmp_path / "b" / "out" / "fixed").exists()
+
+
+def test_batch_params_are_validated():
+    assert OrientationBatchParams.model_validate({}).model_dump() == {"force": False, "write": True, "method": "auto"}
+    with pytest.raises(ValueError):
+        OrientationBatchParams.model_validate({"force": True, "yunet_model": "/etc/passwd"})
+    with pytest.raises(ValueError):
+        OrientationBatchParams.model_validate({"method": "guess"})
+
+
+def test_batch_without_photos_or_with_an_unconfigured_detector(tmp_path, monkeypatch):
+    with pytest.raises(JobInputError, match="no photos"):
+        run_orientation_batch(FakeContext(tmp_path, {}))
+    monkeypatch.delenv(job.YUNET_MODEL_ENV, raising=False)
+    ctx = FakeContext(tmp_path, {"method": "yunet"})
+    ctx.add("photo-0000", "a.jpg", jpeg())
+    with pytest.raises(JobInputError, match="YuNet model"):
+        run_orientation_batch(ctx)
+
+
+@pytest.mark.parametrize("name,expected", [
+    ("IMG_1234.JPG", "IMG_1234"), ("../../etc/passwd", "passwd"), ("C:\\photos\\a b.jpeg", "a_b"),
+    (".hidden.jpg", "hidden"), ("....", "photo"), ("été 2024.jpg", "t_2024"), ("x" * 300 + ".jpg", "x" * 80),
+])
+def test_sanitize_filename(name, expected):
+    assert sanitize_filename(name) == expected
+
+
+# --- CLI -------------------------------------------------------------------------------------------
+
+def run(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="sweepcast")
+    cli.register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+def test_cli_dry_run_changes_nothing_and_prints_a_table(tmp_path, fake_detector, capsys):
+    photo = tmp_path / "a.jpg"
+    photo.write_bytes(jpeg())
+    before = photo.read_bytes()
+    assert run(["orient", str(photo)]) == 0
+    out = capsys.readouterr().out
+    assert photo.read_bytes() == before
+    assert "rotated" in out and "would write 6" in out and "1 photos: 0 upright, 1 rotated" in out
+
+
+def test_cli_write_tags_files_in_folders(tmp_path, fake_detector, capsys):
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "a.jpg").write_bytes(jpeg())
+    (tmp_path / "b.png").write_bytes(encode(asymmetric_image(), ".png"))
+    (tmp_path / "notes.txt").write_text("not a photo")
+    assert run(["orient", str(tmp_path), "--write"]) == 0
+    out = capsys.readouterr().out
+    assert read_exif((tmp_path / "sub" / "a.jpg").read_bytes()).orientation == 6
+    assert "written 6" in out and "PNG has no tag" in out and "notes.txt" not in out
+
+
+def test_cli_json_output(tmp_path, fake_detector, capsys):
+    (tmp_path / "a.jpg").write_bytes(jpeg())
+    assert run(["orient", str(tmp_path / "a.jpg"), "--json"]) == 0
+    [entry] = json.loads(capsys.readouterr().out)
+    assert entry["report"]["orientation"] == 6 and entry["action"] == "would write 6"
+
+
+def test_cli_bad_files_and_paths_exit_2(tmp_path, fake_detector, capsys):
+    good, bad = tmp_path / "good.jpg", tmp_path / "bad.jpg"
+    good.write_bytes(jpeg())
+    bad.write_bytes(b"")
+    assert run(["orient", str(good), str(bad), "--write"]) == 2
+    captured = capsys.readouterr()
+    assert read_exif(good.read_bytes()).orientation == 6  # the good file is still processed
+    assert "bad.jpg: the file is empty" in captured.err and "Traceback" not in captured.err
+    assert run(["orient", str(tmp_path / "missing.jpg")]) == 2
+    assert "no such file" in capsys.readouterr().err
+
+
+def test_cli_yunet_without_a_model_exits_2(tmp_path, monkeypatch, capsys):
+    monkeypatch.delenv(job.YUNET_MODEL_ENV, raising=False)
+    (tmp_path / "a.jpg").write_bytes(jpeg())
+    assert run(["orient", str(tmp_path / "a.jpg"), "--method", "yunet"]) == 2
+    assert "YuNet model" in capsys.readouterr().err
+    assert run(["orient", str(tmp_path / "a.jpg"), "--yunet", str(tmp_path / "none.onnx")]) == 2
+    assert "not found" in capsys.readouterr().err
