@@ -10,7 +10,7 @@ import socket
 import sys
 from pathlib import Path
 
-ENGINE_CLIS = ("workers.orientation.cli", "workers.depth.cli")
+ENGINE_CLIS = ("workers.orientation.cli", "workers.depth.cli", "workers.faces.cli")
 
 
 def _is_loopback(host: str) -> bool:

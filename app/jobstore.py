@@ -64,7 +64,7 @@ class Job(Base):
         return {c.name: getattr(self, c.name) for c in self.__table__.columns}
 
 
-def _as_utc(value: dt.datetime | None) -> dt.datetime | None:
+def as_utc(value: dt.datetime | None) -> dt.datetime | None:
     # SQLite returns naive datetimes even for timezone=True columns.
     if value is not None and value.tzinfo is None:
         return value.replace(tzinfo=dt.timezone.utc)
@@ -260,8 +260,8 @@ def job_public(job: Job) -> dict[str, Any]:
         "result": job.result,
         "error": job.error,
         "attempts": job.attempts,
-        "created_at": _as_utc(job.created_at),
-        "started_at": _as_utc(job.started_at),
-        "finished_at": _as_utc(job.finished_at),
-        "updated_at": _as_utc(job.updated_at),
+        "created_at": as_utc(job.created_at),
+        "started_at": as_utc(job.started_at),
+        "finished_at": as_utc(job.finished_at),
+        "updated_at": as_utc(job.updated_at),
     }

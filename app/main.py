@@ -63,13 +63,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.add_middleware(BodyLimitMiddleware, limit_for=limit_for)
 
-    from app.routers import depth, jobs, photos, system
+    from app.routers import depth, faces, jobs, photos, system
 
     app.include_router(system.router)
     app.include_router(jobs.router)
     app.include_router(jobs.ws_router)
     app.include_router(photos.router)
     app.include_router(depth.router)
+    app.include_router(faces.router)
     return app
 
 

@@ -47,6 +47,7 @@ JOB_KINDS: dict[str, JobKind] = {
             "workers.orientation.job:OrientationBatchParams",
         ),
         JobKind("depth.video", "workers.depth.job:run_depth_video", "workers.depth.params:DepthVideoParams"),
+        JobKind("faces.train", "workers.faces.job:run_face_training", "workers.faces.job:FaceTrainParams"),
     ]
 }
 

@@ -1,0 +1,192 @@
+"""The morphable 3D face model (the paper's II) and the trained face model saved as one ``.npz``.
+
+Displacements ``S = X - X_neutral`` (eq. 1) are flattened to (3N,) vectors (x0, y0, z0, x1, ...).
+PCA gives the mean displacement ``S_bar`` and orthonormal eigenvectors ``U_k``; a face's
+parameters are ``f_k = U_k . (S - S_bar)`` (eqs. 2 and 7) and parameters map back to a face with
+``X = X_neutral + S_bar + sum_k f_k U_k`` (eqs. 3 and 9).
+"""
+from __future__ import annotations
+
+import io
+import json
+import os
+import uuid
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from workers.faces.errors import FaceInputError
+from workers.faces.mesh import Mesh
+from workers.faces.neutral import IdentityModel
+from workers.faces.transfer import SvmTransfer
+
+FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True, eq=False)
+class MorphableModel:
+    """Displacement PCA of registered faces sharing one topology.
+
+    ``neutral``: (N, 3) float64, the mean neutral face (the default ``X_neutral``);
+    ``mean``: (3N,) ``S_bar``; ``basis``: (3N, K) orthonormal columns ``U_k``;
+    ``variances``: (K,) eigenvalues, descending; ``total_variance``: the sum of all eigenvalues
+    (so that ``variances / total_variance`` is the explained ratio); ``topology``: the faces.
+    """
+
+    neutral: np.ndarray
+    mean: np.ndarray
+    basis: np.ndarray
+    variances: np.ndarray
+    total_variance: float
+    topology: Mesh
+
+    @property
+    def n_components(self) -> int:
+        return self.basis.shape[1]
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self.neutral)
+
+    def explained_ratio(self) -> float:
+        """Fraction of the training displacements' variance the K components keep."""
+        return float(self.variances.sum() / self.total_variance) if self.total_variance > 0 else 1.0
+
+    def project(self, displacement: np.ndarray) -> np.ndarray:
+        """Eq. 7: (K,) parameters of one (N, 3) or (3N,) displacement ``S``; (B, K) for (B, N, 3) or (B, 3N)."""
+        s = np.asarray(displacement, dtype=np.float64)
+        f = (s.reshape(-1, self.mean.size) - self.mean) @ self.basis
+        return f[0] if s.size == self.mean.size else f
+
+    def displacement(self, f: np.ndarray) -> np.ndarray:
+        """Eq. 3: the (N, 3) displacement ``S_bar + sum_k f_k U_k`` of (K,) parameters."""
+        return (self.mean + self.basis @ np.asarray(f, dtype=np.float64)).reshape(-1, 3)
+
+    def reconstruct(self, f: np.ndarray, neutral: np.ndarray | None = None) -> np.ndarray:
+        """Eq. 9: (N, 3) face ``X_neutral + S_bar + sum_k f_k U_k`` (default: the mean neutral)."""
+        base = self.neutral if neutral is None else np.asarray(neutral, dtype=np.float64)
+        return base + self.displacement(f)
+
+    def mahalanobis(self, f: np.ndarray) -> np.ndarray:
+        """Mahalanobis distance of (..., K) parameters from the training mean: ``sqrt(sum f_k^2 / lambda_k)``."""
+        f = np.asarray(f, dtype=np.float64)
+        return np.sqrt(np.sum(f * f / np.maximum(self.variances, np.finfo(float).tiny), axis=-1))
+
+
+@dataclass(eq=False)
+class FaceModel:
+    """A trained face transformer: the morphable model plus one Fisher vector and one SVC per impression.
+
+    ``fisher``: (I, K) unit rows in the order of ``impressions``; ``svms``: one
+    :class:`SvmTransfer` per impression; ``q_unit``: the length in parameter space of Q = 1
+    (the RMS norm of the training expressions' displacements, in mesh units), so Q = 1 is a step
+    as large as a typical training expression; ``m``, ``n``: default neighbour counts of eq. 5;
+    ``meta``: JSON-able training facts (settings, counts, accuracies); ``identity``: the identity
+    PCA used to estimate a person's neutral face when none is given (see :mod:`workers.faces.neutral`).
+    """
+
+    morph: MorphableModel
+    impressions: tuple[str, ...]
+    fisher: np.ndarray
+    svms: tuple[SvmTransfer, ...]
+    q_unit: float
+    m: int = 10
+    n: int = 10
+    meta: dict[str, Any] = field(default_factory=dict)
+    identity: IdentityModel | None = None
+
+    def impression_index(self, impression: str) -> int:
+        """Index of ``impression``; raises FaceInputError naming the known ones."""
+        try:
+            return self.impressions.index(impression)
+        except ValueError:
+            raise FaceInputError(
+                f"unknown impression {impression!r}; this model knows: {', '.join(self.impressions)}"
+            ) from None
+
+    def summary(self) -> dict[str, Any]:
+        """A JSON-able description (for listings and ``summary.json``)."""
+        return {
+            "impressions": list(self.impressions),
+            "n_vertices": self.morph.n_vertices,
+            "n_faces": self.morph.topology.n_faces,
+            "n_components": self.morph.n_components,
+            "n_identity_components": 0 if self.identity is None else int(self.identity.basis.shape[1]),
+            "explained_variance": round(self.morph.explained_ratio(), 6),
+            "q_unit": self.q_unit,
+            "m": self.m,
+            "n": self.n,
+            **self.meta,
+        }
+
+    def to_bytes(self) -> bytes:
+        """The model as ``.npz`` bytes (no pickled objects)."""
+        buf = io.BytesIO()
+        np.savez(buf, **self._arrays())
+        return buf.getvalue()
+
+    def save(self, path: str | Path) -> None:
+        """Write the model to one ``.npz`` file, atomically (temporary file, then rename)."""
+        path = Path(path)
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")  # writers may race
+        tmp.write_bytes(self.to_bytes())
+        tmp.replace(path)
+
+    def _arrays(self) -> dict[str, np.ndarray]:
+        sizes = np.array([len(s.support_vectors) for s in self.svms], dtype=np.int64)
+        header = {"version": FORMAT_VERSION, "impressions": list(self.impressions), "q_unit": self.q_unit,
+                  "m": self.m, "n": self.n, "total_variance": self.morph.total_variance, "meta": self.meta}
+        arrays = {} if self.identity is None else {
+            "identity_basis": self.identity.basis,
+            "identity_variances": self.identity.variances,
+            "identity_cross": self.identity.cross,
+            "identity_noise_var": np.array(self.identity.noise_var),
+        }
+        return arrays | {
+            "header": np.array(json.dumps(header)),
+            "neutral": self.morph.neutral,
+            "mean": self.morph.mean,
+            "basis": self.morph.basis,
+            "variances": self.morph.variances,
+            "face_sizes": self.morph.topology.face_sizes,
+            "face_indices": self.morph.topology.face_indices,
+            "fisher": self.fisher,
+            "sv_counts": sizes,
+            "support_vectors": np.concatenate([s.support_vectors for s in self.svms]),
+            "sv_positive": np.concatenate([s.positive for s in self.svms]),
+            "svm_coef": np.stack([s.coef for s in self.svms]),
+            "svm_intercept": np.array([s.intercept for s in self.svms]),
+        }
+
+
+def load_face_model(source: str | Path | bytes) -> FaceModel:
+    """Read a model written by :meth:`FaceModel.save` (a path or the ``.npz`` bytes).
+
+    Raises FaceInputError when the file is not such a model.
+    """
+    try:
+        data = np.load(io.BytesIO(source) if isinstance(source, bytes) else source, allow_pickle=False)
+        header = json.loads(str(data["header"]))
+        arrays = {k: data[k] for k in data.files}
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+        raise FaceInputError(f"not a face model file: {exc}") from None
+    if header.get("version") != FORMAT_VERSION:
+        raise FaceInputError(f"unsupported face model version {header.get('version')!r}")
+    topology = Mesh(arrays["neutral"], arrays["face_sizes"], arrays["face_indices"])
+    morph = MorphableModel(arrays["neutral"], arrays["mean"], arrays["basis"], arrays["variances"],
+                           float(header["total_variance"]), topology)
+    bounds = np.concatenate([[0], np.cumsum(arrays["sv_counts"])])
+    svms = tuple(
+        SvmTransfer(arrays["support_vectors"][a:b], arrays["sv_positive"][a:b].astype(bool),
+                    arrays["svm_coef"][i], float(arrays["svm_intercept"][i]))
+        for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))
+    )
+    identity = None
+    if "identity_basis" in arrays:
+        identity = IdentityModel(arrays["identity_basis"], arrays["identity_variances"], arrays["identity_cross"],
+                                 float(arrays["identity_noise_var"]))
+    return FaceModel(morph, tuple(header["impressions"]), arrays["fisher"], svms, float(header["q_unit"]),
+                     int(header["m"]), int(header["n"]), header.get("meta", {}), identity)
