@@ -10,7 +10,12 @@ import socket
 import sys
 from pathlib import Path
 
-ENGINE_CLIS = ("workers.orientation.cli", "workers.depth.cli", "workers.faces.cli")
+ENGINE_CLIS = (
+    "workers.orientation.cli",
+    "workers.depth.cli",
+    "workers.faces.cli",
+    "workers.sweep.cli",
+)
 
 
 def _is_loopback(host: str) -> bool:

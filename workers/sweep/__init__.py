@@ -1,0 +1,22 @@
+"""Plane-sweep virtual-view rendering with view-dependent weighting (Kojima & Fujimoto).
+
+API (import from the submodules; arrays follow workers.camera conventions, images uint8 BGR):
+
+- ``rig``: ``Rig(cameras, image_files=(), depth_range=None)`` (>= 2 cameras, unique names),
+  ``RigError`` (ValueError naming camera and field), ``depth_range_from_box(camera, lo, hi)``.
+- ``rig_io``: ``load_rig(path)`` (dispatch on format), ``load_rig_json``/``save_rig_json``,
+  ``rig_from_dict``/``rig_to_dict``, ``load_colmap_text(folder)``, ``load_opencv_yaml(path)``,
+  ``load_middlebury_par(path)``, ``rectified_rig(files, width, height, positions, focal, baseline)``,
+  ``load_middlebury_rectified(folder)``, ``load_images(rig, folder)``.
+- ``virtual``: ``from_pose``, ``look_at``, ``between(rig, a, b, s)``, ``path(rig, names, steps)``,
+  ``parse_pose(spec, rig)``.
+- ``renderer``: ``SweepRenderer(rig, images, silhouettes=None, backgrounds=None)`` with
+  ``set_frames(images, silhouettes=None)`` and ``render(virtual, options=None, **fields) -> RenderResult``
+  (image, depth, regions, primary, cost, planes, timings); ``RenderOptions`` (pydantic, extra=forbid).
+- ``weighting``: ``kojima_weights``, ``ulr_weights``, ``global_camera``, ``suggest_d_bnd``, ``METHODS``.
+- ``silhouette``: ``silhouette_from_background(image, background)``.
+- ``reference``: ``reference_sweep`` (cv2.warpPerspective + numpy baseline), ``plane_homographies``.
+- ``metrics``: ``psnr``, ``ssim``, ``highfreq_ratio``, ``frame_jump``.
+- ``overlays``: ``regions_image``, ``depth_image``.
+- ``cli``: ``register(subparsers)`` adds ``render``.
+"""

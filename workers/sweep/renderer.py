@@ -1,0 +1,333 @@
+"""The plane-sweep virtual-view renderer (Kojima & Fujimoto, section III), built once per rig and
+frame set, then rendered many times per second from any viewpoint.
+
+    r = SweepRenderer(rig, images, backgrounds=empty_views)   # or silhouettes=..., or neither
+    out = r.render(virtual_camera, method="kojima", planes=48, near=1.5, far=4.0)  # D_bnd from the rig
+    out.image, out.depth, out.regions, out.primary, out.timings
+
+For a live stream call :meth:`SweepRenderer.set_frames` with each new synchronised frame set; the
+geometry and buffers are kept.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import Literal, Sequence
+
+import cv2
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from workers.camera import Camera
+
+from . import kernels
+from .rig import Rig, RigError
+from .silhouette import dilate, silhouette_from_background
+from .weighting import METHOD_CODES, global_camera, neighbour_angle, suggest_d_bnd
+
+MAX_PLANES = 1024
+MAX_VIEW_PIXELS = 4096 * 4096
+
+
+class RenderOptions(BaseModel):
+    """Per-call rendering options (validated; the service validates requests with this model).
+
+    method: colour weighting (see :mod:`workers.sweep.weighting`). d_bnd: the paper's D_bnd
+    (kojima); None derives it from the rig: blending over half the angle between neighbouring
+    cameras as seen from the rendered surface (:func:`suggest_d_bnd`). k: cameras blended by ulr. planes: depth planes, uniform in inverse depth between
+    near and far (metres along the virtual axis; None: the rig's range or a heuristic).
+    visual_hull: cull with the silhouettes (None: when the renderer has silhouettes).
+    coarse_to_fine: sweep all planes at half resolution, then only a window of planes around the
+    coarse choice at full resolution. consistency: variance of the camera samples, or its
+    truncated form (each camera's squared deviation capped at ``truncation``^2).
+    min_views: cameras that must see a point for it to be tested. subpixel_bits: > 0 rounds the depth
+    search's sampling positions to 1/2**bits px (5 matches OpenCV's warps, for like-for-like checks
+    against :mod:`workers.sweep.reference`); 0 samples exactly. fill: BGR colour where no depth.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    method: Literal["global", "nearest", "ulr", "kojima"] = "kojima"
+    d_bnd: float | None = Field(None, gt=0.0, le=2.0)
+    k: int = Field(3, ge=2, le=8)
+    planes: int = Field(48, ge=2, le=MAX_PLANES)
+    near: float | None = Field(None, gt=0.0)
+    far: float | None = Field(None, gt=0.0)
+    visual_hull: bool | None = None
+    coarse_to_fine: bool = False
+    refine_margin: int = Field(2, ge=0, le=64)
+    consistency: Literal["variance", "truncated"] = "variance"
+    truncation: float = Field(30.0, gt=0.0)
+    min_views: int = Field(2, ge=1)
+    subpixel_bits: int = Field(0, ge=0, le=10)
+    fill: tuple[int, int, int] = (0, 0, 0)
+
+
+@dataclass(frozen=True)
+class RenderResult:
+    """One rendered virtual view.
+
+    image (h, w, 3) uint8 BGR; depth (h, w) float32 metres along the virtual axis, inf where no
+    surface was found; regions (h, w) uint8: cameras with non-zero weight (kojima: 1 one-camera
+    region, 2 two-camera region; 0 no surface); primary (h, w) int16: index of the nearest-angle
+    camera (-1 none), which shows the one-camera regions of Fig. 4(a); cost (h, w) float32: the
+    photo-consistency at the chosen plane; planes (P,) float64 plane depths; plane_index (h, w)
+    int32 the chosen plane (-1 none); visual_hull: whether the hull culled; d_bnd: the D_bnd used
+    (kojima; None for the other methods); timings: ms per stage.
+    """
+
+    camera: Camera
+    image: np.ndarray
+    depth: np.ndarray
+    regions: np.ndarray
+    primary: np.ndarray
+    cost: np.ndarray
+    planes: np.ndarray
+    plane_index: np.ndarray
+    visual_hull: bool
+    d_bnd: float | None
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def spread_order(centers: np.ndarray) -> np.ndarray:
+    """Camera indices (N,) int64 in farthest-point order of their centres (N, 3): each next camera
+    is the one farthest from those already taken, so early samples span a wide baseline."""
+    n = len(centers)
+    order = [0]
+    dist = np.linalg.norm(centers - centers[0], axis=1)
+    for _ in range(n - 1):
+        nxt = int(np.argmax(dist))
+        order.append(nxt)
+        dist = np.minimum(dist, np.linalg.norm(centers - centers[nxt], axis=1))
+    return np.array(order, np.int64)
+
+
+class SweepRenderer:
+    """Plane-sweep renderer for one rig; holds the current frame set and its silhouettes.
+
+    rig: a :class:`Rig` (or a sequence of cameras). images: one (H, W, 3) uint8 BGR per camera, sized
+    as its calibration. silhouettes: one (H, W) bool per camera, or backgrounds: one empty-scene image
+    per camera (silhouettes then come from background subtraction with ``bg_threshold``); with
+    neither, there is no visual hull. hull_dilate: pixels added around each silhouette so that small
+    silhouette or calibration errors do not carve the object. Distorted cameras are undistorted once
+    here (same K).
+    """
+
+    def __init__(
+        self, rig: Rig | Sequence[Camera], images: Sequence[np.ndarray], *,
+        silhouettes: Sequence[np.ndarray] | None = None, backgrounds: Sequence[np.ndarray] | None = None,
+        bg_threshold: float = 20.0, hull_dilate: int = 2,
+    ) -> None:
+        self.rig = rig if isinstance(rig, Rig) else Rig(tuple(rig))
+        self.cameras = [Camera(c.name, c.K, c.R, c.t, c.width, c.height) for c in self.rig.cameras]
+        self._undistort = [self._undistort_maps(c) for c in self.rig.cameras]
+        self.bg_threshold = float(bg_threshold)
+        self.hull_dilate = int(hull_dilate)
+        self.backgrounds = None
+        if backgrounds is not None:
+            self.backgrounds = [self._undistorted(i, b) for i, b in enumerate(self._checked(backgrounds, "background"))]
+        n = len(self.cameras)
+        hm = max(c.height for c in self.cameras)
+        wm = max(c.width for c in self.cameras)
+        self._imgs = np.zeros((n, hm, wm, 3), np.uint8)  # uint8: a quarter of float32's cache footprint
+        self._sils = np.ones((n, hm, wm), np.uint8)
+        self._sizes = np.array([[c.width, c.height] for c in self.cameras], np.int64)
+        self._P = np.stack([c.P for c in self.cameras])
+        self._centers = np.stack([c.center for c in self.cameras])
+        self._axes = np.stack([c.axis for c in self.cameras])
+        self._order = spread_order(self._centers)
+        self.has_silhouettes = False
+        self.set_frames(images, silhouettes)
+
+    # --- frames -------------------------------------------------------------------------------
+    def set_frames(self, images: Sequence[np.ndarray], silhouettes: Sequence[np.ndarray] | None = None) -> None:
+        """Replace the current frame set (one synchronised image per camera, uint8 BGR); silhouettes
+        as in the constructor (background subtraction when the renderer has backgrounds)."""
+        imgs = self._checked(images, "image")
+        sils = None
+        if silhouettes is not None:
+            sils = [self._undistorted(i, np.asarray(s, bool).astype(np.uint8), nearest=True).astype(bool)
+                    for i, s in enumerate(self._checked(silhouettes, "silhouette", channels=None))]
+        for i, img in enumerate(imgs):
+            img = self._undistorted(i, img)
+            c = self.cameras[i]
+            self._imgs[i, :c.height, :c.width] = img
+            if sils is None and self.backgrounds is not None:
+                sil = silhouette_from_background(img, self.backgrounds[i], self.bg_threshold)
+            else:
+                sil = sils[i] if sils is not None else None
+            if sil is not None:
+                self._sils[i, :c.height, :c.width] = dilate(sil, self.hull_dilate)
+        self.has_silhouettes = sils is not None or self.backgrounds is not None
+
+    def silhouettes(self) -> list[np.ndarray]:
+        """The (dilated) silhouettes in use, (H, W) bool per camera (all True without a hull)."""
+        return [self._sils[i, :c.height, :c.width].astype(bool) for i, c in enumerate(self.cameras)]
+
+    # --- rendering ----------------------------------------------------------------------------
+    def render(self, virtual: Camera, options: RenderOptions | None = None, **kwargs: object) -> RenderResult:
+        """Render the view of ``virtual`` (any size; its distortion is ignored).
+
+        Options come as a :class:`RenderOptions` or as its fields in keyword arguments
+        (``method=``, ``d_bnd=``, ``k=``, ``planes=``, ``near=``, ``far=``, ...).
+        """
+        t0 = time.perf_counter()
+        if options is None:
+            opt = RenderOptions(**kwargs)
+        else:
+            opt = RenderOptions(**{**options.model_dump(), **kwargs}) if kwargs else options
+        if virtual.width * virtual.height > MAX_VIEW_PIXELS:
+            raise RigError(virtual.name, "size", f"{virtual.width}x{virtual.height} is larger than allowed")
+        near, far = self._depth_range(virtual, opt)
+        s_planes = np.linspace(1.0 / near, 1.0 / far, opt.planes)
+        use_hull = self.has_silhouettes if opt.visual_hull is None else bool(opt.visual_hull)
+        if use_hull and not self.has_silhouettes:
+            raise RigError(None, "visual_hull", "requested, but the renderer has no silhouettes or backgrounds")
+        timings: dict[str, float] = {}
+        t1 = time.perf_counter()
+        timings["prepare_ms"] = (t1 - t0) * 1e3
+        h, w = virtual.height, virtual.width
+        if opt.coarse_to_fine and min(h, w) >= 8:
+            coarse_cam = virtual.scaled(0.5)
+            Qc, Bc, _ = self._geometry(coarse_cam)
+            hc, wc = coarse_cam.height, coarse_cam.width
+            best_c, _ = self._sweep(Qc, Bc, s_planes, use_hull, opt, *self._full_window(hc, wc, opt.planes))
+            lo = np.empty((h, w), np.int32)
+            hi = np.empty((h, w), np.int32)
+            kernels.refine_windows(best_c, h, w, 1, opt.refine_margin, opt.planes, lo, hi)
+            t2 = time.perf_counter()
+            timings["coarse_ms"] = (t2 - t1) * 1e3
+            t1 = t2
+        else:
+            lo, hi = self._full_window(h, w, opt.planes)
+        Q, B, G = self._geometry(virtual)
+        best, cost = self._sweep(Q, B, s_planes, use_hull, opt, lo, hi)
+        t2 = time.perf_counter()
+        timings["sweep_ms"] = (t2 - t1) * 1e3
+        depth = np.where(best >= 0, (1.0 / s_planes)[np.maximum(best, 0)], np.inf).astype(np.float32)
+        d_bnd = self._d_bnd(virtual, depth, opt)
+        image, regions, primary = self._shade(virtual, Q, B, G, s_planes, best, use_hull, opt, d_bnd)
+        t3 = time.perf_counter()
+        timings["shade_ms"] = (t3 - t2) * 1e3
+        timings["total_ms"] = (t3 - t0) * 1e3
+        return RenderResult(virtual, image, depth, regions, primary, cost, 1.0 / s_planes, best, use_hull,
+                            d_bnd, timings)
+
+    def reshade(self, previous: RenderResult, options: RenderOptions | None = None, **kwargs: object) -> RenderResult:
+        """The view of ``previous`` (same camera, same depth) coloured with other weighting options
+        (``method``, ``d_bnd``, ``k``, ``fill``): no new sweep. The frames must be the same."""
+        t0 = time.perf_counter()
+        opt = RenderOptions(**kwargs) if options is None else RenderOptions(**{**options.model_dump(), **kwargs})
+        virtual = previous.camera
+        Q, B, G = self._geometry(virtual)
+        s_planes = 1.0 / previous.planes
+        d_bnd = self._d_bnd(virtual, previous.depth, opt)
+        image, regions, primary = self._shade(virtual, Q, B, G, s_planes, previous.plane_index,
+                                              previous.visual_hull, opt, d_bnd)
+        ms = (time.perf_counter() - t0) * 1e3
+        return replace(previous, image=image, regions=regions, primary=primary, d_bnd=d_bnd,
+                       timings={"shade_ms": ms, "total_ms": ms})
+
+    def auto_d_bnd(self, virtual: Camera, depth: np.ndarray) -> float:
+        """D_bnd blending over half the angle between neighbouring cameras, seen from the surface
+        point on ``virtual``'s central ray at the median of ``depth`` (h, w) (1 m without any)."""
+        ok = np.isfinite(depth)
+        z = float(np.median(depth[ok])) if ok.any() else 1.0
+        centre = np.array([[(virtual.width - 1) / 2, (virtual.height - 1) / 2]])
+        return suggest_d_bnd(neighbour_angle(self._centers, virtual.backproject(centre, z)[0]), 0.5)
+
+    def _d_bnd(self, virtual: Camera, depth: np.ndarray, opt: RenderOptions) -> float | None:
+        if opt.method != "kojima":
+            return None
+        return opt.d_bnd if opt.d_bnd is not None else self.auto_d_bnd(virtual, depth)
+
+    def depth_planes(self, virtual: Camera, planes: int, near: float | None = None, far: float | None = None) -> np.ndarray:
+        """The plane depths (P,) float64 a render with these options would test, nearest first."""
+        n, f = self._depth_range(virtual, RenderOptions(planes=planes, near=near, far=far))
+        return 1.0 / np.linspace(1.0 / n, 1.0 / f, planes)
+
+    # --- internals ----------------------------------------------------------------------------
+    def _depth_range(self, virtual: Camera, opt: RenderOptions) -> tuple[float, float]:
+        if opt.near is None or opt.far is None:
+            auto_near, auto_far = self.rig.auto_depth_range(virtual)
+        near = opt.near if opt.near is not None else auto_near
+        far = opt.far if opt.far is not None else auto_far
+        if not near < far:
+            raise RigError(virtual.name, "near/far", f"needs near < far, got {near:g} and {far:g}")
+        return near, far
+
+    def _geometry(self, virtual: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Q (N, 3, 3), B (N, 3) and G (3, 3): see :mod:`workers.sweep.kernels`."""
+        G = virtual.R.T @ np.linalg.inv(virtual.K)
+        M = self._P[:, :, :3]
+        Q = np.ascontiguousarray(M @ G)
+        B = np.ascontiguousarray(M @ virtual.center + self._P[:, :, 3])
+        return Q, B, G
+
+    def _shade(self, virtual: Camera, Q: np.ndarray, B: np.ndarray, G: np.ndarray, s_planes: np.ndarray,
+               best: np.ndarray, use_hull: bool, opt: RenderOptions,
+               d_bnd: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Image (h, w, 3) uint8, regions (h, w) uint8 and primary (h, w) int16 at the chosen planes."""
+        h, w = best.shape
+        image = np.empty((h, w, 3), np.uint8)
+        regions = np.empty((h, w), np.uint8)
+        primary = np.empty((h, w), np.int16)
+        gcam = global_camera(self._axes, virtual.axis)
+        kernels.shade(Q, B, s_planes, best, self._imgs, self._sizes, self._sils, use_hull, self._centers,
+                      virtual.center, G, METHOD_CODES[opt.method], d_bnd or 1.0, opt.k, gcam,
+                      np.asarray(opt.fill, np.uint8), image, regions, primary)
+        return image, regions, primary
+
+    def _sweep(self, Q: np.ndarray, B: np.ndarray, s_planes: np.ndarray, use_hull: bool, opt: RenderOptions,
+               lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Best plane (h, w) int32 and its cost (h, w) float32 for windows lo..hi."""
+        best = np.empty(lo.shape, np.int32)
+        cost = np.empty(lo.shape, np.float32)
+        trunc2 = opt.truncation**2 if opt.consistency == "truncated" else 0.0
+        qs = float(2**opt.subpixel_bits) if opt.subpixel_bits > 0 else 0.0
+        kernels.sweep_depth(self._camera_table(Q, B), self._imgs.reshape(-1), self._sils.reshape(-1), use_hull,
+                            opt.min_views, trunc2, qs, s_planes, lo, hi, best, cost)
+        return best, cost
+
+    def _camera_table(self, Q: np.ndarray, B: np.ndarray) -> np.ndarray:
+        """The sweep kernel's per-camera rows (N, CAM_COLUMNS) float64, in sampling order."""
+        n, hm, wm = self._sils.shape
+        table = np.empty((n, kernels.CAM_COLUMNS))
+        for row, i in enumerate(self._order):
+            w, h = self._sizes[i]
+            table[row, :9] = Q[i].ravel()
+            table[row, 9:12] = B[i]
+            table[row, 12:] = (w - 1, h - 1, i * hm * wm * 3, wm * 3, i * hm * wm, wm)
+        return table
+
+    @staticmethod
+    def _full_window(h: int, w: int, planes: int) -> tuple[np.ndarray, np.ndarray]:
+        return np.zeros((h, w), np.int32), np.full((h, w), planes - 1, np.int32)
+
+    def _checked(self, arrays: Sequence[np.ndarray], what: str, channels: int | None = 3) -> list[np.ndarray]:
+        arrays = list(arrays)
+        if len(arrays) != len(self.rig.cameras):
+            raise RigError(None, what, f"{len(arrays)} given for {len(self.rig.cameras)} cameras")
+        out = []
+        for cam, a in zip(self.rig.cameras, arrays):
+            a = np.asarray(a)
+            want = (cam.height, cam.width) + ((channels,) if channels else ())
+            if a.shape != want:
+                raise RigError(cam.name, f"{what} size", f"got shape {a.shape}, calibration says {want}")
+            if channels and a.dtype != np.uint8:
+                raise RigError(cam.name, what, f"must be uint8, got {a.dtype}")
+            out.append(a)
+        return out
+
+    @staticmethod
+    def _undistort_maps(cam: Camera) -> tuple[np.ndarray, np.ndarray] | None:
+        if not cam.has_distortion:
+            return None
+        return cv2.initUndistortRectifyMap(cam.K, cam.dist, None, cam.K, (cam.width, cam.height), cv2.CV_32FC1)
+
+    def _undistorted(self, i: int, img: np.ndarray, nearest: bool = False) -> np.ndarray:
+        maps = self._undistort[i]
+        if maps is None:
+            return img
+        interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
+        return cv2.remap(img, maps[0], maps[1], interp, borderMode=cv2.BORDER_CONSTANT)

@@ -1,0 +1,351 @@
+"""Rig importers (our JSON, COLMAP text, OpenCV FileStorage YAML, Middlebury ``_par.txt``, rectified
+Middlebury stereo sets) and image loading. Every importer returns a :class:`Rig` in our conventions
+(``x_cam = R X + t``, pixel (0, 0) at the centre of the top-left pixel); malformed input raises
+:class:`RigError` or :class:`CameraError` (both ``ValueError``) naming the camera and field.
+
+Our JSON::
+
+    {"cameras": [{"name": "cam00", "K": [[fx,0,cx],[0,fy,cy],[0,0,1]], "R": [[...]x3],
+                  "t": [tx,ty,tz] (or "center": [x,y,z]), "width": 640, "height": 480,
+                  "dist": [k1,k2,p1,p2,k3] (optional), "image": "cam00.png" (optional)}, ...],
+     "depth_range": [near, far] (optional)}
+
+OpenCV FileStorage (YAML/XML): a sequence ``cameras`` of maps with ``name``, ``K`` (or
+``camera_matrix``), ``dist`` (or ``distortion_coefficients``, ``D``), ``R`` (3x3, or a 3-vector
+Rodrigues ``rvec``), ``t`` (or ``T``, ``tvec``), ``width``/``height`` (or ``image_width``/
+``image_height``), optional ``image``; or one such map at the top level (a single camera file).
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from workers.camera import Camera, CameraError, quat_to_rotation
+
+from .rig import Rig, RigError
+
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm", ".webp")
+
+
+# --- our JSON ---------------------------------------------------------------------------------
+def rig_from_dict(d: dict[str, Any]) -> Rig:
+    """A rig from our JSON structure (see the module docstring)."""
+    cams_in = d.get("cameras") if isinstance(d, dict) else None
+    if not isinstance(cams_in, list):
+        raise RigError(None, "cameras", "missing or not a list")
+    cams = []
+    files = []
+    for i, cd in enumerate(cams_in):
+        if not isinstance(cd, dict):
+            raise RigError(f"#{i}", "camera", "is not an object")
+        cam = Camera.from_dict(cd, name=f"#{i}")
+        cams.append(cam)
+        files.append(str(cd.get("image", cam.name)))
+    dr = d.get("depth_range")
+    return Rig(tuple(cams), tuple(files), tuple(dr) if dr is not None else None)
+
+
+def rig_to_dict(rig: Rig) -> dict[str, Any]:
+    """Our JSON structure for ``rig``."""
+    cams = []
+    for cam, f in zip(rig.cameras, rig.image_files):
+        d = cam.to_dict()
+        d["image"] = f
+        cams.append(d)
+    out: dict[str, Any] = {"cameras": cams}
+    if rig.depth_range is not None:
+        out["depth_range"] = list(rig.depth_range)
+    return out
+
+
+def load_rig_json(path: str | Path) -> Rig:
+    """Read our JSON rig file."""
+    try:
+        d = json.loads(Path(path).read_text())
+    except json.JSONDecodeError as e:
+        raise RigError(None, "file", f"{path} is not valid JSON ({e})") from None
+    return rig_from_dict(d)
+
+
+def save_rig_json(rig: Rig, path: str | Path) -> None:
+    """Write ``rig`` as our JSON."""
+    Path(path).write_text(json.dumps(rig_to_dict(rig), indent=1))
+
+
+# --- COLMAP text ------------------------------------------------------------------------------
+# model -> (parameter names); distortion follows OpenCV's order
+_COLMAP_MODELS = {
+    "SIMPLE_PINHOLE": ("f", "cx", "cy"),
+    "PINHOLE": ("fx", "fy", "cx", "cy"),
+    "SIMPLE_RADIAL": ("f", "cx", "cy", "k1"),
+    "RADIAL": ("f", "cx", "cy", "k1", "k2"),
+    "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
+    "FULL_OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+}
+
+
+def load_colmap_text(folder: str | Path) -> Rig:
+    """Read COLMAP's ``cameras.txt`` + ``images.txt`` from ``folder``.
+
+    COLMAP puts pixel (0, 0) at the top-left corner of the image, so the principal point moves by
+    -0.5 px into our convention. Camera names are the image names.
+    """
+    folder = Path(folder)
+    intrinsics = _colmap_cameras(folder / "cameras.txt")
+    lines = [ln.rstrip("\n") for ln in (folder / "images.txt").read_text().splitlines() if not ln.startswith("#")]
+    cams = []
+    i = 0
+    while i < len(lines):
+        tok = lines[i].split()
+        if not tok:
+            i += 1
+            continue
+        if len(tok) < 10:
+            raise RigError(None, "images.txt", f"line {lines[i]!r} is not 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME'")
+        name = " ".join(tok[9:])
+        try:
+            q = np.array(tok[1:5], float)
+            t = np.array(tok[5:8], float)
+            cam_id = int(tok[8])
+        except ValueError:
+            raise RigError(name, "pose", f"unreadable numbers in {lines[i]!r}") from None
+        if cam_id not in intrinsics:
+            raise RigError(name, "CAMERA_ID", f"camera {cam_id} is not in cameras.txt")
+        if not np.linalg.norm(q) > 0:
+            raise RigError(name, "R", "zero quaternion")
+        K, dist, w, h = intrinsics[cam_id]
+        cams.append(Camera(name, K, quat_to_rotation(q), t, w, h, dist))
+        i += 2  # the next line holds the image's 2D points (possibly empty)
+    return Rig(tuple(cams))
+
+
+def _colmap_cameras(path: Path) -> dict[int, tuple[np.ndarray, np.ndarray | None, int, int]]:
+    out = {}
+    for ln in path.read_text().splitlines():
+        tok = ln.split()
+        if not tok or ln.startswith("#"):
+            continue
+        cid, model = tok[0], tok[1]
+        if model not in _COLMAP_MODELS:
+            raise RigError(f"camera {cid}", "model", f"{model} is not supported ({', '.join(_COLMAP_MODELS)})")
+        names = _COLMAP_MODELS[model]
+        try:
+            w, h = int(tok[2]), int(tok[3])
+            vals = dict(zip(names, map(float, tok[4:])))
+        except ValueError:
+            raise RigError(f"camera {cid}", "params", f"unreadable numbers in {ln!r}") from None
+        if len(tok) - 4 != len(names):
+            raise RigError(f"camera {cid}", "params", f"{model} needs {len(names)} parameters, got {len(tok) - 4}")
+        fx = vals.get("fx", vals.get("f"))
+        fy = vals.get("fy", vals.get("f"))
+        K = np.array([[fx, 0, vals["cx"] - 0.5], [0, fy, vals["cy"] - 0.5], [0, 0, 1]])
+        dist = None
+        if "k1" in vals:
+            d = [vals.get(k, 0.0) for k in ("k1", "k2", "p1", "p2")]
+            if model == "FULL_OPENCV":
+                d += [vals[k] for k in ("k3", "k4", "k5", "k6")]
+            dist = np.array(d)
+        out[int(cid)] = (K, dist, w, h)
+    return out
+
+
+# --- OpenCV FileStorage -----------------------------------------------------------------------
+_YAML_KEYS = {
+    "K": ("K", "camera_matrix", "cameraMatrix"),
+    "dist": ("dist", "distortion_coefficients", "dist_coeffs", "distCoeffs", "D"),
+    "R": ("R", "rotation", "rvec"),
+    "t": ("t", "T", "tvec", "translation"),
+    "width": ("width", "image_width"),
+    "height": ("height", "image_height"),
+}
+
+
+def load_opencv_yaml(path: str | Path) -> Rig:
+    """Read an OpenCV FileStorage file (YAML or XML) in the layout of the module docstring."""
+    path = Path(path)
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    if not fs.isOpened():
+        raise RigError(None, "file", f"{path} is not a readable OpenCV FileStorage file")
+    try:
+        seq = fs.getNode("cameras")
+        nodes = [seq.at(i) for i in range(seq.size())] if seq.isSeq() else [fs.root()]
+        cams, files = [], []
+        for i, node in enumerate(nodes):
+            name_node = node.getNode("name")
+            name = name_node.string() if not name_node.empty() else (f"#{i}" if seq.isSeq() else path.stem)
+            cams.append(_camera_from_node(node, name))
+            img = node.getNode("image")
+            files.append(img.string() if not img.empty() else name)
+    finally:
+        fs.release()
+    return Rig(tuple(cams), tuple(files))
+
+
+def _camera_from_node(node: Any, name: str) -> Camera:
+    def get(key: str, required: bool = True) -> Any:
+        for alias in _YAML_KEYS[key]:
+            n = node.getNode(alias)
+            if not n.empty():
+                return n
+        if required:
+            raise CameraError(name, key, f"missing (any of {', '.join(_YAML_KEYS[key])})")
+        return None
+
+    K = get("K").mat()
+    rn = get("R")
+    R = rn.mat()
+    if R is None:
+        raise CameraError(name, "R", "is not a matrix")
+    if R.size == 3:
+        R, _ = cv2.Rodrigues(R.astype(np.float64).reshape(3, 1))
+    tn = get("t").mat()
+    dn = get("dist", required=False)
+    dist = dn.mat() if dn is not None else None
+    return Camera(name, K, R, None if tn is None else tn.ravel(), get("width").real(), get("height").real(),
+                  None if dist is None else dist.ravel())
+
+
+# --- Middlebury -------------------------------------------------------------------------------
+def load_middlebury_par(path: str | Path, width: int | None = None, height: int | None = None) -> Rig:
+    """Read a Middlebury multi-view ``*_par.txt`` (``name k11..k33 r11..r33 t1 t2 t3`` per line,
+    P = K [R | t], image origin top-left, after a first line with the count).
+
+    The image size comes from ``width``/``height`` or, when not given, from the first image beside the file.
+    """
+    path = Path(path)
+    rows = [ln.split() for ln in path.read_text().splitlines() if ln.strip()]
+    if not rows:
+        raise RigError(None, "file", f"{path} is empty")
+    try:
+        count = int(rows[0][0])
+    except ValueError:
+        raise RigError(None, "count", f"first line of {path.name} must be the number of views") from None
+    entries = rows[1:]
+    if len(entries) != count:
+        raise RigError(None, "count", f"{path.name} announces {count} views but lists {len(entries)}")
+    if width is None or height is None:
+        first = path.parent / entries[0][0]
+        shape = _image_shape(first)
+        if shape is None:
+            raise RigError(entries[0][0], "width", f"no width/height given and {first} is not a readable image")
+        height, width = shape
+    cams = []
+    for tok in entries:
+        if len(tok) != 22:
+            raise RigError(tok[0], "line", f"expected a name and 21 numbers, got {len(tok) - 1} numbers")
+        try:
+            v = np.array(tok[1:], float)
+        except ValueError:
+            raise RigError(tok[0], "line", "unreadable numbers") from None
+        cams.append(Camera(tok[0], v[:9].reshape(3, 3), v[9:18].reshape(3, 3), v[18:], width, height))
+    return Rig(tuple(cams))
+
+
+def rectified_rig(
+    files: list[str], width: int, height: int, positions: list[float] | None = None, focal: float | None = None,
+    baseline: float = 1.0,
+) -> Rig:
+    """A rectified stereo set with equal baselines along x (e.g. Middlebury Teddy/Art).
+
+    View k sits at x = positions[k] * baseline (default positions 0, 1, 2, ...), R = I, all sharing
+    K = [[f, 0, (w-1)/2], [0, f, (h-1)/2], [0, 0, 1]] with f = ``focal`` (default: the width).
+    A disparity d between neighbouring views is then the depth z = f * baseline / d (units of the
+    baseline); only these ratios matter for re-rendering.
+    """
+    pos = list(range(len(files))) if positions is None else list(positions)
+    if len(pos) != len(files):
+        raise RigError(None, "positions", f"{len(pos)} positions for {len(files)} views")
+    f = float(focal) if focal is not None else float(width)
+    K = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1]])
+    cams = tuple(Camera.from_center(Path(n).stem, K, np.eye(3), [p * baseline, 0, 0], width, height)
+                 for n, p in zip(files, pos))
+    return Rig(cams, tuple(files))
+
+
+def load_middlebury_rectified(folder: str | Path, baseline: float = 1.0, focal: float | None = None) -> Rig:
+    """A rectified Middlebury folder: views named ``im<k>`` or ``view<k>`` (k = position on the
+    baseline), all the same size. See :func:`rectified_rig` for the geometry."""
+    folder = Path(folder)
+    views = []
+    for p in sorted(folder.iterdir()):
+        m = re.fullmatch(r"(?:im|view)(\d+)", p.stem)
+        if m and p.suffix.lower() in IMAGE_EXTENSIONS:
+            views.append((int(m.group(1)), p.name))
+    if len(views) < 2:
+        raise RigError(None, "cameras", f"{folder} holds fewer than 2 views named im<k> or view<k>")
+    views.sort()
+    shape = _image_shape(folder / views[0][1])
+    if shape is None:
+        raise RigError(views[0][1], "image", "unreadable")
+    return rectified_rig([n for _, n in views], shape[1], shape[0], [k for k, _ in views], focal, baseline)
+
+
+# --- dispatch and images ----------------------------------------------------------------------
+def load_rig(path: str | Path) -> Rig:
+    """Read a rig in any supported format, chosen by what ``path`` is:
+
+    ``*.json`` our JSON; ``*.yml``/``*.yaml``/``*.xml`` OpenCV FileStorage; ``*_par.txt`` Middlebury;
+    a folder holding ``cameras.txt`` + ``images.txt`` (directly or in ``sparse/0``) COLMAP text, a
+    ``*_par.txt`` Middlebury, else ``im<k>``/``view<k>`` images a rectified Middlebury set.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise RigError(None, "file", f"{path} does not exist")
+    if path.is_dir():
+        for sub in (path, path / "sparse" / "0", path / "sparse"):
+            if (sub / "cameras.txt").exists() and (sub / "images.txt").exists():
+                return load_colmap_text(sub)
+        pars = sorted(path.glob("*_par.txt"))
+        if pars:
+            return load_middlebury_par(pars[0])
+        return load_middlebury_rectified(path)
+    suffix = path.suffix.lower()
+    if suffix == ".json":
+        return load_rig_json(path)
+    if suffix in (".yml", ".yaml", ".xml"):
+        return load_opencv_yaml(path)
+    if path.name.endswith("_par.txt"):
+        return load_middlebury_par(path)
+    raise RigError(None, "file", f"{path.name}: unknown rig format (json, yml/yaml/xml, *_par.txt or a folder)")
+
+
+def find_image(folder: Path, name: str) -> Path | None:
+    """``folder/name`` or ``folder/name`` + a known image extension, whichever exists."""
+    direct = folder / name
+    if direct.is_file():
+        return direct
+    for ext in IMAGE_EXTENSIONS:
+        p = folder / (name + ext)
+        if p.is_file():
+            return p
+    return None
+
+
+def load_images(rig: Rig, folder: str | Path, names: list[str] | None = None) -> list[np.ndarray]:
+    """The rig's images from ``folder`` (uint8 (H, W, 3) BGR each, in rig order), by ``rig.image_files``
+    or the given ``names``; a missing, unreadable or wrongly-sized image raises RigError naming the camera."""
+    folder = Path(folder)
+    names = names if names is not None else list(rig.image_files)
+    images = []
+    for cam, name in zip(rig.cameras, names):
+        p = find_image(folder, name)
+        if p is None:
+            raise RigError(cam.name, "image", f"no image {name!r} in {folder}")
+        img = cv2.imread(str(p), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
+        if img is None:
+            raise RigError(cam.name, "image", f"{p} is not a readable image")
+        if img.shape[:2] != (cam.height, cam.width):
+            raise RigError(cam.name, "image size",
+                           f"{p.name} is {img.shape[1]}x{img.shape[0]}, calibration says {cam.width}x{cam.height}")
+        images.append(img)
+    return images
+
+
+def _image_shape(path: Path) -> tuple[int, int] | None:
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if path.is_file() else None
+    return None if img is None else img.shape[:2]

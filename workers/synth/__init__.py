@@ -1,0 +1,46 @@
+"""Procedural scenes with exact ground truth, by analytic ray casting (numpy + a numba noise kernel).
+
+Stable API (import from ``workers.synth``; world frame z up, metres; colours BGR 0..255; cameras
+are :class:`workers.camera.Camera`, see that module for conventions):
+
+Scene description
+- ``Scene(objects, light_dir=..., ambient=0.45, diffuse=0.55, sky=(b, g, r))``; ``scene.background_only()``.
+- Primitives, each with ``material=Material(texture, specular=0.0, shininess=40.0)`` and
+  ``foreground`` (True: part of the silhouette; False: static background):
+  ``Sphere(center, radius, ...)``, ``Box(center, size, ..., yaw_deg=0.0)`` (size = full edge
+  lengths, turned about z), ``Plane(point=(0,0,0), normal=(0,0,1), ...)`` (infinite; default
+  foreground=False).
+- Solid 3D textures (evaluated at the surface point, so every camera sees the same colour):
+  ``Solid(color)``, ``Checker(color_a, color_b, size)``, ``Noise(color_a, color_b, scale, octaves, seed)``,
+  ``ColorNoise(scale, octaves, seed, mean, contrast)``; ``fractal_noise(P, scale, octaves, seed)``.
+
+Rendering
+- ``render(scene, camera, supersample=1, gain=1.0, with_background=True) -> SynthView`` with
+  ``image`` (H, W, 3) uint8 BGR, ``depth`` (H, W) float32 z along the optical axis in metres (inf on
+  sky), ``silhouette`` (H, W) bool (foreground objects), ``background`` (H, W, 3) uint8 (the view
+  with the foreground removed, for background subtraction; None if with_background=False) and
+  ``object_id`` (H, W) int16 (index in scene.objects, -1 for sky). A 640x480 view of the default scene
+  takes well under a second (numba kernels; the first call in a process compiles or loads them).
+- ``render_views(scene, cameras, supersample=1, gains=None, with_background=True) -> list[SynthView]``.
+
+Ready-made scenes and rigs
+- ``default_scene()``: the Fig. 3 studio (object group around ``DEFAULT_TARGET`` on a checker floor).
+- ``default_arc_rig(n=10, arc_deg=90, radius=2.5, elevation=1.3, target=DEFAULT_TARGET, width=640,
+  height=480, fov_deg=50, prefix="cam") -> list[Camera]``: n cameras on an arc (names cam00..).
+- ``arc_camera(angle_deg, ...)``: one camera on that circle at any angle (virtual views between rig
+  cameras); ``arc_angles(n, arc_deg)``: the rig cameras' angles.
+- ``camera_gains(n, spread=0.06, seed=0)``: per-camera exposure/white-balance gains for ``gains=``.
+- ``city_scene(seed=0, extent=200, n_buildings=40, ...)``: textured ground z = 0 with box buildings,
+  for synthetic drone flights (e.g. ``Camera.look_at(name, eye=(x, y, 60), target=(x, y, 0),
+  up=(0, 1, 0), fov_deg=80, width=1200, height=900)`` for a nadir view).
+"""
+from .raycast import SynthView, render, render_views
+from .rigs import DEFAULT_TARGET, arc_angles, arc_camera, camera_gains, city_scene, default_arc_rig, default_scene
+from .scene import Box, Material, Plane, Scene, Sphere
+from .textures import Checker, ColorNoise, Noise, Solid, fractal_noise
+
+__all__ = [
+    "Box", "Checker", "ColorNoise", "DEFAULT_TARGET", "Material", "Noise", "Plane", "Scene", "Solid", "Sphere",
+    "SynthView", "arc_angles", "arc_camera", "camera_gains", "city_scene", "default_arc_rig", "default_scene",
+    "fractal_noise", "render", "render_views",
+]
