@@ -1,0 +1,27 @@
+#!/bin/sh
+# Roles: api (join the Ray cluster as a driver node without CPUs, then serve), ray-head, ray-worker,
+# standalone (embedded local Ray, SQLite, /data), or any other command.
+set -eu
+role="${1:-api}"
+case "$role" in
+  api)
+    if [ -n "${SWEEPCAST_RAY_ADDRESS:-}" ]; then
+      ray start --address="$SWEEPCAST_RAY_ADDRESS" --num-cpus=0 --disable-usage-stats
+    fi
+    exec sweepcast serve
+    ;;
+  standalone)
+    exec sweepcast serve
+    ;;
+  ray-head)
+    exec ray start --head --block --port=6379 --num-cpus="${RAY_HEAD_CPUS:-0}" \
+      --include-dashboard=false --disable-usage-stats
+    ;;
+  ray-worker)
+    exec sweepcast worker --address="${SWEEPCAST_RAY_ADDRESS:?set SWEEPCAST_RAY_ADDRESS=ray-head:6379}" \
+      ${RAY_WORKER_RESOURCES:+--resources "$RAY_WORKER_RESOURCES"}
+    ;;
+  *)
+    exec "$@"
+    ;;
+esac
