@@ -13,7 +13,7 @@ from typing import Any, Iterable
 
 from sqlalchemy import JSON, DateTime, Float, Integer, String, Text, create_engine, event, select, update
 from sqlalchemy.engine import Engine
-from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sessionmaker
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, sessionmaker
 
 
 class JobState(str, enum.Enum):

@@ -68,57 +68,16 @@ def _wait_ready(client, timeout: float = 60.0) -> None:
     raise AssertionError(f"app not ready: {client.get('/readyz').json()}")
 
 
-def _postgres_bin(name: str) -> str | None:
-    import glob
-    import shutil
-
-    found = shutil.which(name)
-    if found:
-        return found
-    candidates = sorted(glob.glob(f"/usr/lib/postgresql/*/bin/{name}"))
-    return candidates[-1] if candidates else None
-
-
 @pytest.fixture(scope="session")
 def postgres_server():
-    """A throw-away PostgreSQL cluster on loopback for this test run (initdb + pg_ctl in a temp dir).
+    """A throw-away PostgreSQL cluster on loopback for this test run; skipped where no binaries exist."""
+    from tests.servers import Unavailable, temp_postgres
 
-    Yields a URL prefix ``postgresql://sweepcast@127.0.0.1:PORT``; skipped where no binaries exist.
-    """
-    import pwd
-    import shutil
-    import socket
-    import subprocess
-    import tempfile
-    from pathlib import Path
-
-    initdb, pg_ctl = _postgres_bin("initdb"), _postgres_bin("pg_ctl")
-    if not initdb or not pg_ctl:
-        pytest.skip("no PostgreSQL binaries (initdb, pg_ctl): install Debian's postgresql package")
-    base = Path(tempfile.mkdtemp(prefix="sweepcast-pg-"))  # not below pytest's root-only temp folder
-    data, sockets = base / "data", base / "sock"
-    sockets.mkdir()
-    prefix: list[str] = []
-    if os.geteuid() == 0:  # PostgreSQL refuses to run as root
-        try:
-            user = pwd.getpwnam("postgres")
-        except KeyError:
-            pytest.skip("running as root and there is no 'postgres' user to run PostgreSQL as")
-        for path in (base, sockets):
-            shutil.chown(path, user.pw_uid, user.pw_gid)
-        prefix = ["runuser", "-u", "postgres", "--"]
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    run = lambda *args: subprocess.run([*prefix, *args], check=True, capture_output=True, text=True)  # noqa: E731
-    run(initdb, "-D", str(data), "-U", "sweepcast", "--auth=trust", "--no-sync", "-E", "UTF8")
-    run(pg_ctl, "-D", str(data), "-l", str(base / "log"), "-w", "-t", "60", "start",
-        "-o", f"-p {port} -k {sockets} -c listen_addresses=127.0.0.1 -c fsync=off")
     try:
-        yield f"postgresql://sweepcast@127.0.0.1:{port}"
-    finally:
-        subprocess.run([*prefix, pg_ctl, "-D", str(data), "-m", "immediate", "stop"], capture_output=True)
-        shutil.rmtree(base, ignore_errors=True)
+        with temp_postgres() as url:
+            yield url
+    except Unavailable as exc:
+        pytest.skip(str(exc))
 
 
 @pytest.fixture
@@ -126,15 +85,9 @@ def postgres_url(postgres_server):
     """A fresh, empty database on the test PostgreSQL server."""
     import uuid
 
-    import sqlalchemy
+    from tests.servers import create_database
 
-    name = f"t_{uuid.uuid4().hex[:12]}"
-    admin = sqlalchemy.create_engine(f"{postgres_server.replace('postgresql://', 'postgresql+psycopg://')}/postgres",
-                                     isolation_level="AUTOCOMMIT")
-    with admin.connect() as conn:
-        conn.exec_driver_sql(f'CREATE DATABASE "{name}"')
-    admin.dispose()
-    return f"{postgres_server}/{name}"
+    return create_database(postgres_server, f"t_{uuid.uuid4().hex[:12]}")
 
 
 @pytest.fixture(scope="session")

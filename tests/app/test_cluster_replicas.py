@@ -8,10 +8,8 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -20,32 +18,14 @@ import pytest
 from websockets.sync.client import connect
 
 from tests.app.photos import batch_files
+from tests.servers import free_port, ray_cluster
 
 ROOT = Path(__file__).resolve().parents[2]
-BIN = Path(sys.executable).parent
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def parent_pid(pid: int) -> int:
     stat = Path(f"/proc/{pid}/stat").read_text()
     return int(stat[stat.rindex(")") + 2:].split()[1])
-
-
-def processes_mentioning(text: str) -> list[int]:
-    pids = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                if text in (entry / "cmdline").read_bytes().decode(errors="replace"):
-                    pids.append(int(entry.name))
-            except OSError:
-                pass
-    return pids
 
 
 def wait_ready(base: str, timeout: float = 90) -> None:
@@ -61,36 +41,18 @@ def wait_ready(base: str, timeout: float = 90) -> None:
 
 
 @pytest.fixture
-def ray_cluster():
-    """A head without CPUs for tasks and two worker nodes, as `ray start` makes them."""
-    temp = tempfile.mkdtemp(prefix="scray-")  # short: Ray's socket paths must fit 107 bytes
-    port = free_port()
-    env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
-    ray = str(BIN / "ray")
-    common = [f"--temp-dir={temp}", "--disable-usage-stats"]
-    try:
-        subprocess.run([ray, "start", "--head", f"--port={port}", "--num-cpus=0", "--include-dashboard=false",
-                        *common], check=True, capture_output=True, env=env, timeout=120)
-        for _ in range(2):
-            subprocess.run([ray, "start", f"--address=127.0.0.1:{port}", "--num-cpus=1",
-                            '--resources={"sweepcast_worker": 1}', *common],
-                           check=True, capture_output=True, env=env, timeout=120)
-        yield f"127.0.0.1:{port}"
-    finally:
-        for pid in processes_mentioning(temp):
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+def cluster():
+    with ray_cluster(worker_nodes=2) as address:
+        yield address
 
 
 @pytest.mark.slow
-def test_two_replicas_share_jobs_and_survive_a_lost_node(ray_cluster, postgres_url, s3_url, tmp_path):
+def test_two_replicas_share_jobs_and_survive_a_lost_node(cluster, postgres_url, s3_url, tmp_path):
     replicas = []
     try:
         for name in ("a", "b"):
             port = free_port()
-            env = {**os.environ, "RAY_AUTH_MODE": "disabled", "SWEEPCAST_RAY_ADDRESS": ray_cluster,
+            env = {**os.environ, "RAY_AUTH_MODE": "disabled", "SWEEPCAST_RAY_ADDRESS": cluster,
                    "SWEEPCAST_DATABASE_URL": postgres_url, "SWEEPCAST_STORAGE_URL": s3_url,
                    "SWEEPCAST_DATA_DIR": str(tmp_path / name), "SWEEPCAST_JOB_LEASE_SECONDS": "5",
                    "SWEEPCAST_JOB_RESOURCES": '{"sweepcast_worker": 1}'}
