@@ -52,7 +52,10 @@ async def detect_orientation(file: UploadFile = File(..., description="a JPEG, P
 @router.post("/orient", response_class=Response,
              summary="Return the same JPEG with its EXIF Orientation tag set (image data untouched)",
              responses={200: {"content": {"image/jpeg": {}},
-                              "description": "the JPEG; header X-Orientation carries the tag written (or 'rejected')"}})
+                              "description": "the JPEG; headers X-Orientation (the tag the returned file carries, "
+                                             "or 'none'), X-Orientation-Decision (upright, rotated, rejected) and "
+                                             "X-Orientation-Action (written, kept_existing, already_set, "
+                                             "not_written_rejected)"}})
 async def orient_photo(file: UploadFile = File(..., description="a JPEG (or WebP) photo"),
                        force: bool = Form(False, description="replace an existing tag other than 1"),
                        svc: Services = Depends(services)) -> Response:
@@ -62,11 +65,12 @@ async def orient_photo(file: UploadFile = File(..., description="a JPEG (or WebP
                                                     svc.settings.max_image_pixels)
     except errors.OrientationInputError as exc:
         raise _as_api_error(exc, file.filename) from None
-    tag = report.written_orientation if report.written_orientation is not None else "rejected"
     media = "image/webp" if new_bytes[:4] == b"RIFF" else "image/jpeg"
     return Response(new_bytes, media_type=media, headers={
-        "X-Orientation": str(tag),
+        # The tag the returned file carries ("none" when it has no Orientation tag), and the decision.
+        "X-Orientation": str(report.file_orientation) if report.file_orientation is not None else "none",
         "X-Orientation-Decision": report.decision,
+        "X-Orientation-Action": report.action,
     })
 
 

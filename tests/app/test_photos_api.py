@@ -76,7 +76,9 @@ def test_a_photo_without_a_face_is_rejected_and_returned_untouched(client):
     assert body["elapsed_ms"] > 0
     r = client.post("/v1/photos/orient", files={"file": ("n.jpg", data, "image/jpeg")})
     assert r.status_code == 200 and r.content == data
-    assert r.headers["x-orientation"] == "rejected"
+    assert r.headers["x-orientation"] == "none"
+    assert r.headers["x-orientation-decision"] == "rejected"
+    assert r.headers["x-orientation-action"] == "not_written_rejected"
 
 
 def test_batch_limits(client_factory):
@@ -103,7 +105,7 @@ def test_real_rotated_face_gets_the_tag_that_shows_it_upright(client):
     data = out.getvalue()
     r = client.post("/v1/photos/orient", files={"file": ("side.jpg", data, "image/jpeg")})
     assert r.status_code == 200, r.text
-    if r.headers["x-orientation"] == "rejected":
+    if r.headers["x-orientation-decision"] == "rejected":
         pytest.skip("the detector rejected this photo (never guesses); see benchmarks for rates")
     assert r.headers["x-orientation"] == "8"
     exif = piexif.load(r.content)

@@ -78,11 +78,11 @@ def test_analyze_rejects_without_guessing(rotations):
 
 def test_face_boxes_are_in_stored_pixels_and_the_detector_sees_stored_pixels():
     detector = FakeDetector((90,), box=(10, 20, 30, 40))
-    data = write_orientation(jpeg(asymmetric_image(1500, 4000), 80), 8)  # an existing tag must not matter
+    data = write_orientation(jpeg(asymmetric_image(1600, 4000), 80), 8)  # an existing tag must not matter
     report = analyze(data, detector)
-    assert detector.seen == [(375, 1000)]  # decoded at 1/4 size, not turned by the tag
-    assert report.faces[0].box == [40, 80, 120, 160]
-    assert (report.width, report.height, report.format) == (4000, 1500, "jpeg")
+    assert detector.seen == [(200, 500)]  # decoded at 1/8 size, not turned by the tag
+    assert report.faces[0].box == [80, 160, 240, 320]
+    assert (report.width, report.height, report.format) == (4000, 1600, "jpeg")
     assert report.existing_orientation == 8 and report.exif_status == "ok"
 
 

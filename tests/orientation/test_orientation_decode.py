@@ -35,24 +35,30 @@ def test_vp8x_webp_size_comes_from_the_extended_header():
 
 
 def test_reduction_factor_brings_the_long_side_under_the_working_size():
-    assert reduction_factor(800, 600) == 1
-    assert reduction_factor(2000, 1500) == 2
-    assert reduction_factor(4000, 3000) == 4
-    assert reduction_factor(6000, 4000) == 8
-    assert reduction_factor(20000, 100) == 8
+    assert reduction_factor(800, 600, 1000) == 1
+    assert reduction_factor(2000, 1500, 1000) == 2
+    assert reduction_factor(4000, 3000, 1000) == 4
+    assert reduction_factor(6000, 4000, 1000) == 8
+    assert reduction_factor(20000, 100, 1000) == 8
+    assert reduction_factor(4000, 3000) == 8  # a 12 MP photo is searched at 500 x 375 by default
+
+
+def test_twelve_megapixel_jpeg_decodes_at_an_eighth():
+    decoded = decode_gray(jpeg(asymmetric_image(3000, 4000), 80))
+    assert decoded.gray.shape == (375, 500) and decoded.scale_x == pytest.approx(8.0)
 
 
 def test_large_jpeg_is_decoded_reduced_with_its_scale():
     data = jpeg(asymmetric_image(1500, 4000), 80)
-    decoded = decode_gray(data)
+    decoded = decode_gray(data, working_size=1000)
     assert decoded.gray.shape == (375, 1000) and decoded.gray.dtype == np.uint8
     assert decoded.scale_x == pytest.approx(4.0) and decoded.scale_y == pytest.approx(4.0)
 
 
 def test_beyond_eighth_size_the_image_is_resized_to_the_working_size():
-    decoded = decode_gray(encode(asymmetric_image(60, 9000), ".png"))
-    assert max(decoded.gray.shape) == 1024
-    assert decoded.scale_x == pytest.approx(9000 / 1024)
+    decoded = decode_gray(encode(asymmetric_image(60, 9000), ".png"), working_size=1000)
+    assert max(decoded.gray.shape) == 1000
+    assert decoded.scale_x == pytest.approx(9.0)
 
 
 def test_decoding_ignores_the_exif_orientation_tag():
@@ -137,6 +143,8 @@ def test_decompression_bomb_is_refused_from_its_header():
     assert len(bomb) < 64
     with pytest.raises(TooManyPixels, match=r"60000x60000 = 3,600,000,000 pixels; the limit is 64,000,000"):
         decode_gray(bomb, max_pixels=64_000_000)
+    with pytest.raises(TooManyPixels):  # the size is judged before the missing data
+        decode_gray(bomb[:-2], max_pixels=64_000_000)
 
 
 def test_png_bomb_is_refused_from_its_header():

@@ -109,3 +109,16 @@ def test_dog_photo_is_never_given_a_wrong_rotation():
         for rotation in (0, 90):
             report = analyze(jpeg(rotate_view(upright, (360 - rotation) % 360)), get_detector(config))
             assert report.rotation_degrees in (None, rotation)
+
+
+HOPPER = dataset("exif", "pillow_hopper")
+
+
+@pytest.mark.skipif(HOPPER is None, reason="needs $SWEEPCAST_DATA/exif/pillow_hopper")
+@pytest.mark.parametrize("value", [3, 6, 8])
+def test_detected_orientation_matches_the_real_tag_of_a_turned_portrait(value):
+    """Pillow's hopper_orientation_N.jpg store the portrait turned and carry the correct tag N."""
+    data = (HOPPER / f"hopper_orientation_{value}.jpg").read_bytes()
+    for config in _configs():
+        report = analyze(data, get_detector(config))
+        assert report.existing_orientation == value and report.orientation == value

@@ -1,0 +1,300 @@
+"""Upright detection (Shima & Shukuya, section II): four rotations, face + parts, exactly one accepted.
+
+A detector looks at the four views of a photo (turned 0, 90, 180, 270 degrees clockwise) and
+returns every face it *accepts* as upright, with the view it was upright in. The decision is the
+paper's: exactly one view with accepted faces -> that view is upright; none or several -> reject.
+It never guesses.
+
+Detectors:
+- ``paper``: Haar whole-face detection in each view, accepted when the Haar facial parts stand
+  in the geometric arrangement of an upright face (:mod:`workers.orientation.parts`).
+- ``yunet``: YuNet finds faces in each view; the detections of one face across the four views
+  are grouped, and the face is accepted in its best view when that view scores at least
+  ``min_score``. YuNet also fires, weaker, on upside-down faces and on animals, so such a face
+  is *decisive* only when its best view beats its other views by ``margin``; a face without
+  the margin still counts as accepted (so it can make the photo ambiguous) but cannot decide it.
+- ``combined``: as ``yunet``, and in addition a YuNet detection is accepted, decisively, in a
+  view where the Haar facial parts confirm it (the paper's part test, with YuNet in place of the
+  Haar whole-face detector, which finds far fewer faces and is several times slower). Any
+  disagreement between faces or between the two tests leaves two accepted views: rejected.
+
+The decision (:func:`decide`) needs exactly one accepted view and at least one decisive face in it.
+"""
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Callable, Generic, Literal, Protocol, Sequence, TypeVar
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from workers.orientation.faces import Candidate, HaarFaceFinder, YuNetFaceFinder
+from workers.orientation.geometry import ROTATIONS, Box, iou, rotate_view, view_box_to_image
+from workers.orientation.parts import PartSpec, PartVerifier, face_crop
+
+Method = Literal["auto", "paper", "yunet", "combined"]
+DecisionKind = Literal["upright", "rotated", "rejected"]
+
+YUNET_MIN_SCORE = 0.8
+"""Score a YuNet face needs in its best view to be accepted there."""
+YUNET_MARGIN = 0.1
+"""How much that best view must beat the same face's other views for the face to be decisive."""
+PARTS_MIN_SCORE = 0.7
+"""Score a YuNet detection needs before its Haar parts are checked (combined)."""
+YUNET_SCAN_SIZE = 640
+"""Long side (px) of the copy of each view YuNet searches."""
+HAAR_SCAN_SIZE = 400
+"""Long side (px) of the copy of each view the Haar face cascade searches (faces >= 20 px there)."""
+HAAR_SCALE_FACTOR = 1.2
+"""Pyramid step of the Haar face search: on the dev photos 1.2 found as many upright faces as
+OpenCV's usual 1.1 at half the cost (the scan dominates the paper detector's time)."""
+MAX_PART_CHECKS = 16
+"""Most faces whose parts are checked per photo (the highest-scoring first)."""
+_SAME_FACE_IOU = 0.3
+
+
+@dataclass(frozen=True)
+class Face:
+    """A face accepted as upright in one view.
+
+    ``box`` is (x, y, w, h) in pixels of the image the detector was given (stored orientation);
+    ``rotation`` the clockwise degrees (0, 90, 180, 270) that make the face upright.
+    """
+
+    box: Box
+    rotation: int
+    score: float | None
+    """YuNet's confidence in that view; None for a Haar face."""
+    parts: tuple[str, ...]
+    """The facial parts found in an upright arrangement ("eyes", "nose", "mouth")."""
+    source: Literal["haar", "yunet"]
+    decisive: bool = True
+    """False for a face that only *votes* for its view (YuNet's best view without a clear margin
+    and without confirming parts): it can make a photo ambiguous but cannot decide it alone."""
+
+
+class OrientationDetector(Protocol):
+    """Anything that finds the faces accepted as upright in the four views of a grey image."""
+
+    name: str
+
+    def upright_faces(self, gray: np.ndarray) -> list[Face]:
+        """Accepted faces in the four views of ``gray`` ((H, W) uint8, stored orientation).
+
+        A detector may stop looking once more faces cannot change :func:`decide`'s result (a view
+        already settled by a decisive face, or two views accepted), so the list shows the faces
+        that made the decision, not every face in the photo."""
+        ...
+
+
+@dataclass(frozen=True)
+class Decision:
+    """The paper's upright decision over the accepted views."""
+
+    accepted_rotations: tuple[int, ...]
+    rotation: int | None
+    """Clockwise degrees that make the photo upright; None when rejected."""
+
+    @property
+    def kind(self) -> DecisionKind:
+        if self.rotation is None:
+            return "rejected"
+        return "upright" if self.rotation == 0 else "rotated"
+
+
+def decide(faces: Sequence[Face]) -> Decision:
+    """Exactly one view with accepted faces, one of them decisive -> that view; else rejected."""
+    accepted = tuple(sorted({f.rotation for f in faces}))
+    decided = len(accepted) == 1 and any(f.decisive for f in faces)
+    return Decision(accepted, accepted[0] if decided else None)
+
+
+T = TypeVar("T")
+
+
+class _PerThread(Generic[T]):
+    """One instance of ``factory()`` per thread: OpenCV detectors are not safe to share."""
+
+    def __init__(self, factory: Callable[[], T]) -> None:
+        self._factory = factory
+        self._local = threading.local()
+
+    def get(self) -> T:
+        value = getattr(self._local, "value", None)
+        if value is None:
+            value = self._local.value = self._factory()
+        return value
+
+
+class PaperDetector:
+    """The paper: Haar whole face + Haar facial parts in a plausible arrangement, per view."""
+
+    def __init__(self, parts: PartSpec, name: str = "paper", scan_size: int = HAAR_SCAN_SIZE,
+                 scale_factor: float = HAAR_SCALE_FACTOR) -> None:
+        self.name = name
+        self._finder = _PerThread(lambda: HaarFaceFinder(scan_size=scan_size, scale_factor=scale_factor))
+        self._verifier = _PerThread(lambda: PartVerifier(parts))
+        self._finder.get()  # load (and check) the cascades now, not on the first photo
+        self._verifier.get()
+
+    def upright_faces(self, gray: np.ndarray) -> list[Face]:
+        finder, verifier = self._finder.get(), self._verifier.get()
+        height, width = gray.shape[:2]
+        faces = []
+        for rotation in ROTATIONS:
+            view = rotate_view(gray, rotation)
+            for cand in finder.find(view):
+                crop = face_crop(view, cand.box)
+                parts = verifier.parts(crop) if crop is not None else ()
+                if verifier.accepts(parts):
+                    box = view_box_to_image(cand.box, rotation, width, height)
+                    faces.append(Face(box, rotation, None, parts, "haar"))
+                    break  # one accepted face settles this view; more cannot change the decision
+            if len({f.rotation for f in faces}) > 1:
+                break  # two views accepted: rejected whatever the other views hold
+        return faces
+
+
+@dataclass
+class Track:
+    """One physical face: its best YuNet detection in each view where it was found."""
+
+    box: Box
+    """Image px, from the highest-scoring detection."""
+    views: dict[int, Candidate] = field(default_factory=dict)
+
+    def score(self, rotation: int) -> float:
+        cand = self.views.get(rotation)
+        return cand.score if cand is not None else 0.0
+
+    def best(self) -> tuple[int, float, float]:
+        """(rotation, score, margin over the next-best view) of this face."""
+        ranked = sorted(((self.score(r), r) for r in ROTATIONS), reverse=True)
+        return ranked[0][1], ranked[0][0], ranked[0][0] - ranked[1][0]
+
+
+def yunet_votes(tracks: list[Track], min_score: float,
+                margin: float) -> dict[tuple[int, int], tuple[tuple[str, ...], bool]]:
+    """(track index, view) -> ((), decisive) for each face accepted on YuNet's scores alone: in its
+    best view when that scores >= ``min_score``; decisive when it beats the face's other views by ``margin``."""
+    votes = {}
+    for i, track in enumerate(tracks):
+        rotation, score, lead = track.best()
+        if score >= min_score:
+            votes[i, rotation] = ((), lead >= margin)
+    return votes
+
+
+def group_tracks(views: dict[int, list[Candidate]], width: int, height: int) -> list[Track]:
+    """Group the detections of the four views by the image region they cover (IoU), best first."""
+    found = [(c.score, r, c, view_box_to_image(c.box, r, width, height)) for r, cands in views.items() for c in cands]
+    tracks: list[Track] = []
+    for _, rotation, cand, box in sorted(found, key=lambda t: -t[0]):
+        track = next((t for t in tracks if iou(t.box, box) > _SAME_FACE_IOU), None)
+        if track is None:
+            tracks.append(track := Track(box))
+        track.views.setdefault(rotation, cand)
+    return tracks
+
+
+class YuNetDetector:
+    """YuNet faces grouped across views; with ``parts``, the combined detector (module docstring)."""
+
+    def __init__(self, model: Path, parts: PartSpec | None = None, name: str = "yunet",
+                 min_score: float = YUNET_MIN_SCORE, margin: float = YUNET_MARGIN,
+                 scan_size: int = YUNET_SCAN_SIZE) -> None:
+        self.name = name
+        self.min_score = min_score
+        self.margin = margin
+        self._finder = _PerThread(lambda: YuNetFaceFinder(Path(model), scan_size=scan_size))
+        self._verifier = _PerThread(lambda: PartVerifier(parts)) if parts is not None else None
+        self._finder.get()
+        if self._verifier is not None:
+            self._verifier.get()
+
+    def upright_faces(self, gray: np.ndarray) -> list[Face]:
+        finder = self._finder.get()
+        height, width = gray.shape[:2]
+        views = {r: rotate_view(gray, r) for r in ROTATIONS}
+        tracks = group_tracks({r: finder.find(v) for r, v in views.items()}, width, height)
+        accepted = yunet_votes(tracks, self.min_score, self.margin)
+        if self._verifier is not None:
+            accepted.update(self._part_accepts(tracks, views, accepted))
+        faces = []
+        for (i, rotation), (parts, decisive) in sorted(accepted.items()):
+            cand = tracks[i].views[rotation]
+            box = view_box_to_image(cand.box, rotation, width, height)
+            faces.append(Face(box, rotation, cand.score, parts, "yunet", decisive))
+        return faces
+
+    def _part_accepts(self, tracks: list[Track], views: dict[int, np.ndarray],
+                      votes: dict[tuple[int, int], tuple[tuple[str, ...], bool]]
+                      ) -> dict[tuple[int, int], tuple[tuple[str, ...], bool]]:
+        """(track, view) -> (parts, True) for detections whose Haar parts confirm them in their view.
+
+        Parts are only checked where they can change the decision: not in a view that already has a
+        decisive face, and not at all once two views are accepted (rejected either way).
+        """
+        verifier = self._verifier.get()
+        rotations = {r for _, r in votes}
+        settled = {r for (_, r), (_, decisive) in votes.items() if decisive}
+        accepted = {}
+        for i, track in enumerate(tracks[:MAX_PART_CHECKS]):
+            for rotation, cand in sorted(track.views.items()):
+                if len(rotations) > 1:
+                    return accepted
+                if cand.score < PARTS_MIN_SCORE or rotation in settled:
+                    continue
+                crop = face_crop(views[rotation], cand.box)
+                parts = verifier.parts(crop) if crop is not None else ()
+                if verifier.accepts(parts):
+                    accepted[i, rotation] = (parts, True)
+                    rotations.add(rotation)
+                    settled.add(rotation)
+        return accepted
+
+
+class DetectorConfig(BaseModel):
+    """Which detector to use and where its optional model files are (paths come from the
+    deployment, never from a request)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    method: Method = Field("auto", description="auto: combined when a YuNet model is configured, else paper")
+    yunet_model: Path | None = Field(None, description="YuNet ONNX file (face_detection_yunet_2023mar.onnx)")
+    haar_mcs_dir: Path | None = Field(
+        None, description="folder with the paper's haarcascade_mcs_* part cascades (CC BY-NC 4.0; benchmarks)")
+
+    def resolved_method(self) -> Literal["paper", "yunet", "combined"]:
+        if self.method == "auto":
+            return "combined" if self.yunet_model is not None else "paper"
+        return self.method
+
+
+def get_detector(config: DetectorConfig) -> OrientationDetector:
+    """The detector for ``config``, built once per process (cascades and networks load once).
+
+    Raises ValueError when the method needs a YuNet model and none is configured, and
+    FileNotFoundError when a configured model or cascade file cannot be loaded.
+    """
+    method = config.resolved_method()
+    return _build(config.model_copy(update={
+        "method": method, "yunet_model": config.yunet_model if method != "paper" else None}))
+
+
+@lru_cache(maxsize=16)
+def _build(config: DetectorConfig) -> OrientationDetector:
+    method = config.resolved_method()
+    parts = PartSpec.mcs(config.haar_mcs_dir) if config.haar_mcs_dir is not None else PartSpec.opencv()
+    suffix = "_mcs" if config.haar_mcs_dir is not None else ""
+    if method == "paper":
+        return PaperDetector(parts, name="paper" + suffix)
+    if config.yunet_model is None:
+        raise ValueError(f"the {method!r} orientation detector needs a YuNet model file, and none is configured "
+                         "(set SWEEPCAST_ORIENTATION_YUNET_MODEL)")
+    if method == "yunet":
+        return YuNetDetector(config.yunet_model, name="yunet")
+    return YuNetDetector(config.yunet_model, parts, name="combined" + suffix)

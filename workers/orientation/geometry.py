@@ -1,0 +1,58 @@
+"""The four in-plane rotations and the mapping of boxes between a rotated view and the image.
+
+A rotation is given in clockwise degrees, 0, 90, 180 or 270: view ``r`` of an image is the image
+turned ``r`` degrees clockwise, so a face found upright in view ``r`` means the stored image must
+be turned ``r`` degrees clockwise to be displayed upright (the paper's "0, 90 counter-clockwise,
+180, 90 clockwise" are views 0, 270, 180 and 90). Boxes are ``(x, y, w, h)`` in continuous pixel
+coordinates, the box covering ``[x, x+w) x [y, y+h)``.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import cv2
+import numpy as np
+
+ROTATIONS: tuple[int, ...] = (0, 90, 180, 270)
+_CV_ROTATE = {90: cv2.ROTATE_90_CLOCKWISE, 180: cv2.ROTATE_180, 270: cv2.ROTATE_90_COUNTERCLOCKWISE}
+
+Box = tuple[float, float, float, float]
+
+
+def rotate_view(image: np.ndarray, rotation: int) -> np.ndarray:
+    """``image`` (H, W[, C]) turned ``rotation`` degrees clockwise (a lossless pixel permutation)."""
+    if rotation == 0:
+        return image
+    return cv2.rotate(image, _CV_ROTATE[rotation])
+
+
+def view_points_to_image(points: np.ndarray, rotation: int, width: int, height: int) -> np.ndarray:
+    """Points (N, 2) float in view ``rotation`` -> the same points in the image of size ``width`` x ``height``."""
+    u, v = points[:, 0], points[:, 1]
+    if rotation == 0:
+        return np.stack([u, v], axis=1)
+    if rotation == 90:
+        return np.stack([v, height - u], axis=1)
+    if rotation == 180:
+        return np.stack([width - u, height - v], axis=1)
+    if rotation == 270:
+        return np.stack([width - v, u], axis=1)
+    raise ValueError(f"rotation must be one of {ROTATIONS}, not {rotation}")
+
+
+def view_box_to_image(box: Sequence[float], rotation: int, width: int, height: int) -> Box:
+    """Box ``(x, y, w, h)`` in view ``rotation`` -> the box covering the same pixels in the image."""
+    x, y, w, h = (float(v) for v in box[:4])
+    corners = view_points_to_image(np.array([[x, y], [x + w, y + h]]), rotation, width, height)
+    x0, y0 = corners.min(axis=0)
+    x1, y1 = corners.max(axis=0)
+    return float(x0), float(y0), float(x1 - x0), float(y1 - y0)
+
+
+def iou(a: Box, b: Box) -> float:
+    """Intersection over union of two boxes (0 when disjoint)."""
+    iw = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
+    ih = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
+    inter = iw * ih
+    union = a[2] * a[3] + b[2] * b[3] - inter
+    return inter / union if union > 0 else 0.0

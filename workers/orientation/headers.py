@@ -1,0 +1,202 @@
+"""Image containers read without decoding: format, pixel size and whether the file is whole.
+
+The pixel size comes from the header (JPEG SOFn, PNG IHDR, WebP VP8/VP8L/VP8X), so a
+decompression bomb is refused before a single pixel is decoded. Completeness is checked on the
+container structure: a JPEG's marker segments and entropy-coded scans up to EOI (bytes after
+EOI, such as a motion-photo trailer, are allowed), a PNG's chunks up to IEND, a WebP's RIFF size.
+"""
+from __future__ import annotations
+
+import re
+import struct
+from dataclasses import dataclass, field
+from typing import Literal
+
+from workers.orientation.errors import (CorruptImage, EmptyFile, NotAnImage, TooManyPixels, TruncatedImage,
+                                        UnsupportedFormat)
+
+ImageFormat = Literal["jpeg", "png", "webp"]
+Damage = Literal["truncated", "corrupt"]
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+# Recognised image formats that this engine does not decode: (magic at offset, name).
+_OTHER_FORMATS: tuple[tuple[int, bytes, str], ...] = (
+    (0, b"GIF87a", "GIF"), (0, b"GIF89a", "GIF"), (0, b"BM", "BMP"),
+    (0, b"II*\x00", "TIFF"), (0, b"MM\x00*", "TIFF"), (0, b"8BPS", "Photoshop PSD"),
+    (4, b"ftypheic", "HEIC"), (4, b"ftypheix", "HEIC"), (4, b"ftypmif1", "HEIF"), (4, b"ftypmsf1", "HEIF"),
+    (4, b"ftypavif", "AVIF"), (0, b"\x00\x00\x00\x0cjP  ", "JPEG 2000"), (0, b"\xff\x0a", "JPEG XL"),
+    (0, b"\x00\x00\x00\x0cJXL ", "JPEG XL"), (0, b"qoif", "QOI"), (0, b"\x00\x00\x01\x00", "ICO"),
+)
+# SOFn markers carry the frame size; C4 (DHT), C8 (JPG) and CC (DAC) share the range but do not.
+_SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+_STANDALONE_MARKERS = frozenset(range(0xD0, 0xD8)) | {0x01}
+_SOS, _EOI = 0xDA, 0xD9
+# Inside entropy-coded data 0xFF is followed by 0x00 (stuffing) or a restart marker D0-D7;
+# anything else ends the scan.
+_END_OF_SCAN = re.compile(rb"\xff[^\x00\xd0-\xd7]")
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One JPEG marker segment: ``data[start:end]`` is ``FF marker length payload``."""
+
+    marker: int
+    start: int
+    end: int
+
+    @property
+    def payload(self) -> slice:
+        return slice(self.start + 4, self.end)
+
+
+@dataclass(frozen=True)
+class ImageHeader:
+    """What the container says about an image, read without decoding it."""
+
+    format: ImageFormat
+    width: int | None
+    height: int | None
+    damage: Damage | None = None
+    detail: str = ""
+    segments: tuple[Segment, ...] = field(default=())
+    """JPEG only: the marker segments before the first scan (APPn, DQT, SOFn, DHT, ..., SOS)."""
+
+    @property
+    def pixels(self) -> int | None:
+        return None if self.width is None or self.height is None else self.width * self.height
+
+
+def sniff_format(data: bytes) -> ImageFormat:
+    """The container format from the magic bytes; raises EmptyFile, UnsupportedFormat, NotAnImage."""
+    if len(data) == 0:
+        raise EmptyFile("the file is empty (0 bytes)")
+    if data[:3] == b"\xff\xd8\xff":
+        return "jpeg"
+    if data[:8] == _PNG_SIGNATURE:
+        return "png"
+    if data[:4] == b"RIFF" and data[8:12] == b"WEBP":
+        return "webp"
+    for offset, magic, name in _OTHER_FORMATS:
+        if data[offset:offset + len(magic)] == magic:
+            raise UnsupportedFormat(f"{name} images are not supported; send a JPEG, PNG or WebP")
+    raise NotAnImage(f"not an image: the first bytes ({data[:8].hex(' ')}) match no JPEG, PNG or WebP header")
+
+
+def parse_header(data: bytes) -> ImageHeader:
+    """Format, pixel size and completeness of ``data`` (never decodes pixels)."""
+    fmt = sniff_format(data)
+    if fmt == "jpeg":
+        return _parse_jpeg(data)
+    if fmt == "png":
+        return _parse_png(data)
+    return _parse_webp(data)
+
+
+def check_header(header: ImageHeader, max_pixels: int) -> None:
+    """Raise the error a person should see for this header: size first (a bomb), then damage."""
+    if header.pixels is None:
+        cls = TruncatedImage if header.damage == "truncated" else CorruptImage
+        raise cls(f"the {header.format.upper()} file ends or breaks before its image size: {header.detail}")
+    if header.width <= 0 or header.height <= 0:
+        raise CorruptImage(f"the {header.format.upper()} header gives an empty size {header.width}x{header.height}")
+    if header.pixels > max_pixels:
+        raise TooManyPixels(
+            f"the image is {header.width}x{header.height} = {header.pixels:,} pixels; "
+            f"the limit is {max_pixels:,} pixels")
+    if header.damage == "truncated":
+        raise TruncatedImage(f"the {header.format.upper()} file is incomplete (truncated): {header.detail}")
+    if header.damage == "corrupt":
+        raise CorruptImage(f"the {header.format.upper()} file is damaged: {header.detail}")
+
+
+def _parse_jpeg(data: bytes) -> ImageHeader:
+    n = len(data)
+    pos = 2
+    width = height = None
+    segments: list[Segment] = []
+    in_header = True
+
+    def result(damage: Damage | None, detail: str = "") -> ImageHeader:
+        return ImageHeader("jpeg", width, height, damage, detail, tuple(segments))
+
+    while True:
+        if pos >= n:
+            return result("truncated", f"no end-of-image marker (file ends at byte {n})")
+        if data[pos] != 0xFF:
+            return result("corrupt", f"expected a marker at byte {pos}, found 0x{data[pos]:02x}")
+        while pos + 1 < n and data[pos + 1] == 0xFF:  # fill bytes
+            pos += 1
+        if pos + 1 >= n:
+            return result("truncated", f"file ends inside a marker at byte {pos}")
+        marker = data[pos + 1]
+        if marker == _EOI:
+            return result(None)
+        if marker in _STANDALONE_MARKERS:
+            pos += 2
+            continue
+        if pos + 4 > n:
+            return result("truncated", f"file ends inside the length of marker 0x{marker:02x}")
+        length = struct.unpack_from(">H", data, pos + 2)[0]
+        end = pos + 2 + length
+        if length < 2:
+            return result("corrupt", f"marker 0x{marker:02x} at byte {pos} has length {length}")
+        if end > n:
+            return result("truncated", f"segment 0x{marker:02x} at byte {pos} needs {length} bytes, file ends at {n}")
+        if in_header:
+            segments.append(Segment(marker, pos, end))
+        if marker in _SOF_MARKERS and width is None:
+            if length < 8:
+                return result("corrupt", f"frame header at byte {pos} is too short")
+            height, width = struct.unpack_from(">HH", data, pos + 5)
+        pos = end
+        if marker == _SOS:
+            in_header = False
+            match = _END_OF_SCAN.search(data, pos)
+            if match is None:
+                return result("truncated", f"the compressed data stops at byte {n} without an end-of-image marker")
+            pos = match.start()
+
+
+def _parse_png(data: bytes) -> ImageHeader:
+    n = len(data)
+    if n < 33 or data[12:16] != b"IHDR":
+        damage: Damage = "truncated" if n < 33 else "corrupt"
+        return ImageHeader("png", None, None, damage, "missing IHDR header chunk")
+    width, height = struct.unpack_from(">II", data, 16)
+    pos = 8
+    while pos + 8 <= n:
+        length, ctype = struct.unpack_from(">I4s", data, pos)
+        end = pos + 12 + length
+        if end > n:
+            return ImageHeader("png", width, height, "truncated", f"chunk {ctype!r} at byte {pos} runs past the end")
+        if ctype == b"IEND":
+            return ImageHeader("png", width, height)
+        pos = end
+    return ImageHeader("png", width, height, "truncated", "no IEND chunk")
+
+
+def _parse_webp(data: bytes) -> ImageHeader:
+    n = len(data)
+    if n < 30:
+        return ImageHeader("webp", None, None, "truncated", f"only {n} bytes")
+    riff_size = struct.unpack_from("<I", data, 4)[0]
+    fourcc = data[12:16]
+    width = height = None
+    if fourcc == b"VP8X":
+        width = 1 + int.from_bytes(data[24:27], "little")
+        height = 1 + int.from_bytes(data[27:30], "little")
+    elif fourcc == b"VP8L":
+        if data[20] != 0x2F:
+            return ImageHeader("webp", None, None, "corrupt", "bad VP8L signature")
+        bits = int.from_bytes(data[21:25], "little")
+        width, height = 1 + (bits & 0x3FFF), 1 + ((bits >> 14) & 0x3FFF)
+    elif fourcc == b"VP8 ":
+        if data[23:26] != b"\x9d\x01\x2a":
+            return ImageHeader("webp", None, None, "corrupt", "bad VP8 start code")
+        w, h = struct.unpack_from("<HH", data, 26)
+        width, height = w & 0x3FFF, h & 0x3FFF
+    else:
+        return ImageHeader("webp", None, None, "corrupt", f"unknown first chunk {fourcc!r}")
+    if riff_size + 8 > n:
+        return ImageHeader("webp", width, height, "truncated", f"RIFF says {riff_size + 8} bytes, file has {n}")
+    return ImageHeader("webp", width, height)

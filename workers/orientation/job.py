@@ -1,0 +1,124 @@
+"""The batch job: fix the orientation tag of many uploaded photos.
+
+Inputs are named ``photo-0000``, ``photo-0001``, ... with ``input_meta[name]["filename"]`` the
+original file name. Results:
+
+- ``report.json``: a list with one entry per photo, in input order:
+  ``{"index", "input", "filename", "report": OrientationReport | null, "error": {"code", "message"} | null,
+  "fixed_file": "fixed/0003-IMG_1234.jpg" | null, "note": str | null}``;
+- ``fixed/<index>-<sanitised name>.jpg`` (or ``.webp``): each photo whose tag was written.
+
+A photo that cannot be read is reported in its entry and the others are still processed; the job
+reports one progress event per photo. The YuNet model and the pixel limit come from the worker's
+environment (``SWEEPCAST_ORIENTATION_YUNET_MODEL``, ``SWEEPCAST_MAX_IMAGE_PIXELS``), never from
+the request.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from workers.common.jobctx import JobContext, JobInputError
+from workers.orientation.decode import DEFAULT_MAX_PIXELS
+from workers.orientation.detect import DetectorConfig, Method, OrientationDetector, get_detector
+from workers.orientation.errors import OrientationInputError
+from workers.orientation.exif import TAGGABLE_FORMATS
+from workers.orientation.headers import sniff_format
+from workers.orientation.service import analyze, orient_jpeg
+
+YUNET_MODEL_ENV = "SWEEPCAST_ORIENTATION_YUNET_MODEL"
+MAX_PIXELS_ENV = "SWEEPCAST_MAX_IMAGE_PIXELS"
+
+
+class OrientationBatchParams(BaseModel):
+    """Parameters of an ``orientation.batch`` job."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    force: bool = Field(False, description="replace an existing Orientation tag other than 1")
+    write: bool = Field(True, description="write the fixed files (false: reports only)")
+    method: Method = Field("auto", description="detector: auto (combined when YuNet is configured, else paper), "
+                                               "paper, yunet or combined")
+
+
+def detector_config_from_env(method: Method = "auto") -> DetectorConfig:
+    """The detector configuration of this worker: ``method`` with the YuNet model from the environment."""
+    model = os.environ.get(YUNET_MODEL_ENV) or None
+    return DetectorConfig(method=method, yunet_model=Path(model) if model else None)
+
+
+def max_pixels_from_env() -> int:
+    value = os.environ.get(MAX_PIXELS_ENV)
+    return int(value) if value else DEFAULT_MAX_PIXELS
+
+
+def run_orientation_batch(ctx: JobContext) -> dict[str, Any]:
+    """Analyse every ``photo-NNNN`` input, tag the JPEGs, write ``report.json`` and ``fixed/*``."""
+    params = OrientationBatchParams.model_validate(ctx.params)
+    names = sorted(ctx.inputs)
+    if not names:
+        raise JobInputError("the batch has no photos")
+    try:
+        detector = get_detector(detector_config_from_env(params.method))
+    except ValueError as exc:
+        raise JobInputError(str(exc)) from None
+    max_pixels = max_pixels_from_env()
+    entries = []
+    for index, name in enumerate(names):
+        filename = str(ctx.input_meta.get(name, {}).get("filename") or name)
+        entry = _process(ctx, index, name, filename, detector, params, max_pixels)
+        entries.append(entry)
+        outcome = entry["report"]["decision"] if entry["report"] else f"error: {entry['error']['code']}"
+        ctx.progress((index + 1) / len(names), f"photo {index + 1}/{len(names)} {filename}: {outcome}")
+    ctx.write_result("report.json", json.dumps(entries, indent=2).encode())
+    return _summary(entries)
+
+
+def _process(ctx: JobContext, index: int, name: str, filename: str, detector: OrientationDetector,
+             params: OrientationBatchParams, max_pixels: int) -> dict[str, Any]:
+    entry: dict[str, Any] = {"index": index, "input": name, "filename": filename,
+                             "report": None, "error": None, "fixed_file": None, "note": None}
+    try:
+        data = ctx.read_input(name)
+        fmt = sniff_format(data)
+        if params.write and fmt in TAGGABLE_FORMATS:
+            new_bytes, report = orient_jpeg(data, detector, params.force, max_pixels)
+            if report.written:
+                entry["fixed_file"] = f"fixed/{index:04d}-{sanitize_filename(filename)}.{_EXT[fmt]}"
+                ctx.write_result(entry["fixed_file"], new_bytes)
+        else:
+            report = analyze(data, detector, max_pixels)
+            if params.write:
+                entry["note"] = f"{fmt.upper()} cannot carry an EXIF Orientation tag; nothing written"
+        entry["report"] = report.model_dump(mode="json")
+    except OrientationInputError as exc:
+        entry["error"] = {"code": exc.code, "message": str(exc)}
+    return entry
+
+
+_EXT = {"jpeg": "jpg", "webp": "webp"}
+
+
+def sanitize_filename(filename: str, limit: int = 80) -> str:
+    """A safe file stem from an uploaded name: last path component, no extension, [A-Za-z0-9._-] only."""
+    base = re.split(r"[\\/]", filename)[-1]
+    stem = base.rsplit(".", 1)[0] if "." in base.lstrip(".") else base
+    safe = re.sub(r"[^A-Za-z0-9._-]+", "_", stem).strip("._-")
+    return safe[:limit] or "photo"
+
+
+def _summary(entries: list[dict[str, Any]]) -> dict[str, Any]:
+    decisions = [e["report"]["decision"] for e in entries if e["report"]]
+    return {
+        "photos": len(entries),
+        "upright": decisions.count("upright"),
+        "rotated": decisions.count("rotated"),
+        "rejected": decisions.count("rejected"),
+        "errors": sum(e["error"] is not None for e in entries),
+        "written": sum(e["fixed_file"] is not None for e in entries),
+    }
