@@ -30,7 +30,8 @@ def settings_factory(tmp_path):
     from app.settings import Settings
 
     def make(**overrides):
-        values = {"data_dir": tmp_path / "data", "job_lease_seconds": 5.0, **overrides}
+        # No demo rig unless a test asks: building it costs seconds of CPU at every start.
+        values = {"data_dir": tmp_path / "data", "job_lease_seconds": 5.0, "demo_rig": False, **overrides}
         return Settings(**values)
 
     return make
