@@ -15,6 +15,7 @@ ENGINE_CLIS = (
     "workers.depth.cli",
     "workers.faces.cli",
     "workers.sweep.cli",
+    "workers.drone.cli",
 )
 
 

@@ -18,7 +18,7 @@ from workers.synth.flight import encode_video
 
 from .conftest import FakeContext
 
-FAST = {"max_features": 1000, "fast_threshold": 10}
+FAST = {"max_features": 1000}
 
 
 def _intrinsics(flight):

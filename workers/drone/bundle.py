@@ -1,0 +1,503 @@
+"""Bundle adjustment (the paper's eq. 5): Levenberg–Marquardt over all cameras and points.
+
+Minimises ``0.5 * sum_i rho(|r_i|^2)`` where ``r_i`` is the reprojection residual (pixels) of
+observation ``i`` and ``rho`` a robust loss (trivial, Huber or Cauchy, applied by iteratively
+re-weighted least squares). Each LM step solves the damped normal equations
+
+    [U + mu D_U   W          ] [dc]   [-g_c]
+    [W^T          V + mu D_V ] [dp] = [-g_p]
+
+by eliminating the points (3x3 blocks ``V``) first: the reduced camera system
+``S = U - W V^-1 W^T`` is assembled from camera-pair blocks as a ``scipy.sparse`` matrix and
+factorised (dense Cholesky while small, sparse LU beyond), then the point steps follow by back
+substitution. ``D`` is the clamped diagonal of ``J^T J`` and ``mu = 1 / radius`` follows the
+trust-region rule of Ceres' LM strategy (Nielsen's update). Fixed camera parameters (the gauge:
+the first camera's pose) are removed from the reduced system.
+
+Jacobians come from the analytic camera models in :mod:`workers.drone.camera_models`; the heavy
+loops are numba kernels (``cache=True``).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Literal
+
+import numba
+import numpy as np
+import scipy.linalg
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from numba import njit, prange
+from threadpoolctl import threadpool_limits
+
+from .camera_models import CameraModel
+
+LossName = Literal["trivial", "huber", "cauchy"]
+_MIN_DIAG = 1e-6
+_MAX_DIAG = 1e32
+_PARALLEL_MIN_OBS = 100_000
+
+
+@dataclass(frozen=True)
+class BAOptions:
+    """Solver settings; defaults follow Ceres' LM defaults where they exist."""
+
+    max_iterations: int = 100
+    """Counts every linear solve, accepted or not (as Ceres does)."""
+    function_tolerance: float = 1e-6
+    """Stop when an accepted step changes the cost by less than this fraction."""
+    gradient_tolerance: float = 1e-10
+    """Stop when max |gradient| <= this times the first iteration's max |gradient|."""
+    parameter_tolerance: float = 1e-8
+    initial_radius: float = 1e4
+    loss: LossName = "trivial"
+    loss_scale: float = 1.0
+    """Pixels: where the robust loss starts to down-weight a residual."""
+    dense_limit: int = 2000
+    """Reduced systems up to this many unknowns are factorised densely."""
+    max_invalid_steps: int = 10
+
+
+@dataclass
+class BAResult:
+    """Outcome of :func:`solve`. ``params`` (C, p) and ``points`` (P, 3) are new arrays."""
+
+    params: np.ndarray
+    points: np.ndarray
+    initial_cost: float
+    final_cost: float
+    iterations: int
+    accepted: int
+    termination: str
+    seconds: float
+    history: list[float] = field(default_factory=list)
+    """Cost after every accepted step."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Robust losses (IRLS): cost rho(s) and weight rho'(s) of the squared residual norm s.
+# ---------------------------------------------------------------------------------------------
+def loss_cost_and_weight(s: np.ndarray, loss: LossName, scale: float) -> tuple[float, np.ndarray]:
+    """Total cost ``0.5 * sum rho(s)`` and per-observation weights ``rho'(s)``, s (N,) px^2."""
+    if loss == "trivial":
+        return 0.5 * float(s.sum()), np.ones_like(s)
+    c2 = scale * scale
+    if loss == "huber":
+        root = np.sqrt(s)
+        inlier = s <= c2
+        rho = np.where(inlier, s, 2.0 * scale * root - c2)
+        w = np.where(inlier, 1.0, scale / np.maximum(root, 1e-300))
+        return 0.5 * float(rho.sum()), w
+    if loss == "cauchy":
+        return 0.5 * float((c2 * np.log1p(s / c2)).sum()), 1.0 / (1.0 + s / c2)
+    raise ValueError(f"unknown loss {loss!r}")
+
+
+# ---------------------------------------------------------------------------------------------
+# Problem structure (depends only on which camera sees which point)
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class _Structure:
+    order: np.ndarray          # (N,) observations sorted by point
+    point_start: np.ndarray    # (P + 1,) ranges into order
+    blk_indptr: np.ndarray     # CSR (upper triangle incl. diagonal) of co-visible camera pairs
+    blk_indices: np.ndarray
+    rows: np.ndarray           # assembled entries (free unknowns only): row, col
+    cols: np.ndarray
+    take: np.ndarray           # indices into the flattened block data
+    free_index: np.ndarray     # (C * p,) position among free unknowns, -1 when fixed
+    n_free: int
+
+
+def _structure(n_cams: int, n_pts: int, p: int, cam_idx: np.ndarray, pt_idx: np.ndarray,
+               fixed: np.ndarray) -> _Structure:
+    order = np.argsort(pt_idx, kind="stable")
+    counts = np.bincount(pt_idx, minlength=n_pts)
+    point_start = np.concatenate([[0], np.cumsum(counts)])
+    vis = sp.csr_matrix((np.ones(len(cam_idx)), (pt_idx, cam_idx)), shape=(n_pts, n_cams))
+    cov = sp.triu((vis.T @ vis).tocsr() + sp.identity(n_cams, format="csr")).tocsr()
+    cov.sort_indices()
+    blk_rows = np.repeat(np.arange(n_cams), np.diff(cov.indptr))
+    blk_cols = cov.indices
+    n_blk = len(blk_cols)
+    # Entries of every block, then the transposes of the off-diagonal blocks.
+    ii, jj = np.meshgrid(np.arange(p), np.arange(p), indexing="ij")
+    r_all = (blk_rows[:, None, None] * p + ii).ravel()
+    c_all = (blk_cols[:, None, None] * p + jj).ravel()
+    off = np.flatnonzero(blk_rows != blk_cols)
+    # Transposed block: entry (i, j) of block (a, b) lands at row b*p + j, col a*p + i.
+    r_t = (blk_cols[off, None, None] * p + jj).ravel()
+    c_t = (blk_rows[off, None, None] * p + ii).ravel()
+    rows = np.concatenate([r_all, r_t])
+    cols = np.concatenate([c_all, c_t])
+    free_index = np.full(n_cams * p, -1, np.int64)
+    free_flat = ~fixed.ravel()
+    free_index[free_flat] = np.arange(int(free_flat.sum()))
+    keep = (free_index[rows] >= 0) & (free_index[cols] >= 0)
+    return _Structure(
+        order=order.astype(np.int64), point_start=point_start.astype(np.int64),
+        blk_indptr=cov.indptr.astype(np.int64), blk_indices=blk_cols.astype(np.int64),
+        rows=free_index[rows[keep]], cols=free_index[cols[keep]],
+        take=np.concatenate([np.arange(n_blk * p * p), _transposed_take(off, p)])[keep],
+        free_index=free_index, n_free=int(free_flat.sum()),
+    )
+
+
+def _transposed_take(off: np.ndarray, p: int) -> np.ndarray:
+    """Flat indices into ``blocks`` (B, p, p) that read block ``off`` entries in (i, j) order.
+
+    Paired with rows ``b*p + j`` / cols ``a*p + i`` this writes the transpose of each block.
+    """
+    ii, jj = np.meshgrid(np.arange(p), np.arange(p), indexing="ij")
+    return (off[:, None, None] * p * p + ii * p + jj).ravel()
+
+
+# ---------------------------------------------------------------------------------------------
+# Numba kernels
+# ---------------------------------------------------------------------------------------------
+@njit(cache=True, fastmath=True)
+def _normal_blocks(Jc, Jp, r, ci, pj, n_cams, n_pts):
+    """U (C,p,p), V (P,3,3), W (N,3,p) = Jp^T Jc, gc (C,p), gp (P,3) from weighted r, Jc, Jp."""
+    n, _, p = Jc.shape
+    U = np.zeros((n_cams, p, p))
+    V = np.zeros((n_pts, 3, 3))
+    W = np.empty((n, 3, p))
+    gc = np.zeros((n_cams, p))
+    gp = np.zeros((n_pts, 3))
+    for o in range(n):
+        c = ci[o]
+        q = pj[o]
+        for a in range(p):
+            ja0 = Jc[o, 0, a]
+            ja1 = Jc[o, 1, a]
+            gc[c, a] += ja0 * r[o, 0] + ja1 * r[o, 1]
+            for b in range(a, p):
+                U[c, a, b] += ja0 * Jc[o, 0, b] + ja1 * Jc[o, 1, b]
+            for b in range(3):
+                W[o, b, a] = ja0 * Jp[o, 0, b] + ja1 * Jp[o, 1, b]
+        for a in range(3):
+            gp[q, a] += Jp[o, 0, a] * r[o, 0] + Jp[o, 1, a] * r[o, 1]
+            for b in range(a, 3):
+                V[q, a, b] += Jp[o, 0, a] * Jp[o, 0, b] + Jp[o, 1, a] * Jp[o, 1, b]
+    for c in range(n_cams):
+        for a in range(p):
+            for b in range(a):
+                U[c, a, b] = U[c, b, a]
+    for q in range(n_pts):
+        for a in range(3):
+            for b in range(a):
+                V[q, a, b] = V[q, b, a]
+    return U, V, W, gc, gp
+
+
+@njit(cache=True, inline="always")
+def _clamped(x):
+    return min(max(x, _MIN_DIAG), _MAX_DIAG)
+
+
+@njit(cache=True)
+def _inverse3(A):
+    a, b, c = A[0, 0], A[0, 1], A[0, 2]
+    d, e, f = A[1, 0], A[1, 1], A[1, 2]
+    g, h, k = A[2, 0], A[2, 1], A[2, 2]
+    c00 = e * k - f * h
+    c01 = -(d * k - f * g)
+    c02 = d * h - e * g
+    det = a * c00 + b * c01 + c * c02
+    out = np.empty((3, 3))
+    if det == 0.0:
+        out[:] = np.nan
+        return out
+    inv = 1.0 / det
+    out[0, 0] = c00 * inv
+    out[1, 0] = c01 * inv
+    out[2, 0] = c02 * inv
+    out[0, 1] = -(b * k - c * h) * inv
+    out[1, 1] = (a * k - c * g) * inv
+    out[2, 1] = -(a * h - b * g) * inv
+    out[0, 2] = (b * f - c * e) * inv
+    out[1, 2] = -(a * f - c * d) * inv
+    out[2, 2] = (a * e - b * d) * inv
+    return out
+
+
+@njit(cache=True)
+def _block_id(indptr, indices, a, b):
+    lo = indptr[a]
+    hi = indptr[a + 1]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if indices[mid] < b:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def _schur(U, V, W, gc, gp, ci, order, point_start, blk_indptr, blk_indices, mu, n_chunks):
+    """Damped reduced camera system: blocks (B,p,p) upper, rhs (C,p), Vinv (P,3,3)."""
+    n_cams, p, _ = U.shape
+    n_pts = V.shape[0]
+    n_blk = blk_indices.shape[0]
+    S_parts = np.zeros((n_chunks, n_blk, p, p))
+    b_parts = np.zeros((n_chunks, n_cams, p))
+    Vinv = np.empty((n_pts, 3, 3))
+    for k in prange(n_chunks):
+        lo = n_pts * k // n_chunks
+        hi = n_pts * (k + 1) // n_chunks
+        S = S_parts[k]
+        rhs = b_parts[k]
+        Y = np.empty((64, p, 3))
+        for q in range(lo, hi):
+            Vd = V[q].copy()
+            for a in range(3):
+                Vd[a, a] += mu * _clamped(V[q, a, a])
+            Vi = _inverse3(Vd)
+            Vinv[q] = Vi
+            s0 = point_start[q]
+            m = point_start[q + 1] - s0
+            if m > Y.shape[0]:
+                Y = np.empty((m, p, 3))
+            # Y_a = W_a V^-1 (p x 3); rhs_c += Y_a g_p (the sign is applied once at the end)
+            for ia in range(m):
+                o = order[s0 + ia]
+                for a in range(p):
+                    for b in range(3):
+                        Y[ia, a, b] = W[o, 0, a] * Vi[0, b] + W[o, 1, a] * Vi[1, b] + W[o, 2, a] * Vi[2, b]
+                c = ci[o]
+                for a in range(p):
+                    rhs[c, a] += Y[ia, a, 0] * gp[q, 0] + Y[ia, a, 1] * gp[q, 1] + Y[ia, a, 2] * gp[q, 2]
+            # S_ab -= Y_a W_b^T for every ordered pair with ca <= cb (both orders when ca == cb).
+            for ia in range(m):
+                oa = order[s0 + ia]
+                ca = ci[oa]
+                for ib in range(m):
+                    ob = order[s0 + ib]
+                    cb = ci[ob]
+                    if ca > cb:
+                        continue
+                    blk = _block_id(blk_indptr, blk_indices, ca, cb)
+                    for a in range(p):
+                        y0 = Y[ia, a, 0]
+                        y1 = Y[ia, a, 1]
+                        y2 = Y[ia, a, 2]
+                        for b in range(p):
+                            S[blk, a, b] -= y0 * W[ob, 0, b] + y1 * W[ob, 1, b] + y2 * W[ob, 2, b]
+    S = S_parts.sum(axis=0)
+    rhs = b_parts.sum(axis=0)
+    for c in range(n_cams):
+        blk = _block_id(blk_indptr, blk_indices, c, c)
+        for a in range(p):
+            for b in range(p):
+                S[blk, a, b] += U[c, a, b]
+            S[blk, a, a] += mu * _clamped(U[c, a, a])
+            rhs[c, a] = rhs[c, a] - gc[c, a]
+    return S, rhs, Vinv
+
+
+@njit(parallel=True, cache=True)
+def _back_substitute(dc, W, Vinv, gp, ci, order, point_start):
+    """Point steps dp (P,3) = V^-1 (-g_p - sum_a W_a^T dc_a)."""
+    n_pts = Vinv.shape[0]
+    p = W.shape[2]
+    dp = np.empty((n_pts, 3))
+    for q in prange(n_pts):
+        t0 = -gp[q, 0]
+        t1 = -gp[q, 1]
+        t2 = -gp[q, 2]
+        for k in range(point_start[q], point_start[q + 1]):
+            o = order[k]
+            c = ci[o]
+            for a in range(p):
+                d = dc[c, a]
+                t0 -= W[o, 0, a] * d
+                t1 -= W[o, 1, a] * d
+                t2 -= W[o, 2, a] * d
+        for a in range(3):
+            dp[q, a] = Vinv[q, a, 0] * t0 + Vinv[q, a, 1] * t1 + Vinv[q, a, 2] * t2
+    return dp
+
+
+@njit(parallel=True, cache=True)
+def _model_decrease(Jc, Jp, r, dc, dp, ci, pj):
+    """Decrease of the linearised cost 0.5|r + J d|^2 for the step d."""
+    total = 0.0
+    p = Jc.shape[2]
+    for o in prange(ci.shape[0]):
+        c = ci[o]
+        q = pj[o]
+        for k in range(2):
+            jd = Jp[o, k, 0] * dp[q, 0] + Jp[o, k, 1] * dp[q, 1] + Jp[o, k, 2] * dp[q, 2]
+            for a in range(p):
+                jd += Jc[o, k, a] * dc[c, a]
+            total += -r[o, k] * jd - 0.5 * jd * jd
+    return total
+
+
+# ---------------------------------------------------------------------------------------------
+# The solver
+# ---------------------------------------------------------------------------------------------
+def _solve_reduced(struct: _Structure, blocks: np.ndarray, rhs: np.ndarray, dense_limit: int
+                   ) -> np.ndarray | None:
+    """Solve S x = rhs on the free unknowns; None when S is not positive definite."""
+    n = struct.n_free
+    if n == 0:
+        return np.zeros(0)
+    S = sp.coo_matrix((blocks.ravel()[struct.take], (struct.rows, struct.cols)), shape=(n, n))
+    b = rhs.ravel()[struct.free_index >= 0]
+    try:
+        if n <= dense_limit:
+            return scipy.linalg.cho_solve(scipy.linalg.cho_factor(S.toarray(), check_finite=False), b,
+                                          check_finite=False)
+        x = spla.splu(S.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(b)
+    except (np.linalg.LinAlgError, RuntimeError):
+        return None
+    return x if np.all(np.isfinite(x)) else None
+
+
+def solve(
+    model: CameraModel,
+    params: np.ndarray,
+    points: np.ndarray,
+    cam_idx: np.ndarray,
+    pt_idx: np.ndarray,
+    obs: np.ndarray,
+    fixed: np.ndarray | None = None,
+    options: BAOptions = BAOptions(),
+    callback: Callable[[int, float], None] | None = None,
+) -> BAResult:
+    """Levenberg–Marquardt bundle adjustment.
+
+    params: (C, p) float64 camera parameters of ``model``; points: (P, 3) float64;
+    cam_idx, pt_idx: (N,) int indices of each observation; obs: (N, 2) float64 pixels;
+    fixed: (C, p) bool, True for parameters held constant (default: the first camera's pose).
+    ``callback(iteration, cost)`` is called after every linear solve.
+    Points seen by no observation keep their values.
+    """
+    t0 = time.perf_counter()
+    prob = _Problem(model, np.ascontiguousarray(cam_idx, np.int64), np.ascontiguousarray(pt_idx, np.int64),
+                    np.ascontiguousarray(obs, np.float64), options)
+    params = np.ascontiguousarray(params, np.float64)
+    if fixed is None:
+        fixed = np.zeros(params.shape, bool)
+        fixed[0, :6] = True
+    # Threads only pay off on large problems; on small ones (and on a busy machine) the
+    # synchronisation of numba's and BLAS's thread pools costs more than it saves.
+    threads = numba.get_num_threads() if len(prob.ci) >= _PARALLEL_MIN_OBS else 1
+    previous = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        with threadpool_limits(1, user_api="blas"):
+            result = _levenberg_marquardt(prob, params, np.ascontiguousarray(points, np.float64), fixed, threads,
+                                          callback)
+    finally:
+        numba.set_num_threads(previous)
+    result.seconds = time.perf_counter() - t0
+    return result
+
+
+@dataclass
+class _Problem:
+    model: CameraModel
+    ci: np.ndarray
+    pj: np.ndarray
+    obs: np.ndarray
+    options: BAOptions
+
+    def evaluate(self, params: np.ndarray, points: np.ndarray):
+        """Robust cost, IRLS weights (N,), residuals (N, 2), Jacobians."""
+        r, Jc, Jp = self.model.evaluate(params, points, self.ci, self.pj, self.obs, True)
+        cost, w = loss_cost_and_weight(np.einsum("ij,ij->i", r, r), self.options.loss, self.options.loss_scale)
+        return cost, w, r, Jc, Jp
+
+
+def _levenberg_marquardt(prob: _Problem, params: np.ndarray, points: np.ndarray, fixed: np.ndarray, threads: int,
+                         callback: Callable[[int, float], None] | None) -> BAResult:
+    options = prob.options
+    ci, pj = prob.ci, prob.pj
+    n_cams, p = params.shape
+    struct = _structure(n_cams, len(points), p, ci, pj, fixed)
+    n_chunks = max(1, min(threads, len(points) // 256))
+    free_rows = 1.0 - fixed.astype(np.float64)
+    cost, w, r, Jc, Jp = prob.evaluate(params, points)
+    initial_cost = cost
+    history = [cost]
+    radius, nu = options.initial_radius, 2.0
+    iterations = accepted = invalid = 0
+    grad0 = None
+    termination = "max_iterations"
+    need_blocks = True
+    while iterations < options.max_iterations:
+        if need_blocks:
+            sw = np.sqrt(w)
+            r_w = r * sw[:, None]
+            Jc_w = Jc * sw[:, None, None]
+            Jp_w = Jp * sw[:, None, None]
+            U, V, W, gc, gp = _normal_blocks(Jc_w, Jp_w, r_w, ci, pj, n_cams, len(points))
+            gmax = max(float(np.abs(gc * free_rows).max(initial=0.0)), float(np.abs(gp).max(initial=0.0)))
+            grad0 = gmax if grad0 is None else grad0
+            if gmax <= options.gradient_tolerance * max(grad0, 1e-300):
+                termination = "gradient_tolerance"
+                break
+            need_blocks = False
+        iterations += 1
+        blocks, rhs, Vinv = _schur(U, V, W, gc, gp, ci, struct.order, struct.point_start,
+                                   struct.blk_indptr, struct.blk_indices, 1.0 / radius, n_chunks)
+        x = _solve_reduced(struct, blocks, rhs, options.dense_limit)
+        trial = None
+        if x is not None:
+            dc = np.zeros(n_cams * p)
+            dc[struct.free_index >= 0] = x
+            dc = dc.reshape(n_cams, p)
+            dp = _back_substitute(dc, W, Vinv, gp, ci, struct.order, struct.point_start)
+            if np.all(np.isfinite(dp)):
+                new_params = prob.model.retract(params, dc)
+                new_points = points + dp
+                trial = prob.evaluate(new_params, new_points)
+        if trial is None or not np.isfinite(trial[0]):
+            invalid += 1
+            if invalid > options.max_invalid_steps:
+                termination = "invalid_steps"
+                break
+            radius, nu = radius / nu, nu * 2.0
+            if callback is not None:
+                callback(iterations, cost)
+            continue
+        invalid = 0
+        step_norm = math.sqrt(float((dc * dc).sum() + (dp * dp).sum()))
+        x_norm = math.sqrt(float((params * params).sum() + (points * points).sum()))
+        if step_norm <= options.parameter_tolerance * (x_norm + options.parameter_tolerance):
+            termination = "parameter_tolerance"
+            break
+        predicted = _model_decrease(Jc_w, Jp_w, r_w, dc, dp, ci, pj)
+        rho = (cost - trial[0]) / predicted if predicted > 0 else -1.0
+        if rho > 1e-3:
+            change = cost - trial[0]
+            params, points = new_params, new_points
+            cost, w, r, Jc, Jp = trial
+            need_blocks = True
+            accepted += 1
+            history.append(cost)
+            radius = min(radius / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e16)
+            nu = 2.0
+        else:
+            radius, nu = radius / nu, nu * 2.0
+        if callback is not None:
+            callback(iterations, cost)
+        if rho > 1e-3 and change <= options.function_tolerance * max(history[-2], 1e-300):
+            termination = "function_tolerance"
+            break
+    return BAResult(params=params, points=points, initial_cost=initial_cost, final_cost=cost,
+                    iterations=iterations, accepted=accepted, termination=termination, seconds=0.0, history=history)
+
+
+def reprojection_errors(model: CameraModel, params: np.ndarray, points: np.ndarray,
+                        cam_idx: np.ndarray, pt_idx: np.ndarray, obs: np.ndarray) -> np.ndarray:
+    """Per-observation reprojection error (N,) in pixels."""
+    r, _, _ = model.evaluate(np.ascontiguousarray(params, np.float64), np.ascontiguousarray(points, np.float64),
+                             np.ascontiguousarray(cam_idx, np.int64), np.ascontiguousarray(pt_idx, np.int64),
+                             np.ascontiguousarray(obs, np.float64), False)
+    return np.sqrt(np.einsum("ij,ij->i", r, r))

@@ -1,0 +1,100 @@
+"""``sweepcast reconstruct VIDEO --intrinsics fx,fy,cx,cy [--out DIR]``: drone video -> point cloud.
+
+VIDEO may also be a zip or a folder of ordered still images. The results are the job's:
+points.ply, cameras.txt, images.txt, points3D.txt, trajectory.json, report.json, preview.png.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from workers.common.cliutil import ProgressBar, format_table
+from workers.common.jobctx import JobInputError
+
+from .job import resolve_intrinsics, write_outputs
+from .params import ReconstructionParams
+from .reconstruction import reconstruct
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``reconstruct`` verb."""
+    p = subparsers.add_parser("reconstruct", help="3D reconstruction (points + camera path) from a drone video")
+    p.add_argument("video", type=Path, help="video file, or a zip / folder of ordered images")
+    p.add_argument("--intrinsics", help="fx,fy,cx,cy in pixels of the video's resolution")
+    p.add_argument("--calibration", type=Path, help="calibration file (OpenCV YAML/XML/JSON, COLMAP cameras.txt)")
+    p.add_argument("--distortion", help="OpenCV distortion k1,k2,p1,p2[,k3]: frames are undistorted first")
+    p.add_argument("--out", type=Path, default=Path("reconstruction"), help="output folder (default ./reconstruction)")
+    p.add_argument("--frame-step", type=int, help="use every k-th frame (default: adaptive by motion)")
+    p.add_argument("--matcher", choices=["fast_lk", "sift"], default="fast_lk")
+    p.add_argument("--max-frames", type=int, help="most frames to track")
+    p.add_argument("--max-width", type=int, help="downscale wider frames to this width")
+    p.add_argument("--params", help="further ReconstructionParams as JSON, e.g. '{\"outlier_threshold\": 3}'")
+    p.set_defaults(func=_reconstruct)
+
+
+def _numbers(text: str, what: str) -> list[float]:
+    try:
+        return [float(v) for v in text.replace(" ", "").split(",") if v]
+    except ValueError:
+        raise JobInputError(f"{what} must be comma-separated numbers, got {text!r}") from None
+
+
+def _params(args: argparse.Namespace) -> ReconstructionParams:
+    fields: dict = json.loads(args.params) if args.params else {}
+    if args.intrinsics:
+        values = _numbers(args.intrinsics, "--intrinsics")
+        if len(values) != 4:
+            raise JobInputError(f"--intrinsics needs four numbers fx,fy,cx,cy, got {len(values)}")
+        fields.update(zip(("fx", "fy", "cx", "cy"), values))
+    if args.distortion:
+        fields["distortion"] = _numbers(args.distortion, "--distortion")
+    for name in ("frame_step", "matcher", "max_frames", "max_width"):
+        if getattr(args, name) is not None:
+            fields[name] = getattr(args, name)
+    return ReconstructionParams.model_validate(fields)
+
+
+def _reconstruct(args: argparse.Namespace) -> int:
+    bar = None
+    try:
+        params = _params(args)
+        calib = args.calibration.read_bytes() if args.calibration else None
+        intrinsics = resolve_intrinsics(params, calib)
+        bar = ProgressBar("reconstruct")
+        model = reconstruct(args.video, intrinsics, params, bar)
+    except (JobInputError, ValidationError, json.JSONDecodeError, OSError) as exc:
+        if bar is not None:
+            bar.close()
+        message = exc.errors()[0]["msg"] if isinstance(exc, ValidationError) else str(exc)
+        print(f"sweepcast reconstruct: {message}", file=sys.stderr)
+        return 2
+    bar(0.98, "export")
+    args.out.mkdir(parents=True, exist_ok=True)
+    model.report["timings_s"].update(write_outputs(model, lambda name, data: (args.out / name).write_bytes(data)))
+    (args.out / "report.json").write_text(json.dumps(model.report, indent=1))
+    bar(1.0, "done")
+    bar.close()
+    rep = model.report
+    err = rep["reprojection_error_px"]
+    rows = [
+        ["frames decoded / selected", f"{rep['frames']['decoded']} / {rep['frames']['selected']}"],
+        ["keyframes registered", f"{rep['frames']['keyframes_registered']} / {rep['frames']['keyframes']}"],
+        ["frames registered", rep["frames"]["registered"]],
+        ["tracks", rep["tracks"]["count"]],
+        ["inlier ratio (mean per pair)", f"{rep['matcher']['inlier_ratio_mean']:.3f}"],
+        ["points", rep["points"]],
+        ["reprojection error before BA (mean, px)", _fmt(err["before_ba"]["mean"])],
+        ["reprojection error after BA (mean, px)", _fmt(err["after_ba"]["mean"])],
+        ["total time (s)", f"{sum(rep['timings_s'].values()):.1f}"],
+    ]
+    print(format_table(["", "value"], rows))
+    print(f"results in {args.out}/")
+    return 0
+
+
+def _fmt(v: float | None) -> str:
+    return "-" if v is None else f"{v:.3f}"

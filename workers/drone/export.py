@@ -1,0 +1,108 @@
+"""Writing a :class:`~workers.drone.reconstruction.SparseModel`: coloured PLY, a COLMAP text
+model, the trajectory as JSON.
+
+Pixel values go out at the media's native resolution. COLMAP measures pixels from the image
+corner (the first pixel's centre is (0.5, 0.5)), our convention from the first pixel's centre,
+so COLMAP coordinates are ours + 0.5.
+"""
+from __future__ import annotations
+
+import io
+import json
+from typing import Any
+
+import numpy as np
+
+from workers.camera import rotation_to_quat
+
+from .geometry import camera_centre
+from .reconstruction import SparseModel
+
+
+def ply_bytes(points: np.ndarray, colors_bgr: np.ndarray) -> bytes:
+    """Binary little-endian PLY of points (N, 3) with colours (N, 3) uint8 BGR."""
+    v = np.empty(len(points), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
+                                     ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    v["x"], v["y"], v["z"] = (np.asarray(points, np.float32)[:, i] for i in range(3))
+    v["red"], v["green"], v["blue"] = colors_bgr[:, 2], colors_bgr[:, 1], colors_bgr[:, 0]
+    header = ("ply\nformat binary_little_endian 1.0\ncomment sweepcast drone reconstruction\n"
+              f"element vertex {len(v)}\nproperty float x\nproperty float y\nproperty float z\n"
+              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
+    return header.encode("ascii") + v.tobytes()
+
+
+def _native(model: SparseModel, xy: np.ndarray) -> np.ndarray:
+    """Working-resolution pixels -> native-resolution pixels (our convention)."""
+    return (xy + 0.5) / model.scale - 0.5
+
+
+def colmap_text(model: SparseModel) -> dict[str, str]:
+    """COLMAP text model: {'cameras.txt', 'images.txt', 'points3D.txt'} -> file contents.
+
+    One PINHOLE camera (native resolution); one image per registered frame, named after the
+    frame; points2D of keyframes are their bundle-adjustment observations.
+    """
+    intr = model.intrinsics.scaled(1.0 / model.scale)
+    w = int(round(model.width / model.scale))
+    h = int(round(model.height / model.scale))
+    cameras = ("# Camera list with one line of data per camera:\n"
+               "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n# Number of cameras: 1\n"
+               f"1 PINHOLE {w} {h} {intr.fx:.10g} {intr.fy:.10g} {intr.cx + 0.5:.10g} {intr.cy + 0.5:.10g}\n")
+    frames = np.flatnonzero(model.registered)
+    image_id = {int(f): i + 1 for i, f in enumerate(frames)}
+    order = np.lexsort((model.obs_point, model.obs_frame))
+    of, op, xy = model.obs_frame[order], model.obs_point[order], _native(model, model.obs_xy[order]) + 0.5
+    starts = np.searchsorted(of, frames)
+    ends = np.searchsorted(of, frames, side="right")
+    point2d_idx = np.empty(len(of), np.int64)
+    img = io.StringIO()
+    img.write("# Image list with two lines of data per image:\n"
+              "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n"
+              "#   POINTS2D[] as (X, Y, POINT3D_ID)\n"
+              f"# Number of images: {len(frames)}\n")
+    for f, a, b in zip(frames, starts, ends):
+        q = rotation_to_quat(model.R[f])
+        t = model.t[f]
+        img.write(f"{image_id[int(f)]} {q[0]:.12g} {q[1]:.12g} {q[2]:.12g} {q[3]:.12g} "
+                  f"{t[0]:.12g} {t[1]:.12g} {t[2]:.12g} 1 {model.frame_name[f]}\n")
+        point2d_idx[a:b] = np.arange(b - a)
+        img.write(" ".join(f"{x:.3f} {y:.3f} {p + 1}" for (x, y), p in zip(xy[a:b], op[a:b])) + "\n")
+    pts = io.StringIO()
+    pts.write("# 3D point list with one line of data per point:\n"
+              "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n"
+              f"# Number of points: {len(model.points)}\n")
+    by_point = np.argsort(op, kind="stable")
+    bounds = np.searchsorted(op[by_point], np.arange(len(model.points) + 1))
+    for j, (X, c, e) in enumerate(zip(model.points, model.colors, model.point_error / model.scale)):
+        rows = by_point[bounds[j]:bounds[j + 1]]
+        track = " ".join(f"{image_id[int(of[r])]} {point2d_idx[r]}" for r in rows)
+        pts.write(f"{j + 1} {X[0]:.9g} {X[1]:.9g} {X[2]:.9g} {c[2]} {c[1]} {c[0]} {e:.4f} {track}\n")
+    return {"cameras.txt": cameras, "images.txt": img.getvalue(), "points3D.txt": pts.getvalue()}
+
+
+def trajectory(model: SparseModel) -> dict[str, Any]:
+    """JSON-able trajectory: every selected frame with its pose when registered."""
+    intr = model.intrinsics.scaled(1.0 / model.scale)
+    centres = camera_centre(model.R, model.t)
+    frames = []
+    for f in range(len(model.frame_index)):
+        item: dict[str, Any] = {"frame": int(model.frame_index[f]), "name": model.frame_name[f],
+                                "time": model.frame_time[f], "keyframe": bool(model.keyframe[f]),
+                                "registered": bool(model.registered[f])}
+        if model.registered[f]:
+            item.update(R=model.R[f].tolist(), t=model.t[f].tolist(), center=centres[f].tolist(),
+                        quaternion_wxyz=rotation_to_quat(model.R[f]).tolist())
+        frames.append(item)
+    return {
+        "convention": "world-to-camera x_cam = R X + t, OpenCV axes (x right, y down, z forward); the world is the "
+                      "first reconstructed camera's frame, the unit the baseline of the initial pair",
+        "intrinsics": {"fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy,
+                       "width": int(round(model.width / model.scale)),
+                       "height": int(round(model.height / model.scale))},
+        "frames": frames,
+    }
+
+
+def trajectory_json(model: SparseModel) -> bytes:
+    """:func:`trajectory` as UTF-8 JSON."""
+    return json.dumps(trajectory(model), indent=1).encode()

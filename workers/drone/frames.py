@@ -1,0 +1,256 @@
+"""Frames from the user's media: a video (any format PyAV/FFmpeg decodes), a zip of ordered
+still images, or a folder of them; frame selection, blur rejection, resizing, undistortion.
+
+Frames stream through :func:`select_frames` one at a time, so a long video never sits in memory.
+"""
+from __future__ import annotations
+
+import math
+import re
+import zipfile
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterator
+
+import av
+import cv2
+import numpy as np
+
+from workers.common.jobctx import JobInputError
+
+from .calibration import Intrinsics
+from .matching import global_shift
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+_THUMB = 320
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One selected frame: ``image`` (H, W, 3) uint8 BGR and ``gray`` (H, W) uint8 at the working
+    resolution (undistorted when distortion was given); ``index`` counts decoded frames from 0;
+    ``time`` in seconds (None for stills)."""
+
+    index: int
+    time: float | None
+    name: str
+    image: np.ndarray
+    gray: np.ndarray
+
+
+@dataclass
+class MediaSource:
+    """Decoded frames of a video or an image sequence, (index, time, name, BGR image)."""
+
+    kind: str
+    """'video' or 'images'."""
+    name: str
+    count: int | None
+    """Frames expected (None when the container does not say)."""
+    _iter: Callable[[], Iterator[tuple[int, float | None, str, np.ndarray]]]
+    errors: list[str] = field(default_factory=list)
+
+    def __iter__(self) -> Iterator[tuple[int, float | None, str, np.ndarray]]:
+        return self._iter()
+
+
+def _natural_key(name: str) -> list:
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+
+
+def open_media(path: str | Path) -> MediaSource:
+    """Open a video file, a zip of images or a folder of images (sorted by natural name order).
+
+    Raises JobInputError when the file is neither a decodable video nor an image archive.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise JobInputError(f"{path.name}: no such file")
+    if path.is_dir():
+        names = sorted((p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES), key=lambda p: _natural_key(p.name))
+        if not names:
+            raise JobInputError(f"the folder {path.name} holds no images ({', '.join(IMAGE_SUFFIXES)})")
+        src = MediaSource("images", path.name, len(names), lambda: None)
+        src._iter = lambda: _decode_stills(((p.name, p.read_bytes) for p in names), src)
+        return src
+    if zipfile.is_zipfile(path):
+        return _open_zip(path)
+    return _open_video(path)
+
+
+def _open_zip(path: Path) -> MediaSource:
+    try:
+        with zipfile.ZipFile(path) as zf:
+            names = [i.filename for i in zf.infolist()
+                     if not i.is_dir() and Path(i.filename).suffix.lower() in IMAGE_SUFFIXES
+                     and not Path(i.filename).name.startswith(".")]
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise JobInputError(f"{path.name}: the zip archive is damaged ({exc})") from None
+    if not names:
+        raise JobInputError(f"the zip archive {path.name} holds no images ({', '.join(IMAGE_SUFFIXES)})")
+    names.sort(key=lambda n: _natural_key(Path(n).name))
+
+    def items():
+        with zipfile.ZipFile(path) as zf:
+            for n in names:
+                yield Path(n).name, lambda n=n: zf.read(n)
+
+    src = MediaSource("images", path.name, len(names), lambda: None)
+    src._iter = lambda: _decode_stills(items(), src)
+    return src
+
+
+def _decode_stills(items, src: MediaSource) -> Iterator[tuple[int, float | None, str, np.ndarray]]:
+    index = 0
+    for name, read in items:
+        try:
+            img = cv2.imdecode(np.frombuffer(read(), np.uint8), cv2.IMREAD_COLOR)
+        except (OSError, zipfile.BadZipFile, cv2.error) as exc:
+            img = None
+            src.errors.append(f"{name}: {exc}")
+        if img is None:
+            src.errors.append(f"{name}: not a decodable image")
+            continue
+        yield index, None, name, img
+        index += 1
+
+
+def _open_video(path: Path) -> MediaSource:
+    try:
+        container = av.open(str(path))
+    except (av.error.FFmpegError, OSError, UnicodeDecodeError, ValueError):
+        raise JobInputError(f"{path.name} is not a video or a zip of images that can be decoded") from None
+    try:
+        if not container.streams.video:
+            raise JobInputError(f"{path.name} has no video stream")
+        stream = container.streams.video[0]
+        count = int(stream.frames or 0)
+        if count <= 0 and stream.duration and stream.average_rate:
+            count = int(float(stream.duration * stream.time_base) * float(stream.average_rate))
+    finally:
+        container.close()
+
+    src = MediaSource("video", path.name, count or None, lambda: None)
+
+    def frames():
+        with av.open(str(path)) as cont:
+            vs = cont.streams.video[0]
+            vs.thread_type = "AUTO"
+            index = 0
+            try:
+                for frame in cont.decode(vs):
+                    t = float(frame.time) if frame.time is not None else None
+                    yield index, t, f"frame_{index:06d}", frame.to_ndarray(format="bgr24")
+                    index += 1
+            except (av.error.FFmpegError, ValueError) as exc:
+                # A damaged tail ends the video; the frames before it stay usable.
+                src.errors.append(f"decoding stopped after frame {index}: {exc}")
+
+    src._iter = frames
+    return src
+
+
+def sharpness(gray: np.ndarray) -> float:
+    """Variance of the Laplacian of gray (H, W) uint8: low for blurred frames."""
+    return float(cv2.Laplacian(gray, cv2.CV_64F).var())
+
+
+@dataclass
+class SelectionStats:
+    """What frame selection did (for the report)."""
+
+    decoded: int = 0
+    selected: int = 0
+    skipped_blurred: int = 0
+    stride: int = 1
+    truncated: bool = False
+    native_size: tuple[int, int] | None = None
+    working_size: tuple[int, int] | None = None
+    scale: float = 1.0
+
+
+def select_frames(
+    source: MediaSource,
+    intrinsics: Intrinsics,
+    frame_step: int | None = None,
+    min_motion: float = 0.004,
+    blur_ratio: float = 0.5,
+    max_frames: int = 400,
+    max_width: int = 1280,
+    stats: SelectionStats | None = None,
+    on_decoded: Callable[[int], None] | None = None,
+) -> Iterator[Frame]:
+    """Stream the frames worth tracking.
+
+    ``frame_step`` k keeps every k-th decoded frame; None keeps a frame once the image moved
+    ``min_motion`` of the width since the last kept one (phase correlation of thumbnails).
+    A video frame whose sharpness is below ``blur_ratio`` times the median of the last 15 frames
+    is skipped and the next sharp one taken instead (but never more than one step late).
+    At most ``max_frames`` frames: the step grows when the length is known, else the stream
+    is cut. Frames are resized to at most ``max_width`` and undistorted with ``intrinsics.dist``;
+    ``intrinsics`` (native resolution) are checked against the first frame's size.
+    ``on_decoded(n)`` is called after each decoded frame.
+    """
+    stats = stats if stats is not None else SelectionStats()
+    stride = 1
+    if source.count:
+        stride = max(1, math.ceil(source.count / (max_frames * (frame_step or 1))))
+    stats.stride = stride
+    recent: deque[float] = deque(maxlen=15)
+    last_thumb = None
+    since = 0
+    maps = None
+    scale = 1.0
+    for index, time, name, bgr in source:
+        stats.decoded += 1
+        if on_decoded is not None:
+            on_decoded(stats.decoded)
+        if stats.native_size is None:
+            h, w = bgr.shape[:2]
+            stats.native_size = (w, h)
+            intrinsics.check(w, h)
+            scale = min(1.0, max_width / w)
+            stats.scale = scale
+            stats.working_size = (int(round(w * scale)), int(round(h * scale)))
+            if intrinsics.dist is not None:
+                k = intrinsics.scaled(scale).K
+                maps = cv2.initUndistortRectifyMap(k, intrinsics.dist, None, k, stats.working_size, cv2.CV_16SC2)
+        elif bgr.shape[1::-1] != stats.native_size:
+            source.errors.append(f"{name}: size {bgr.shape[1]}x{bgr.shape[0]} differs from the first frame; skipped")
+            continue
+        if index % stride:
+            continue
+        since += 1
+        thumb_s = _THUMB / max(bgr.shape[:2])
+        thumb = cv2.cvtColor(cv2.resize(bgr, None, fx=thumb_s, fy=thumb_s, interpolation=cv2.INTER_AREA),
+                             cv2.COLOR_BGR2GRAY)
+        sharp = sharpness(thumb)
+        # Stills are not redundant like video frames: a soft one is kept rather than lost.
+        blurred = (source.kind == "video" and blur_ratio > 0 and len(recent) >= 5
+                   and sharp < blur_ratio * float(np.median(recent)))
+        recent.append(sharp)
+        if last_thumb is None:
+            due, late = True, True
+        elif frame_step is not None:
+            due, late = since >= frame_step, since >= 2 * frame_step
+        else:
+            shift, peak = global_shift(last_thumb, thumb, _THUMB)
+            # A weak correlation peak means no single shift explains the change: large motion.
+            motion = float(np.linalg.norm(shift)) / thumb.shape[1] if peak >= 0.05 else np.inf
+            due, late = motion >= min_motion, motion >= 3 * min_motion and since >= 3
+        if not due:
+            continue
+        if blurred and not late:
+            stats.skipped_blurred += 1
+            continue
+        if stats.selected >= max_frames:
+            stats.truncated = True
+            break
+        image = bgr if scale == 1.0 else cv2.resize(bgr, stats.working_size, interpolation=cv2.INTER_AREA)
+        if maps is not None:
+            image = cv2.remap(image, maps[0], maps[1], cv2.INTER_LINEAR)
+        last_thumb = thumb
+        since = 0
+        stats.selected += 1
+        yield Frame(index, time, name, image, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))

@@ -1,0 +1,73 @@
+"""Parameters of a drone reconstruction (the ``reconstruction`` job and the CLI verb).
+
+The web layer validates request parameters with :class:`ReconstructionParams`; checks that need
+the media (intrinsics against the image size, enough frames) happen in the job.
+"""
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+_DIST_LENGTHS = (4, 5, 8, 12, 14)
+
+
+class ReconstructionParams(BaseModel):
+    """Settings of one reconstruction. Pixel values refer to the media's native resolution
+    (intrinsics) or to the working resolution after ``max_width`` (thresholds)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    fx: float | None = Field(None, gt=0, description="Focal length x, pixels (native resolution).")
+    fy: float | None = Field(None, gt=0, description="Focal length y, pixels (native resolution).")
+    cx: float | None = Field(None, description="Principal point x, pixels; (0, 0) = centre of the top-left pixel.")
+    cy: float | None = Field(None, description="Principal point y, pixels.")
+    calibration: str | None = Field(
+        None, max_length=100_000,
+        description="Text of a calibration file (OpenCV YAML/XML/JSON, COLMAP cameras.txt, or 'fx fy cx cy'); "
+                    "the job also accepts it as an input named 'calibration'.")
+    distortion: list[float] | None = Field(
+        None, description="OpenCV distortion coefficients k1 k2 p1 p2 [k3 ...]; frames are undistorted first.")
+
+    frame_step: int | None = Field(None, ge=1, le=10_000,
+                                   description="Use every k-th frame; None selects frames adaptively by motion.")
+    min_motion: float = Field(0.004, ge=0, le=0.5,
+                              description="Adaptive selection: image motion (fraction of the width) between frames.")
+    blur_ratio: float = Field(0.5, ge=0, lt=1,
+                              description="Skip a frame whose Laplacian variance is below this fraction of the "
+                                          "recent median (0 keeps all).")
+    max_frames: int = Field(400, ge=2, le=5000, description="Most frames tracked; the step grows to fit.")
+    max_width: int = Field(1280, ge=160, le=8192, description="Frames wider than this are downscaled.")
+
+    matcher: Literal["fast_lk", "sift"] = Field("fast_lk", description="FAST + optical flow (the paper) or SIFT.")
+    fast_threshold: int = Field(20, ge=1, le=255,
+                                description="FAST intensity threshold; halved (down to 5) while a frame has fewer "
+                                            "than 2 x max_features corners.")
+    max_features: int = Field(2000, ge=50, le=20_000, description="Tracked features per frame (SIFT: x2).")
+    feature_spacing: float = Field(8.0, ge=1, le=200, description="Minimum distance between features, pixels.")
+    outlier_threshold: float = Field(2.0, gt=0, le=50,
+                                     description="The paper's rule: flow end point to nearest FAST corner, pixels.")
+    fb_threshold: float = Field(1.0, gt=0, le=50, description="Forward-backward flow error limit, pixels.")
+    ransac_threshold: float = Field(1.0, gt=0, le=50, description="Epipolar distance for RANSAC on E, pixels.")
+    lk_window: int = Field(21, ge=5, le=101, description="Lucas-Kanade window size, pixels.")
+    lk_levels: int = Field(4, ge=0, le=8, description="Lucas-Kanade pyramid levels.")
+    sift_ratio: float = Field(0.8, gt=0, lt=1, description="Lowe's ratio test.")
+    match_window: int = Field(2, ge=1, le=20, description="SIFT: match each frame with this many following ones.")
+
+    keyframe_parallax: float = Field(0.02, ge=0, le=1,
+                                     description="New keyframe when tracks moved this fraction of the width.")
+    min_triangulation_angle: float = Field(1.5, gt=0, le=45, description="Degrees.")
+    reprojection_threshold: float = Field(4.0, gt=0, le=100, description="Observations above are outliers, pixels.")
+    ba_loss: Literal["trivial", "huber", "cauchy"] = "cauchy"
+    ba_loss_scale: float = Field(2.0, gt=0, le=100, description="Robust loss scale, pixels.")
+    ba_iterations: int = Field(50, ge=1, le=1000, description="LM iterations of each global adjustment.")
+
+    @model_validator(mode="after")
+    def _check(self) -> "ReconstructionParams":
+        given = [v is not None for v in (self.fx, self.fy, self.cx, self.cy)]
+        if any(given) and not all(given):
+            raise ValueError("give all four of fx, fy, cx, cy (or a calibration)")
+        if self.distortion is not None and len(self.distortion) not in _DIST_LENGTHS:
+            raise ValueError(f"distortion needs {', '.join(map(str, _DIST_LENGTHS))} coefficients, "
+                             f"got {len(self.distortion)}")
+        return self

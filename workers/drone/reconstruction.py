@@ -1,0 +1,510 @@
+"""The incremental reconstruction pipeline (the paper's section III, sequence-wide).
+
+media -> selected frames -> tracks (FAST+LK with the III-A rule, or SIFT) -> keyframes by
+parallax -> initial pair (E, pose, DLT: III-C) -> next keyframes by PnP in the same scale, new
+tracks triangulated, local bundle adjustments -> global bundle adjustment (eq. 5) with outliers
+removed between rounds -> the remaining frames located by PnP against the final map.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from workers.common.jobctx import JobInputError
+
+from . import bundle
+from .calibration import Intrinsics
+from .camera_models import PinholeModel, pose_params, poses_from_params
+from .frames import SelectionStats, open_media, select_frames
+from .multiview import register_pnp, select_keyframes, triangulate_pairs, two_view
+from .params import ReconstructionParams
+from .tracks import FlowTracker, SiftTracker, TrackSet
+
+ProgressFn = Callable[[float, str], None]
+
+_MIN_TRACKS = 20
+_MIN_INIT_POINTS = 30
+_MIN_PNP = 12
+_LOCAL_WINDOW = 8
+_LOCAL_ITERATIONS = 8
+_INIT_FIRST = 6     # initial pairs are searched among the first keyframes ...
+_INIT_SPAN = 6      # ... and this many keyframes after each
+
+
+@dataclass
+class SparseModel:
+    """The result. Poses and pixels refer to the working resolution (``scale`` x native).
+
+    K (3, 3); frames: ``frame_index`` (F,) decoded-frame numbers, ``frame_time`` (seconds or
+    None), ``frame_name``; ``keyframe``/``registered`` (F,) bool; R (F, 3, 3), t (F, 3)
+    world-to-camera (identity/zero where unregistered); points (P, 3), colors (P, 3) uint8 BGR,
+    point_error (P,) mean reprojection error in pixels; BA observations obs_frame (M,),
+    obs_point (M,), obs_xy (M, 2) pixels; ``report`` a JSON-able summary.
+    """
+
+    K: np.ndarray
+    intrinsics: Intrinsics
+    scale: float
+    width: int
+    height: int
+    frame_index: np.ndarray
+    frame_time: list[float | None]
+    frame_name: list[str]
+    keyframe: np.ndarray
+    registered: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    points: np.ndarray
+    colors: np.ndarray
+    point_error: np.ndarray
+    obs_frame: np.ndarray
+    obs_point: np.ndarray
+    obs_xy: np.ndarray
+    report: dict[str, Any] = field(default_factory=dict)
+
+
+def _stage(progress: ProgressFn | None, fraction: float, stage: str) -> None:
+    if progress is not None:
+        progress(fraction, stage)
+
+
+# ---------------------------------------------------------------------------------------------
+# Frames and tracks
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class _Tracked:
+    tracks: TrackSet
+    stats: SelectionStats
+    index: list[int]
+    time: list[float | None]
+    name: list[str]
+    seconds_decode: float
+    seconds_track: float
+    errors: list[str]
+
+
+def track_media(media: str | Path, intrinsics: Intrinsics, p: ReconstructionParams,
+                progress: ProgressFn | None = None, span: float = 0.55) -> _Tracked:
+    """Decode, select and track frames of ``media`` (progress from 0 to ``span``)."""
+    source = open_media(media)
+    stats = SelectionStats()
+    K = None
+    tracker = None
+    idx: list[int] = []
+    times: list[float | None] = []
+    names: list[str] = []
+    t_track = 0.0
+    t0 = time.perf_counter()
+    stage = ["decode"]
+
+    def on_decoded(n: int) -> None:
+        if source.count:
+            _stage(progress, span * min(n / source.count, 1.0), stage[0])
+
+    for frame in select_frames(source, intrinsics, p.frame_step, p.min_motion, p.blur_ratio, p.max_frames,
+                               p.max_width, stats, on_decoded):
+        if tracker is None:
+            K = intrinsics.scaled(stats.scale).K
+            tracker = (FlowTracker if p.matcher == "fast_lk" else SiftTracker)(K, p)
+        t1 = time.perf_counter()
+        tracker.add(frame)
+        t_track += time.perf_counter() - t1
+        idx.append(frame.index)
+        times.append(frame.time)
+        names.append(frame.name)
+        expected = _expected_frames(source.count, stats)
+        done = min(stats.decoded / source.count, 1.0) if source.count else 0.0
+        stage[0] = f"track {len(idx)}/{expected}" if expected else f"track {len(idx)}"
+        _stage(progress, span * done, stage[0])
+    if stats.decoded == 0:
+        raise JobInputError(f"{source.name}: no decodable frames"
+                            + (f" ({source.errors[0]})" if source.errors else ""))
+    if len(idx) < 2:
+        raise JobInputError(f"{source.name}: only {len(idx)} usable frame(s) of {stats.decoded} decoded; "
+                            "a reconstruction needs at least two")
+    tracks = tracker.result()
+    return _Tracked(tracks, stats, idx, times, names, time.perf_counter() - t0 - t_track, t_track, source.errors)
+
+
+def _expected_frames(count: int | None, stats: SelectionStats) -> int | None:
+    if not count or stats.decoded == 0:
+        return None
+    return max(stats.selected, int(round(stats.selected * count / stats.decoded)))
+
+
+# ---------------------------------------------------------------------------------------------
+# Incremental mapping
+# ---------------------------------------------------------------------------------------------
+class _Mapper:
+    """State of the incremental reconstruction over the keyframes' observations."""
+
+    def __init__(self, tracks: TrackSet, keyframes: np.ndarray, K: np.ndarray, p: ReconstructionParams) -> None:
+        self.tracks = tracks
+        self.K = K
+        self.p = p
+        n_frames = tracks.n_frames
+        self.is_key = np.zeros(n_frames, bool)
+        self.is_key[keyframes] = True
+        sel = self.is_key[tracks.obs_frame]
+        self.of = tracks.obs_frame[sel]
+        self.ot = tracks.obs_track[sel]
+        self.xy = tracks.obs_xy[sel]
+        self.rgb = tracks.obs_rgb[sel]
+        self.valid = np.ones(len(self.of), bool)
+        self.by_track = np.argsort(self.ot, kind="stable")
+        self.track_start = np.concatenate([[0], np.cumsum(np.bincount(self.ot, minlength=tracks.n_tracks))])
+        self.track_point = np.full(tracks.n_tracks, -1, np.int64)
+        self.X = np.zeros((0, 3))
+        self.X0 = np.zeros((0, 3))  # initial values (DLT / PnP), kept for the report
+        self.point_track = np.zeros(0, np.int64)
+        self.alive = np.zeros(0, bool)
+        self.reg = np.zeros(n_frames, bool)
+        self.R = np.tile(np.eye(3), (n_frames, 1, 1))
+        self.t = np.zeros((n_frames, 3))
+        self.R0 = self.R.copy()
+        self.t0 = self.t.copy()
+        self.order: list[int] = []
+        self.gauge = -1
+        self.fail_count = np.zeros(n_frames, np.int64)
+
+    def rows(self, f: int) -> np.ndarray:
+        lo, hi = np.searchsorted(self.of, [f, f + 1])
+        return np.arange(lo, hi)
+
+    def _add_points(self, track_ids: np.ndarray, X: np.ndarray) -> None:
+        start = len(self.X)
+        self.X = np.vstack([self.X, X])
+        self.X0 = np.vstack([self.X0, X])
+        self.point_track = np.concatenate([self.point_track, track_ids])
+        self.alive = np.concatenate([self.alive, np.ones(len(X), bool)])
+        self.track_point[track_ids] = np.arange(start, start + len(X))
+
+    def _set_pose(self, f: int, R: np.ndarray, t: np.ndarray) -> None:
+        self.R[f], self.t[f] = R, t
+        self.R0[f], self.t0[f] = R, t
+        self.reg[f] = True
+        self.order.append(f)
+
+    # -- the initial pair (III-C) -------------------------------------------------------------
+    def initialise(self, keyframes: np.ndarray) -> tuple[int, int]:
+        """Find the first keyframe pair with enough parallax; raises JobInputError when none."""
+        p = self.p
+        best_angle = 0.0
+        for i, k0 in enumerate(keyframes[:_INIT_FIRST]):
+            r0 = self.rows(int(k0))
+            for k1 in keyframes[i + 1:i + 1 + _INIT_SPAN]:
+                r1 = self.rows(int(k1))
+                common, ia, ib = np.intersect1d(self.ot[r0], self.ot[r1], assume_unique=True, return_indices=True)
+                if len(common) < _MIN_INIT_POINTS:
+                    continue
+                tv = two_view(self.xy[r0[ia]], self.xy[r1[ib]], self.K, p.ransac_threshold,
+                              p.reprojection_threshold, p.min_triangulation_angle)
+                if tv is None:
+                    continue
+                best_angle = max(best_angle, tv.median_angle)
+                if tv.good.sum() >= _MIN_INIT_POINTS and tv.median_angle >= p.min_triangulation_angle:
+                    self._set_pose(int(k0), np.eye(3), np.zeros(3))
+                    self._set_pose(int(k1), tv.R, tv.t)
+                    self.gauge = int(k0)
+                    self._add_points(common[tv.good], tv.X[tv.good])
+                    return int(k0), int(k1)
+        raise JobInputError(
+            "the camera does not move enough to see depth: no pair of frames gives a triangulation angle of "
+            f"{p.min_triangulation_angle:g} degrees (best {best_angle:.2f}); a hovering or only-rotating camera "
+            "cannot be reconstructed")
+
+    # -- registration and triangulation -------------------------------------------------------
+    def _observed_points(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        pt = self.track_point[self.ot[rows]]
+        keep = self.valid[rows] & (pt >= 0)
+        return rows[keep], pt[keep]
+
+    def register_next(self) -> int | None:
+        """Register the unregistered keyframe that sees most points; None when none can be."""
+        cand = self.is_key & ~self.reg
+        use = self.valid & cand[self.of] & (self.track_point[self.ot] >= 0)
+        counts = np.bincount(self.of[use], minlength=len(self.reg))
+        counts[counts <= 1.5 * self.fail_count] = 0
+        while True:
+            f = int(np.argmax(counts))
+            if counts[f] < _MIN_PNP:
+                return None
+            rows, pt = self._observed_points(self.rows(f))
+            res = register_pnp(self.X[pt], self.xy[rows], self.K, self.p.reprojection_threshold, _MIN_PNP)
+            if res is None:
+                self.fail_count[f] = counts[f]
+                counts[f] = 0
+                continue
+            R, t, inl = res
+            self.valid[rows[~inl]] = False
+            self._set_pose(f, R, t)
+            return f
+
+    def triangulate(self, f: int) -> int:
+        """New points for tracks seen in frame f and in another registered keyframe."""
+        rows = self.rows(f)
+        rows = rows[self.valid[rows] & (self.track_point[self.ot[rows]] < 0)]
+        if len(rows) == 0:
+            return 0
+        tids = self.ot[rows]
+        starts = self.track_start[tids]
+        lens = self.track_start[tids + 1] - starts
+        owner = np.repeat(np.arange(len(tids)), lens)
+        pos = np.arange(int(lens.sum())) - np.repeat(np.cumsum(lens) - lens, lens) + np.repeat(starts, lens)
+        other = self.by_track[pos]
+        ok = self.valid[other] & self.reg[self.of[other]] & (self.of[other] != f)
+        owner, other = owner[ok], other[ok]
+        if len(owner) == 0:
+            return 0
+        # The partner farthest along the sequence gives the widest baseline.
+        order = np.lexsort((-np.abs(self.of[other] - f), owner))
+        owner, other = owner[order], other[order]
+        first = np.unique(owner, return_index=True)[1]
+        owner, other = owner[first], other[first]
+        fo = self.of[other]
+        X, good = triangulate_pairs(self.K, self.R[f], self.t[f], self.xy[rows[owner]], self.R[fo], self.t[fo],
+                                    self.xy[other], self.p.reprojection_threshold, self.p.min_triangulation_angle)
+        self._add_points(tids[owner[good]], X[good])
+        return int(good.sum())
+
+    # -- bundle adjustment --------------------------------------------------------------------
+    def _ba_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        pt = self.track_point[self.ot]
+        use = self.valid & self.reg[self.of] & (pt >= 0)
+        use[use] = self.alive[pt[use]]
+        return np.flatnonzero(use), pt
+
+    def adjust(self, free_frames: np.ndarray | None, iterations: int,
+               callback: Callable[[int, float], None] | None = None) -> bundle.BAResult | None:
+        """Bundle adjustment of the frames in ``free_frames`` (all registered when None) and the
+        points they see; other frames seeing those points stay fixed; the gauge frame is fixed."""
+        rows, pt = self._ba_rows()
+        if free_frames is not None:
+            local = np.zeros(len(self.reg), bool)
+            local[free_frames] = True
+            seen = np.unique(pt[rows[local[self.of[rows]]]])
+            rows = rows[np.isin(pt[rows], seen)]
+        if len(rows) == 0:
+            return None
+        cams, ci = np.unique(self.of[rows], return_inverse=True)
+        pts, pj = np.unique(pt[rows], return_inverse=True)
+        fixed = np.zeros((len(cams), 6), bool)
+        if free_frames is not None:
+            fixed[~np.isin(cams, free_frames)] = True
+        if not fixed.any():
+            fixed[cams == self.gauge] = True
+            if not fixed.any():
+                fixed[0] = True
+        if fixed.all():
+            return None
+        options = bundle.BAOptions(max_iterations=iterations, loss=self.p.ba_loss, loss_scale=self.p.ba_loss_scale)
+        res = bundle.solve(PinholeModel(self.K, len(cams)), pose_params(self.R[cams], self.t[cams]), self.X[pts], ci, pj, self.xy[rows],
+                           fixed, options, callback)
+        R, t = poses_from_params(res.params)
+        self.R[cams], self.t[cams] = R, t
+        self.X[pts] = res.points
+        return res
+
+    def errors(self, initial: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Rows used by BA and their reprojection errors (pixels; inf behind the camera), with
+        the current values or (``initial``) the values first estimated by DLT and PnP/E."""
+        rows, pt = self._ba_rows()
+        f = self.of[rows]
+        R, t, X = (self.R0, self.t0, self.X0) if initial else (self.R, self.t, self.X)
+        P = np.einsum("nij,nj->ni", R[f], X[pt[rows]]) + t[f]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = P[:, :2] / P[:, 2:3] @ self.K[:2, :2].T + self.K[:2, 2]
+            err = np.linalg.norm(uv - self.xy[rows], axis=1)
+        err[~(P[:, 2] > 0)] = np.inf
+        return rows, err
+
+    def filter_outliers(self) -> int:
+        """Drop observations above the reprojection threshold, then points seen fewer than twice."""
+        rows, err = self.errors()
+        bad = rows[~(err <= self.p.reprojection_threshold)]
+        self.valid[bad] = False
+        rows, pt = self._ba_rows()
+        counts = np.bincount(pt[rows], minlength=len(self.X))
+        dead = self.alive & (counts < 2)
+        self.alive[dead] = False
+        self.track_point[self.point_track[dead]] = -1
+        return len(bad)
+
+
+# ---------------------------------------------------------------------------------------------
+# The pipeline
+# ---------------------------------------------------------------------------------------------
+def reconstruct(media: str | Path, intrinsics: Intrinsics, params: ReconstructionParams,
+                progress: ProgressFn | None = None) -> SparseModel:
+    """Reconstruct cameras and a sparse point cloud from a video or ordered stills.
+
+    ``intrinsics`` refer to the media's native resolution. ``progress(fraction, stage)`` reports
+    stages 'decode', 'track k/N', 'keyframes', 'initialise', 'register k/N', 'BA iteration i'
+    and 'localise' with fractions up to 0.97 (the caller writes the outputs and reports 'done').
+    User-caused failures raise JobInputError.
+    """
+    p = params
+    timings: dict[str, float] = {}
+    tr = track_media(media, intrinsics, p, progress)
+    timings["decode"] = tr.seconds_decode
+    timings["track"] = tr.seconds_track
+    tracks, stats = tr.tracks, tr.stats
+    if tracks.n_tracks < _MIN_TRACKS:
+        raise JobInputError(f"only {tracks.n_tracks} features could be followed across frames; the video may be "
+                            "blank, too dark, or out of focus")
+    intr = intrinsics.scaled(stats.scale)
+    K = intr.K
+    width = stats.working_size[0]
+
+    t0 = time.perf_counter()
+    _stage(progress, 0.56, "keyframes")
+    # SIFT tracks need not follow the frame order; its frames are all keyframes.
+    keyframes = (select_keyframes(tracks, width, p.keyframe_parallax) if p.matcher == "fast_lk"
+                 else np.arange(tracks.n_frames))
+    if len(keyframes) < 2:
+        raise JobInputError("the camera never moves: tracked features shifted less than "
+                            f"{p.keyframe_parallax:.1%} of the image width over the whole input (no parallax)")
+    mapper = _Mapper(tracks, keyframes, K, p)
+    _stage(progress, 0.58, "initialise")
+    mapper.initialise(keyframes)
+    mapper.adjust(None, 20)
+    timings["initialise"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    last_global = len(mapper.order)
+    n_key = len(keyframes)
+    while True:
+        f = mapper.register_next()
+        if f is None:
+            break
+        mapper.triangulate(f)
+        if len(mapper.order) >= 1.3 * last_global + 2:
+            mapper.adjust(None, 15)
+            mapper.filter_outliers()
+            last_global = len(mapper.order)
+        else:
+            mapper.adjust(np.asarray(mapper.order[-_LOCAL_WINDOW:]), _LOCAL_ITERATIONS)
+        _stage(progress, 0.6 + 0.2 * len(mapper.order) / n_key, f"register {len(mapper.order)}/{n_key}")
+    timings["register"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    mapper.filter_outliers()
+    rounds = 0
+
+    def ba_progress(i: int, cost: float) -> None:
+        # Up to four rounds share 0.80..0.95; the iteration count restarts each round.
+        _stage(progress, 0.8 + 0.15 * (rounds - 1 + min(i / p.ba_iterations, 1.0)) / 4, f"BA iteration {i}")
+
+    final = None
+    for rounds in range(1, 4):
+        final = mapper.adjust(None, p.ba_iterations, ba_progress) or final
+        if mapper.filter_outliers() == 0:
+            break
+    else:
+        rounds = 4
+        final = mapper.adjust(None, p.ba_iterations, ba_progress) or final
+    _, err0 = mapper.errors(initial=True)
+    _, err1 = mapper.errors()
+    timings["bundle_adjustment"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    _stage(progress, 0.95, "localise")
+    localised = _localise_rest(mapper, tracks)
+    timings["localise"] = time.perf_counter() - t0
+    _stage(progress, 0.97, "localise")
+
+    model = _assemble(mapper, tracks, intr, stats, tr, keyframes)
+    model.report = _report(model, tr, p, keyframes, mapper, localised, err0, err1, final, rounds, timings)
+    return model
+
+
+def _localise_rest(mapper: _Mapper, tracks: TrackSet) -> int:
+    """PnP for every frame not registered yet, against the final points (no map changes)."""
+    n = 0
+    for f in np.flatnonzero(~mapper.reg):
+        sl = tracks.frame_slice(int(f))
+        pt = mapper.track_point[tracks.obs_track[sl]]
+        ok = pt >= 0
+        ok[ok] = mapper.alive[pt[ok]]
+        res = register_pnp(mapper.X[pt[ok]], tracks.obs_xy[sl][ok], mapper.K, mapper.p.reprojection_threshold,
+                           _MIN_PNP)
+        if res is not None:
+            mapper.R[f], mapper.t[f] = res[0], res[1]
+            mapper.reg[f] = True
+            n += 1
+    return n
+
+
+def _assemble(mapper: _Mapper, tracks: TrackSet, intr: Intrinsics, stats: SelectionStats, tr: _Tracked,
+              keyframes: np.ndarray) -> SparseModel:
+    rows, err = mapper.errors()
+    pt = mapper.track_point[mapper.ot[rows]]
+    used, new_id = np.unique(pt, return_inverse=True)
+    counts = np.bincount(new_id, minlength=len(used)).astype(np.float64)
+    colors = np.stack([np.bincount(new_id, mapper.rgb[rows, c].astype(np.float64), len(used)) for c in range(3)], 1)
+    colors = np.clip(np.rint(colors / counts[:, None]), 0, 255).astype(np.uint8)
+    point_error = np.bincount(new_id, err, len(used)) / counts
+    key = np.zeros(tracks.n_frames, bool)
+    key[keyframes] = True
+    return SparseModel(
+        K=intr.K, intrinsics=intr, scale=stats.scale, width=stats.working_size[0], height=stats.working_size[1],
+        frame_index=np.asarray(tr.index), frame_time=tr.time, frame_name=tr.name, keyframe=key,
+        registered=mapper.reg.copy(), R=mapper.R.copy(), t=mapper.t.copy(), points=mapper.X[used].copy(),
+        colors=colors, point_error=point_error, obs_frame=mapper.of[rows].copy(), obs_point=new_id,
+        obs_xy=mapper.xy[rows].copy())
+
+
+def _summary(err: np.ndarray) -> dict[str, float | None]:
+    e = err[np.isfinite(err)]
+    if len(e) == 0:
+        return {"mean": None, "median": None}
+    return {"mean": float(e.mean()), "median": float(np.median(e))}
+
+
+def _report(model: SparseModel, tr: _Tracked, p: ReconstructionParams, keyframes: np.ndarray, mapper: _Mapper,
+            localised: int, err0: np.ndarray, err1: np.ndarray, final: bundle.BAResult | None, rounds: int,
+            timings: dict[str, float]) -> dict[str, Any]:
+    pairs = tr.tracks.pairs
+    proposed = sum(s.proposed for s in pairs)
+    stats = tr.stats
+    matcher: dict[str, Any] = {
+        "name": p.matcher,
+        "pairs": len(pairs),
+        "inlier_ratio_mean": float(np.mean([s.inlier_ratio for s in pairs])) if pairs else None,
+        "proposed": proposed,
+        "inliers": sum(s.inliers for s in pairs),
+    }
+    if p.matcher == "fast_lk" and proposed:
+        matcher["rejected_forward_backward"] = sum(s.proposed - s.after_fb for s in pairs) / proposed
+        matcher["rejected_fast_rule"] = sum(s.after_fb - s.after_rule for s in pairs) / proposed
+        matcher["rejected_ransac"] = sum(s.after_rule - s.inliers for s in pairs) / proposed
+    warnings = list(tr.errors[:20])
+    if stats.truncated:
+        warnings.append(f"stopped after max_frames={p.max_frames} selected frames; the rest of the video was not used")
+    return {
+        "media": {"native_size": list(stats.native_size), "working_size": list(stats.working_size),
+                  "scale": stats.scale},
+        "frames": {"decoded": stats.decoded, "selected": stats.selected, "skipped_blurred": stats.skipped_blurred,
+                   "stride": stats.stride, "keyframes": int(len(keyframes)),
+                   "keyframes_registered": int((model.registered & model.keyframe).sum()),
+                   "registered": int(model.registered.sum()), "localised_by_pnp": localised},
+        "tracks": {"count": tr.tracks.n_tracks, "observations": int(len(tr.tracks.obs_frame)),
+                   "mean_length": float(len(tr.tracks.obs_frame) / max(tr.tracks.n_tracks, 1))},
+        "matcher": matcher,
+        "points": int(len(model.points)),
+        "observations_in_ba": int(len(model.obs_frame)),
+        # before: the initial values (DLT points, poses from E / PnP); after: the final model
+        "reprojection_error_px": {"before_ba": _summary(err0), "after_ba": _summary(err1)},
+        "bundle_adjustment": {
+            "rounds": rounds, "loss": p.ba_loss,
+            "final_cost": final.final_cost if final else None,
+            "iterations_last_round": final.iterations if final else None,
+            "termination": final.termination if final else None,
+        },
+        "timings_s": {k: round(v, 4) for k, v in timings.items()},
+        "warnings": warnings,
+    }
