@@ -4,9 +4,11 @@ from __future__ import annotations
 import asyncio
 import logging
 from contextlib import asynccontextmanager
+from pathlib import Path
 from typing import AsyncIterator
 
 from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
 
 from app import raycluster
 from app.errors import install_error_handlers
@@ -36,10 +38,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         svc = await asyncio.to_thread(build_services, settings)
         app.state.services = svc
         starter = asyncio.create_task(_start_ray(svc))
+        demo = asyncio.create_task(ensure_demo_rig(svc))
         try:
             yield
         finally:
             starter.cancel()
+            demo.cancel()
             await svc.dispatcher.shutdown()
             if svc.ray_owned:
                 import ray
@@ -63,7 +67,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.add_middleware(BodyLimitMiddleware, limit_for=limit_for)
 
-    from app.routers import depth, faces, jobs, photos, system
+    from app.routers import depth, faces, jobs, photos, reconstructions, rig_sockets, rigs, system
+    from app.routers.rig_support import ensure_demo_rig
 
     app.include_router(system.router)
     app.include_router(jobs.router)
@@ -71,6 +76,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(photos.router)
     app.include_router(depth.router)
     app.include_router(faces.router)
+    app.include_router(reconstructions.router)
+    app.include_router(rigs.router)
+    app.include_router(rigs.sessions_router)
+    app.include_router(rig_sockets.ws_router)
+    app.mount("/viewer", StaticFiles(directory=Path(__file__).parent / "static", html=True), name="viewer")
     return app
 
 

@@ -78,13 +78,18 @@ def parse_params(model: type[M], text: str | None) -> M:
         raise _invalid(exc) from None
 
 
-async def create_job(svc: Services, kind: str, params: dict[str, Any], uploads: list[Upload]) -> Job:
-    """Store the inputs, commit the row, then submit: the row exists before Ray hears of the job."""
+async def create_job(svc: Services, kind: str, params: dict[str, Any], uploads: list[Upload],
+                     stored: dict[str, str] | None = None) -> Job:
+    """Store the inputs, commit the row, then submit: the row exists before Ray hears of the job.
+
+    ``stored`` (input name -> key) names inputs already in the blob store (a recording's archive),
+    which the job reads in place instead of a copy.
+    """
     params = validate_params(kind, params)
     job_id = str(uuid.uuid4())
     prefix = inputs_prefix(job_id)
-    inputs: dict[str, str] = {}
-    meta: dict[str, Any] = {}
+    inputs: dict[str, str] = dict(stored or {})
+    meta: dict[str, Any] = {name: {"stored": key} for name, key in inputs.items()}
     try:
         for up in uploads:
             key = f"{prefix}/{up.name}"

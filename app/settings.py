@@ -35,6 +35,14 @@ class Settings(BaseSettings):
 
     orientation_yunet_model: Path | None = Field(None, description="YuNet ONNX model for the stronger face detector.")
 
+    max_rig_cameras: int = Field(64, ge=2, description="Most cameras in one rig.")
+    max_recording_frames: int = Field(3000, ge=1, description="Most frames per camera in one recording.")
+    max_view_pixels: int = Field(1920 * 1080, ge=256, description="Largest virtual view (width x height) a viewer or batch render may ask for.")
+    max_view_planes: int = Field(256, ge=2, description="Most depth planes a viewer or batch render may ask for.")
+    session_idle_seconds: float = Field(60.0, gt=0, description="A virtual-view session nobody has used for this long ends.")
+    session_resources: dict[str, float] = Field(default_factory=dict, description="Custom Ray resources every session actor requires (JSON).")
+    demo_rig: bool = Field(True, description="At start-up, build the procedural demo rig and its recording when there is none.")
+
     @field_validator("api_keys", mode="before")
     @classmethod
     def _split_keys(cls, value: Any) -> Any:

@@ -47,7 +47,12 @@ JOB_KINDS: dict[str, JobKind] = {
             "workers.orientation.job:OrientationBatchParams",
         ),
         JobKind("depth.video", "workers.depth.job:run_depth_video", "workers.depth.params:DepthVideoParams"),
+        JobKind("streaming.recording", "workers.streaming.job:run_recording_import",
+                "workers.streaming.params:RecordingImportParams"),
+        JobKind("streaming.render", "workers.streaming.job:run_batch_render", "workers.streaming.params:BatchRenderParams"),
+        JobKind("streaming.demo", "workers.streaming.job:run_demo_recording", "workers.streaming.params:DemoParams"),
         JobKind("faces.train", "workers.faces.job:run_face_training", "workers.faces.job:FaceTrainParams"),
+        JobKind("drone.reconstruct", "workers.drone.job:run_reconstruction", "workers.drone.params:ReconstructionParams"),
     ]
 }
 

@@ -1,0 +1,300 @@
+"""WebSockets of a rig: viewers (``/v1/rigs/{id}/view``) and live ingest (``/v1/rigs/{id}/live``).
+
+Viewer socket (``?source=<recording id>|live``, default the newest ready recording, else live):
+the server sends ``{"type": "hello", ...}`` (cameras, frames, fps, orbit frame), then
+``{"type": "ready", "session": {...}}`` once the session runs. The client sends viewpoints as JSON
+text (:class:`workers.streaming.params.Viewpoint`); the server answers each rendered one with a
+binary message (4-byte big-endian header length, JSON header ``{"type": "frame", "id", "frame",
+"depth_range", "render_ms", "encode_ms", ...}``, then the JPEG). Latest viewpoint wins: while a
+render is in flight only the newest viewpoint waits (``skipped`` counts those replaced). A bad
+viewpoint gets ``{"type": "error", "error", "detail", "id"}`` and the socket stays open; a binary
+message closes it with 1003.
+
+Live socket: the server sends ``{"type": "hello", "cameras": [...]}``; the client sends frame sets
+as binary messages (header ``{"sizes": [...], "cameras"?, "background"?, "seq"?}``, then one JPEG per
+camera; see :mod:`workers.streaming.framing`). Each applied set is acknowledged with ``{"type":
+"ack", "seq", "live_seq", "dropped", ...}``; a bad set gets ``{"type": "error", ..., "seq"}`` and the
+previous set stays on show. A text message other than ``{"type": "ping"}`` closes it with 1003.
+
+Unknown rigs or recordings, and wrong API keys, close with 1008 and a reason. Either socket keeps
+its session alive while open; when the last one goes, the session ends after the idle timeout.
+"""
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import time
+import uuid
+from typing import Any, Awaitable, Callable
+
+import ray.exceptions
+from fastapi import APIRouter, WebSocket
+from pydantic import ValidationError
+from starlette.websockets import WebSocketDisconnect
+
+from app.auth import websocket_key_ok
+from app.errors import ApiError
+from app.routers.rig_support import Source, resolve_source, session_config
+from app.services import Services
+from workers.streaming.actor import LIVE, SessionClient
+from workers.streaming.framing import FramingError, pack_message, unpack_frame_set
+from workers.streaming.params import Viewpoint
+
+log = logging.getLogger("sweepcast.rigs")
+ws_router = APIRouter(prefix="/v1/rigs", tags=["rigs"])
+
+UNSUPPORTED_DATA = 1003
+POLICY_VIOLATION = 1008
+INTERNAL_ERROR = 1011
+
+
+class Channel:
+    """One socket's sends, serialised (frames and errors come from different tasks)."""
+
+    def __init__(self, websocket: WebSocket) -> None:
+        self.ws = websocket
+        self._lock = asyncio.Lock()
+        self.closed = False
+
+    async def json(self, message: dict[str, Any]) -> None:
+        async with self._lock:
+            if not self.closed:
+                await self.ws.send_text(json.dumps(message))
+
+    async def binary(self, data: bytes) -> None:
+        async with self._lock:
+            if not self.closed:
+                await self.ws.send_bytes(data)
+
+    async def error(self, code: str, detail: str, **extra: Any) -> None:
+        await self.json({"type": "error", "error": code, "detail": detail, **extra})
+
+    async def close(self, code: int, reason: str) -> None:
+        async with self._lock:
+            if not self.closed:
+                self.closed = True
+                await self.ws.close(code=code, reason=reason[:120])
+
+
+class Latest:
+    """A one-slot mailbox: a new item replaces one not taken yet (latest wins)."""
+
+    def __init__(self) -> None:
+        self._item: Any = None
+        self._ready = asyncio.Event()
+        self.replaced = 0
+
+    def put(self, item: Any) -> None:
+        if self._item is not None:
+            self.replaced += 1
+        self._item = item
+        self._ready.set()
+
+    async def take(self) -> Any:
+        await self._ready.wait()
+        self._ready.clear()
+        item, self._item = self._item, None
+        return item
+
+
+async def _open(websocket: WebSocket, rig_id: str, source: str | None) -> tuple[Channel, Source] | None:
+    """Check the key, accept, resolve the rig and source; None (socket closed) when refused."""
+    if not websocket_key_ok(websocket):
+        await websocket.close(code=POLICY_VIOLATION, reason="missing or wrong API key")
+        return None
+    await websocket.accept()
+    channel = Channel(websocket)
+    svc: Services = websocket.app.state.services
+    try:
+        target = await resolve_source(svc, rig_id, source)
+    except ApiError as exc:
+        await channel.error(exc.code, str(exc.detail))
+        await channel.close(POLICY_VIOLATION, str(exc.detail))
+        return None
+    return channel, target
+
+
+async def _serve(websocket: WebSocket, channel: Channel, client: SessionClient, viewer: str | None,
+                 reader: Callable[[], Awaitable[None]], worker: Callable[[], Awaitable[None]]) -> None:
+    """Run a socket's reader with its worker and a heartbeat (for ``viewer``, or None for a live
+    client); tidy up when the reader ends."""
+    svc: Services = websocket.app.state.services
+    interval = min(max(svc.settings.session_idle_seconds / 3, 0.2), 10.0)
+
+    async def heartbeat() -> None:
+        while True:
+            await asyncio.sleep(interval)
+            try:
+                await client.call("touch", viewer)
+            except ray.exceptions.RayError as exc:
+                log.warning("session heartbeat failed: %s", exc)
+
+    async def guarded() -> None:
+        try:
+            await worker()
+        except asyncio.CancelledError:
+            raise
+        except Exception:  # noqa: BLE001 - a bug must close the socket, not leave it silent
+            log.exception("a rig socket's worker failed")
+            await channel.error("internal_error", "the server failed on this socket")
+            await channel.close(INTERNAL_ERROR, "internal error")
+
+    tasks = [asyncio.create_task(guarded()), asyncio.create_task(heartbeat())]
+    try:
+        await reader()
+    except WebSocketDisconnect:
+        pass
+    finally:
+        channel.closed = True
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        if viewer is not None:
+            await client.notify("leave", viewer)
+
+
+# --- viewers --------------------------------------------------------------------------------------
+@ws_router.websocket("/{rig_id}/view")
+async def view_socket(websocket: WebSocket, rig_id: str, source: str | None = None) -> None:
+    """Viewpoints in (JSON text), JPEG frames out (binary: header + JPEG); see the module docstring."""
+    opened = await _open(websocket, rig_id, source)
+    if opened is None:
+        return
+    channel, target = opened
+    svc: Services = websocket.app.state.services
+    client = SessionClient(session_config(svc, rig_id, target.source), svc.settings.session_resources)
+    viewer = uuid.uuid4().hex
+    mailbox = Latest()
+    await channel.json({**target.hello(), "viewer": viewer, "limits": {
+        "max_pixels": svc.settings.max_view_pixels, "max_planes": svc.settings.max_view_planes}})
+
+    async def read() -> None:
+        while True:
+            message = await websocket.receive()
+            if message["type"] == "websocket.disconnect":
+                return
+            if message.get("text") is None:
+                await channel.close(UNSUPPORTED_DATA, "viewpoints are JSON text messages")
+                return
+            vp = await _viewpoint(channel, message["text"], svc)
+            if vp is not None:
+                mailbox.put(vp)
+
+    async def render() -> None:
+        try:
+            info = await client.call("info")
+        except ray.exceptions.RayError as exc:
+            await channel.error("session_failed", f"the session could not start: {_cause(exc)}")
+            await channel.close(INTERNAL_ERROR, "the session could not start")
+            return
+        await channel.json({"type": "ready", "session": info})
+        while True:
+            vp: Viewpoint = await mailbox.take()
+            t0 = time.perf_counter()
+            try:
+                reply = await client.call("render", viewer, vp.model_dump(mode="json"))
+            except ray.exceptions.RayError as exc:
+                await channel.error("session_failed", f"the render failed: {_cause(exc)}", id=vp.id)
+                continue
+            if not reply["ok"]:
+                await channel.error(reply["error"], reply["detail"], id=vp.id)
+                continue
+            header = {**reply["header"], "skipped": mailbox.replaced,
+                      "round_trip_ms": round((time.perf_counter() - t0) * 1e3, 2)}
+            await channel.binary(pack_message(header, [reply["jpeg"]]))
+
+    await _serve(websocket, channel, client, viewer, read, render)
+
+
+async def _viewpoint(channel: Channel, text: str, svc: Services) -> Viewpoint | None:
+    """The viewpoint in a text message, or None after answering with an error (or a pong)."""
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        await channel.error("bad_json", f"not JSON: {exc}")
+        return None
+    if not isinstance(data, dict):
+        await channel.error("bad_viewpoint", "a viewpoint is a JSON object")
+        return None
+    msg_id = data.get("id") if isinstance(data.get("id"), int) else None
+    if data.get("type") == "ping":
+        await channel.json({"type": "pong", "id": msg_id})
+        return None
+    try:
+        vp = Viewpoint.model_validate(data)
+    except ValidationError as exc:
+        problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'viewpoint'}: {e['msg']}" for e in exc.errors())
+        await channel.error("bad_viewpoint", problems, id=msg_id)
+        return None
+    if vp.width * vp.height > svc.settings.max_view_pixels:
+        await channel.error("too_large", f"output {vp.width}x{vp.height} is over the limit of "
+                                         f"{svc.settings.max_view_pixels:,} pixels", id=vp.id)
+        return None
+    if vp.planes > svc.settings.max_view_planes:
+        await channel.error("too_many_planes", f"{vp.planes} planes is over the limit of "
+                                               f"{svc.settings.max_view_planes}", id=vp.id)
+        return None
+    return vp
+
+
+# --- live ingest ----------------------------------------------------------------------------------
+@ws_router.websocket("/{rig_id}/live")
+async def live_socket(websocket: WebSocket, rig_id: str) -> None:
+    """Synchronised frame sets in (binary: header + one JPEG per camera), acks out; see the module docstring."""
+    opened = await _open(websocket, rig_id, LIVE)
+    if opened is None:
+        return
+    channel, target = opened
+    svc: Services = websocket.app.state.services
+    client = SessionClient(session_config(svc, rig_id, LIVE), svc.settings.session_resources)
+    names = target.rig.names
+    mailbox = Latest()
+    await channel.json({**target.hello(), "frame_set": "4-byte big-endian header length, JSON header "
+                                                      "{\"sizes\": [...]}, then one JPEG per camera"})
+
+    async def read() -> None:
+        while True:
+            message = await websocket.receive()
+            if message["type"] == "websocket.disconnect":
+                return
+            if message.get("bytes") is None:
+                if _is_ping(message.get("text")):
+                    await channel.json({"type": "pong"})
+                    continue
+                await channel.close(UNSUPPORTED_DATA, "frame sets are binary messages")
+                return
+            try:
+                mailbox.put(unpack_frame_set(message["bytes"], names))
+            except FramingError as exc:
+                await channel.error("bad_frame_set", str(exc))
+
+    async def push() -> None:
+        while True:
+            frame_set = await mailbox.take()
+            try:
+                reply = await client.call("push", frame_set.jpegs, frame_set.background)
+            except ray.exceptions.RayError as exc:
+                await channel.error("session_failed", f"the frame set was not applied: {_cause(exc)}",
+                                    seq=frame_set.seq)
+                continue
+            if not reply.pop("ok"):
+                await channel.error(reply["error"], reply["detail"], seq=frame_set.seq)
+                continue
+            live_seq = reply.pop("seq")
+            await channel.json({"type": "ack", "seq": frame_set.seq, "live_seq": live_seq,
+                                "dropped": mailbox.replaced, **reply})
+
+    await _serve(websocket, channel, client, None, read, push)
+
+
+def _is_ping(text: str | None) -> bool:
+    with contextlib.suppress(TypeError, json.JSONDecodeError):
+        data = json.loads(text)
+        return isinstance(data, dict) and data.get("type") == "ping"
+    return False
+
+
+def _cause(exc: Exception) -> str:
+    return str(exc).strip().splitlines()[0][:300] if str(exc).strip() else type(exc).__name__

@@ -1,0 +1,167 @@
+"""What the rig routes and sockets share: loading rigs and recordings (with their import job's
+state), session configuration, jobs whose inputs are stored blobs, and the first-run demo rig."""
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+from dataclasses import dataclass
+from typing import Any
+
+from app.errors import ApiError
+from app.jobstore import Job, JobState
+from app.services import Services, Upload, create_job
+from workers.runtime import inputs_prefix, results_prefix
+from workers.streaming import store as rigstore
+from workers.streaming.actor import LIVE, SessionConfig
+from workers.streaming.demo import DEMO_NAME, demo_rig
+from workers.streaming.params import DemoParams
+from workers.streaming.session import SessionLimits
+from workers.streaming.viewpoint import orbit_frame
+from workers.sweep.rig import Rig
+from workers.sweep.rig_io import rig_to_dict
+
+log = logging.getLogger("sweepcast.rigs")
+
+
+async def rig_meta_or_404(svc: Services, rig_id: str) -> dict[str, Any]:
+    meta = await asyncio.to_thread(rigstore.load_rig_meta, svc.store, rig_id)
+    if meta is None:
+        raise ApiError(404, f"no rig with id {rig_id!r}", "rig_not_found")
+    return meta
+
+
+async def load_rig(svc: Services, rig_id: str) -> Rig:
+    return await asyncio.to_thread(rigstore.load_rig, svc.store, rig_id)
+
+
+def rig_json_bytes(rig: Rig) -> bytes:
+    return json.dumps(rig_to_dict(rig)).encode()
+
+
+# --- recordings -----------------------------------------------------------------------------------
+def recording_view(meta: dict[str, Any], job: Job | None) -> dict[str, Any]:
+    """The API view of a recording: its metadata plus the state of the job that imports it."""
+    out = {k: meta.get(k) for k in ("id", "rig_id", "name", "kind", "created_at")}
+    out.update(job_id=meta.get("job_id"), frames=None, fps=None, background=None, error=None,
+               progress={"fraction": 0.0, "stage": ""})
+    if job is None:
+        return {**out, "state": "gone", "error": "its import job was deleted"}
+    out["progress"] = {"fraction": job.progress, "stage": job.stage}
+    state = JobState(job.state)
+    if state == JobState.succeeded:
+        summary = (job.result or {}).get("summary", {})
+        return {**out, "state": "ready", "frames": summary.get("frames"), "fps": summary.get("fps"),
+                "background": summary.get("background")}
+    if state.finished:
+        return {**out, "state": "failed", "error": job.error or state.value}
+    return {**out, "state": "processing"}
+
+
+async def recording_views(svc: Services, rig_id: str) -> list[dict[str, Any]]:
+    metas = await asyncio.to_thread(rigstore.list_recording_metas, svc.store, rig_id)
+    return [recording_view(m, await asyncio.to_thread(svc.jobs.get, m["job_id"])) for m in metas]
+
+
+async def recording_or_404(svc: Services, rig_id: str, recording_id: str) -> dict[str, Any]:
+    meta = await asyncio.to_thread(rigstore.load_recording_meta, svc.store, rig_id, recording_id)
+    if meta is None:
+        raise ApiError(404, f"rig {rig_id} has no recording {recording_id!r}", "recording_not_found")
+    return recording_view(meta, await asyncio.to_thread(svc.jobs.get, meta["job_id"]))
+
+
+def require_ready(recording: dict[str, Any]) -> None:
+    """409 unless the recording can be viewed or rendered."""
+    if recording["state"] == "ready":
+        return
+    if recording["state"] == "processing":
+        p = recording["progress"]
+        detail = f"recording {recording['id']} is still being imported ({p['fraction']:.0%}: {p['stage']})"
+    else:
+        detail = f"recording {recording['id']} is unusable: {recording['error']}"
+    raise ApiError(409, detail, "recording_not_ready")
+
+
+async def delete_recording_data(svc: Services, rig_id: str, recording: dict[str, Any]) -> None:
+    """Stop the import if it runs, then delete its job (row, inputs, archive) and the metadata."""
+    job_id = recording["job_id"]
+    job = await asyncio.to_thread(svc.jobs.get, job_id)
+    if job is not None and not JobState(job.state).finished:
+        await svc.dispatcher.cancel(job_id)
+    await asyncio.to_thread(svc.jobs.delete, job_id)
+    await asyncio.to_thread(svc.store.delete_prefix, results_prefix(job_id))
+    await asyncio.to_thread(svc.store.delete_prefix, inputs_prefix(job_id))
+    await asyncio.to_thread(rigstore.delete_recording_meta, svc.store, rig_id, recording["id"])
+
+
+# --- sources and sessions -------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Source:
+    """What a socket shows: a rig and ``source`` ("live" or a recording id), with what a client
+    needs to start (the rig's cameras and orbit frame, the recording's frames and rate)."""
+
+    rig_id: str
+    source: str
+    rig: Rig
+    recording: dict[str, Any] | None
+
+    def hello(self) -> dict[str, Any]:
+        return {
+            "type": "hello", "rig_id": self.rig_id, "source": self.source,
+            "frames": self.recording["frames"] if self.recording else None,
+            "fps": self.recording["fps"] if self.recording else None,
+            "cameras": [{"name": c.name, "width": c.width, "height": c.height} for c in self.rig.cameras],
+            "orbit": orbit_frame(self.rig).to_dict(),
+        }
+
+
+async def resolve_source(svc: Services, rig_id: str, source: str | None) -> Source:
+    """The rig and source a socket asked for (default: the newest ready recording, else live);
+    ApiError (404 unknown rig or recording, 409 recording not ready) otherwise."""
+    await rig_meta_or_404(svc, rig_id)
+    rig = await load_rig(svc, rig_id)
+    if source == LIVE:
+        return Source(rig_id, LIVE, rig, None)
+    if source is None:
+        ready = [r for r in await recording_views(svc, rig_id) if r["state"] == "ready"]
+        if not ready:
+            return Source(rig_id, LIVE, rig, None)
+        return Source(rig_id, ready[-1]["id"], rig, ready[-1])
+    recording = await recording_or_404(svc, rig_id, source)
+    require_ready(recording)
+    return Source(rig_id, source, rig, recording)
+
+
+def session_config(svc: Services, rig_id: str, source: str) -> SessionConfig:
+    s = svc.settings
+    return SessionConfig(svc.store.url, rig_id, source, idle_seconds=s.session_idle_seconds,
+                         limits=SessionLimits(max_pixels=s.max_view_pixels, max_planes=s.max_view_planes))
+
+
+# --- jobs over stored blobs -----------------------------------------------------------------------
+# --- the first-run demo ---------------------------------------------------------------------------
+async def ensure_demo_rig(svc: Services) -> None:
+    """At start-up (when ``demo_rig`` is on): store the procedural arc rig when there is no demo rig,
+    and start the job that renders its recording when it has none ready or under way (a first
+    attempt may have failed). Never raises: the service is useful without the demo."""
+    if not svc.settings.demo_rig:
+        return
+    try:
+        metas = [m for m in await asyncio.to_thread(rigstore.list_rig_metas, svc.store) if m.get("demo")]
+        if metas:
+            rig_id = metas[0]["id"]
+            if any(r["state"] in ("ready", "processing") for r in await recording_views(svc, rig_id)):
+                return
+            rig = await load_rig(svc, rig_id)
+        else:
+            rig = demo_rig()
+            rig_id = rigstore.new_rig_id()
+            await asyncio.to_thread(rigstore.save_rig, svc.store, rig_id, rig,
+                                    {"name": DEMO_NAME, "format": "json", "demo": True})
+        job = await create_job(svc, "streaming.demo", DemoParams().model_dump(),
+                               [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})])
+        await asyncio.to_thread(rigstore.save_recording_meta, svc.store, rig_id, job.id,
+                                {"name": "demo recording", "kind": "demo"})
+        log.info("demo rig %s: its recording is being rendered by job %s", rig_id, job.id)
+    except Exception:  # noqa: BLE001 - the service is useful without the demo
+        log.exception("could not create the demo rig")

@@ -1,0 +1,130 @@
+"""Sessions without Ray: rendering a recording or a live stream into JPEG frames with headers."""
+import cv2
+import numpy as np
+import pytest
+
+from tests.streaming.capture import jpeg
+from workers.streaming.background import BackgroundModel
+from workers.streaming.params import Orbit, Viewpoint
+from workers.streaming.recording import ArchiveWriter, RecordingArchive
+from workers.streaming.session import LiveSession, RecordingSession, SessionLimits, ViewError
+from workers.streaming.viewpoint import orbit_frame
+
+PLANES = 32
+
+
+@pytest.fixture(scope="module")
+def archive(take, tmp_path_factory):
+    path = tmp_path_factory.mktemp("rec") / "rec.zip"
+    writer = ArchiveWriter(path, take.rig, 5.0)
+    for frame in take.frames:
+        for c, image in enumerate(frame):
+            writer.add(c, image)
+    for c, bg in enumerate(take.backgrounds):
+        writer.set_background(c, bg)
+    writer.finish("given")
+    return RecordingArchive(path)
+
+
+@pytest.fixture
+def session(take, archive):
+    return RecordingSession(take.rig, archive, SessionLimits(max_pixels=200 * 200, max_planes=64))
+
+
+def decode(data):
+    return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+
+
+def at_camera(take, c, **fields):
+    az = float(orbit_frame(take.rig).azimuths[c])
+    cam = take.rig[c]
+    return Viewpoint(orbit=Orbit(azimuth=az), width=cam.width, height=cam.height, fov=50.0, planes=PLANES,
+                     quality=95, **fields)
+
+
+def test_a_view_from_a_rig_camera_shows_what_that_camera_saw(session, take):
+    header, data = session.render("v", at_camera(take, 2, id=11, frame=1))
+    image = decode(data)
+    sil = take.silhouettes[1][2]
+    inside = cv2.erode(sil.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)  # away from JPEG edge blocks
+    assert image.shape == (72, 96, 3)
+    truth = decode(jpeg(take.frames[1][2], 95))  # the same picture through the same JPEG encoder
+    assert np.abs(image[inside].astype(int) - truth[inside]).mean() < 3
+    assert header["id"] == 11 and header["frame"] == 1 and header["seq"] is None
+    assert 0.6 * sil.mean() < header["coverage"] < 1.6 * sil.mean()
+    near, far = header["depth_range"]
+    assert near < header["depth_found"][0] <= header["depth_found"][1] <= far
+    assert header["render_ms"] > 0 and header["reshaded"] is False
+
+
+def test_changing_only_the_weighting_reshades_the_same_depth(session, take):
+    first, _ = session.render("v", at_camera(take, 1, method="kojima"))
+    second, _ = session.render("v", at_camera(take, 1, method="nearest"))
+    other, _ = session.render("w", at_camera(take, 1, method="nearest"))
+    assert second["reshaded"] is True and other["reshaded"] is False  # per viewer
+    assert second["depth_found"] == first["depth_found"]
+    moved, _ = session.render("v", Viewpoint(orbit=Orbit(azimuth=3.0), width=96, height=72, planes=PLANES))
+    assert moved["reshaded"] is False
+
+
+def test_overlays_change_the_picture(session, take):
+    _, plain = session.render("v", at_camera(take, 0))
+    _, regions = session.render("v", at_camera(take, 0, overlay="regions"))
+    _, depth = session.render("v", at_camera(take, 0, overlay="depth"))
+    a, b, c = decode(plain).astype(int), decode(regions).astype(int), decode(depth).astype(int)
+    surface = cv2.erode((a.max(axis=2) > 0).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    assert np.abs(b - a)[surface].mean() > 10  # tinted where there is a surface
+    assert np.abs(b - a)[~surface].mean() < 3  # and left alone elsewhere (up to JPEG)
+    assert np.abs(c - a).mean() > 10
+
+
+def test_requests_over_the_limits_or_out_of_range_are_view_errors(session, take):
+    with pytest.raises(ViewError, match="over the limit of 40,000 pixels") as e:
+        session.render("v", Viewpoint(width=320, height=240))
+    assert e.value.code == "too_large"
+    with pytest.raises(ViewError, match="64"):
+        session.render("v", Viewpoint(width=96, height=72, planes=128))
+    with pytest.raises(ViewError, match="frame 3 is out of range"):
+        session.render("v", Viewpoint(width=96, height=72, frame=3))
+    with pytest.raises(ViewError, match="must be a frame index"):
+        session.render("v", Viewpoint(width=96, height=72, frame="live"))
+    with pytest.raises(ViewError, match="behind"):
+        session.render("v", Viewpoint(width=96, height=72, look_at={"eye": [0, 3, 0.5], "target": [0, 6, 0.5]}))
+
+
+def test_live_session_shows_the_latest_set_and_keeps_it_on_bad_input(take):
+    live = LiveSession(take.rig, SessionLimits())
+    with pytest.raises(ViewError, match="no live frame set"):
+        live.render("v", Viewpoint(frame="live", width=96, height=72))
+    ack = live.push([jpeg(b) for b in take.backgrounds], is_background=True)
+    assert ack["seq"] == 1 and ack["background_model"] is True
+    empty, _ = live.render("v", Viewpoint(frame="live", width=96, height=72, planes=PLANES))
+    assert empty["coverage"] == 0  # the empty studio has no silhouette
+    live.push([jpeg(i) for i in take.frames[0]])
+    header, _ = live.render("v", Viewpoint(frame="live", width=96, height=72, planes=PLANES))
+    assert header["seq"] == 2 and header["frame"] == "live" and header["coverage"] > 0.05
+    broken = [jpeg(i) for i in take.frames[1]]
+    broken[2] = broken[2][: len(broken[2]) // 3]
+    with pytest.raises(ViewError, match="camera cam02: the image does not decode") as e:
+        live.push(broken)
+    assert e.value.code == "bad_image" and live.seq == 2
+    with pytest.raises(ViewError, match="is 48x36, the calibration says 96x72"):
+        live.push([jpeg(cv2.resize(i, (48, 36))) for i in take.frames[1]])
+    with pytest.raises(ViewError, match="3 images for 4 cameras"):
+        live.push([jpeg(i) for i in take.frames[1][:3]])
+    with pytest.raises(ViewError, match="must be \"live\""):
+        live.render("v", Viewpoint(frame=0, width=96, height=72))
+
+
+def test_background_model_follows_light_but_not_the_subject():
+    model = BackgroundModel(1, rate=0.5, threshold=20)
+    studio = np.full((20, 20, 3), 100, np.uint8)
+    assert model.observe([studio], False) is None
+    model.observe([studio], True)
+    frame = np.full((20, 20, 3), 110, np.uint8)  # lights up a little
+    frame[5:15, 5:15] = 250  # the subject
+    for _ in range(10):
+        sil = model.observe([frame], False)[0]
+    assert sil[7:13, 7:13].all() and not sil[:3].any()
+    bg = model.images()[0]
+    assert abs(int(bg[0, 0, 0]) - 110) <= 1 and abs(int(bg[10, 10, 0]) - 100) <= 1

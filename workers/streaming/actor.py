@@ -1,0 +1,281 @@
+"""The session actor: one Ray actor per (rig, source) holds a live :class:`Session`.
+
+The first viewer creates it (a named, detached actor: every API process finds the same one), the
+others share it, and it ends itself after ``idle_seconds`` without any call (sockets send a
+``touch`` while they are open, so only a vanished client lets it idle out). A crashed actor is
+restarted by Ray (``max_restarts``) and reloads its calibration and frames from the blob store.
+Renders are serialised inside the actor; each viewer has at most one render in flight (the API
+keeps only its latest viewpoint), so no render ever waits behind a stale request.
+
+Only ids, viewpoints and JPEG bytes cross the process boundary: a recording's frames are read from
+the blob store by the actor, and a live frame set is sent to it once.
+"""
+from __future__ import annotations
+
+import asyncio
+import os
+import threading
+import time
+import warnings
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+import ray
+import ray.exceptions
+from pydantic import ValidationError
+
+from workers.storage import open_store
+
+from .params import Viewpoint
+from .recording import RecordingArchive
+from .session import LiveSession, RecordingSession, Session, SessionLimits, ViewError
+from .store import archive_key, load_live, load_rig, save_live
+
+NAMESPACE = "sweepcast"
+NAME_PREFIX = "session/"
+LIVE = "live"
+MAX_RESTARTS = 3
+
+
+@dataclass(frozen=True)
+class SessionConfig:
+    """Everything an actor needs to (re)build its session: store, rig, source ("live" or a
+    recording id), idle timeout (s), limits, live persistence interval (s) and background rate."""
+
+    store_url: str
+    rig_id: str
+    source: str
+    idle_seconds: float = 60.0
+    limits: SessionLimits = field(default_factory=SessionLimits)
+    persist_seconds: float = 1.0
+    bg_rate: float = 0.02
+
+    @property
+    def name(self) -> str:
+        return actor_name(self.rig_id, self.source)
+
+
+def actor_name(rig_id: str, source: str) -> str:
+    return f"{NAME_PREFIX}{rig_id}/{source}"
+
+
+@ray.remote
+class SessionActor:
+    """Ray actor around a :class:`Session` (see the module docstring)."""
+
+    def __init__(self, config: SessionConfig) -> None:
+        ctx = ray.get_runtime_context()
+        self.config = config
+        with warnings.catch_warnings():  # Ray reads its own deprecated actor_id property here
+            warnings.simplefilter("ignore", DeprecationWarning)
+            self.restarted = ctx.was_current_actor_reconstructed
+        self.store = open_store(config.store_url)
+        self.session = self._load()
+        self._lock = threading.Lock()
+        self._last = time.monotonic()
+        self._busy = 0
+        self._viewers: dict[str, float] = {}
+        self._persisted = 0.0
+        self.persisted_seq = self.session.seq
+        self._me = ctx.current_actor
+        threading.Thread(target=self._watch, name="idle-watch", daemon=True).start()
+
+    def _load(self) -> Session:
+        rig = load_rig(self.store, self.config.rig_id)
+        if self.config.source == LIVE:
+            session = LiveSession(rig, self.config.limits, self.config.bg_rate)
+            seq, jpegs, pngs = load_live(self.store, self.config.rig_id, len(rig))
+            backgrounds = [cv2.imdecode(np.frombuffer(p, np.uint8), cv2.IMREAD_COLOR) for p in pngs]
+            session.restore(seq, jpegs, backgrounds)
+            return session
+        archive = RecordingArchive(self.store.local_path(archive_key(self.config.source)))
+        return RecordingSession(rig, archive, self.config.limits)
+
+    # --- calls ------------------------------------------------------------------------------------
+    def render(self, viewer: str, viewpoint: dict[str, Any]) -> dict[str, Any]:
+        """``{"ok": True, "header": {...}, "jpeg": bytes}`` or ``{"ok": False, "error", "detail"}``."""
+        self._touch(viewer)
+        try:
+            vp = Viewpoint.model_validate(viewpoint)
+            self.session.check(vp)
+        except ValidationError as exc:
+            return {"ok": False, "error": "bad_viewpoint", "detail": str(exc).splitlines()[0]}
+        except ViewError as exc:
+            return {"ok": False, "error": exc.code, "detail": exc.detail}
+        t0 = time.perf_counter()
+        with self._working():
+            try:
+                header, jpeg = self.session.render(viewer, vp)
+            except ViewError as exc:
+                return {"ok": False, "error": exc.code, "detail": exc.detail}
+        header["session_ms"] = round((time.perf_counter() - t0) * 1e3, 2)
+        return {"ok": True, "header": header, "jpeg": jpeg}
+
+    def push(self, jpegs: list[bytes], background: bool = False) -> dict[str, Any]:
+        """Apply a live frame set (JPEGs in rig order): ``{"ok": True, "seq", ...}`` or an error."""
+        self._touch(None)
+        if not isinstance(self.session, LiveSession):
+            return {"ok": False, "error": "not_live", "detail": "this session shows a recording"}
+        with self._working():
+            try:
+                ack = self.session.push(jpegs, background)
+            except ViewError as exc:
+                return {"ok": False, "error": exc.code, "detail": exc.detail}
+            if background or time.monotonic() - self._persisted >= self.config.persist_seconds:
+                self._persist_live(with_background=background)
+        return {"ok": True, **ack}
+
+    def _persist_live(self, with_background: bool) -> None:
+        """Store the latest live set (and the background model when a background set reset it; its
+        slow drift is relearnt after a restart). Called under the render lock."""
+        session = self.session
+        save_live(self.store, self.config.rig_id, session.seq, session.latest_jpegs,
+                  session.background.images() if with_background else None)
+        self._persisted = time.monotonic()
+        self.persisted_seq = session.seq
+
+    def touch(self, viewer: str | None = None) -> None:
+        """Keep the session alive (sockets call this while they are open)."""
+        self._touch(viewer)
+
+    def leave(self, viewer: str) -> None:
+        """A viewer left: forget what was kept for it."""
+        self._viewers.pop(viewer, None)
+        with self._lock:
+            self.session.forget(viewer)
+
+    def info(self) -> dict[str, Any]:
+        now = time.monotonic()
+        active = [v for v, t in self._viewers.items() if now - t <= self.config.idle_seconds]
+        return {**self.session.describe(), "rig_id": self.config.rig_id, "source": self.config.source,
+                "viewers": len(active), "restarted": self.restarted, "pid": os.getpid(),
+                "idle_s": round(now - self._last, 3), "persisted_seq": self.persisted_seq}
+
+    # --- lifecycle --------------------------------------------------------------------------------
+    def _touch(self, viewer: str | None) -> None:
+        self._last = time.monotonic()
+        if viewer is not None:
+            self._viewers[viewer] = self._last
+
+    def _working(self) -> "_Busy":
+        return _Busy(self)
+
+    def _watch(self) -> None:
+        """End the actor when idle; store a live set that arrived within the persistence interval."""
+        period = min(1.0, self.config.idle_seconds / 4, self.config.persist_seconds / 2)
+        while True:
+            time.sleep(period)
+            if isinstance(self.session, LiveSession) and self.session.seq != self.persisted_seq:
+                with self._lock:
+                    self._persist_live(with_background=False)
+            if self._busy == 0 and time.monotonic() - self._last > self.config.idle_seconds:
+                ray.kill(self._me, no_restart=True)  # an idle end is final: no restart
+                return
+
+
+class _Busy:
+    """Holds the render lock and marks the actor busy (the idle watch never ends a busy actor)."""
+
+    def __init__(self, actor: Any) -> None:
+        self.actor = actor
+
+    def __enter__(self) -> None:
+        self.actor._busy += 1
+        self.actor._lock.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self.actor._lock.release()
+        self.actor._busy -= 1
+        self.actor._last = time.monotonic()
+
+
+# --- the API side ---------------------------------------------------------------------------------
+def get_or_create(config: SessionConfig, resources: dict[str, float] | None = None) -> Any:
+    """The handle of the session actor for ``config`` (created when there is none). Blocking."""
+    return SessionActor.options(
+        name=config.name, namespace=NAMESPACE, lifetime="detached", get_if_exists=True,
+        max_restarts=MAX_RESTARTS, max_concurrency=64, num_cpus=0, resources=resources or {},
+    ).remote(config)
+
+
+class SessionClient:
+    """Async calls to the session actor of one (rig, source), for one socket of the API.
+
+    A call that finds the actor gone (it idled out, or its restarts are spent) creates a new one and
+    tries again; a call that finds it restarting waits for it."""
+
+    def __init__(self, config: SessionConfig, resources: dict[str, float] | None = None,
+                 restart_wait_s: float = 30.0) -> None:
+        self.config = config
+        self.resources = resources
+        self.restart_wait_s = restart_wait_s
+        self._handle: Any = None
+
+    async def call(self, method: str, *args: Any) -> Any:
+        deadline = time.monotonic() + self.restart_wait_s
+        recreated = 0
+        while True:
+            if self._handle is None:
+                self._handle = await asyncio.to_thread(get_or_create, self.config, self.resources)
+            try:
+                return await getattr(self._handle, method).remote(*args)
+            except ray.exceptions.ActorUnavailableError:
+                if time.monotonic() > deadline:
+                    raise
+                await asyncio.sleep(0.1)
+            except ray.exceptions.ActorDiedError:
+                self._handle = None
+                recreated += 1
+                if recreated > 2:
+                    raise
+
+    async def notify(self, method: str, *args: Any, timeout_s: float = 5.0) -> None:
+        """Call ``method`` if this client has reached the actor; never creates one, never raises."""
+        if self._handle is None:
+            return
+        try:
+            await asyncio.wait_for(getattr(self._handle, method).remote(*args), timeout_s)
+        except (ray.exceptions.RayError, asyncio.TimeoutError):
+            pass
+
+
+def list_sessions() -> list[dict[str, str]]:
+    """``[{"name", "rig_id", "source"}]`` of the session actors alive in the cluster. Blocking."""
+    out = []
+    for entry in ray.util.list_named_actors(all_namespaces=True):
+        name = entry["name"]
+        if entry.get("namespace") == NAMESPACE and name.startswith(NAME_PREFIX):
+            rig_id, _, source = name[len(NAME_PREFIX):].partition("/")
+            out.append({"name": name, "rig_id": rig_id, "source": source})
+    return out
+
+
+def session_info(name: str, timeout_s: float = 5.0) -> dict[str, Any] | None:
+    """The ``info()`` of a session actor (waiting while it restarts), or None when it is gone or
+    does not answer within ``timeout_s``. Blocking."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            handle = ray.get_actor(name, namespace=NAMESPACE)
+            return ray.get(handle.info.remote(), timeout=max(deadline - time.monotonic(), 0.1))
+        except ray.exceptions.ActorUnavailableError:
+            if time.monotonic() > deadline:
+                return None
+            time.sleep(0.1)
+        except (ValueError, ray.exceptions.RayError):
+            return None
+
+
+def end_sessions(rig_id: str, source: str | None = None) -> int:
+    """End the session actors of a rig (or of one of its sources); return how many. Blocking."""
+    ended = 0
+    for s in list_sessions():
+        if s["rig_id"] == rig_id and source in (None, s["source"]):
+            try:
+                ray.kill(ray.get_actor(s["name"], namespace=NAMESPACE), no_restart=True)
+                ended += 1
+            except ValueError:  # ended meanwhile
+                pass
+    return ended

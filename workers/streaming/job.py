@@ -1,0 +1,104 @@
+"""Job entry points of the streaming service (see workers.registry):
+
+- ``run_recording_import`` (kind ``streaming.recording``, :class:`RecordingImportParams`): inputs
+  ``rig`` (our rig JSON), ``media-NNN`` (videos) or ``archive`` (zip of image folders), optional
+  ``background-NNN``; result ``frames.zip`` (the recording archive).
+- ``run_batch_render`` (kind ``streaming.render``, :class:`BatchRenderParams`): inputs ``rig`` and
+  ``recording`` (an archive); results ``video.mp4`` (H.264) and ``depth.zip`` (16-bit PNGs + path.json).
+- ``run_demo_recording`` (kind ``streaming.demo``, :class:`DemoParams`): input ``rig``; result ``frames.zip``.
+"""
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import numpy as np
+
+from workers.camera import CameraError
+from workers.common.jobctx import JobContext, JobInputError
+from workers.sweep.rig import Rig, RigError
+from workers.sweep.rig_io import rig_from_dict
+
+from .batch import render_path
+from .demo import build_demo_recording
+from .images import ImageError, decode_image
+from .params import BatchRenderParams, DemoParams, RecordingImportParams
+from .recording import RecordingArchive, RecordingError, check_videos, import_image_zip, import_videos
+from .store import ARCHIVE_NAME
+from .video import VideoError, probe_video
+
+DEFAULT_IMAGE_FPS = 25.0
+_USER_ERRORS = (RecordingError, VideoError, ImageError, RigError, CameraError)
+
+
+def _rig(ctx: JobContext) -> Rig:
+    try:
+        return rig_from_dict(json.loads(ctx.read_input("rig")))
+    except (ValueError, RigError, CameraError) as exc:
+        raise JobInputError(f"the rig calibration is unusable: {exc}") from None
+
+
+def _label(ctx: JobContext, name: str) -> str:
+    return str(ctx.input_meta.get(name, {}).get("filename") or name)
+
+
+def run_recording_import(ctx: JobContext) -> dict[str, Any]:
+    p = RecordingImportParams.model_validate(ctx.params)
+    rig = _rig(ctx)
+    out = ctx.result_path(ARCHIVE_NAME)
+    try:
+        backgrounds = _backgrounds(ctx, p, rig)
+        if p.source == "videos":
+            names = [f"media-{i:03d}" for i in range(len(p.cameras))]
+            videos = [(_label(ctx, n), ctx.input_path(n)) for n in names]
+            infos = [(label, probe_video(path)) for label, path in videos]
+            frames, fps = check_videos(infos, p.cameras, rig, p.max_frames)
+            info = import_videos(videos, p.cameras, rig, out, frames, fps, backgrounds, ctx.progress)
+        else:
+            info = import_image_zip(ctx.input_path("archive"), rig, out, p.fps or DEFAULT_IMAGE_FPS, p.max_frames,
+                                    backgrounds, ctx.progress)
+    except _USER_ERRORS as exc:
+        raise JobInputError(str(exc)) from None
+    return {"frames": info.frames, "fps": info.fps, "cameras": len(rig), "background": info.background}
+
+
+def _backgrounds(ctx: JobContext, p: RecordingImportParams, rig: Rig) -> dict[int, np.ndarray] | None:
+    if not p.backgrounds:
+        return None
+    if sorted(p.backgrounds) != list(range(len(rig))):
+        raise RecordingError(f"give a background image for every camera ({len(rig)}) or none")
+    out = {}
+    for i, cam in enumerate(p.backgrounds):
+        name = f"background-{i:03d}"
+        c = rig[cam]
+        try:
+            out[cam] = decode_image(ctx.read_input(name), (c.width, c.height))
+        except ImageError as exc:
+            raise RecordingError(f"background {_label(ctx, name)} (camera {c.name}) {exc}") from None
+    return out
+
+
+def run_batch_render(ctx: JobContext) -> dict[str, Any]:
+    p = BatchRenderParams.model_validate(ctx.params)
+    rig = _rig(ctx)
+    try:
+        archive = RecordingArchive(ctx.input_path("recording"))
+    except (KeyError, FileNotFoundError):
+        raise JobInputError(f"recording {p.recording_id} is no longer stored") from None
+    except RecordingError as exc:
+        raise JobInputError(str(exc)) from None
+    try:
+        if list(archive.info.cameras) != rig.names:
+            raise RecordingError("the recording was made for other cameras than the rig's")
+        return render_path(rig, archive, p, ctx.result_path("video.mp4"), ctx.result_path("depth.zip"), ctx.progress)
+    except _USER_ERRORS as exc:
+        raise JobInputError(str(exc)) from None
+    finally:
+        archive.close()
+
+
+def run_demo_recording(ctx: JobContext) -> dict[str, Any]:
+    p = DemoParams.model_validate(ctx.params)
+    rig = _rig(ctx)
+    info = build_demo_recording(rig, ctx.result_path(ARCHIVE_NAME), p.frames, p.fps, ctx.progress)
+    return {"frames": info.frames, "fps": info.fps, "cameras": len(rig), "background": info.background}

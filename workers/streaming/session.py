@@ -1,0 +1,256 @@
+"""A virtual-view session: one rig, one source of frames (a recording or a live stream), rendering
+JPEG views for any number of viewers. Plain Python (no Ray): :mod:`workers.streaming.actor` wraps it.
+
+:meth:`Session.render` answers one :class:`Viewpoint` with ``(header, jpeg)``; the header is::
+
+    {"type": "frame", "id": <the viewpoint's id>, "frame": <index> | "live", "seq": <live set> | null,
+     "width", "height", "method", "d_bnd", "planes", "overlay",
+     "depth_range": [near, far]  (metres, the swept range), "depth_found": [min, max] | null,
+     "coverage": share of pixels with a surface, "render_ms", "encode_ms", "reshaded": bool,
+     "timings": {stage: ms}}
+
+A viewer whose new viewpoint differs from its previous one only in the colour weighting (method,
+D_bnd, k) is answered by re-shading the previous depth, without a new sweep.
+"""
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+from pydantic import ValidationError
+
+from workers.camera import CameraError
+from workers.sweep.overlays import depth_image, regions_image
+from workers.sweep.renderer import RenderOptions, RenderResult, SweepRenderer
+from workers.sweep.rig import Rig, RigError
+
+from .background import BackgroundModel
+from .images import ImageError, decode_image, encode_jpeg
+from .params import Viewpoint
+from .recording import RecordingArchive
+from .viewpoint import OrbitFrame, orbit_frame, virtual_camera
+
+MiB = 1 << 20
+OVERLAY_WEIGHT = 0.55
+
+
+class ViewError(ValueError):
+    """A request the session cannot serve because of what the client sent (or has not sent yet)."""
+
+    def __init__(self, code: str, detail: str) -> None:
+        super().__init__(detail)
+        self.code = code
+        self.detail = detail
+
+
+@dataclass(frozen=True)
+class SessionLimits:
+    """max_pixels: largest output (width x height); max_planes: most depth planes per view;
+    cache_bytes: decoded recording frames kept in memory; viewers_kept: previous renders kept
+    for re-shading."""
+
+    max_pixels: int = 1920 * 1080
+    max_planes: int = 256
+    cache_bytes: int = 256 * MiB
+    viewers_kept: int = 32
+
+
+class Session:
+    """Renders views of ``rig`` from the frames loaded by a subclass (not thread-safe: the actor
+    serialises calls)."""
+
+    kind = "?"
+    seq: int | None = None
+    """Number of the live frame set shown (live sessions only)."""
+
+    def __init__(self, rig: Rig, limits: SessionLimits) -> None:
+        self.rig = rig
+        self.limits = limits
+        self.orbit: OrbitFrame = orbit_frame(rig)
+        self.renderer: SweepRenderer | None = None
+        self.frame_key: Any = None
+        self._previous: OrderedDict[str, tuple[tuple, RenderResult]] = OrderedDict()
+        self.renders = 0
+
+    def check(self, vp: Viewpoint) -> None:
+        """ViewError when ``vp`` asks for more than the limits allow."""
+        if vp.width * vp.height > self.limits.max_pixels:
+            raise ViewError("too_large", f"output {vp.width}x{vp.height} is over the limit of "
+                                         f"{self.limits.max_pixels:,} pixels")
+        if vp.planes > self.limits.max_planes:
+            raise ViewError("too_many_planes", f"{vp.planes} planes is over the limit of {self.limits.max_planes}")
+
+    def render(self, viewer: str, vp: Viewpoint) -> tuple[dict[str, Any], bytes]:
+        """Render ``vp`` for ``viewer`` (any id; it keys the previous render for re-shading)."""
+        self.check(vp)
+        frame_label = self._prepare(vp)
+        try:
+            cam = virtual_camera(vp, self.orbit, (vp.width, vp.height))
+            options = RenderOptions(**vp.render_fields())
+            key = (self.frame_key, cam.K.tobytes(), cam.R.tobytes(), cam.t.tobytes(), vp.planes, vp.near, vp.far,
+                   vp.visual_hull, vp.coarse_to_fine)
+            previous = self._previous.get(viewer)
+            reshaded = previous is not None and previous[0] == key
+            if reshaded:
+                result = self.renderer.reshade(previous[1], method=vp.method, d_bnd=vp.d_bnd, k=vp.k)
+            else:
+                result = self.renderer.render(cam, options)
+        except (RigError, CameraError, ValidationError) as exc:
+            raise ViewError("bad_view", _one_line(exc)) from None
+        self._remember(viewer, key, result)
+        t0 = time.perf_counter()
+        jpeg = encode_jpeg(_composed(result, vp.overlay), vp.quality)
+        encode_ms = (time.perf_counter() - t0) * 1e3
+        self.renders += 1
+        found = np.isfinite(result.depth)
+        header = {
+            "type": "frame", "id": vp.id, "frame": frame_label, "seq": self.seq,
+            "width": vp.width, "height": vp.height, "method": vp.method, "d_bnd": vp.d_bnd, "planes": vp.planes,
+            "overlay": vp.overlay,
+            "depth_range": [float(result.planes.min()), float(result.planes.max())],
+            "depth_found": [float(result.depth[found].min()), float(result.depth[found].max())] if found.any() else None,
+            "coverage": float(found.mean()),
+            "render_ms": round(result.timings.get("total_ms", 0.0), 2), "encode_ms": round(encode_ms, 2),
+            "reshaded": reshaded, "timings": {k: round(v, 2) for k, v in result.timings.items()},
+        }
+        return header, jpeg
+
+    def forget(self, viewer: str) -> None:
+        """Drop what is kept for ``viewer`` (it left)."""
+        self._previous.pop(viewer, None)
+
+    def describe(self) -> dict[str, Any]:
+        return {"kind": self.kind, "cameras": len(self.rig), "renders": self.renders}
+
+    def _prepare(self, vp: Viewpoint) -> int | str:
+        """Load the frames ``vp`` asks for into the renderer; return the frame label for the header."""
+        raise NotImplementedError
+
+    def _remember(self, viewer: str, key: tuple, result: RenderResult) -> None:
+        self._previous[viewer] = (key, result)
+        self._previous.move_to_end(viewer)
+        while len(self._previous) > self.limits.viewers_kept:
+            self._previous.popitem(last=False)
+
+
+class RecordingSession(Session):
+    """Views of a stored recording; viewers pick the frame index. Decoded frame sets are cached
+    (least recently used first out) up to ``limits.cache_bytes``."""
+
+    kind = "recording"
+
+    def __init__(self, rig: Rig, archive: RecordingArchive, limits: SessionLimits = SessionLimits()) -> None:
+        super().__init__(rig, limits)
+        info = archive.info
+        if list(info.cameras) != rig.names or list(info.sizes) != [(c.width, c.height) for c in rig.cameras]:
+            raise ValueError("the recording was made for other cameras than this rig's")
+        self.archive = archive
+        self.frames = info.frames
+        self.fps = info.fps
+        self._cache: OrderedDict[int, list[np.ndarray]] = OrderedDict()
+        self.renderer = SweepRenderer(rig, self._frame_set(0), backgrounds=archive.backgrounds())
+        self.frame_key = 0
+
+    def _prepare(self, vp: Viewpoint) -> int:
+        if not isinstance(vp.frame, int):
+            raise ViewError("bad_frame", "this socket shows a recording: 'frame' must be a frame index")
+        if not 0 <= vp.frame < self.frames:
+            raise ViewError("bad_frame", f"frame {vp.frame} is out of range: the recording has {self.frames} "
+                                         f"frames (0..{self.frames - 1})")
+        if vp.frame != self.frame_key:
+            self.renderer.set_frames(self._frame_set(vp.frame))
+            self.frame_key = vp.frame
+        return vp.frame
+
+    def _frame_set(self, index: int) -> list[np.ndarray]:
+        if index in self._cache:
+            self._cache.move_to_end(index)
+            return self._cache[index]
+        images = self.archive.frame_set(index)
+        self._cache[index] = images
+        per_set = sum(i.nbytes for i in images)
+        while len(self._cache) > 1 and len(self._cache) * per_set > self.limits.cache_bytes:
+            self._cache.popitem(last=False)
+        return images
+
+    def describe(self) -> dict[str, Any]:
+        return {**super().describe(), "frames": self.frames, "fps": self.fps, "cached_frames": len(self._cache)}
+
+
+class LiveSession(Session):
+    """Views of the latest frame set pushed by a live client; keeps a background model per camera
+    for the silhouettes (:class:`BackgroundModel`)."""
+
+    kind = "live"
+
+    def __init__(self, rig: Rig, limits: SessionLimits = SessionLimits(), bg_rate: float = 0.02) -> None:
+        super().__init__(rig, limits)
+        self.background = BackgroundModel(len(rig), rate=bg_rate)
+        self.seq = 0
+        self.latest_jpegs: list[bytes] = []
+        self.received_at: float | None = None
+
+    def push(self, jpegs: Sequence[bytes], is_background: bool = False) -> dict[str, Any]:
+        """Decode and apply a synchronised frame set (one JPEG per camera, rig order). A JPEG that
+        does not decode, or not at its camera's size, raises ViewError and keeps the previous set."""
+        if len(jpegs) != len(self.rig):
+            raise ViewError("bad_frame_set", f"{len(jpegs)} images for {len(self.rig)} cameras")
+        t0 = time.perf_counter()
+        images = []
+        for cam, data in zip(self.rig.cameras, jpegs):
+            try:
+                images.append(decode_image(data, (cam.width, cam.height)))
+            except ImageError as exc:
+                raise ViewError("bad_image", f"camera {cam.name}: the image {exc}") from None
+        silhouettes = self.background.observe(images, is_background)
+        t1 = time.perf_counter()
+        if self.renderer is None:
+            self.renderer = SweepRenderer(self.rig, images, silhouettes=silhouettes)
+        else:
+            self.renderer.set_frames(images, silhouettes)
+        self.seq += 1
+        self.frame_key = ("live", self.seq)
+        self.latest_jpegs = list(jpegs)
+        self.received_at = time.time()
+        t2 = time.perf_counter()
+        return {"seq": self.seq, "decode_ms": round((t1 - t0) * 1e3, 2), "apply_ms": round((t2 - t1) * 1e3, 2),
+                "background_model": self.background.ready, "background": is_background}
+
+    def restore(self, seq: int, jpegs: Sequence[bytes], backgrounds: Sequence[np.ndarray] | None) -> None:
+        """Reload a persisted state: the background model (if any) and frame set number ``seq``."""
+        if backgrounds:
+            self.background.load(backgrounds)
+        if jpegs:
+            self.seq = seq - 1
+            self.push(jpegs)
+
+    def _prepare(self, vp: Viewpoint) -> str:
+        if vp.frame != "live":
+            raise ViewError("bad_frame", "this socket shows the live stream: 'frame' must be \"live\"")
+        if self.renderer is None:
+            raise ViewError("no_frames", "no live frame set has arrived yet")
+        return "live"
+
+    def describe(self) -> dict[str, Any]:
+        return {**super().describe(), "seq": self.seq, "background_model": self.background.ready,
+                "received_at": self.received_at}
+
+
+def _composed(result: RenderResult, overlay: str) -> np.ndarray:
+    """The picture sent: the view, the view under its region map, or the depth map."""
+    if overlay == "depth":
+        return depth_image(result.depth)
+    if overlay == "regions":  # tint where there is a surface: by camera where one camera colours it, dark where two blend
+        tint = regions_image(result.regions, result.primary)
+        mixed = (result.image * (1 - OVERLAY_WEIGHT) + tint * OVERLAY_WEIGHT).round().astype(np.uint8)
+        return np.where((result.regions > 0)[..., None], mixed, result.image)
+    return result.image
+
+
+def _one_line(exc: Exception) -> str:
+    if isinstance(exc, ValidationError):
+        return "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+    return str(exc).splitlines()[0]
