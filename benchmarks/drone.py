@@ -1,0 +1,546 @@
+"""Drone reconstruction benchmarks (issue 6).
+
+    python benchmarks/drone.py [--quick] [--only ba,synthetic,temple,drone_fc350]
+
+1. Bundle adjustment alone on BAL problem-49-7776: our LM (Schur complement) vs scipy
+   ``least_squares`` (SciPy cookbook settings; skipped with --quick) vs ``pycolmap.bundle_adjustment``
+   (Ceres), all on the same observations, costs evaluated by one function.
+2. A synthetic drone video (workers.synth.flight): ATE after Sim(3) and rotation error against the
+   true path, registered frames, points, time, for FAST+LK, SIFT and pycolmap on the same frames;
+   inlier ratios of FAST+LK (each stage) and SIFT against the true correspondences (rendered depth).
+3. Real images: multiview/temple (ground-truth poses, SIFT path, exhaustive matching) and
+   sfm/drone_fc350 (ATE against EXIF GPS), each beside pycolmap with the same fixed K.
+
+Timings are wall-clock on whatever machine runs this; the load average is recorded beside them.
+pycolmap is a benchmark-only dependency (``pip install .[bench]``).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks._report import md_table, publish  # noqa: E402
+from workers.common.datasets import dataset  # noqa: E402
+from workers.drone import bundle  # noqa: E402
+from workers.drone.bal import BALProblem, read_bal  # noqa: E402
+from workers.drone.calibration import from_values  # noqa: E402
+from workers.drone.camera_models import BALModel, pose_params, poses_from_params  # noqa: E402
+from workers.drone.evaluation import trajectory_error  # noqa: E402
+from workers.drone.features import fast_corners_adaptive, sift_features, spread  # noqa: E402
+from workers.drone.geometry import camera_centre  # noqa: E402
+from workers.drone.matching import essential_inliers, fast_lk_match, global_shift, sift_ratio_matches  # noqa: E402
+from workers.drone.params import ReconstructionParams  # noqa: E402
+from workers.drone.reconstruction import SparseModel, reconstruct  # noqa: E402
+
+try:
+    import pycolmap
+except ImportError:  # pragma: no cover - optional
+    pycolmap = None
+
+FLIP = np.diag([1.0, -1.0, -1.0])  # BAL (looks down -z, y up) <-> COLMAP/OpenCV axes
+
+
+def _load() -> float:
+    return round(os.getloadavg()[0], 2)
+
+
+def _timed(fn: Callable[[], Any]) -> tuple[Any, float]:
+    t0 = time.perf_counter()
+    out = fn()
+    return out, time.perf_counter() - t0
+
+
+# ---------------------------------------------------------------------------------------------
+# 1. Bundle adjustment on BAL
+# ---------------------------------------------------------------------------------------------
+def _in_front(prob: BALProblem) -> np.ndarray:
+    """Observations whose point lies in front of its camera (BAL: P_z < 0); COLMAP drops the rest."""
+    R, t = poses_from_params(prob.params)
+    P = np.einsum("nij,nj->ni", R[prob.cam_idx], prob.points[prob.pt_idx]) + t[prob.cam_idx]
+    return P[:, 2] < 0
+
+
+def _bal_cost(prob: BALProblem, params: np.ndarray, points: np.ndarray) -> tuple[float, float]:
+    """0.5 * sum of squared residuals and the mean reprojection error (px) under the BAL model."""
+    err = bundle.reprojection_errors(BALModel(), params, points, prob.cam_idx, prob.pt_idx, prob.obs)
+    return 0.5 * float((err**2).sum()), float(err.mean())
+
+
+def _ours_ba(prob: BALProblem, repeats: int, options: bundle.BAOptions) -> dict[str, Any]:
+    fixed = np.zeros(prob.params.shape, bool)
+    fixed[0, :6] = True
+    runs = []
+    first = None
+    for i in range(repeats + 1):  # the first run loads/compiles the numba kernels
+        res = bundle.solve(BALModel(), prob.params, prob.points, prob.cam_idx, prob.pt_idx, prob.obs, fixed, options)
+        if i == 0:
+            first = res.seconds
+        else:
+            runs.append(res.seconds)
+    cost, mean_err = _bal_cost(prob, res.params, res.points)
+    return {"initial_cost": res.initial_cost, "final_cost": cost, "mean_reprojection_px": mean_err,
+            "seconds": float(np.median(runs)), "seconds_runs": runs, "seconds_first_call": first,
+            "iterations": res.iterations, "termination": res.termination,
+            "threads": "1 (numba/BLAS below 100k observations)"}
+
+
+def _scipy_ba(prob: BALProblem) -> dict[str, Any]:
+    """The SciPy cookbook's bundle adjustment (trf, finite-difference Jacobian with sparsity)."""
+    from scipy.optimize import least_squares
+    from scipy.sparse import lil_matrix
+
+    n_cams, n_pts = len(prob.params), len(prob.points)
+    ci, pj, obs = prob.cam_idx, prob.pt_idx, prob.obs
+
+    def rotate(points, rot_vecs):
+        theta = np.linalg.norm(rot_vecs, axis=1)[:, np.newaxis]
+        with np.errstate(invalid="ignore"):
+            v = np.nan_to_num(rot_vecs / theta)
+        dot = np.sum(points * v, axis=1)[:, np.newaxis]
+        cos, sin = np.cos(theta), np.sin(theta)
+        return cos * points + sin * np.cross(v, points) + dot * (1 - cos) * v
+
+    def fun(x):
+        cams = x[:n_cams * 9].reshape(n_cams, 9)
+        pts = x[n_cams * 9:].reshape(n_pts, 3)
+        c = cams[ci]
+        P = rotate(pts[pj], c[:, :3]) + c[:, 3:6]
+        p = -P[:, :2] / P[:, 2, np.newaxis]
+        r2 = np.sum(p**2, axis=1)
+        p = p * (c[:, 6] * (1 + c[:, 7] * r2 + c[:, 8] * r2**2))[:, np.newaxis]
+        return (p - obs).ravel()
+
+    A = lil_matrix((2 * len(ci), n_cams * 9 + n_pts * 3), dtype=int)
+    i = np.arange(len(ci))
+    for s in range(9):
+        A[2 * i, ci * 9 + s] = 1
+        A[2 * i + 1, ci * 9 + s] = 1
+    for s in range(3):
+        A[2 * i, n_cams * 9 + pj * 3 + s] = 1
+        A[2 * i + 1, n_cams * 9 + pj * 3 + s] = 1
+    x0 = np.hstack([prob.params.ravel(), prob.points.ravel()])
+    res, seconds = _timed(lambda: least_squares(fun, x0, jac_sparsity=A, x_scale="jac", ftol=1e-4, method="trf"))
+    params = res.x[:n_cams * 9].reshape(n_cams, 9)
+    cost, mean_err = _bal_cost(prob, params, res.x[n_cams * 9:].reshape(n_pts, 3))
+    return {"initial_cost": 0.5 * float(fun(x0) @ fun(x0)), "final_cost": cost, "mean_reprojection_px": mean_err,
+            "seconds": seconds, "nfev": int(res.nfev)}
+
+
+def _colmap_model_from_bal(prob: BALProblem, folder: Path) -> None:
+    """Write the BAL problem as a COLMAP text model (RADIAL cameras, axes flipped to COLMAP's)."""
+    from workers.camera import rotation_to_quat
+
+    obs = prob.obs * [1.0, -1.0]
+    off = float(np.ceil(np.abs(obs).max()) + 1)
+    size = int(2 * off)
+    R, t = poses_from_params(prob.params)
+    lines_c, lines_i, lines_p = [], [], []
+    p2d = np.empty(len(obs), np.int64)
+    for c, pp in enumerate(prob.params):
+        lines_c.append(f"{c + 1} RADIAL {size} {size} {pp[6]:.17g} {off:.17g} {off:.17g} {pp[7]:.17g} {pp[8]:.17g}")
+        q, tc = rotation_to_quat(FLIP @ R[c]), FLIP @ t[c]
+        lines_i.append(f"{c + 1} {' '.join(f'{v:.17g}' for v in q)} {' '.join(f'{v:.17g}' for v in tc)} {c + 1} im{c}")
+        rows = np.flatnonzero(prob.cam_idx == c)
+        p2d[rows] = np.arange(len(rows))
+        lines_i.append(" ".join(f"{obs[o, 0] + off:.17g} {obs[o, 1] + off:.17g} {prob.pt_idx[o] + 1}" for o in rows))
+    order = np.argsort(prob.pt_idx, kind="stable")
+    bounds = np.searchsorted(prob.pt_idx[order], np.arange(len(prob.points) + 1))
+    for j, X in enumerate(prob.points):
+        rows = order[bounds[j]:bounds[j + 1]]
+        track = " ".join(f"{prob.cam_idx[o] + 1} {p2d[o]}" for o in rows)
+        lines_p.append(f"{j + 1} {X[0]:.17g} {X[1]:.17g} {X[2]:.17g} 0 0 0 0 {track}")
+    for name, lines in (("cameras.txt", lines_c), ("images.txt", lines_i), ("points3D.txt", lines_p)):
+        (folder / name).write_text("\n".join(lines) + "\n")
+
+
+def _pycolmap_ba(prob: BALProblem, repeats: int) -> dict[str, Any]:
+    runs = []
+    with tempfile.TemporaryDirectory() as d:
+        _colmap_model_from_bal(prob, Path(d))
+        for _ in range(repeats):
+            rec = pycolmap.Reconstruction(d)
+            opts = pycolmap.BundleAdjustmentOptions()
+            opts.refine_principal_point = False
+            opts.print_summary = False
+            _, seconds = _timed(lambda: pycolmap.bundle_adjustment(rec, opts))
+            runs.append(seconds)
+    params = prob.params.copy()
+    for c in range(len(params)):
+        img = rec.images[c + 1]
+        pose = img.cam_from_world()
+        params[c, :6] = pose_params(FLIP @ pose.rotation.matrix()[None], (FLIP @ pose.translation)[None])[0]
+        cam = rec.cameras[img.camera_id]
+        params[c, 6], params[c, 7], params[c, 8] = cam.params[0], cam.params[3], cam.params[4]
+    points = prob.points.copy()
+    for pid, p in rec.points3D.items():
+        points[pid - 1] = p.xyz
+    cost, mean_err = _bal_cost(prob, params, points)
+    return {"final_cost": cost, "mean_reprojection_px": mean_err, "seconds": float(np.median(runs)),
+            "seconds_runs": runs, "iterations_cap": 100, "threads": "all cores (num_threads=-1)"}
+
+
+def bench_ba(quick: bool) -> tuple[dict[str, Any], str]:
+    path = dataset("sfm", "bal", "problem-49-7776-pre.txt")
+    if path is None:
+        return {"skipped": "BAL data not found"}, "BAL problem-49-7776 not found: skipped.\n"
+    full = read_bal(path)
+    keep = _in_front(full)
+    prob = BALProblem(full.params, full.points, full.cam_idx[keep], full.pt_idx[keep], full.obs[keep])
+    repeats = 1 if quick else 3
+    load0 = _load()
+    out: dict[str, Any] = {"observations": int(keep.sum()), "dropped_behind_camera": int((~keep).sum()),
+                           "initial_cost": _bal_cost(prob, prob.params, prob.points)[0]}
+    # pycolmap runs Ceres for 100 iterations with function_tolerance 0: "ours" uses the same stopping
+    # rule; "ours_default" stops at our default relative cost change of 1e-6.
+    out["ours"] = _ours_ba(prob, repeats, bundle.BAOptions(max_iterations=100, function_tolerance=0.0))
+    out["ours_default"] = _ours_ba(prob, repeats, bundle.BAOptions(max_iterations=100))
+    if pycolmap is not None:
+        out["pycolmap"] = _pycolmap_ba(prob, repeats)
+    if not quick:
+        out["scipy"] = _scipy_ba(prob)
+    out["load_average"] = [load0, _load()]
+    rows = [[name, f"{out[name]['final_cost']:.4f}", out[name]["mean_reprojection_px"], out[name]["seconds"]]
+            for name in ("ours", "ours_default", "pycolmap", "scipy") if name in out]
+    md = (f"### Bundle adjustment, BAL problem-49-7776 ({out['observations']} observations; the "
+          f"{out['dropped_behind_camera']} with the point behind the camera are dropped for every solver, as COLMAP "
+          f"does; initial cost {out['initial_cost']:.6g})\n\n"
+          + md_table(["solver", "final cost (0.5 sum r^2)", "mean reprojection (px)", "seconds"], rows)
+          + "\n\nours: pycolmap's stopping rule (100 iterations, function tolerance 0); ours_default: relative "
+            "cost change 1e-6. "
+          + f"Median of {repeats} warm run(s); our first call "
+            f"{out['ours']['seconds_first_call']:.2f} s (numba cache load/compile). "
+          + ("scipy skipped (--quick). " if quick else "")
+          + f"Load average {out['load_average']} on {os.cpu_count()} cores.\n")
+    return out, md
+
+
+# ---------------------------------------------------------------------------------------------
+# Pipelines: ours and pycolmap on the same images with the same fixed K
+# ---------------------------------------------------------------------------------------------
+def _run_ours(media: Path, K: np.ndarray, **params) -> tuple[SparseModel, float]:
+    model, seconds = _timed(lambda: reconstruct(media, from_values(K[0, 0], K[1, 1], K[0, 2], K[1, 2]),
+                                                ReconstructionParams(**params)))
+    return model, seconds
+
+
+def _ours_poses(model: SparseModel) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    return {model.frame_name[f]: (model.R[f], model.t[f]) for f in np.flatnonzero(model.registered)}
+
+
+def _run_pycolmap(image_dir: Path, names: list[str], K: np.ndarray, exhaustive: bool, overlap: int = 10
+                  ) -> dict[str, Any]:
+    """SIFT + matching + incremental mapping with a fixed PINHOLE K; poses per image name."""
+    with tempfile.TemporaryDirectory() as d:
+        db = Path(d) / "database.db"
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = "PINHOLE"
+        reader.camera_params = f"{K[0, 0]},{K[1, 1]},{K[0, 2] + 0.5},{K[1, 2] + 0.5}"
+        t0 = time.perf_counter()
+        pycolmap.extract_features(db, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+                                  reader_options=reader, device=pycolmap.Device.cpu)
+        t1 = time.perf_counter()
+        if exhaustive:
+            pycolmap.match_exhaustive(db, device=pycolmap.Device.cpu)
+        else:
+            pairing = pycolmap.SequentialPairingOptions()
+            pairing.overlap = overlap
+            pycolmap.match_sequential(db, pairing_options=pairing, device=pycolmap.Device.cpu)
+        t2 = time.perf_counter()
+        opts = pycolmap.IncrementalPipelineOptions()
+        opts.ba_refine_focal_length = False
+        opts.ba_refine_principal_point = False
+        opts.ba_refine_extra_params = False
+        maps = pycolmap.incremental_mapping(db, image_dir, Path(d) / "sparse", options=opts)
+        t3 = time.perf_counter()
+    if not maps:
+        return {"poses": {}, "points": 0, "seconds": t3 - t0, "stages_s": [t1 - t0, t2 - t1, t3 - t2]}
+    rec = max(maps.values(), key=lambda r: r.num_reg_images())
+    poses = {}
+    for img in rec.images.values():
+        if img.has_pose:
+            pose = img.cam_from_world()
+            poses[img.name] = (pose.rotation.matrix(), np.asarray(pose.translation))
+    return {"poses": poses, "points": rec.num_points3D(), "seconds": t3 - t0,
+            "stages_s": [round(t1 - t0, 2), round(t2 - t1, 2), round(t3 - t2, 2)],
+            "mean_reprojection_px": rec.compute_mean_reprojection_error()}
+
+
+def _score(poses: dict[str, tuple[np.ndarray, np.ndarray]], truth: dict[str, tuple[np.ndarray, np.ndarray | None]],
+           scale: float = 1.0) -> dict[str, Any]:
+    """ATE (in truth units / ``scale``) and rotation error of the images present in both."""
+    names = [n for n in poses if n in truth]
+    if len(names) < 3:
+        return {"ate": None, "rotation_deg": None, "compared": len(names)}
+    C = np.stack([camera_centre(*poses[n]) for n in names])
+    Ct = np.stack([truth[n][0] for n in names])
+    R = np.stack([poses[n][0] for n in names])
+    Rt = [truth[n][1] for n in names]
+    has_rot = all(r is not None for r in Rt)
+    err = trajectory_error(C, Ct, R if has_rot else None, np.stack(Rt) if has_rot else None)
+    return {"ate": err.ate_rmse / scale, "ate_max": err.ate_max / scale, "rotation_deg": err.rotation_mean_deg,
+            "compared": len(names)}
+
+
+def _compare(label: str, image_dir: Path, names: list[str], K: np.ndarray, truth: dict, runs: dict[str, tuple],
+             exhaustive: bool, scale: float = 1.0, unit: str = "", extra_sets: dict[str, list[str]] | None = None
+             ) -> tuple[dict[str, Any], str]:
+    """Score our runs and pycolmap's on the same images (plus pycolmap on ``extra_sets``)."""
+    out: dict[str, Any] = {"images": len(names)}
+    for name, (model, seconds) in runs.items():
+        out[name] = {**_score(_ours_poses(model), truth, scale), "seconds": seconds,
+                     "registered": int(model.registered.sum()), "of": len(model.registered),
+                     "points": len(model.points),
+                     "reprojection_px": model.report["reprojection_error_px"]["after_ba"]["mean"],
+                     "inlier_ratio": model.report["matcher"]["inlier_ratio_mean"]}
+    sets = {"pycolmap": names, **(extra_sets or {})}
+    if pycolmap is not None:
+        for set_name, set_names in sets.items():
+            load0 = _load()
+            pc = _run_pycolmap(image_dir, set_names, K, exhaustive)
+            out[set_name] = {**_score(pc["poses"], truth, scale), "seconds": pc["seconds"],
+                             "stages_s": pc["stages_s"], "registered": len(pc["poses"]), "of": len(set_names),
+                             "points": pc["points"], "reprojection_px": pc.get("mean_reprojection_px"),
+                             "load_average": [load0, _load()]}
+    rows = []
+    for name in [*runs, *sets]:
+        if name in out:
+            r = out[name]
+            rows.append([name, f"{r['registered']}/{r['of']}", r["points"], r["ate"], r["rotation_deg"],
+                         r["reprojection_px"], r["seconds"]])
+    if "pycolmap" in out and out["pycolmap"]["ate"]:
+        for name in runs:
+            if out[name]["ate"] is not None:
+                out[name]["ate_vs_pycolmap"] = out[name]["ate"] / out["pycolmap"]["ate"]
+                out[name]["speedup_vs_pycolmap"] = out["pycolmap"]["seconds"] / out[name]["seconds"]
+    md = md_table(["pipeline", "registered", "points", f"ATE{unit}", "rotation err (deg)", "reproj (px)", "seconds"],
+                  rows)
+    return out, f"### {label}\n\n{md}\n"
+
+
+# ---------------------------------------------------------------------------------------------
+# 2. Synthetic flight
+# ---------------------------------------------------------------------------------------------
+def _true_inliers(scene, cams, frames: list[int], video_frames: list[np.ndarray], K: np.ndarray,
+                  p: ReconstructionParams) -> dict[str, float]:
+    """Fraction of correct correspondences (within 1 px of the truth from rendered depth) for
+    consecutive frame pairs: FAST+LK after each stage, SIFT after the ratio test and RANSAC."""
+    from workers.synth import render
+
+    counts: dict[str, list[int]] = {}
+
+    def add(name: str, good: np.ndarray) -> None:
+        c = counts.setdefault(name, [0, 0])
+        c[0] += int(good.sum())
+        c[1] += len(good)
+
+    for a, b in zip(frames[:-1], frames[1:]):
+        ca, cb = cams[a], cams[b]
+        da, db = render(scene, ca, with_background=False).depth, render(scene, cb, with_background=False).depth
+        ga, gb = (cv2.cvtColor(video_frames[i], cv2.COLOR_BGR2GRAY) for i in (a, b))
+
+        def truth_ok(m0: np.ndarray, m1: np.ndarray) -> np.ndarray:
+            u = np.clip(np.rint(m0).astype(int), 0, [ga.shape[1] - 1, ga.shape[0] - 1])
+            z = da[u[:, 1], u[:, 0]].astype(np.float64)
+            X = ca.backproject(m0, np.where(np.isfinite(z), z, 1e9))
+            uv, zb = cb.project(X)
+            inside = np.isfinite(uv).all(1) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] <= gb.shape[1] - 1) & (
+                uv[:, 1] <= gb.shape[0] - 1)
+            v = np.clip(np.rint(np.nan_to_num(uv)).astype(int), 0, [gb.shape[1] - 1, gb.shape[0] - 1])
+            visible = inside & (np.abs(db[v[:, 1], v[:, 0]] - zb) < 0.03 * zb)
+            return visible & (np.linalg.norm(np.nan_to_num(uv, nan=1e9) - m1, axis=1) <= 1.0)
+
+        corners0 = fast_corners_adaptive(ga, p.fast_threshold, 2 * p.max_features)
+        pts = corners0[spread(corners0, p.feature_spacing, p.max_features, shape=ga.shape)]
+        corners1 = fast_corners_adaptive(gb, p.fast_threshold, 2 * p.max_features)
+        shift, _ = global_shift(ga, gb)
+        res = fast_lk_match(ga, gb, pts, corners1, K, p.outlier_threshold, p.fb_threshold, p.ransac_threshold,
+                            p.lk_window, p.lk_levels, np.array([[1.0, 0, shift[0]], [0, 1.0, shift[1]]]))
+        ok = truth_ok(pts, res.end_points)
+        for stage in ("converged", "after_fb", "after_rule", "inliers"):
+            add(f"fast_lk.{stage}", ok[getattr(res, stage)])
+        k0, d0 = sift_features(ga, 2 * p.max_features)
+        k1, d1 = sift_features(gb, 2 * p.max_features)
+        m = sift_ratio_matches(d0, d1, p.sift_ratio)
+        ok = truth_ok(k0[m[:, 0]].astype(np.float64), k1[m[:, 1]].astype(np.float64))
+        add("sift.ratio_test", ok)
+        add("sift.ransac", ok[essential_inliers(k0[m[:, 0]], k1[m[:, 1]], K, p.ransac_threshold)])
+    return {k: v[0] / max(v[1], 1) for k, v in counts.items()} | {f"{k}.count": v[1] for k, v in counts.items()}
+
+
+def bench_synthetic(quick: bool) -> tuple[dict[str, Any], str]:
+    from workers.synth.flight import encode_video, flight_cameras, render_flight, terrain_scene
+
+    n = 60 if quick else 120
+    blur, noise = (0.0, 1.0) if quick else (0.5, 2.0)
+    scene = terrain_scene(0)
+    cams = flight_cameras(n, length=60.0 if quick else 120.0, altitude=40.0, sway=6.0, width=640, height=480,
+                          fov_deg=70, shake_deg=0.3, seed=0)
+    (frames, render_s) = _timed(lambda: render_flight(scene, cams, motion_blur=blur, blur_samples=3, noise_sigma=noise,
+                                                      supersample=2, seed=0))
+    K = cams[0].K
+    work = Path(tempfile.mkdtemp(prefix="drone_bench_"))
+    try:
+        video = encode_video(frames, work / "flight.mp4", fps=25)
+        truth = {}
+        runs = {}
+        for matcher in ("fast_lk", "sift"):
+            model, seconds = _run_ours(video, K, matcher=matcher)
+            runs[matcher] = (model, seconds)
+        model = runs["fast_lk"][0]
+        selected = [int(i) for i in model.frame_index]
+        image_dir = work / "frames"
+        image_dir.mkdir()
+        # pycolmap gets the same decoded frames our pipeline selected.
+        import av
+
+        with av.open(str(video)) as container:
+            for i, frame in enumerate(container.decode(video=0)):
+                if i in selected:
+                    cv2.imwrite(str(image_dir / f"frame_{i:06d}.png"), frame.to_ndarray(format="bgr24"))
+        names = [f"frame_{i:06d}.png" for i in selected]
+        for i, c in enumerate(cams):
+            truth[f"frame_{i:06d}"] = (c.center, c.R)
+            truth[f"frame_{i:06d}.png"] = (c.center, c.R)
+        path_len = float(np.linalg.norm(np.diff([c.center for c in cams], axis=0), axis=1).sum())
+        keys = [f"frame_{int(model.frame_index[f]):06d}.png" for f in np.flatnonzero(model.keyframe)]
+        out, md = _compare(f"Synthetic flight ({n} frames 640x480, {path_len:.0f} m path at 40 m, shake 0.3 deg, "
+                           f"motion blur {blur}, noise sigma {noise}; ATE in metres)", image_dir, names, K, truth,
+                           runs, exhaustive=False, extra_sets={"pycolmap_keyframes": keys})
+        md += ("\npycolmap: the same decoded frames our pipeline selected; pycolmap_keyframes: only the keyframes our "
+               "FAST+LK run mapped. Times exclude writing the frames to PNG for pycolmap.\n")
+        p = ReconstructionParams()
+        pairs = selected[: 1 + (8 if quick else 20)]
+        out["true_inlier_ratio"] = _true_inliers(scene, cams, pairs, frames, K, p)
+        out.update(frames=n, path_m=path_len, render_seconds=render_s, selected_frames=len(selected))
+        tir = out["true_inlier_ratio"]
+        md += ("\nCorrect correspondences (within 1 px of the truth from rendered depth), consecutive selected "
+               f"frames, {len(pairs) - 1} pairs:\n\n"
+               + md_table(["matcher / stage", "correct fraction", "correspondences"],
+                          [[k, v, tir[f"{k}.count"]] for k, v in tir.items() if not k.endswith(".count")]) + "\n")
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return out, md
+
+
+# ---------------------------------------------------------------------------------------------
+# 3. Real images
+# ---------------------------------------------------------------------------------------------
+def bench_temple(quick: bool) -> tuple[dict[str, Any], str]:
+    folder = dataset("multiview", "temple")
+    if folder is None:
+        return {"skipped": "multiview/temple not found"}, "multiview/temple not found: skipped.\n"
+    truth, K = {}, None
+    for line in (folder / "templeSR_par.txt").read_text().split("\n")[1:]:
+        parts = line.split()
+        if len(parts) != 22:
+            continue
+        v = np.array(parts[1:], float)
+        K = v[:9].reshape(3, 3)
+        R, t = v[9:18].reshape(3, 3), v[18:]
+        truth[parts[0]] = (camera_centre(R, t), R)
+    names = sorted(truth)
+    centres = np.stack([truth[n][0] for n in names])
+    radius = float(np.linalg.norm(centres - centres.mean(0), axis=1).mean())
+    runs = {"sift": _run_ours(folder, K, matcher="sift", match_window=len(names) - 1)}
+    out, md = _compare("multiview/temple (16 views, exhaustive matching; ATE in % of the ring radius)", folder, names,
+                       K, truth, runs, exhaustive=True, scale=radius / 100.0, unit=" (% radius)")
+    out["ring_radius"] = radius
+    return out, md
+
+
+def _gps(path: Path) -> np.ndarray:
+    import piexif
+
+    g = piexif.load(str(path))["GPS"]
+
+    def dms(v):
+        return v[0][0] / v[0][1] + v[1][0] / v[1][1] / 60 + v[2][0] / v[2][1] / 3600
+
+    lat = dms(g[piexif.GPSIFD.GPSLatitude]) * (1 if g[piexif.GPSIFD.GPSLatitudeRef] == b"N" else -1)
+    lon = dms(g[piexif.GPSIFD.GPSLongitude]) * (1 if g[piexif.GPSIFD.GPSLongitudeRef] == b"E" else -1)
+    alt = g[piexif.GPSIFD.GPSAltitude][0] / g[piexif.GPSIFD.GPSAltitude][1]
+    return np.array([lat, lon, alt])
+
+
+def bench_fc350(quick: bool) -> tuple[dict[str, Any], str]:
+    folder = dataset("sfm", "drone_fc350", "images")
+    if folder is None:
+        return {"skipped": "sfm/drone_fc350 not found"}, "sfm/drone_fc350 not found: skipped.\n"
+    names = sorted(p.name for p in folder.iterdir() if p.suffix.upper() == ".JPG")
+    if quick:
+        names = names[:12]
+    geo = np.stack([_gps(folder / n) for n in names])
+    lat0 = np.radians(geo[:, 0].mean())
+    r_earth = 6378137.0
+    enu = np.column_stack([np.radians(geo[:, 1] - geo[:, 1].mean()) * r_earth * np.cos(lat0),
+                           np.radians(geo[:, 0] - geo[:, 0].mean()) * r_earth, geo[:, 2] - geo[:, 2].mean()])
+    truth = {n: (enu[i], None) for i, n in enumerate(names)}
+    K = np.array([[702.0, 0, 599.5], [0, 702.0, 449.5], [0, 0, 1]])
+    media = folder
+    tmp = None
+    if quick:
+        tmp = Path(tempfile.mkdtemp(prefix="drone_fc350_"))
+        for n in names:
+            os.symlink(folder / n, tmp / n)
+        media = tmp
+    try:
+        runs = {m: _run_ours(media, K, matcher=m) for m in ("fast_lk", "sift")}
+        out, md = _compare(f"sfm/drone_fc350 ({len(names)} stills 1200x900, fixed K f=702; ATE in metres against EXIF "
+                           "GPS after Sim(3))", media, names, K, truth, runs, exhaustive=False, unit=" (m)")
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return out, md
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="short run: fewer repeats and frames, no scipy")
+    ap.add_argument("--only", help="comma-separated subset of: ba,synthetic,temple,drone_fc350 (the other sections "
+                                   "of the previous results are kept)")
+    args = ap.parse_args()
+    benches = {"ba": bench_ba, "synthetic": bench_synthetic, "temple": bench_temple, "drone_fc350": bench_fc350}
+    chosen = args.only.split(",") if args.only else list(benches)
+    unknown = set(chosen) - set(benches)
+    if unknown:
+        ap.error(f"unknown section(s): {', '.join(sorted(unknown))}")
+    results: dict[str, Any] = {}
+    previous = Path(__file__).resolve().parent / "results" / "drone.json"
+    if args.only and previous.exists():
+        import json
+
+        old = json.loads(previous.read_text())
+        results.update({k: v for k, v in old.items() if k in benches and k not in chosen})
+    results.update(quick=args.quick, pycolmap=getattr(pycolmap, "__version__", None))
+    for name in chosen:
+        print(f"[drone] {name} ...", file=sys.stderr, flush=True)
+        load0 = _load()
+        out, md = benches[name](args.quick)
+        out["load_average_start_end"] = [load0, _load()]
+        out["markdown"] = md
+        out["quick"] = args.quick
+        results[name] = out
+        print(md, file=sys.stderr)
+    parts = [] if pycolmap is not None else ["pycolmap is not installed (`pip install .[bench]`): its rows are missing.\n"]
+    parts += [results[k].get("markdown", f"### {k}\n\n(see results/drone.json)\n")
+              + ("\n(from an earlier run)\n" if k not in chosen else "") for k in benches if k in results]
+    loads = [max(results[k].get("load_average_start_end", [0.0])) for k in benches if k in results]
+    parts.append(f"Highest 1-minute load average seen: {max(loads)} on {os.cpu_count()} cores"
+                 + (" (timings measured under CPU contention)." if max(loads) > (os.cpu_count() or 1) else "."))
+    publish("drone", results, "\n".join(parts))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
