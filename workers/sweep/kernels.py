@@ -1,6 +1,6 @@
-"""Fused, compiled plane-sweep kernels (numba, parallel over virtual image rows).
+"""Fused, compiled plane-sweep kernels (numba, parallel over bands of virtual image rows).
 
-Geometry shared by both kernels: for virtual pixel (x, y) and plane ``j`` at inverse depth
+Geometry shared by the kernels: for virtual pixel (x, y) and plane ``j`` at inverse depth
 ``s = 1/z``, camera ``i`` sees the point at homogeneous pixel ``a_i(x, y) + s * B[i]`` with
 ``a_i = Q[i] @ (x, y, 1)``: ``Q[i] = M_i G`` and ``B[i] = M_i C_v + p_i`` for the camera's
 ``P_i = [M_i | p_i]``, the virtual centre ``C_v`` and ``G = R_v^T K_v^-1`` (the virtual ray
@@ -12,13 +12,22 @@ A camera votes at a plane when the point is in front of it and projects inside i
 point that projects inside some camera's image but outside its silhouette is outside the hull and
 the plane is not tested for that pixel.
 
-The hot loops index arrays directly instead of calling helpers that take arrays: numba would
-reference-count every such call (atomic operations), which cost more than the arithmetic.
+The depth search samples in fixed point: positions are rounded to 1/2**bits px (bits <= 6) and
+each camera pixel is one uint64 holding B, G and R in 21-bit lanes (:func:`pack_images`), so one
+bilinear blend of all three channels is three integer multiplies on the packed word ("SIMD within
+a register"; lanes cannot overflow: 255 * 4**bits < 2**21). The samples are exact integers in units
+of 4**-bits, so equal samples give exactly zero variance and sums of squares are exact in float64.
+
+The hot loops index arrays with unsigned integers (numba then skips the negative-index fix-up),
+read per-camera parameters from flat tables with constant strides, and call no helper that takes
+an array (numba would reference-count every such call).
 """
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.extending import intrinsic
 
 from .weighting import kojima_weights, ulr_weights
 
@@ -29,186 +38,249 @@ _BIG = 1e300  # "no plane yet": finite, so that bc * n stays a valid bound
 _FAST = {"nsz", "contract", "afn", "reassoc"}
 GLOBAL, NEAREST, ULR, KOJIMA = 0, 1, 2, 3
 
+MAX_BITS = 6  # finest sampling step of the depth search: 1/64 px (lanes: 255 * 4**6 < 2**21)
+_LANE = np.uint64(21)
+_LANE2 = np.uint64(42)
+_LANE_MASK = np.uint64((1 << 21) - 1)
+_U0 = np.uint64(0)
+_U1 = np.uint64(1)
+_U2 = np.uint64(2)
+_U3 = np.uint64(3)
+_OUT = np.uint64(1 << 63)  # a position no image contains
+
+# per-camera rows of the sweep's tables, in sampling order
+CAM_F = 16  # float64: Q row-major (9), B (3), unused (4)
+CAM_I = 8  # int64: (W-1) << bits, (H-1) << bits, image offset, image row stride, silhouette offset,
+#            silhouette row stride, unused (2)
+_CF = np.uint64(CAM_F)
+_CI = np.uint64(CAM_I)
+
+
+@intrinsic
+def _lrint(typingctx, x):  # pragma: no cover - compiled
+    """float64 -> int64 rounded to nearest, ties to even, in one instruction (INT64_MIN when not
+    representable), instead of rint followed by a truncating conversion."""
+    if x != types.float64:
+        return None
+
+    def codegen(context, builder, signature, args):
+        fnty = ir.FunctionType(ir.IntType(64), [ir.DoubleType()])
+        fn = builder.module.declare_intrinsic("llvm.lrint", [ir.IntType(64), ir.DoubleType()], fnty)
+        return builder.call(fn, args)
+
+    return types.int64(types.float64), codegen
+
+
+@njit(cache=True, inline="always", fastmath=_FAST, error_model="numpy")
+def _position(ax, ay, az, bx, by, bz, s, scale):  # pragma: no cover - compiled
+    """Pixel (u, v) of the homogeneous point (ax, ay, az) + s (bx, by, bz) and its fixed-point form
+    (X, Y), uint64 in units of 1/scale px; X is out of any image when the point is behind the camera."""
+    hz = az + s * bz
+    inv = 1.0 / hz
+    u = (ax + s * bx) * inv
+    v = (ay + s * by) * inv
+    X = np.uint64(_lrint(u * scale))
+    Y = np.uint64(_lrint(v * scale))
+    if hz <= _Z_MIN:
+        X = _OUT
+    return X, Y, u, v
+
+
+@njit(cache=True, inline="always")
+def _bilinear(p00, p01, p10, p11, fx, fy, ub):  # pragma: no cover - compiled
+    """Bilinear blend of four packed pixels with fixed-point weights fx, fy in [0, 2**ub): the three
+    channels as float64 in units of 4**-ub. Wrap-around of the differences cancels (the result's
+    lanes are in range), so the packed arithmetic is exact."""
+    top = (p00 << ub) + (p01 - p00) * fx
+    bot = (p10 << ub) + (p11 - p10) * fx
+    val = (top << ub) + (bot - top) * fy
+    return float(val & _LANE_MASK), float((val >> _LANE) & _LANE_MASK), float(val >> _LANE2)
+
+
+@njit(cache=True, parallel=True)
+def pack_images(imgs, sizes, out):  # pragma: no cover - compiled
+    """imgs (N, Hm, Wm, 3) uint8 BGR, sizes (N, 2) int64 (W, H) -> out (N, Hm + 1, Wm + 1) uint64
+    with ``B | G << 21 | R << 42`` per pixel and zeros outside each image (the extra row and column
+    keep the bilinear taps of the last row and column inside the array)."""
+    n, hp, wp = out.shape
+    for k in prange(n * hp):
+        i = k // hp
+        y = k % hp
+        w = sizes[i, 0]
+        h = sizes[i, 1]
+        for x in range(wp):
+            v = _U0
+            if y < h and x < w:
+                v = (np.uint64(imgs[i, y, x, 0]) | (np.uint64(imgs[i, y, x, 1]) << _LANE)
+                     | (np.uint64(imgs[i, y, x, 2]) << _LANE2))
+            out[i, y, x] = v
+
+
+@njit(cache=True, parallel=True, fastmath=_FAST, error_model="numpy")
+def sweep_depth(camf, cami, pix, silflat, use_hull, min_views, trunc2, bits, s_planes, lo, hi, bands, band_h,
+                best, best_cost):  # pragma: no cover - compiled
+    """Most photo-consistent plane per virtual pixel.
+
+    camf (N * CAM_F,) float64 and cami (N * CAM_I,) int64: per-camera rows in sampling order (widely
+    spread cameras first, so that a wrong plane shows early); see CAM_F / CAM_I. pix: all packed
+    images (:func:`pack_images`), flattened; silflat: all silhouettes, uint8, flattened (used when
+    ``use_hull``). trunc2 > 0 selects the truncated cost ``mean_i min(|c_i - mean|^2, trunc2)``,
+    else the variance summed over channels. bits: sampling positions are multiples of 2**-bits px
+    (1..MAX_BITS; 5 gives OpenCV's warp positions). s_planes (P,) inverse depths; lo, hi (h, w)
+    int32: inclusive plane window per pixel. bands (nb,) int64: row bands of ``band_h`` rows in the
+    order the threads take them (interleaved, so that each thread gets work from the whole view).
+    Writes best (h, w) int32 (-1: no plane with >= min_views votes inside the hull) and best_cost
+    (h, w) float32 (inf where best is -1). Ties go to the nearer plane (smaller index).
+
+    Exact pruning (variance cost): the planes chosen by the left and the upper neighbours are tested
+    first, and a plane is abandoned once the cameras sampled so far prove that it cannot beat the
+    best one: their squared deviations from their own mean bound n times the cost from below, with
+    n at most the voters so far plus the cameras left. The result equals the full search.
+    """
+    n_cam = cami.shape[0] // CAM_I
+    un = np.uint64(n_cam)
+    h, w = best.shape
+    ub = np.uint64(bits)
+    fmask = (_U1 << ub) - _U1
+    scale = float(1 << bits)
+    inv_s4 = 1.0 / scale**4  # samples are in units of 2**-2bits, squares in 2**-4bits
+    truncated = trunc2 > 0
+    t2 = trunc2 * scale**4
+    for k in prange(bands.shape[0]):
+        A = np.empty(3 * n_cam)  # a_i(x, y) of every camera for the current pixel
+        Xs = np.empty(n_cam, np.uint64)
+        Ys = np.empty(n_cam, np.uint64)
+        idx = np.empty(n_cam, np.uint64)
+        smp = np.empty(3 * n_cam)
+        up = np.full(w, -1, np.int64)
+        first = _U0  # the camera that culled last is tried first: it usually culls again
+        for y in range(bands[k] * band_h, min((bands[k] + 1) * band_h, h)):
+            yf = float(y)
+            left = -1
+            for x in range(w):
+                j0 = np.int64(lo[y, x])
+                j1 = np.int64(hi[y, x])
+                bc = _BIG
+                bj = -1
+                xf = float(x)
+                for m in range(un if j0 <= j1 else _U0):
+                    f = m * _CF
+                    A[_U3 * m] = camf[f] * xf + camf[f + _U1] * yf + camf[f + _U2]
+                    A[_U3 * m + _U1] = camf[f + _U3] * xf + camf[f + np.uint64(4)] * yf + camf[f + np.uint64(5)]
+                    A[_U3 * m + _U2] = camf[f + np.uint64(6)] * xf + camf[f + np.uint64(7)] * yf + camf[f + np.uint64(8)]
+                g1 = left if j0 <= left <= j1 else -1
+                g2 = up[x] if j0 <= up[x] <= j1 and up[x] != g1 else -1
+                for jj in range(j0 - 2, j1 + 1):
+                    if jj == j0 - 2:
+                        j = g1
+                    elif jj == j0 - 1:
+                        j = g2
+                    else:
+                        j = jj if jj != g1 and jj != g2 else -1
+                    if j < 0:
+                        continue
+                    s = s_planes[j]
+                    steps = un
+                    if use_hull:
+                        # every camera's verdict before any sampling: one silhouette miss culls the point
+                        steps = _U0
+                        inside = True
+                        for t in range(un):
+                            m = t + first
+                            m = m - un if m >= un else m
+                            f = m * _CF
+                            X, Y, u, v = _position(A[_U3 * m], A[_U3 * m + _U1], A[_U3 * m + _U2], camf[f + np.uint64(9)],
+                                                   camf[f + np.uint64(10)], camf[f + np.uint64(11)], s, scale)
+                            c = m * _CI
+                            if X > np.uint64(cami[c]) or Y > np.uint64(cami[c + _U1]):
+                                continue
+                            # the silhouette pixel nearest to the exact position, as the colour kernel takes it
+                            if silflat[np.uint64(cami[c + np.uint64(4)]) + np.uint64(_lrint(v)) * np.uint64(cami[c + np.uint64(5)])
+                                       + np.uint64(_lrint(u))] == 0:
+                                inside = False
+                                first = m
+                                break
+                            Xs[steps] = X
+                            Ys[steps] = Y
+                            idx[steps] = m
+                            steps += _U1
+                        if not inside or steps < np.uint64(min_views):
+                            continue
+                    # sample and score, abandoning the plane once it cannot win
+                    s0 = 0.0
+                    s1 = 0.0
+                    s2 = 0.0
+                    q = 0.0
+                    n = 0
+                    pruned = False
+                    for t in range(steps):
+                        if use_hull:
+                            m = idx[t]
+                            X = Xs[t]
+                            Y = Ys[t]
+                            c = m * _CI
+                        else:
+                            m = t
+                            f = m * _CF
+                            X, Y, _, _ = _position(A[_U3 * m], A[_U3 * m + _U1], A[_U3 * m + _U2], camf[f + np.uint64(9)],
+                                                   camf[f + np.uint64(10)], camf[f + np.uint64(11)], s, scale)
+                            c = m * _CI
+                            if X > np.uint64(cami[c]) or Y > np.uint64(cami[c + _U1]):
+                                continue
+                        row = np.uint64(cami[c + _U3])
+                        o = np.uint64(cami[c + _U2]) + (Y >> ub) * row + (X >> ub)
+                        c0, c1, c2 = _bilinear(pix[o], pix[o + _U1], pix[o + row], pix[o + row + _U1], X & fmask,
+                                               Y & fmask, ub)
+                        s0 += c0
+                        s1 += c1
+                        s2 += c2
+                        q += c0 * c0 + c1 * c1 + c2 * c2
+                        if truncated:
+                            smp[3 * n] = c0
+                            smp[3 * n + 1] = c1
+                            smp[3 * n + 2] = c2
+                        n += 1
+                        if not truncated and n >= 2:
+                            # SSD of the n samples so far <= n_all x cost, n_all <= n + cameras left: prune
+                            # when SSD > n_all x best, in the division-free form n SSD > n n_all best
+                            lhs = n * q - (s0 * s0 + s1 * s1 + s2 * s2)
+                            rhs = bc * float(n * (n + np.int64(steps - t) - 1))
+                            if lhs > rhs or (lhs == rhs and j > bj):
+                                pruned = True
+                                break
+                    if pruned or n < min_views:
+                        continue
+                    if truncated:
+                        m0 = s0 / n
+                        m1 = s1 / n
+                        m2 = s2 / n
+                        cost = 0.0
+                        for t in range(n):
+                            dev = (smp[3 * t] - m0) ** 2 + (smp[3 * t + 1] - m1) ** 2 + (smp[3 * t + 2] - m2) ** 2
+                            cost += min(dev, t2)
+                        cost /= n
+                    else:
+                        cost = (n * q - (s0 * s0 + s1 * s1 + s2 * s2)) / (n * n)
+                    if cost < bc or (cost == bc and j < bj):
+                        bc = cost
+                        bj = j
+                best[y, x] = bj
+                best_cost[y, x] = bc * inv_s4 if bj >= 0 else np.inf
+                up[x] = bj
+                if bj >= 0:
+                    left = bj
+
 
 @njit(cache=True, inline="always", fastmath=_FAST)
 def _lerp2(a, b, c, d, fx, fy):  # pragma: no cover - compiled
     """Bilinear blend of a (top-left), b (top-right), c (bottom-left), d (bottom-right), written as
-    nested lerps so that a uniform patch gives its value exactly (no spurious ties in the sweep)."""
+    nested lerps so that a uniform patch gives its value exactly."""
     top = a + fx * (b - a)
     bot = c + fx * (d - c)
     return top + fy * (bot - top)
 
 
-@njit(cache=True, inline="always", fastmath=_FAST)
-def _project(ax, ay, az, bx, by, bz, s, qs, inv_qs, wl, hl):  # pragma: no cover - compiled
-    """Camera pixel (u, v) of the homogeneous point (ax, ay, az) + s (bx, by, bz); ok is False when
-    it is behind the camera or outside [0, wl] x [0, hl]. qs > 0 rounds to multiples of 1/qs."""
-    zc = az + s * bz
-    if zc <= _Z_MIN:
-        return False, 0.0, 0.0
-    inv = 1.0 / zc
-    u = (ax + s * bx) * inv
-    v = (ay + s * by) * inv
-    if qs > 0:
-        u = np.rint(u * qs) * inv_qs
-        v = np.rint(v * qs) * inv_qs
-    return u >= 0.0 and v >= 0.0 and u <= wl and v <= hl, u, v
-
-
-# per-camera table of sweep_depth: Q (9), B (3), W-1, H-1, image offset, image row stride,
-# silhouette offset, silhouette row stride
-CAM_COLUMNS = 18
-
-
-@njit(cache=True, parallel=True, fastmath=_FAST)
-def sweep_depth(cam, flat, silflat, use_hull, min_views, trunc2, qs, s_planes, lo, hi, best,
-                best_cost):  # pragma: no cover - compiled
-    """Most photo-consistent plane per virtual pixel.
-
-    cam (N, CAM_COLUMNS) float64, one row per camera in sampling order (widely spread cameras
-    first, so that a wrong plane shows early): Q row-major (9), B (3), W-1, H-1, offset and row
-    stride of its image in ``flat``, offset and row stride of its silhouette in ``silflat`` (see
-    the module docstring for Q and B). flat: all images, uint8 BGR, flattened; silflat:
-    all silhouettes, uint8, flattened (used when ``use_hull``). trunc2 > 0 selects the truncated
-    cost ``mean_i min(|c_i - mean|^2, trunc2)``, else the variance summed over channels. qs > 0
-    rounds sampling positions to multiples of 1/qs px (qs = 32 reproduces OpenCV's warps).
-    s_planes (P,) inverse depths; lo, hi (h, w) int32: inclusive plane window per pixel.
-    Writes best (h, w) int32 (-1: no plane with >= min_views votes inside the hull) and best_cost
-    (h, w) float32 (inf where best is -1). Ties go to the nearer plane (smaller index).
-
-    Exact pruning (variance cost): the plane chosen by the previous pixel of the row is tested
-    first, and a plane is abandoned once the cameras sampled so far prove that it cannot beat the
-    best one: their squared deviations from their own mean bound n times the cost from below, with
-    n at most the voters so far plus the cameras left. The result equals the full search.
-    """
-    N = cam.shape[0]
-    h, w = best.shape
-    inv_qs = 1.0 / qs if qs > 0 else 0.0
-    prune = trunc2 <= 0
-    for y in prange(h):
-        ax = np.empty(N)
-        ay = np.empty(N)
-        az = np.empty(N)
-        us = np.empty(N)
-        vs = np.empty(N)
-        idx = np.empty(N, np.int64)
-        smp = np.empty((N, 3))
-        first = 0  # the camera that culled last is tried first: it usually culls again
-        guess = -1
-        for x in range(w):
-            j0 = lo[y, x]
-            j1 = hi[y, x]
-            bc = _BIG
-            bj = -1
-            if j0 <= j1:
-                for i in range(N):
-                    ax[i] = cam[i, 0] * x + cam[i, 1] * y + cam[i, 2]
-                    ay[i] = cam[i, 3] * x + cam[i, 4] * y + cam[i, 5]
-                    az[i] = cam[i, 6] * x + cam[i, 7] * y + cam[i, 8]
-            start = guess if j0 <= guess <= j1 else j0
-            for jj in range(j0 - 1, j1 + 1):
-                j = start if jj < j0 else jj
-                if jj >= j0 and j == start:
-                    continue
-                s = s_planes[j]
-                steps = N
-                if use_hull:
-                    # the hull needs every camera's verdict before any sampling
-                    steps = 0
-                    inside = True
-                    for kk in range(N):
-                        i = kk + first
-                        if i >= N:
-                            i -= N
-                        ok, u, v = _project(ax[i], ay[i], az[i], cam[i, 9], cam[i, 10], cam[i, 11], s, qs, inv_qs,
-                                            cam[i, 12], cam[i, 13])
-                        if not ok:
-                            continue
-                        o = np.int64(cam[i, 16]) + np.int64(v + 0.5) * np.int64(cam[i, 17]) + np.int64(u + 0.5)
-                        if silflat[o] == 0:
-                            inside = False
-                            first = i
-                            break
-                        us[steps] = u
-                        vs[steps] = v
-                        idx[steps] = i
-                        steps += 1
-                    if not inside or steps < min_views:
-                        continue
-                # sample and score, abandoning the plane once it cannot win
-                s0 = 0.0
-                s1 = 0.0
-                s2 = 0.0
-                q = 0.0
-                n = 0
-                pruned = False
-                for m in range(steps):
-                    if use_hull:
-                        i = idx[m]
-                        u = us[m]
-                        v = vs[m]
-                    else:
-                        i = m
-                        ok, u, v = _project(ax[i], ay[i], az[i], cam[i, 9], cam[i, 10], cam[i, 11], s, qs, inv_qs,
-                                            cam[i, 12], cam[i, 13])
-                        if not ok:
-                            continue
-                    x0 = np.int64(u)
-                    y0 = np.int64(v)
-                    fx = u - x0
-                    fy = v - y0
-                    row = np.int64(cam[i, 15])
-                    dx = 3 if u < cam[i, 12] else 0
-                    dy = row if v < cam[i, 13] else 0
-                    o = np.int64(cam[i, 14]) + y0 * row + 3 * x0
-                    c0 = _lerp2(np.float64(flat[o]), np.float64(flat[o + dx]), np.float64(flat[o + dy]),
-                                np.float64(flat[o + dy + dx]), fx, fy)
-                    o += 1
-                    c1 = _lerp2(np.float64(flat[o]), np.float64(flat[o + dx]), np.float64(flat[o + dy]),
-                                np.float64(flat[o + dy + dx]), fx, fy)
-                    o += 1
-                    c2 = _lerp2(np.float64(flat[o]), np.float64(flat[o + dx]), np.float64(flat[o + dy]),
-                                np.float64(flat[o + dy + dx]), fx, fy)
-                    s0 += c0
-                    s1 += c1
-                    s2 += c2
-                    q += c0 * c0 + c1 * c1 + c2 * c2
-                    smp[n, 0] = c0
-                    smp[n, 1] = c1
-                    smp[n, 2] = c2
-                    n += 1
-                    if prune and n >= 2:
-                        # SSD of the n samples so far <= n_all x cost, n_all <= n + cameras left: prune
-                        # when SSD > n_all x best, in the division-free form n SSD > n n_all best
-                        n_all = n + steps - 1 - m
-                        lhs = n * q - (s0 * s0 + s1 * s1 + s2 * s2)
-                        rhs = bc * n * n_all
-                        if lhs > rhs or (lhs == rhs and j > bj):
-                            pruned = True
-                            break
-                if pruned or n < min_views:
-                    continue
-                if trunc2 > 0:
-                    m0 = s0 / n
-                    m1 = s1 / n
-                    m2 = s2 / n
-                    cost = 0.0
-                    for m in range(n):
-                        d = (smp[m, 0] - m0) ** 2 + (smp[m, 1] - m1) ** 2 + (smp[m, 2] - m2) ** 2
-                        cost += d if d < trunc2 else trunc2
-                    cost /= n
-                else:
-                    cost = (n * q - (s0 * s0 + s1 * s1 + s2 * s2)) / (n * n)
-                if cost < bc or (cost == bc and j < bj):
-                    bc = cost
-                    bj = j
-            best[y, x] = bj
-            best_cost[y, x] = bc if bj >= 0 else np.inf
-            if bj >= 0:
-                guess = bj
-
-
-@njit(cache=True, parallel=True, fastmath=_FAST)
+@njit(cache=True, parallel=True, fastmath=_FAST, error_model="numpy")
 def shade(Q, B, s_planes, best, imgs, sizes, sils, use_hull, centers, vcenter, G, method, d_bnd, k, gcam, fill,
           out_img, regions, primary):  # pragma: no cover - compiled
     """Colour of each virtual pixel at its chosen plane, by one of the four weightings.
@@ -222,6 +294,8 @@ def shade(Q, B, s_planes, best, imgs, sizes, sils, use_hull, centers, vcenter, G
     """
     N = Q.shape[0]
     h, w = best.shape
+    # cameras ranked per pixel: the nearest for nearest/global, two for kojima, k + 1 for ulr (threshold)
+    n_rank = 2 if method == KOJIMA else (min(k + 1, N) if method == ULR else 1)
     for y in prange(h):
         cosv = np.empty(N)
         us = np.empty(N)
@@ -239,23 +313,22 @@ def shade(Q, B, s_planes, best, imgs, sizes, sils, use_hull, centers, vcenter, G
                 rx = z * (G[0, 0] * x + G[0, 1] * y + G[0, 2])
                 ry = z * (G[1, 0] * x + G[1, 1] * y + G[1, 2])
                 rz = z * (G[2, 0] * x + G[2, 1] * y + G[2, 2])
-                rn = np.sqrt(rx * rx + ry * ry + rz * rz)
+                inv_rn = 1.0 / np.sqrt(rx * rx + ry * ry + rz * rz)
                 for i in range(N):
-                    hx = Q[i, 0, 0] * x + Q[i, 0, 1] * y + Q[i, 0, 2] + s * B[i, 0]
-                    hy = Q[i, 1, 0] * x + Q[i, 1, 1] * y + Q[i, 1, 2] + s * B[i, 1]
                     hz = Q[i, 2, 0] * x + Q[i, 2, 1] * y + Q[i, 2, 2] + s * B[i, 2]
                     if hz <= _Z_MIN:
                         continue
-                    u = hx / hz
-                    v = hy / hz
+                    inv = 1.0 / hz
+                    u = (Q[i, 0, 0] * x + Q[i, 0, 1] * y + Q[i, 0, 2] + s * B[i, 0]) * inv
+                    v = (Q[i, 1, 0] * x + Q[i, 1, 1] * y + Q[i, 1, 2] + s * B[i, 1]) * inv
                     if u < 0.0 or v < 0.0 or u > sizes[i, 0] - 1 or v > sizes[i, 1] - 1:
                         continue
-                    if use_hull and sils[i, np.int64(v + 0.5), np.int64(u + 0.5)] == 0:
+                    if use_hull and sils[i, _lrint(v), _lrint(u)] == 0:
                         continue
                     dx = vcenter[0] + rx - centers[i, 0]
                     dy = vcenter[1] + ry - centers[i, 1]
                     dz = vcenter[2] + rz - centers[i, 2]
-                    cosv[m] = (dx * rx + dy * ry + dz * rz) / (np.sqrt(dx * dx + dy * dy + dz * dz) * rn)
+                    cosv[m] = (dx * rx + dy * ry + dz * rz) * inv_rn / np.sqrt(dx * dx + dy * dy + dz * dz)
                     us[m] = u
                     vs[m] = v
                     cam[m] = i
@@ -267,16 +340,19 @@ def shade(Q, B, s_planes, best, imgs, sizes, sils, use_hull, centers, vcenter, G
                 regions[y, x] = 0
                 primary[y, x] = -1
                 continue
-            # order the visible cameras by decreasing cosine (insertion sort: m is small)
+            # the n_rank visible cameras of largest cosine, in decreasing order (partial selection sort)
             for a in range(m):
                 order[a] = a
-            for a in range(1, m):
-                key = order[a]
-                b = a - 1
-                while b >= 0 and cosv[order[b]] < cosv[key]:
-                    order[b + 1] = order[b]
-                    b -= 1
-                order[b + 1] = key
+            r = min(n_rank, m)
+            for a in range(r):
+                bi = a
+                for b in range(a + 1, m):
+                    if cosv[order[b]] > cosv[order[bi]]:
+                        bi = b
+                tmp = order[a]
+                order[a] = order[bi]
+                order[bi] = tmp
+            nearest = order[0]
             # weights of the sources, in order[:n]
             n = 1
             wts[0] = 1.0
@@ -286,9 +362,9 @@ def shade(Q, B, s_planes, best, imgs, sizes, sils, use_hull, centers, vcenter, G
                 wts[1] = w2
                 n = 2
             elif method == ULR and m >= 2:
-                for a in range(m):
+                for a in range(r):
                     theta[a] = np.arccos(min(1.0, max(-1.0, cosv[order[a]])))
-                n = ulr_weights(theta, m, k, wts)
+                n = ulr_weights(theta, r, k, wts)
             elif method == GLOBAL:
                 for a in range(m):
                     if cam[a] == gcam:  # the global camera first; the nearest one when it cannot see
@@ -322,16 +398,7 @@ def shade(Q, B, s_planes, best, imgs, sizes, sils, use_hull, centers, vcenter, G
             out_img[y, x, 1] = np.uint8(min(255.0, max(0.0, r1 + 0.5)))
             out_img[y, x, 2] = np.uint8(min(255.0, max(0.0, r2 + 0.5)))
             regions[y, x] = nreg
-            primary[y, x] = cam[order[0]] if method != GLOBAL else cam[_argmax(cosv, m)]
-
-
-@njit(cache=True, inline="always")
-def _argmax(a, m):  # pragma: no cover - compiled
-    best = 0
-    for i in range(1, m):
-        if a[i] > a[best]:
-            best = i
-    return best
+            primary[y, x] = cam[nearest]
 
 
 @njit(cache=True, parallel=True)

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 from typing import Literal, Sequence
 
 import cv2
+import numba
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -27,6 +28,7 @@ from .weighting import METHOD_CODES, global_camera, neighbour_angle, suggest_d_b
 
 MAX_PLANES = 1024
 MAX_VIEW_PIXELS = 4096 * 4096
+BAND_ROWS = 8  # rows per work item of the sweep kernel; the pixel above seeds the search within a band
 
 
 class RenderOptions(BaseModel):
@@ -40,9 +42,10 @@ class RenderOptions(BaseModel):
     coarse_to_fine: sweep all planes at half resolution, then only a window of planes around the
     coarse choice at full resolution. consistency: variance of the camera samples, or its
     truncated form (each camera's squared deviation capped at ``truncation``^2).
-    min_views: cameras that must see a point for it to be tested. subpixel_bits: > 0 rounds the depth
+    min_views: cameras that must see a point for it to be tested. subpixel_bits: 1..6 rounds the depth
     search's sampling positions to 1/2**bits px (5 matches OpenCV's warps, for like-for-like checks
-    against :mod:`workers.sweep.reference`); 0 samples exactly. fill: BGR colour where no depth.
+    against :mod:`workers.sweep.reference`); 0 and values above 6 use the search's finest step, 1/64 px
+    (the colour is always sampled at the exact position). fill: BGR colour where no depth.
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -129,7 +132,8 @@ class SweepRenderer:
         n = len(self.cameras)
         hm = max(c.height for c in self.cameras)
         wm = max(c.width for c in self.cameras)
-        self._imgs = np.zeros((n, hm, wm, 3), np.uint8)  # uint8: a quarter of float32's cache footprint
+        self._imgs = np.zeros((n, hm, wm, 3), np.uint8)  # for the colour
+        self._pix = np.zeros((n, hm + 1, wm + 1), np.uint64)  # for the depth search (kernels.pack_images)
         self._sils = np.ones((n, hm, wm), np.uint8)
         self._sizes = np.array([[c.width, c.height] for c in self.cameras], np.int64)
         self._P = np.stack([c.P for c in self.cameras])
@@ -158,6 +162,7 @@ class SweepRenderer:
                 sil = sils[i] if sils is not None else None
             if sil is not None:
                 self._sils[i, :c.height, :c.width] = dilate(sil, self.hull_dilate)
+        kernels.pack_images(self._imgs, self._sizes, self._pix)
         self.has_silhouettes = sils is not None or self.backgrounds is not None
 
     def silhouettes(self) -> list[np.ndarray]:
@@ -284,21 +289,33 @@ class SweepRenderer:
         best = np.empty(lo.shape, np.int32)
         cost = np.empty(lo.shape, np.float32)
         trunc2 = opt.truncation**2 if opt.consistency == "truncated" else 0.0
-        qs = float(2**opt.subpixel_bits) if opt.subpixel_bits > 0 else 0.0
-        kernels.sweep_depth(self._camera_table(Q, B), self._imgs.reshape(-1), self._sils.reshape(-1), use_hull,
-                            opt.min_views, trunc2, qs, s_planes, lo, hi, best, cost)
+        bits = opt.subpixel_bits if 0 < opt.subpixel_bits <= kernels.MAX_BITS else kernels.MAX_BITS
+        camf, cami = self._camera_table(Q, B, bits)
+        kernels.sweep_depth(camf, cami, self._pix.reshape(-1), self._sils.reshape(-1), use_hull, opt.min_views,
+                            trunc2, bits, s_planes, lo, hi, self._bands(lo.shape[0]), BAND_ROWS, best, cost)
         return best, cost
 
-    def _camera_table(self, Q: np.ndarray, B: np.ndarray) -> np.ndarray:
-        """The sweep kernel's per-camera rows (N, CAM_COLUMNS) float64, in sampling order."""
+    def _camera_table(self, Q: np.ndarray, B: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray]:
+        """The sweep kernel's per-camera rows, in sampling order: (N * CAM_F,) float64 and
+        (N * CAM_I,) int64 (see :mod:`workers.sweep.kernels`)."""
         n, hm, wm = self._sils.shape
-        table = np.empty((n, kernels.CAM_COLUMNS))
+        camf = np.zeros((n, kernels.CAM_F))
+        cami = np.zeros((n, kernels.CAM_I), np.int64)
         for row, i in enumerate(self._order):
             w, h = self._sizes[i]
-            table[row, :9] = Q[i].ravel()
-            table[row, 9:12] = B[i]
-            table[row, 12:] = (w - 1, h - 1, i * hm * wm * 3, wm * 3, i * hm * wm, wm)
-        return table
+            camf[row, :9] = Q[i].ravel()
+            camf[row, 9:12] = B[i]
+            cami[row, :6] = ((w - 1) << bits, (h - 1) << bits, i * (hm + 1) * (wm + 1), wm + 1, i * hm * wm, wm)
+        return camf.reshape(-1), cami.reshape(-1)
+
+    @staticmethod
+    def _bands(h: int) -> np.ndarray:
+        """Row bands (nb,) int64 in the order the kernel's threads take them: numba gives each thread one
+        contiguous share of the list, so interleaving hands every thread bands from the whole view
+        (the object, where the work is, usually sits in the middle)."""
+        nb = -(-h // BAND_ROWS)
+        threads = numba.get_num_threads()
+        return np.concatenate([np.arange(t, nb, threads) for t in range(threads)]).astype(np.int64)
 
     @staticmethod
     def _full_window(h: int, w: int, planes: int) -> tuple[np.ndarray, np.ndarray]:

@@ -16,8 +16,9 @@ def silhouette_from_background(
     """
     if image.shape != background.shape:
         raise ValueError(f"image {image.shape} and background {background.shape} differ in shape")
-    diff = cv2.absdiff(image, background).max(axis=2)
-    mask = (diff > threshold).astype(np.uint8)
+    d = cv2.absdiff(image, background)
+    diff = np.maximum(np.maximum(d[..., 0], d[..., 1]), d[..., 2])  # d.max(axis=2) is ~25x slower
+    mask = (diff > threshold).view(np.uint8)
     if clean_px > 0:
         disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * clean_px + 1, 2 * clean_px + 1))
         mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, disk)
