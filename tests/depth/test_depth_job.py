@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.depth.fakectx import FakeContext
+from tests.fakectx import FakeContext
 from workers.common.jobctx import JobInputError
 from workers.depth import io
 from workers.depth.methods import FilterOptions, postprocess

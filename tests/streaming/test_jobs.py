@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from tests.streaming.capture import png, rig_json, write_videos, zip_bytes
-from tests.streaming.fakectx import FakeContext
+from tests.fakectx import FakeContext
 from workers.camera import Camera
 from workers.common.jobctx import JobInputError
 from workers.streaming.demo import demo_rig, demo_scene

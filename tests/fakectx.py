@@ -1,4 +1,4 @@
-"""A JobContext over a temporary folder, for running the streaming job functions without the service."""
+"""A JobContext over a temporary folder, for running job functions in tests."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -12,7 +12,7 @@ class FakeContext:
     params: dict[str, Any]
     files: dict[str, bytes]
     job_id: str = "test"
-    kind: str = "streaming"
+    kind: str = "test"
     input_meta: dict[str, dict[str, Any]] = field(default_factory=dict)
     progress_calls: list[tuple[float, str]] = field(default_factory=list)
 
