@@ -187,15 +187,27 @@ def temple_quality(folder: Path, quick: bool, planes: int) -> dict:
 
 
 # --- speed --------------------------------------------------------------------------------------
-def timed(fn, reps: int) -> tuple[float, object]:
-    """Median wall time (s) of ``reps`` calls after one warm-up, and the last result."""
+def clocked(fn) -> tuple[float, float, object]:
+    """(wall s, CPU s of this process (all threads), result) of one call."""
+    c0, t0 = time.process_time(), time.perf_counter()
     res = fn()
-    ts = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        res = fn()
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts)), res
+    return time.perf_counter() - t0, time.process_time() - c0, res
+
+
+def interleaved(fns: dict, reps: dict, warm: tuple[str, ...] = ("render",)) -> dict:
+    """Calls each function ``reps[name]`` times (those in ``warm`` once more first, untimed: compiled
+    code loads on the first call), interleaved so that the load other users put on the machine
+    affects all of them alike. Returns per name the median wall s, the median CPU s and the last result."""
+    out = {name: {"wall": [], "cpu": [], "res": fn() if name in warm else None} for name, fn in fns.items()}
+    for k in range(max(reps.values())):
+        for name, fn in fns.items():
+            if k < reps[name]:
+                wall, cpu, res = clocked(fn)
+                out[name]["wall"].append(wall)
+                out[name]["cpu"].append(cpu)
+                out[name]["res"] = res
+    return {name: {"wall": float(np.median(v["wall"])), "cpu": float(np.median(v["cpu"])), "res": v["res"]}
+            for name, v in out.items()}
 
 
 def speed(quick: bool) -> dict:
@@ -212,42 +224,73 @@ def speed(quick: bool) -> dict:
     out: dict = {}
     for w, h, p in configs:
         cam = arc_camera(ang, width=w, height=h, name="v")
+        # equal output: the reference samples at OpenCV's 1/32 px positions, so does the sweep here
         opts = RenderOptions(planes=p, near=NEAR, far=FAR, subpixel_bits=5)
-        t_render, res = timed(lambda: full.render(cam, opts), 1 if (w * h * p > 640 * 480 * 64) else 3)
-        t_sweep = res.timings["sweep_ms"] / 1e3
-        t0 = time.perf_counter()
-        ref_best, _ = reference_sweep(cams, images, cam, res.planes)
-        t_ref = time.perf_counter() - t0
+        planes = full.depth_planes(cam, p, NEAR, FAR)
+        big = w * h * p > 640 * 480 * 64
+        renders: list[RenderResult] = []
+        m = interleaved({"render": lambda: renders.append(full.render(cam, opts)) or renders[-1],
+                         "reference": lambda: reference_sweep(cams, images, cam, planes)[0]},
+                        {"render": 3 if big else 5, "reference": 1 if big or quick else 2})
+        t_sweep = float(np.median([r.timings["sweep_ms"] for r in renders[1:]])) / 1e3  # the sweep stage alone
+        res, ref_best = m["render"]["res"], m["reference"]["res"]
         seen = all_cameras_see(cams, cam, res.planes, ref_best)
         samples = w * h * p * len(cams)
         out[f"{w}x{h}_p{p}"] = {
-            "fps": 1.0 / t_render, "sweep_s": t_sweep, "render_s": t_render, "reference_s": t_ref,
-            "msamples_per_s": samples / t_sweep / 1e6, "reference_msamples_per_s": samples / t_ref / 1e6,
-            "speedup_vs_reference": t_ref / t_sweep, "speedup_total_vs_reference": t_ref / t_render,
+            "fps": 1.0 / m["render"]["wall"], "sweep_s": t_sweep, "render_s": m["render"]["wall"],
+            "render_cpu_s": m["render"]["cpu"], "reference_s": m["reference"]["wall"],
+            "reference_cpu_s": m["reference"]["cpu"],
+            "msamples_per_s": samples / t_sweep / 1e6, "reference_msamples_per_s": samples / m["reference"]["wall"] / 1e6,
+            "speedup_vs_reference": m["reference"]["wall"] / t_sweep,
+            "speedup_total_vs_reference": m["reference"]["wall"] / m["render"]["wall"],
+            "speedup_cpu_time_vs_reference": m["reference"]["cpu"] / m["render"]["cpu"],
             "depth_agreement": float((res.plane_index[seen] == ref_best[seen]).mean()),
             "depth_agreement_pm1": float((np.abs(res.plane_index[seen] - ref_best[seen]) <= 1).mean()),
             "pixels_seen_by_all": float(seen.mean()),
+            "load_average": os.getloadavg()[0],
         }
-    # the live configuration: 320x240, 48 planes, 10 cameras, with and without the shortcuts
+        print(f"  speed {w}x{h} p{p}: {out[f'{w}x{h}_p{p}']['speedup_vs_reference']:.1f}x", flush=True)
+    out.update(live(scene, cams, images, full, hull, ang, quick))
+    return out
+
+
+def live(scene, cams, images, full: SweepRenderer, hull: SweepRenderer, ang: float, quick: bool) -> dict:
+    """The live configuration: 320x240, 48 planes, 10 cameras, with and without the shortcuts, the
+    depth error against the analytic truth beside each; plus the per-frame cost of new frames
+    (set_frames: silhouettes by background subtraction) and of a JPEG encode, for the streaming budget."""
     cam = arc_camera(ang, width=320, height=240, name="live")
     gt = render(scene, cam, with_background=False)
-    step_planes = 48
-    t0 = time.perf_counter()
-    reference_sweep(cams, images, cam, full.depth_planes(cam, step_planes, NEAR, FAR))
-    t_ref = time.perf_counter() - t0
+    planes = 48
+    reps = 5 if quick else 15
+    m_ref = interleaved({"reference": lambda: reference_sweep(cams, images, cam, full.depth_planes(cam, planes, NEAR, FAR))},
+                        {"reference": 1})
+    out: dict = {}
     for name, renderer, extra in (("live_320x240_p48_full", full, {}), ("live_320x240_p48_hull", hull, {}),
                                   ("live_320x240_p48_hull_c2f", hull, {"coarse_to_fine": True})):
-        opts = RenderOptions(planes=step_planes, near=NEAR, far=FAR, **extra)
-        t_render, res = timed(lambda: renderer.render(cam, opts), 3 if quick else 7)
+        opts = RenderOptions(planes=planes, near=NEAR, far=FAR, **extra)
+        results = []
+        m = interleaved({"render": lambda: results.append(renderer.render(cam, opts)) or results[-1]},
+                        {"render": 3 if name.endswith("full") else reps})
+        res = m["render"]["res"]
+        stages = {k: float(np.median([r.timings.get(k, 0.0) for r in results])) for k in res.timings}
         ok = gt.silhouette & np.isfinite(res.depth)
         err = np.abs(res.depth[ok] - gt.depth[ok])
-        spacing = res.planes[:-1] - res.planes[1:]
-        one_step = float(np.median(np.abs(spacing)))
-        out[name] = {"fps": 1.0 / t_render, "render_s": t_render, "stages_ms": res.timings, "reference_s": t_ref,
-                     "speedup_vs_reference": t_ref / t_render,
-                     "depth_median_abs_err_m": float(np.median(err)), "depth_within_2_planes": float(np.mean(err < 2 * one_step)),
+        one_step = float(np.median(np.abs(res.planes[:-1] - res.planes[1:])))
+        out[name] = {"fps": 1.0 / m["render"]["wall"], "render_s": m["render"]["wall"],
+                     "render_cpu_s": m["render"]["cpu"], "stages_ms": stages,
+                     "reference_s": m_ref["reference"]["wall"],
+                     "speedup_vs_reference": m_ref["reference"]["wall"] / m["render"]["wall"],
+                     "depth_median_abs_err_m": float(np.median(err)),
+                     "depth_within_2_planes": float(np.mean(err < 2 * one_step)),
                      "object_coverage": float(ok.sum() / gt.silhouette.sum()),
-                     "psnr_db_kojima_object": psnr(res.image, gt.image, ok)}
+                     "psnr_db_kojima_object": psnr(res.image, gt.image, ok), "load_average": os.getloadavg()[0]}
+        print(f"  {name}: {out[name]['fps']:.1f} fps", flush=True)
+    frame = hull.render(cam, RenderOptions(planes=planes, near=NEAR, far=FAR, coarse_to_fine=True)).image
+    m = interleaved({"set_frames": lambda: hull.set_frames(images),
+                     "jpeg": lambda: cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, 80])},
+                    {"set_frames": 5, "jpeg": 20}, warm=("set_frames", "jpeg"))
+    out["live_per_frame_extras"] = {"set_frames_10_cameras_ms": m["set_frames"]["wall"] * 1e3,
+                                    "jpeg_encode_320x240_ms": m["jpeg"]["wall"] * 1e3}
     return out
 
 
@@ -285,19 +328,30 @@ def markdown(results: dict, notes: list[str]) -> str:
             + md_table(["method", "max jump", "max jump beyond truth", "blur (HF energy / truth)", "PSNR"], rows))
     s = results.get("speed")
     if s:
-        rows = [[k, round(v["fps"], 2), round(v.get("msamples_per_s", float("nan")), 1),
-                 round(v.get("reference_msamples_per_s", float("nan")), 1), round(v.get("speedup_vs_reference", float("nan")), 2),
-                 round(v.get("depth_agreement", float("nan")), 4)] for k, v in s.items() if not k.startswith("live")]
-        parts.append("### Speed, full sweep (10 cameras 640x480, no hull; equal output: OpenCV's 1/32 px sampling)\n\n"
-                     + md_table(["config", "fps", "Msamples/s", "reference Msamples/s", "speedup (sweep)",
-                                 "depth agreement"], rows))
-        rows = [[k, round(v["fps"], 2), round(v["speedup_vs_reference"], 1), round(v["depth_median_abs_err_m"] * 1000, 1),
-                 round(v["depth_within_2_planes"], 3), round(v["object_coverage"], 3), round(v["psnr_db_kojima_object"], 2)]
-                for k, v in s.items() if k.startswith("live")]
+        rows = [[k, round(v["fps"], 2), round(v["msamples_per_s"], 1), round(v["reference_msamples_per_s"], 1),
+                 round(v["speedup_vs_reference"], 1), round(v["speedup_cpu_time_vs_reference"], 1),
+                 round(v["depth_agreement"], 4), round(v["load_average"], 1)]
+                for k, v in s.items() if not k.startswith("live")]
+        parts.append("### Speed, full sweep (10 cameras 640x480, no hull, no shortcuts; equal output: OpenCV's 1/32 px "
+                     "sampling)\n\nspeedup: the reference's wall time over the sweep's, medians of interleaved runs; "
+                     "CPU-time speedup: the reference's process CPU time over the whole render's (both threads "
+                     "counted). Depth agreement: share of pixels seen by all cameras where both choose the same plane."
+                     "\n\n" + md_table(["config", "fps", "Msamples/s", "reference Msamples/s", "speedup (sweep)",
+                                         "speedup (CPU time)", "depth agreement", "load avg"], rows))
+        rows = [[k, round(v["fps"], 1), round(v["render_cpu_s"] * 1e3, 1),
+                 " / ".join(f"{n[:-3]} {t:.1f}" for n, t in v["stages_ms"].items() if n not in ("total_ms", "prepare_ms")),
+                 round(v["speedup_vs_reference"], 1), round(v["depth_median_abs_err_m"] * 1000, 1),
+                 round(v["depth_within_2_planes"], 3), round(v["object_coverage"], 3), round(v["psnr_db_kojima_object"], 2),
+                 round(v["load_average"], 1)]
+                for k, v in s.items() if k.startswith("live_320")]
+        extras = s.get("live_per_frame_extras", {})
         parts.append("### Live configuration (320x240, 48 planes, 10 cameras; speedup: whole render against the "
-                     "reference's full 48-plane sweep)\n\n"
-                     + md_table(["config", "fps", "speedup", "depth median err (mm)", "within 2 planes",
-                                 "object covered", "PSNR kojima"], rows))
+                     "reference's full 48-plane sweep)\n\nfps from the median wall time per render; CPU ms: process "
+                     "CPU time per render (both threads); stages: median wall ms. Per new frame set: set_frames "
+                     f"(10 silhouettes + packing) {extras.get('set_frames_10_cameras_ms', float('nan')):.1f} ms; "
+                     f"JPEG encode of a 320x240 view {extras.get('jpeg_encode_320x240_ms', float('nan')):.2f} ms.\n\n"
+                     + md_table(["config", "fps", "CPU ms", "stages (ms)", "speedup", "depth median err (mm)",
+                                 "within 2 planes", "object covered", "PSNR kojima", "load avg"], rows))
     parts.append("\n".join(f"- {n}" for n in notes))
     return "\n\n".join(parts)
 

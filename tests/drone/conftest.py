@@ -1,10 +1,8 @@
-"""Fixtures for the drone engine: a short synthetic flight video (rendered once per session) and a
-fake job context over a temporary folder."""
+"""Fixtures for the drone engine: a short synthetic flight video, rendered once per session."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -38,41 +36,3 @@ def flight(tmp_path_factory) -> Flight:
     frames = render_flight(terrain_scene(3, extent=80.0, n_buildings=10, n_trees=12), cams)
     path = encode_video(frames, tmp_path_factory.mktemp("flight") / "flight.mp4", fps=25)
     return Flight(path, cams, frames)
-
-
-@dataclass
-class FakeContext:
-    """A JobContext over a temporary folder (inputs in ``in/``, results in ``out/``)."""
-
-    root: Path
-    params: dict[str, Any]
-    files: dict[str, bytes]
-    job_id: str = "test"
-    kind: str = "reconstruction"
-    input_meta: dict[str, dict[str, Any]] = field(default_factory=dict)
-    progress_calls: list[tuple[float, str]] = field(default_factory=list)
-
-    def __post_init__(self) -> None:
-        (self.root / "in").mkdir(parents=True, exist_ok=True)
-        (self.root / "out").mkdir(parents=True, exist_ok=True)
-        for name, data in self.files.items():
-            (self.root / "in" / name).write_bytes(data)
-
-    @property
-    def inputs(self) -> dict[str, str]:
-        return {name: f"blob/{name}" for name in self.files}
-
-    def input_path(self, name: str) -> Path:
-        return self.root / "in" / name
-
-    def read_input(self, name: str) -> bytes:
-        return self.input_path(name).read_bytes()
-
-    def result_path(self, name: str) -> Path:
-        return self.root / "out" / name
-
-    def write_result(self, name: str, data: bytes) -> None:
-        self.result_path(name).write_bytes(data)
-
-    def progress(self, fraction: float, stage: str) -> None:
-        self.progress_calls.append((fraction, stage))

@@ -16,7 +16,7 @@ from workers.drone.job import RESULT_NAMES, run_reconstruction
 from workers.drone.params import ReconstructionParams
 from workers.synth.flight import encode_video
 
-from .conftest import FakeContext
+from tests.fakectx import FakeContext
 
 FAST = {"max_features": 1000}
 

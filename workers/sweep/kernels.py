@@ -54,6 +54,7 @@ CAM_I = 8  # int64: (W-1) << bits, (H-1) << bits, image offset, image row stride
 #            silhouette row stride, unused (2)
 _CF = np.uint64(CAM_F)
 _CI = np.uint64(CAM_I)
+TILE_COLS = 32  # columns per tile of the sweep: a tile's cameras' data stays in cache across its rows
 
 
 @intrinsic
@@ -128,14 +129,16 @@ def sweep_depth(camf, cami, pix, silflat, use_hull, min_views, trunc2, bits, s_p
     else the variance summed over channels. bits: sampling positions are multiples of 2**-bits px
     (1..MAX_BITS; 5 gives OpenCV's warp positions). s_planes (P,) inverse depths; lo, hi (h, w)
     int32: inclusive plane window per pixel. bands (nb,) int64: row bands of ``band_h`` rows in the
-    order the threads take them (interleaved, so that each thread gets work from the whole view).
-    Writes best (h, w) int32 (-1: no plane with >= min_views votes inside the hull) and best_cost
-    (h, w) float32 (inf where best is -1). Ties go to the nearer plane (smaller index).
+    order the threads take them (interleaved, so that each thread gets work from the whole view);
+    a band is swept in tiles of TILE_COLS columns. Writes best (h, w) int32 (-1: no plane with
+    >= min_views votes inside the hull) and best_cost (h, w) float32 (inf where best is -1). Ties go
+    to the nearer plane (smaller index).
 
-    Exact pruning (variance cost): the planes chosen by the left and the upper neighbours are tested
-    first, and a plane is abandoned once the cameras sampled so far prove that it cannot beat the
-    best one: their squared deviations from their own mean bound n times the cost from below, with
-    n at most the voters so far plus the cameras left. The result equals the full search.
+    Exact pruning (variance cost): the planes chosen by the left and the upper neighbours (within
+    the band) are tested first, and a plane is abandoned once the cameras sampled so far prove that
+    it cannot beat the best one: their squared deviations from their own mean bound n times the
+    cost from below, with n at most the voters so far plus the cameras left. The result equals the
+    full search.
     """
     n_cam = cami.shape[0] // CAM_I
     un = np.uint64(n_cam)
@@ -148,16 +151,18 @@ def sweep_depth(camf, cami, pix, silflat, use_hull, min_views, trunc2, bits, s_p
     t2 = trunc2 * scale**4
     for k in prange(bands.shape[0]):
         A = np.empty(3 * n_cam)  # a_i(x, y) of every camera for the current pixel
-        Xs = np.empty(n_cam, np.uint64)
-        Ys = np.empty(n_cam, np.uint64)
-        idx = np.empty(n_cam, np.uint64)
         smp = np.empty(3 * n_cam)
-        up = np.full(w, -1, np.int64)
         first = _U0  # the camera that culled last is tried first: it usually culls again
-        for y in range(bands[k] * band_h, min((bands[k] + 1) * band_h, h)):
+        y_a = bands[k] * band_h
+        rows = min(band_h, h - y_a)
+        # the band tile by tile (rows within a tile), so that the cameras' data is reused from cache
+        for tr in range(rows * (-(-w // TILE_COLS))):
+            x_a = (tr // rows) * TILE_COLS
+            y = y_a + tr % rows
             yf = float(y)
-            left = -1
-            for x in range(w):
+            for x in range(x_a, min(x_a + TILE_COLS, w)):
+                left = np.int64(best[y, x - 1]) if x > 0 else -1
+                up = np.int64(best[y - 1, x]) if y > y_a else -1
                 j0 = np.int64(lo[y, x])
                 j1 = np.int64(hi[y, x])
                 bc = _BIG
@@ -169,7 +174,7 @@ def sweep_depth(camf, cami, pix, silflat, use_hull, min_views, trunc2, bits, s_p
                     A[_U3 * m + _U1] = camf[f + _U3] * xf + camf[f + np.uint64(4)] * yf + camf[f + np.uint64(5)]
                     A[_U3 * m + _U2] = camf[f + np.uint64(6)] * xf + camf[f + np.uint64(7)] * yf + camf[f + np.uint64(8)]
                 g1 = left if j0 <= left <= j1 else -1
-                g2 = up[x] if j0 <= up[x] <= j1 and up[x] != g1 else -1
+                g2 = up if j0 <= up <= j1 and up != g1 else -1
                 for jj in range(j0 - 2, j1 + 1):
                     if jj == j0 - 2:
                         j = g1
@@ -180,53 +185,38 @@ def sweep_depth(camf, cami, pix, silflat, use_hull, min_views, trunc2, bits, s_p
                     if j < 0:
                         continue
                     s = s_planes[j]
-                    steps = un
                     if use_hull:
-                        # every camera's verdict before any sampling: one silhouette miss culls the point
-                        steps = _U0
-                        inside = True
-                        for t in range(un):
-                            m = t + first
-                            m = m - un if m >= un else m
-                            f = m * _CF
-                            X, Y, u, v = _position(A[_U3 * m], A[_U3 * m + _U1], A[_U3 * m + _U2], camf[f + np.uint64(9)],
-                                                   camf[f + np.uint64(10)], camf[f + np.uint64(11)], s, scale)
-                            c = m * _CI
-                            if X > np.uint64(cami[c]) or Y > np.uint64(cami[c + _U1]):
-                                continue
-                            # the silhouette pixel nearest to the exact position, as the colour kernel takes it
-                            if silflat[np.uint64(cami[c + np.uint64(4)]) + np.uint64(_lrint(v)) * np.uint64(cami[c + np.uint64(5)])
-                                       + np.uint64(_lrint(u))] == 0:
-                                inside = False
-                                first = m
-                                break
-                            Xs[steps] = X
-                            Ys[steps] = Y
-                            idx[steps] = m
-                            steps += _U1
-                        if not inside or steps < np.uint64(min_views):
+                        # the camera that culled last usually culls again: a quick look at it first
+                        f = first * _CF
+                        X, Y, u, v = _position(A[_U3 * first], A[_U3 * first + _U1], A[_U3 * first + _U2],
+                                               camf[f + np.uint64(9)], camf[f + np.uint64(10)], camf[f + np.uint64(11)],
+                                               s, scale)
+                        c = first * _CI
+                        if (X <= np.uint64(cami[c]) and Y <= np.uint64(cami[c + _U1])
+                                and silflat[np.uint64(cami[c + np.uint64(4)]) + np.uint64(_lrint(v)) * np.uint64(cami[c + np.uint64(5)])
+                                            + np.uint64(_lrint(u))] == 0):
                             continue
-                    # sample and score, abandoning the plane once it cannot win
+                    # camera by camera: sample and score, abandoning the plane once it cannot win (and, with
+                    # the hull, once a camera sees the point outside its silhouette)
                     s0 = 0.0
                     s1 = 0.0
                     s2 = 0.0
                     q = 0.0
                     n = 0
-                    pruned = False
-                    for t in range(steps):
-                        if use_hull:
-                            m = idx[t]
-                            X = Xs[t]
-                            Y = Ys[t]
-                            c = m * _CI
-                        else:
-                            m = t
-                            f = m * _CF
-                            X, Y, _, _ = _position(A[_U3 * m], A[_U3 * m + _U1], A[_U3 * m + _U2], camf[f + np.uint64(9)],
-                                                   camf[f + np.uint64(10)], camf[f + np.uint64(11)], s, scale)
-                            c = m * _CI
-                            if X > np.uint64(cami[c]) or Y > np.uint64(cami[c + _U1]):
-                                continue
+                    dropped = False
+                    for m in range(un):
+                        f = m * _CF
+                        X, Y, u, v = _position(A[_U3 * m], A[_U3 * m + _U1], A[_U3 * m + _U2], camf[f + np.uint64(9)],
+                                               camf[f + np.uint64(10)], camf[f + np.uint64(11)], s, scale)
+                        c = m * _CI
+                        if X > np.uint64(cami[c]) or Y > np.uint64(cami[c + _U1]):
+                            continue
+                        # the silhouette pixel nearest to the exact position, as the colour kernel takes it
+                        if use_hull and silflat[np.uint64(cami[c + np.uint64(4)]) + np.uint64(_lrint(v)) * np.uint64(cami[c + np.uint64(5)])
+                                                + np.uint64(_lrint(u))] == 0:
+                            dropped = True
+                            first = m
+                            break
                         row = np.uint64(cami[c + _U3])
                         o = np.uint64(cami[c + _U2]) + (Y >> ub) * row + (X >> ub)
                         c0, c1, c2 = _bilinear(pix[o], pix[o + _U1], pix[o + row], pix[o + row + _U1], X & fmask,
@@ -244,11 +234,11 @@ def sweep_depth(camf, cami, pix, silflat, use_hull, min_views, trunc2, bits, s_p
                             # SSD of the n samples so far <= n_all x cost, n_all <= n + cameras left: prune
                             # when SSD > n_all x best, in the division-free form n SSD > n n_all best
                             lhs = n * q - (s0 * s0 + s1 * s1 + s2 * s2)
-                            rhs = bc * float(n * (n + np.int64(steps - t) - 1))
+                            rhs = bc * float(n * (n + n_cam - 1 - np.int64(m)))
                             if lhs > rhs or (lhs == rhs and j > bj):
-                                pruned = True
+                                dropped = True
                                 break
-                    if pruned or n < min_views:
+                    if dropped or n < min_views:
                         continue
                     if truncated:
                         m0 = s0 / n
@@ -266,9 +256,6 @@ def sweep_depth(camf, cami, pix, silflat, use_hull, min_views, trunc2, bits, s_p
                         bj = j
                 best[y, x] = bj
                 best_cost[y, x] = bc * inv_s4 if bj >= 0 else np.inf
-                up[x] = bj
-                if bj >= 0:
-                    left = bj
 
 
 @njit(cache=True, inline="always", fastmath=_FAST)
@@ -401,28 +388,108 @@ def shade(Q, B, s_planes, best, imgs, sizes, sils, use_hull, centers, vcenter, G
             primary[y, x] = cam[nearest]
 
 
+@njit(cache=True, parallel=True, fastmath=_FAST, error_model="numpy")
+def hull_windows(Q, B, bounds, s_planes, lo, hi):  # pragma: no cover - compiled
+    """Narrow each pixel's plane window lo..hi (h, w) int32, in place, to the planes whose point
+    projects inside the bounding box of every camera's silhouette: a cheap, conservative first cut of
+    the visual hull (the sweep still tests the silhouettes themselves). Only cameras whose image
+    contains the pixel's whole ray segment take part (elsewhere a camera does not vote, so it does
+    not cull either).
+
+    Q (N, 3, 3), B (N, 3) (module docstring); bounds (N, 6) float64 per camera: W - 1, H - 1 and the
+    box u0, u1, v0, v1 in px, widened by half a pixel for the nearest-pixel silhouette lookup (u0 > u1
+    for an empty silhouette); s_planes (P,) inverse depths, uniform (np.linspace). Along the ray each
+    box side is a linear condition on the inverse depth s, so the allowed planes form one interval.
+    """
+    N = Q.shape[0]
+    h, w = lo.shape
+    P = s_planes.shape[0]
+    s_first = s_planes[0]
+    ds = (s_planes[0] - s_planes[P - 1]) / (P - 1)  # > 0: s falls with the plane index
+    for y in prange(h):
+        for x in range(w):
+            j0 = lo[y, x]
+            j1 = hi[y, x]
+            if j0 > j1:
+                continue
+            s_hi = s_planes[j0]
+            s_lo = s_planes[j1]
+            for i in range(N):
+                ax = Q[i, 0, 0] * x + Q[i, 0, 1] * y + Q[i, 0, 2]
+                ay = Q[i, 1, 0] * x + Q[i, 1, 1] * y + Q[i, 1, 2]
+                az = Q[i, 2, 0] * x + Q[i, 2, 1] * y + Q[i, 2, 2]
+                bx = B[i, 0]
+                by = B[i, 1]
+                bz = B[i, 2]
+                z_a = az + s_lo * bz
+                z_b = az + s_hi * bz
+                if z_a <= _Z_MIN or z_b <= _Z_MIN:
+                    continue
+                u_a = (ax + s_lo * bx) / z_a
+                v_a = (ay + s_lo * by) / z_a
+                u_b = (ax + s_hi * bx) / z_b
+                v_b = (ay + s_hi * by) / z_b
+                if not (0.0 <= u_a <= bounds[i, 0] and 0.0 <= u_b <= bounds[i, 0]
+                        and 0.0 <= v_a <= bounds[i, 1] and 0.0 <= v_b <= bounds[i, 1]):
+                    continue
+                for side in range(4):
+                    # the condition c + s d >= 0 of one box side (hz > 0 on the whole segment)
+                    if side == 0:
+                        c = ax - bounds[i, 2] * az
+                        d = bx - bounds[i, 2] * bz
+                    elif side == 1:
+                        c = bounds[i, 3] * az - ax
+                        d = bounds[i, 3] * bz - bx
+                    elif side == 2:
+                        c = ay - bounds[i, 4] * az
+                        d = by - bounds[i, 4] * bz
+                    else:
+                        c = bounds[i, 5] * az - ay
+                        d = bounds[i, 5] * bz - by
+                    if d > 0:
+                        s_lo = max(s_lo, -c / d)
+                    elif d < 0:
+                        s_hi = min(s_hi, -c / d)
+                    elif c < 0:
+                        s_lo = np.inf
+                if not s_lo <= s_hi:
+                    break
+            if not s_lo <= s_hi:
+                lo[y, x] = 1
+                hi[y, x] = 0
+            else:
+                # one plane more on each side covers rounding in the index arithmetic
+                lo[y, x] = max(j0, np.int64(np.floor((s_first - s_hi) / ds)))
+                hi[y, x] = min(j1, np.int64(np.ceil((s_first - s_lo) / ds)))
+
+
 @njit(cache=True, parallel=True)
 def refine_windows(coarse, h, w, radius, margin, n_planes, lo, hi):  # pragma: no cover - compiled
     """Per fine pixel (h, w), the plane window [min - margin, max + margin] of the valid coarse
     choices (coarse (hc, wc) int32, -1 invalid) within ``radius`` coarse pixels of its coarse
     parent (x // 2, y // 2), clipped to [0, n_planes - 1]; an empty window (lo > hi) where none is valid."""
     hc, wc = coarse.shape
-    P_last = 1 << 30
+    mn = np.empty((hc, wc), np.int64)  # per coarse pixel, over its neighbourhood (each is shared by 4 fine pixels)
+    mx = np.empty((hc, wc), np.int64)
+    for cy in prange(hc):
+        for cx in range(wc):
+            a = n_planes
+            b = -1
+            for yy in range(max(cy - radius, 0), min(cy + radius + 1, hc)):
+                for xx in range(max(cx - radius, 0), min(cx + radius + 1, wc)):
+                    v = coarse[yy, xx]
+                    if v >= 0:
+                        a = min(a, v)
+                        b = max(b, v)
+            mn[cy, cx] = a
+            mx[cy, cx] = b
     for y in prange(h):
         cy = min(y // 2, hc - 1)
         for x in range(w):
             cx = min(x // 2, wc - 1)
-            mn = P_last
-            mx = -1
-            for yy in range(max(cy - radius, 0), min(cy + radius + 1, hc)):
-                for xx in range(max(cx - radius, 0), min(cx + radius + 1, wc)):
-                    b = coarse[yy, xx]
-                    if b >= 0:
-                        mn = min(mn, b)
-                        mx = max(mx, b)
-            if mx < 0:
+            if mx[cy, cx] < 0:
                 lo[y, x] = 1
                 hi[y, x] = 0
             else:
-                lo[y, x] = max(mn - margin, 0)
-                hi[y, x] = min(mx + margin, n_planes - 1)
+                lo[y, x] = max(mn[cy, cx] - margin, 0)
+                hi[y, x] = min(mx[cy, cx] + margin, n_planes - 1)

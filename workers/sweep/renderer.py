@@ -23,12 +23,12 @@ from workers.camera import Camera
 
 from . import kernels
 from .rig import Rig, RigError
-from .silhouette import dilate, silhouette_from_background
+from .silhouette import dilate, silhouette_box, silhouette_from_background
 from .weighting import METHOD_CODES, global_camera, neighbour_angle, suggest_d_bnd
 
 MAX_PLANES = 1024
 MAX_VIEW_PIXELS = 4096 * 4096
-BAND_ROWS = 8  # rows per work item of the sweep kernel; the pixel above seeds the search within a band
+BAND_ROWS = 16  # rows per work item of the sweep kernel (the pixel above seeds the search within a band)
 
 
 class RenderOptions(BaseModel):
@@ -135,6 +135,7 @@ class SweepRenderer:
         self._imgs = np.zeros((n, hm, wm, 3), np.uint8)  # for the colour
         self._pix = np.zeros((n, hm + 1, wm + 1), np.uint64)  # for the depth search (kernels.pack_images)
         self._sils = np.ones((n, hm, wm), np.uint8)
+        self._sil_bounds = np.empty((n, 6))  # per camera: W-1, H-1, silhouette box (kernels.hull_windows)
         self._sizes = np.array([[c.width, c.height] for c in self.cameras], np.int64)
         self._P = np.stack([c.P for c in self.cameras])
         self._centers = np.stack([c.center for c in self.cameras])
@@ -163,6 +164,8 @@ class SweepRenderer:
             if sil is not None:
                 self._sils[i, :c.height, :c.width] = dilate(sil, self.hull_dilate)
         kernels.pack_images(self._imgs, self._sizes, self._pix)
+        for i, c in enumerate(self.cameras):
+            self._sil_bounds[i] = (c.width - 1, c.height - 1) + silhouette_box(self._sils[i, :c.height, :c.width])
         self.has_silhouettes = sils is not None or self.backgrounds is not None
 
     def silhouettes(self) -> list[np.ndarray]:
@@ -196,16 +199,16 @@ class SweepRenderer:
             coarse_cam = virtual.scaled(0.5)
             Qc, Bc, _ = self._geometry(coarse_cam)
             hc, wc = coarse_cam.height, coarse_cam.width
-            best_c, _ = self._sweep(Qc, Bc, s_planes, use_hull, opt, *self._full_window(hc, wc, opt.planes))
+            best_c, _ = self._sweep(Qc, Bc, s_planes, use_hull, opt, *self._search_window(Qc, Bc, hc, wc, s_planes, use_hull))
             lo = np.empty((h, w), np.int32)
             hi = np.empty((h, w), np.int32)
             kernels.refine_windows(best_c, h, w, 1, opt.refine_margin, opt.planes, lo, hi)
             t2 = time.perf_counter()
             timings["coarse_ms"] = (t2 - t1) * 1e3
             t1 = t2
-        else:
-            lo, hi = self._full_window(h, w, opt.planes)
         Q, B, G = self._geometry(virtual)
+        if not opt.coarse_to_fine or min(h, w) < 8:
+            lo, hi = self._search_window(Q, B, h, w, s_planes, use_hull)
         best, cost = self._sweep(Q, B, s_planes, use_hull, opt, lo, hi)
         t2 = time.perf_counter()
         timings["sweep_ms"] = (t2 - t1) * 1e3
@@ -317,9 +320,15 @@ class SweepRenderer:
         threads = numba.get_num_threads()
         return np.concatenate([np.arange(t, nb, threads) for t in range(threads)]).astype(np.int64)
 
-    @staticmethod
-    def _full_window(h: int, w: int, planes: int) -> tuple[np.ndarray, np.ndarray]:
-        return np.zeros((h, w), np.int32), np.full((h, w), planes - 1, np.int32)
+    def _search_window(self, Q: np.ndarray, B: np.ndarray, h: int, w: int, s_planes: np.ndarray,
+                       use_hull: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Plane windows lo, hi (h, w) int32 of a full search: every plane, or with the hull only those
+        inside all silhouettes' bounding boxes (kernels.hull_windows)."""
+        lo = np.zeros((h, w), np.int32)
+        hi = np.full((h, w), len(s_planes) - 1, np.int32)
+        if use_hull:
+            kernels.hull_windows(Q, B, self._sil_bounds, s_planes, lo, hi)
+        return lo, hi
 
     def _checked(self, arrays: Sequence[np.ndarray], what: str, channels: int | None = 3) -> list[np.ndarray]:
         arrays = list(arrays)

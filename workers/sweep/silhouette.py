@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit, prange
 
 
 def silhouette_from_background(
@@ -16,14 +17,37 @@ def silhouette_from_background(
     """
     if image.shape != background.shape:
         raise ValueError(f"image {image.shape} and background {background.shape} differ in shape")
-    d = cv2.absdiff(image, background)
-    diff = np.maximum(np.maximum(d[..., 0], d[..., 1]), d[..., 2])  # d.max(axis=2) is ~25x slower
-    mask = (diff > threshold).view(np.uint8)
+    h, w = image.shape[:2]
+    if threshold < 0 or threshold >= 255:  # every pixel, or none (differences are integers 0..255)
+        mask = np.full((h, w), 1 if threshold < 0 else 0, np.uint8)
+    else:
+        mask = np.empty((h, w), np.uint8)
+        _foreground(np.ascontiguousarray(image).reshape(-1), np.ascontiguousarray(background).reshape(-1),
+                    np.uint8(threshold), mask.reshape(-1))
     if clean_px > 0:
         disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * clean_px + 1, 2 * clean_px + 1))
         mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, disk)
         mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, disk)
     return mask.astype(bool)
+
+
+@njit(cache=True, parallel=True)
+def _foreground(image, background, threshold, out):  # pragma: no cover - compiled
+    """out (H*W,) uint8 = 1 where the largest channel difference of image and background (H*W*3,)
+    uint8 BGR exceeds threshold (uint8: for integer differences d > t equals d > floor(t)), else 0.
+    One pass in uint8 arithmetic, which the compiler vectorises; numpy's max over the channel axis
+    is ~25x slower."""
+    n = out.shape[0]
+    for k in prange((n + 4095) // 4096):
+        for i in range(4096 * k, min(4096 * (k + 1), n)):
+            a0 = image[3 * i]
+            a1 = image[3 * i + 1]
+            a2 = image[3 * i + 2]
+            b0 = background[3 * i]
+            b1 = background[3 * i + 1]
+            b2 = background[3 * i + 2]
+            d = max(max(max(a0, b0) - min(a0, b0), max(a1, b1) - min(a1, b1)), max(a2, b2) - min(a2, b2))
+            out[i] = np.uint8(d > threshold)
 
 
 def dilate(mask: np.ndarray, px: int) -> np.ndarray:
@@ -33,3 +57,13 @@ def dilate(mask: np.ndarray, px: int) -> np.ndarray:
         return mask.astype(bool)
     k = np.ones((2 * px + 1, 2 * px + 1), np.uint8)
     return cv2.dilate(mask.astype(np.uint8), k).astype(bool)
+
+
+def silhouette_box(mask: np.ndarray) -> tuple[float, float, float, float]:
+    """Bounding box (u0, u1, v0, v1) in px of the non-zero pixels of ``mask`` (H, W), widened by half a
+    pixel on every side (the points that a nearest-pixel lookup maps into it); u0 > u1 when empty."""
+    cols = np.flatnonzero(mask.any(axis=0))
+    if cols.size == 0:
+        return 1.0, -1.0, 1.0, -1.0
+    rows = np.flatnonzero(mask.any(axis=1))
+    return cols[0] - 0.5, cols[-1] + 0.5, rows[0] - 0.5, rows[-1] + 0.5

@@ -1,0 +1,170 @@
+"""The compiled sweep against plain numpy evaluations of the same definitions (packed fixed-point
+sampling, pruning, visual-hull culling and its bounding-box pre-cut, window refinement)."""
+import numpy as np
+import pytest
+
+from workers.camera import Camera
+from workers.sweep import kernels
+from workers.sweep.renderer import RenderOptions, SweepRenderer
+from workers.sweep.silhouette import silhouette_box, silhouette_from_background
+
+from .conftest import FAR, NEAR
+
+
+def _numpy_costs(cameras, images, sils, virtual, s_planes, bits, trunc2=0.0, min_views=2):
+    """Cost (P, h, w) of every plane by the kernels' definition, inf where the plane is not a candidate:
+    positions rounded to 1/2**bits px, exact bilinear samples, a camera votes when its four taps are in
+    its image, a vote outside the camera's silhouette (nearest pixel) culls the point (sils None: no hull)."""
+    h, w = virtual.height, virtual.width
+    G = virtual.R.T @ np.linalg.inv(virtual.K)
+    xs, ys = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+    pix = np.stack([xs, ys, np.ones_like(xs)], axis=-1)
+    out = np.full((len(s_planes), h, w), np.inf)
+    for j, s in enumerate(s_planes):
+        samples, voted, culled = [], [], np.zeros((h, w), bool)
+        for i, cam in enumerate(cameras):
+            M, p = cam.P[:, :3], cam.P[:, 3]
+            hom = pix @ (M @ G).T + s * (M @ virtual.center + p)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                u, v = hom[..., 0] / hom[..., 2], hom[..., 1] / hom[..., 2]
+            qu, qv = np.rint(u * 2**bits) / 2**bits, np.rint(v * 2**bits) / 2**bits
+            ok = (hom[..., 2] > 1e-9) & (qu >= 0) & (qv >= 0) & (qu <= cam.width - 1) & (qv <= cam.height - 1)
+            x0 = np.where(ok, np.floor(qu), 0).astype(int)
+            y0 = np.where(ok, np.floor(qv), 0).astype(int)
+            fx, fy = (np.where(ok, qu - x0, 0)[..., None], np.where(ok, qv - y0, 0)[..., None])
+            x1, y1 = np.minimum(x0 + 1, cam.width - 1), np.minimum(y0 + 1, cam.height - 1)
+            img = images[i].astype(float)
+            top = img[y0, x0] + fx * (img[y0, x1] - img[y0, x0])
+            bot = img[y1, x0] + fx * (img[y1, x1] - img[y1, x0])
+            samples.append(top + fy * (bot - top))
+            voted.append(ok)
+            if sils is not None:
+                nu = np.clip(np.rint(np.where(ok, u, 0)), 0, cam.width - 1).astype(int)
+                nv = np.clip(np.rint(np.where(ok, v, 0)), 0, cam.height - 1).astype(int)
+                culled |= ok & ~sils[i][nv, nu]
+        c = np.stack(samples)  # (N, h, w, 3)
+        ok = np.stack(voted)
+        n = ok.sum(axis=0)
+        mean = (c * ok[..., None]).sum(axis=0) / np.maximum(n, 1)[..., None]
+        dev = (((c - mean) ** 2).sum(axis=-1)) * ok
+        if trunc2 > 0:
+            dev = np.minimum(dev, trunc2) * ok
+        cost = dev.sum(axis=0) / np.maximum(n, 1)
+        out[j] = np.where((n >= min_views) & ~culled, cost, np.inf)
+    return out
+
+
+def _best(costs):
+    best = np.argmin(costs, axis=0)  # the first of equal costs: the nearer plane
+    return np.where(np.isfinite(costs.min(axis=0)), best, -1)
+
+
+@pytest.fixture(scope="module")
+def small(capture, between_camera):
+    _, rig, views = capture
+    return rig, views, between_camera.scaled(0.5)
+
+
+@pytest.mark.parametrize("bits", [3, 6])
+@pytest.mark.parametrize("consistency", ["variance", "truncated"])
+def test_packed_fixed_point_cost_of_each_plane_is_exact(small, bits, consistency):
+    rig, views, cam = small
+    r = SweepRenderer(rig, [v.image for v in views])
+    opt = RenderOptions(subpixel_bits=bits, consistency=consistency, truncation=20.0)
+    s_planes = 1.0 / r.depth_planes(cam, 6, NEAR, FAR)
+    want = _numpy_costs(list(rig.cameras), [v.image for v in views], None, cam, s_planes, bits,
+                        trunc2=400.0 if consistency == "truncated" else 0.0)
+    Q, B, _ = r._geometry(cam)
+    for j in range(len(s_planes)):
+        lo = np.full((cam.height, cam.width), j, np.int32)  # a window of one plane: its own cost comes back
+        best, cost = r._sweep(Q, B, s_planes, False, opt, lo, lo.copy())
+        finite = np.isfinite(want[j])
+        np.testing.assert_array_equal(best, np.where(finite, j, -1))
+        np.testing.assert_allclose(cost[finite], want[j][finite], rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("hull", [False, True])
+def test_pruned_sweep_equals_exhaustive_search(small, hull):
+    rig, views, cam = small
+    images = [v.image for v in views]
+    r = SweepRenderer(rig, images, backgrounds=[v.background for v in views]) if hull else SweepRenderer(rig, images)
+    out = r.render(cam, planes=24, near=NEAR, far=FAR, subpixel_bits=4)
+    sils = r.silhouettes() if hull else None
+    want = _best(_numpy_costs(list(rig.cameras), images, sils, cam, 1.0 / out.planes, 4))
+    assert (out.plane_index == want).mean() > 0.999  # rounding at exact .5 positions may differ
+    if hull:
+        assert (want < 0).mean() > 0.3  # the hull did cull
+        assert ((out.plane_index >= 0) == (want >= 0)).mean() > 0.999
+
+
+def test_hull_windows_keep_every_plane_inside_all_silhouettes():
+    rng = np.random.default_rng(5)
+    K = np.array([[120.0, 0, 63.5], [0, 120.0, 47.5], [0, 0, 1]])
+    cams = [Camera.look_at(f"c{i}", [3 * np.sin(a), -3 * np.cos(a), 1.0], [0, 0, 0.3], fov_deg=55, width=128,
+                           height=96) for i, a in enumerate(np.radians([-50, -20, 15, 45]))]
+    cams = [Camera(c.name, K, c.R, c.t, 128, 96) for c in cams]
+    sils = []
+    for _ in cams:  # random blobs
+        m = np.zeros((96, 128), bool)
+        for _ in range(3):
+            cx, cy, rad = rng.uniform(20, 108), rng.uniform(15, 80), rng.uniform(6, 20)
+            yy, xx = np.mgrid[:96, :128]
+            m |= (xx - cx) ** 2 + (yy - cy) ** 2 < rad**2
+        sils.append(m)
+    r = SweepRenderer(cams, [rng.integers(0, 255, (96, 128, 3), dtype=np.uint8) for _ in cams], silhouettes=sils,
+                      hull_dilate=0)
+    virtual = Camera.look_at("v", [0.4, -3.2, 1.1], [0, 0, 0.3], fov_deg=50, width=96, height=72)
+    s_planes = 1.0 / r.depth_planes(virtual, 40, 1.5, 6.0)
+    Q, B, _ = r._geometry(virtual)
+    lo, hi = r._search_window(Q, B, 72, 96, s_planes, True)
+    inside = np.isfinite(_numpy_costs(cams, [np.zeros((96, 128, 3), np.uint8)] * 4, sils, virtual, s_planes, 6,
+                                      min_views=1))
+    j = np.arange(len(s_planes))[:, None, None]
+    assert not (inside & ((j < lo) | (j > hi))).any()
+    kept = np.where(hi >= lo, hi - lo + 1, 0).sum() / (len(s_planes) * lo.size)
+    assert kept < 0.7 and (hi < lo).mean() > 0.2  # and it does cut: whole rays and parts of others
+
+
+def test_search_step_is_one_64th_px_for_bits_zero_and_above_six(small):
+    rig, views, cam = small
+    r = SweepRenderer(rig, [v.image for v in views])
+    kw = dict(planes=16, near=NEAR, far=FAR)
+    fine = r.render(cam, subpixel_bits=kernels.MAX_BITS, **kw)
+    for bits in (0, 8):
+        np.testing.assert_array_equal(r.render(cam, subpixel_bits=bits, **kw).cost, fine.cost)
+
+
+def test_refine_windows_match_their_definition():
+    rng = np.random.default_rng(2)
+    coarse = rng.integers(-1, 30, (13, 17)).astype(np.int32)
+    coarse[4:9, 5:12] = -1
+    h, w = 26, 33
+    lo = np.empty((h, w), np.int32)
+    hi = np.empty((h, w), np.int32)
+    kernels.refine_windows(coarse, h, w, 1, 2, 30, lo, hi)
+    for y in range(h):
+        for x in range(w):
+            cy, cx = min(y // 2, 12), min(x // 2, 16)
+            nb = coarse[max(cy - 1, 0):cy + 2, max(cx - 1, 0):cx + 2]
+            valid = nb[nb >= 0]
+            if valid.size == 0:
+                assert lo[y, x] > hi[y, x]
+            else:
+                assert (lo[y, x], hi[y, x]) == (max(valid.min() - 2, 0), min(valid.max() + 2, 29))
+
+
+@pytest.mark.parametrize("threshold", [-1.0, 0.0, 19.5, 20.0, 254.0, 254.9, 255.0])
+def test_silhouette_threshold_is_on_the_largest_channel_difference(threshold):
+    rng = np.random.default_rng(1)
+    img = rng.integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    bg = rng.integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    want = np.abs(img.astype(int) - bg.astype(int)).max(axis=2) > threshold
+    np.testing.assert_array_equal(silhouette_from_background(img, bg, threshold, clean_px=0), want)
+
+
+def test_silhouette_box_is_widened_by_half_a_pixel():
+    m = np.zeros((30, 40), bool)
+    assert silhouette_box(m)[0] > silhouette_box(m)[1]
+    m[5:9, 12:20] = True
+    m[22, 3] = True
+    assert silhouette_box(m) == (2.5, 19.5, 4.5, 22.5)
