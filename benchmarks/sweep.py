@@ -8,7 +8,10 @@ the largest frame-to-frame colour jump and a blur measure (Laplacian energy over
 (3) Middlebury Teddy im4 and Art view3 held out and synthesised from other views; (4)
 templeSparseRing leave-one-out from ring neighbours, scored inside the object.
 Speed: 10 cameras at 640x480, virtual 640x480 / 320x240, 32/64/128 planes, the fused kernel
-against the straightforward per-plane cv2.warpPerspective + numpy variance, in the same run.
+against the straightforward per-plane cv2.warpPerspective + numpy variance, in the same run
+(interleaved repeats, medians; wall and CPU time); the live configuration (320x240, 48 planes)
+with and without visual hull and coarse-to-fine, with the depth error against the truth beside
+each, and the per-frame extras of a stream (set_frames, JPEG encode).
 Writes benchmarks/results/sweep.json and the "sweep" section of benchmarks/RESULTS.md.
 """
 from __future__ import annotations
@@ -20,6 +23,7 @@ import time
 from pathlib import Path
 
 import cv2
+import numba
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -414,7 +418,10 @@ def main() -> int:
     results["load_average"] = {"start": load0, "end": load1}
     notes.append(f"1-minute load average {load0:.1f} at the start and {load1:.1f} at the end on "
                  f"{os.cpu_count()} cores: speed figures under CPU contention are not representative; "
-                 "the renderer and the reference were measured in the same run.")
+                 "the renderer and the reference were measured in the same run, interleaved. The sweep runs on "
+                 f"{numba.get_num_threads()} threads and the reference mostly on one, so under contention the sweep "
+                 "loses its second core first and the wall-clock speedup understates the quiet-machine figure; the "
+                 "CPU-time speedup is the work ratio, nearly independent of the load.")
     publish("sweep", results, markdown(results, notes))
     return 0
 

@@ -77,7 +77,7 @@ def test_packed_fixed_point_cost_of_each_plane_is_exact(small, bits, consistency
     Q, B, _ = r._geometry(cam)
     for j in range(len(s_planes)):
         lo = np.full((cam.height, cam.width), j, np.int32)  # a window of one plane: its own cost comes back
-        best, cost = r._sweep(Q, B, s_planes, False, opt, lo, lo.copy())
+        best, cost = r._sweep(Q, B, cam.center, s_planes, False, opt, lo, lo.copy())
         finite = np.isfinite(want[j])
         np.testing.assert_array_equal(best, np.where(finite, j, -1))
         np.testing.assert_allclose(cost[finite], want[j][finite], rtol=1e-6, atol=1e-6)

@@ -46,6 +46,7 @@ _U0 = np.uint64(0)
 _U1 = np.uint64(1)
 _U2 = np.uint64(2)
 _U3 = np.uint64(3)
+_U4, _U5, _U6, _U7, _U8, _U9, _U10, _U11 = (np.uint64(i) for i in range(4, 12))
 _OUT = np.uint64(1 << 63)  # a position no image contains
 
 # per-camera rows of the sweep's tables, in sampling order
@@ -122,8 +123,8 @@ def sweep_depth(camf, cami, pix, silflat, use_hull, min_views, trunc2, bits, s_p
                 best, best_cost):  # pragma: no cover - compiled
     """Most photo-consistent plane per virtual pixel.
 
-    camf (N * CAM_F,) float64 and cami (N * CAM_I,) int64: per-camera rows in sampling order (widely
-    spread cameras first, so that a wrong plane shows early); see CAM_F / CAM_I. pix: all packed
+    camf (N * CAM_F,) float64 and cami (N * CAM_I,) int64: per-camera rows in sampling order; see
+    CAM_F / CAM_I. pix: all packed
     images (:func:`pack_images`), flattened; silflat: all silhouettes, uint8, flattened (used when
     ``use_hull``). trunc2 > 0 selects the truncated cost ``mean_i min(|c_i - mean|^2, trunc2)``,
     else the variance summed over channels. bits: sampling positions are multiples of 2**-bits px
@@ -171,8 +172,8 @@ def sweep_depth(camf, cami, pix, silflat, use_hull, min_views, trunc2, bits, s_p
                 for m in range(un if j0 <= j1 else _U0):
                     f = m * _CF
                     A[_U3 * m] = camf[f] * xf + camf[f + _U1] * yf + camf[f + _U2]
-                    A[_U3 * m + _U1] = camf[f + _U3] * xf + camf[f + np.uint64(4)] * yf + camf[f + np.uint64(5)]
-                    A[_U3 * m + _U2] = camf[f + np.uint64(6)] * xf + camf[f + np.uint64(7)] * yf + camf[f + np.uint64(8)]
+                    A[_U3 * m + _U1] = camf[f + _U3] * xf + camf[f + _U4] * yf + camf[f + _U5]
+                    A[_U3 * m + _U2] = camf[f + _U6] * xf + camf[f + _U7] * yf + camf[f + _U8]
                 g1 = left if j0 <= left <= j1 else -1
                 g2 = up if j0 <= up <= j1 and up != g1 else -1
                 for jj in range(j0 - 2, j1 + 1):
@@ -189,13 +190,12 @@ def sweep_depth(camf, cami, pix, silflat, use_hull, min_views, trunc2, bits, s_p
                         # the camera that culled last usually culls again: a quick look at it first
                         f = first * _CF
                         X, Y, u, v = _position(A[_U3 * first], A[_U3 * first + _U1], A[_U3 * first + _U2],
-                                               camf[f + np.uint64(9)], camf[f + np.uint64(10)], camf[f + np.uint64(11)],
-                                               s, scale)
+                                               camf[f + _U9], camf[f + _U10], camf[f + _U11], s, scale)
                         c = first * _CI
-                        if (X <= np.uint64(cami[c]) and Y <= np.uint64(cami[c + _U1])
-                                and silflat[np.uint64(cami[c + np.uint64(4)]) + np.uint64(_lrint(v)) * np.uint64(cami[c + np.uint64(5)])
-                                            + np.uint64(_lrint(u))] == 0):
-                            continue
+                        if X <= np.uint64(cami[c]) and Y <= np.uint64(cami[c + _U1]):
+                            o = np.uint64(cami[c + _U4]) + np.uint64(_lrint(v)) * np.uint64(cami[c + _U5])
+                            if silflat[o + np.uint64(_lrint(u))] == 0:
+                                continue
                     # camera by camera: sample and score, abandoning the plane once it cannot win (and, with
                     # the hull, once a camera sees the point outside its silhouette)
                     s0 = 0.0
@@ -206,17 +206,18 @@ def sweep_depth(camf, cami, pix, silflat, use_hull, min_views, trunc2, bits, s_p
                     dropped = False
                     for m in range(un):
                         f = m * _CF
-                        X, Y, u, v = _position(A[_U3 * m], A[_U3 * m + _U1], A[_U3 * m + _U2], camf[f + np.uint64(9)],
-                                               camf[f + np.uint64(10)], camf[f + np.uint64(11)], s, scale)
+                        X, Y, u, v = _position(A[_U3 * m], A[_U3 * m + _U1], A[_U3 * m + _U2], camf[f + _U9],
+                                               camf[f + _U10], camf[f + _U11], s, scale)
                         c = m * _CI
                         if X > np.uint64(cami[c]) or Y > np.uint64(cami[c + _U1]):
                             continue
-                        # the silhouette pixel nearest to the exact position, as the colour kernel takes it
-                        if use_hull and silflat[np.uint64(cami[c + np.uint64(4)]) + np.uint64(_lrint(v)) * np.uint64(cami[c + np.uint64(5)])
-                                                + np.uint64(_lrint(u))] == 0:
-                            dropped = True
-                            first = m
-                            break
+                        if use_hull:
+                            # the silhouette pixel nearest to the exact position, as the colour kernel takes it
+                            o = np.uint64(cami[c + _U4]) + np.uint64(_lrint(v)) * np.uint64(cami[c + _U5])
+                            if silflat[o + np.uint64(_lrint(u))] == 0:
+                                dropped = True
+                                first = m
+                                break
                         row = np.uint64(cami[c + _U3])
                         o = np.uint64(cami[c + _U2]) + (Y >> ub) * row + (X >> ub)
                         c0, c1, c2 = _bilinear(pix[o], pix[o + _U1], pix[o + row], pix[o + row + _U1], X & fmask,
@@ -308,9 +309,9 @@ def shade(Q, B, s_planes, best, imgs, sizes, sils, use_hull, centers, vcenter, G
                     inv = 1.0 / hz
                     u = (Q[i, 0, 0] * x + Q[i, 0, 1] * y + Q[i, 0, 2] + s * B[i, 0]) * inv
                     v = (Q[i, 1, 0] * x + Q[i, 1, 1] * y + Q[i, 1, 2] + s * B[i, 1]) * inv
-                    if u < 0.0 or v < 0.0 or u > sizes[i, 0] - 1 or v > sizes[i, 1] - 1:
+                    if not (0.0 <= u <= sizes[i, 0] - 1 and 0.0 <= v <= sizes[i, 1] - 1):
                         continue
-                    if use_hull and sils[i, _lrint(v), _lrint(u)] == 0:
+                    if use_hull and sils[i, np.uint64(_lrint(v)), np.uint64(_lrint(u))] == 0:
                         continue
                     dx = vcenter[0] + rx - centers[i, 0]
                     dy = vcenter[1] + ry - centers[i, 1]
@@ -366,15 +367,15 @@ def shade(Q, B, s_planes, best, imgs, sizes, sils, use_hull, centers, vcenter, G
                     continue
                 nreg += 1
                 o = order[a]
-                i = cam[o]
+                i = np.uint64(cam[o])
                 u = us[o]
                 v = vs[o]
-                x0 = np.int64(u)
-                y0 = np.int64(v)
-                fx = u - x0
-                fy = v - y0
-                x1 = x0 + 1 if u < sizes[i, 0] - 1 else x0
-                y1 = y0 + 1 if v < sizes[i, 1] - 1 else y0
+                x0 = np.uint64(u)
+                y0 = np.uint64(v)
+                fx = u - float(x0)
+                fy = v - float(y0)
+                x1 = x0 + _U1 if u < sizes[i, 0] - 1 else x0
+                y1 = y0 + _U1 if v < sizes[i, 1] - 1 else y0
                 r0 += wa * _lerp2(np.float64(imgs[i, y0, x0, 0]), np.float64(imgs[i, y0, x1, 0]),
                                      np.float64(imgs[i, y1, x0, 0]), np.float64(imgs[i, y1, x1, 0]), fx, fy)
                 r1 += wa * _lerp2(np.float64(imgs[i, y0, x0, 1]), np.float64(imgs[i, y0, x1, 1]),
