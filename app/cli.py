@@ -90,6 +90,40 @@ def cmd_openapi(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_models(args: argparse.Namespace) -> int:
+    from workers.common.models import MODELS, ModelError, install, installed
+    from app.settings import Settings
+
+    data_dir = args.data_dir or Settings().data_dir
+    if args.action == "list":
+        for model in MODELS.values():
+            path = installed(model, data_dir)
+            print(f"{model.name:8} {'installed at ' + str(path) if path else 'not installed'}\n"
+                  f"         {model.used_for}; licence {model.license}")
+        return 0
+    names = args.names or list(MODELS)
+    unknown = [n for n in names if n not in MODELS]
+    if unknown:
+        print(f"unknown model {', '.join(unknown)}; known: {', '.join(MODELS)}", file=sys.stderr)
+        return 2
+    if args.source and len(names) != 1:
+        print("--from needs exactly one model name", file=sys.stderr)
+        return 2
+    failed = 0
+    for name in names:
+        model = MODELS[name]
+        if args.if_missing and installed(model, data_dir):
+            continue
+        try:
+            path = install(model, data_dir, args.source, timeout=args.timeout)
+        except ModelError as exc:
+            print(f"not installed: {exc}", file=sys.stderr)
+            failed += 1
+            continue
+        print(f"{name}: installed {path}", file=sys.stderr)
+    return 1 if failed else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sweepcast", description="sweepcast: the service and its engines from the command line.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -113,6 +147,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="openapi/openapi.json")
     p.add_argument("--check", action="store_true", help="exit 1 when the file differs from the app's schema")
     p.set_defaults(func=cmd_openapi)
+
+    p = sub.add_parser("models", help="list or fetch the optional third-party models (checked by SHA-256)")
+    p.add_argument("action", choices=["list", "fetch"])
+    p.add_argument("names", nargs="*", help="models to fetch (default: all)")
+    p.add_argument("--from", dest="source", help="install from this file or URL instead of the publisher's URL")
+    p.add_argument("--data-dir", type=Path, help="data folder (default ./sweepcast-data; SWEEPCAST_DATA_DIR)")
+    p.add_argument("--if-missing", action="store_true", help="skip models already installed")
+    p.add_argument("--timeout", type=float, default=30.0, help="network timeout in seconds (default 30)")
+    p.set_defaults(func=cmd_models)
 
     import importlib
 

@@ -50,6 +50,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
                 await asyncio.to_thread(ray.shutdown)
             svc.jobs.close()
+            svc.compute.shutdown(wait=False, cancel_futures=True)
 
     app = FastAPI(
         title="sweepcast",
@@ -100,8 +101,8 @@ async def _start_ray(svc: Services) -> None:
 def worker_env(settings: Settings) -> dict[str, str]:
     """Settings the engines read on the workers, passed to every Ray worker of this service."""
     env = {"SWEEPCAST_MAX_IMAGE_PIXELS": str(settings.max_image_pixels)}
-    if settings.orientation_yunet_model is not None:
-        env["SWEEPCAST_ORIENTATION_YUNET_MODEL"] = str(settings.orientation_yunet_model.resolve())
+    if (yunet := settings.resolved_yunet_model) is not None:
+        env["SWEEPCAST_ORIENTATION_YUNET_MODEL"] = str(yunet.resolve())
     return env
 
 

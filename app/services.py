@@ -2,10 +2,13 @@
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
+import os
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, BinaryIO, TypeVar
+from typing import Any, BinaryIO, Callable, TypeVar
 
 from fastapi import Request
 from pydantic import BaseModel, ValidationError
@@ -21,6 +24,7 @@ from workers.storage import BlobStore, open_store
 
 log = logging.getLogger("sweepcast")
 M = TypeVar("M", bound=BaseModel)
+R = TypeVar("R")
 
 
 @dataclass
@@ -30,6 +34,9 @@ class Services:
     store: BlobStore
     hub: EventHub
     dispatcher: Dispatcher
+    compute: ThreadPoolExecutor
+    """Runs per-request image work in this process (orientation): one thread per core, so that a burst of
+    requests neither oversubscribes the CPU nor builds a detector per thread of a large pool."""
     ray_owned: bool = False
     ray_error: str | None = None
 
@@ -39,7 +46,13 @@ def build_services(settings: Settings) -> Services:
     jobs = JobStore(settings.resolved_database_url)
     store = open_store(settings.resolved_storage_url)
     hub = EventHub()
-    return Services(settings, jobs, store, hub, Dispatcher(settings, jobs, hub, store.url))
+    compute = ThreadPoolExecutor(settings.request_threads or os.cpu_count() or 1, thread_name_prefix="compute")
+    return Services(settings, jobs, store, hub, Dispatcher(settings, jobs, hub, store.url), compute)
+
+
+async def run_compute(svc: Services, fn: Callable[..., R], *args: Any) -> R:
+    """``fn(*args)`` on the service's compute threads, awaited without blocking the event loop."""
+    return await asyncio.get_running_loop().run_in_executor(svc.compute, functools.partial(fn, *args))
 
 
 def services(request: Request) -> Services:

@@ -27,13 +27,16 @@ class Settings(BaseSettings):
     max_batch_bytes: int = Field(1024 * MiB, ge=1, description="Largest request body of batch uploads.")
     max_image_pixels: int = Field(64_000_000, ge=1, description="Largest image (width x height) decoded.")
     max_batch_files: int = Field(500, ge=1, description="Most files in one batch upload.")
+    request_threads: int | None = Field(None, ge=1, description="Threads for per-request image work in the API process (default: one per core).")
 
     job_max_attempts: int = Field(3, ge=1, le=10, description="Attempts per job when a worker is lost.")
     job_lease_seconds: float = Field(30.0, gt=0, description="A running job whose lease is this old is resubmitted.")
     job_resources: dict[str, float] = Field(default_factory=dict, description="Custom Ray resources every batch job requires (JSON).")
     job_unschedulable_seconds: float = Field(120.0, gt=0, description="Fail a job when no live Ray node offers its resources for this long.")
 
-    orientation_yunet_model: Path | None = Field(None, description="YuNet ONNX model for the stronger face detector.")
+    orientation_yunet_model: Path | None = Field(
+        None, description="YuNet ONNX model for the stronger face detector; default: the one "
+                          "'sweepcast models fetch yunet' installed in <data_dir>/models, if any.")
 
     max_rig_cameras: int = Field(64, ge=2, description="Most cameras in one rig.")
     max_recording_frames: int = Field(3000, ge=1, description="Most frames per camera in one recording.")
@@ -53,6 +56,15 @@ class Settings(BaseSettings):
     @cached_property
     def resolved_database_url(self) -> str:
         return self.database_url or f"sqlite:///{(self.data_dir / 'sweepcast.db').resolve()}"
+
+    @property
+    def resolved_yunet_model(self) -> Path | None:
+        """The YuNet model the orientation engine uses: the setting, else an installed copy, else None."""
+        from workers.common.models import YUNET, installed
+
+        if self.orientation_yunet_model is not None:
+            return self.orientation_yunet_model
+        return installed(YUNET, self.data_dir)
 
     @cached_property
     def resolved_storage_url(self) -> str:

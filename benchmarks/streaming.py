@@ -286,8 +286,9 @@ def markdown(results: dict) -> str:
         "Concurrent WebSocket viewers of the demo rig (10 cameras at 320x240, 48 planes, Kojima weighting, "
         "coarse-to-fine sweep, visual hull). Each viewer sends its next viewpoint when the previous frame "
         "arrives; latency is viewpoint sent -> frame received. Baseline: the renderer alone in the benchmark "
-        f"process, same views. Load average before the run: {results['setup']['load_average_before']:.2f} "
-        "(above ~0.5 on this 2-core machine, other work shared the CPU and the speeds are low).\n\n"
+        f"process, same views. Load average before the run: {results['setup']['load_average_before']:.2f}"
+        + (" (above ~0.5 on this 2-core machine: other work shared the CPU and the speeds are low)"
+           if results["setup"]["load_average_before"] > 0.5 else "") + ".\n\n"
         + md_table(["viewers", "size", "fps per viewer", "fps total", "latency p50 ms", "latency p95 ms",
                     "session render p50 ms", "baseline render p50 ms", "server CPU cores"], rows)
         + f"\n\nTarget (1 viewer, 320x240): >= {t['fps']:g} fps with p95 <= {t['latency_p95_ms']:g} ms: "

@@ -51,7 +51,7 @@ ctr=$("${bah[@]}" from localhost/sweepcast-base)
 "${bah[@]}" rm "$ctr" >/dev/null
 
 echo "== buildah bud docker/Dockerfile"
-"${bah[@]}" bud --isolation chroot --build-arg BASE=localhost/sweepcast-base-local -f docker/Dockerfile -t localhost/sweepcast:offline .
+"${bah[@]}" bud --isolation chroot --build-arg BASE=localhost/sweepcast-base-local --build-arg FETCH_MODELS=0 -f docker/Dockerfile -t localhost/sweepcast:offline .
 
 echo "== run the image and check /healthz"
 ctr=$("${bah[@]}" from localhost/sweepcast:offline)

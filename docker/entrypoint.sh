@@ -3,6 +3,11 @@
 # standalone (embedded local Ray, SQLite, /data), or any other command.
 set -eu
 role="${1:-api}"
+# the YuNet model the image was built with, unless the operator names another
+yunet=/opt/sweepcast/models/face_detection_yunet_2023mar.onnx
+if [ -z "${SWEEPCAST_ORIENTATION_YUNET_MODEL:-}" ] && [ -f "$yunet" ]; then
+  export SWEEPCAST_ORIENTATION_YUNET_MODEL="$yunet"
+fi
 case "$role" in
   api)
     if [ -n "${SWEEPCAST_RAY_ADDRESS:-}" ]; then

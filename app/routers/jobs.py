@@ -12,6 +12,7 @@ from pydantic import BaseModel
 from app.auth import require_key, websocket_key_ok
 from app.errors import ApiError
 from app.jobstore import JobState, job_public
+from app.routers.rig_support import rig_of_recording_job
 from app.services import Services, services
 from workers.runtime import inputs_prefix, results_prefix
 from workers.storage import BlobNotFound
@@ -114,13 +115,19 @@ async def get_result(job_id: str, name: str, svc: Services = Depends(services)) 
 
 @router.delete("/{job_id}", summary="Cancel an active job, or delete a finished one and its files",
                responses={200: {"model": JobOut, "description": "the job was active and is now cancelled"},
-                          204: {"description": "the finished job and its files were deleted"}})
+                          204: {"description": "the finished job and its files were deleted"},
+                          409: {"description": "the job imported a recording that still exists: delete the "
+                                               "recording instead"}})
 async def delete_job(job_id: str, svc: Services = Depends(services)) -> Any:
     job = await load_job(job_id, svc)
     if not JobState(job.state).finished:
         if await svc.dispatcher.cancel(job_id):
             return job_public(await load_job(job_id, svc))
         job = await load_job(job_id, svc)  # it finished meanwhile: fall through to delete
+    rig_id = await asyncio.to_thread(rig_of_recording_job, svc.store, job)
+    if rig_id is not None:  # its results are the recording: deleting them here would break it
+        raise ApiError(409, f"job {job_id} holds recording {job_id} of rig {rig_id}; delete the recording "
+                            f"instead (DELETE /v1/rigs/{rig_id}/recordings/{job_id})", "job_holds_recording")
     await asyncio.to_thread(svc.jobs.delete, job_id)
     await asyncio.to_thread(svc.store.delete_prefix, results_prefix(job_id))
     await asyncio.to_thread(svc.store.delete_prefix, inputs_prefix(job_id))

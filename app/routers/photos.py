@@ -5,12 +5,11 @@ from typing import Any
 
 from fastapi import APIRouter, Depends, File, Form, UploadFile
 from fastapi.responses import JSONResponse, Response
-from starlette.concurrency import run_in_threadpool
 
 from app.auth import require_key
 from app.errors import ApiError
 from app.routers.jobs import JobOut, job_accepted
-from app.services import Services, Upload, create_job, services
+from app.services import Services, Upload, create_job, run_compute, services
 from app.uploads import check_size, read_upload
 from workers.orientation import errors
 from workers.orientation.service import DetectorConfig, OrientationReport, analyze, get_detector, orient_jpeg
@@ -29,7 +28,7 @@ _STATUS = {
 
 
 def _detector(svc: Services) -> Any:
-    return get_detector(DetectorConfig(yunet_model=svc.settings.orientation_yunet_model))
+    return get_detector(DetectorConfig(yunet_model=svc.settings.resolved_yunet_model))
 
 
 def _as_api_error(exc: errors.OrientationInputError, filename: str | None) -> ApiError:
@@ -44,7 +43,7 @@ async def detect_orientation(file: UploadFile = File(..., description="a JPEG, P
                              svc: Services = Depends(services)) -> OrientationReport:
     data = await read_upload(file, svc.settings.max_upload_bytes)
     try:
-        return await run_in_threadpool(analyze, data, _detector(svc), svc.settings.max_image_pixels)
+        return await run_compute(svc, lambda: analyze(data, _detector(svc), svc.settings.max_image_pixels))
     except errors.OrientationInputError as exc:
         raise _as_api_error(exc, file.filename) from None
 
@@ -61,8 +60,8 @@ async def orient_photo(file: UploadFile = File(..., description="a JPEG (or WebP
                        svc: Services = Depends(services)) -> Response:
     data = await read_upload(file, svc.settings.max_upload_bytes)
     try:
-        new_bytes, report = await run_in_threadpool(orient_jpeg, data, _detector(svc), force,
-                                                    svc.settings.max_image_pixels)
+        new_bytes, report = await run_compute(
+            svc, lambda: orient_jpeg(data, _detector(svc), force, svc.settings.max_image_pixels))
     except errors.OrientationInputError as exc:
         raise _as_api_error(exc, file.filename) from None
     media = "image/webp" if new_bytes[:4] == b"RIFF" else "image/jpeg"

@@ -40,6 +40,20 @@ def rig_json_bytes(rig: Rig) -> bytes:
 
 
 # --- recordings -----------------------------------------------------------------------------------
+RECORDING_JOB_KINDS = ("streaming.recording", "streaming.demo")
+
+
+def rig_of_recording_job(store: Any, job: Job) -> str | None:
+    """The rig whose recording ``job`` imported (a recording's id is its import job's id), or None.
+    Blocking (reads the blob store)."""
+    if job.kind not in RECORDING_JOB_KINDS:
+        return None
+    for rig in rigstore.list_rig_metas(store):
+        if rigstore.load_recording_meta(store, rig["id"], job.id) is not None:
+            return rig["id"]
+    return None
+
+
 def recording_view(meta: dict[str, Any], job: Job | None) -> dict[str, Any]:
     """The API view of a recording: its metadata plus the state of the job that imports it."""
     out = {k: meta.get(k) for k in ("id", "rig_id", "name", "kind", "created_at")}

@@ -10,7 +10,6 @@ import zipfile
 from pathlib import Path
 from typing import Any, Literal
 
-import cv2
 from fastapi import APIRouter, Depends, File, Form, UploadFile
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
@@ -147,10 +146,7 @@ def _parse_calibration(contents: list[tuple[str, bytes]], width: int | None, hei
         if path.name in ("cameras.txt", "images.txt"):
             raise ValueError("COLMAP text needs both cameras.txt and images.txt")
         fmt = {".json": "json", ".yml": "opencv", ".yaml": "opencv", ".xml": "opencv"}.get(path.suffix.lower())
-        try:
-            return load_rig_file(path), fmt or "unknown"
-        except (cv2.error, SystemError):  # OpenCV's FileStorage parser on malformed YAML/XML
-            raise ValueError(f"{path.name} is not a readable OpenCV FileStorage file") from None
+        return load_rig_file(path), fmt or "unknown"
 
 
 def _check_rig(rig: Rig, svc: Services) -> None:

@@ -193,7 +193,8 @@
     state.distance = state.orbit ? state.orbit.distance : 3;
   }
 
-  function dBnd() {
+  function dBnd() {  // null: the server derives D_bnd from the rig
+    if ($("dbnd-auto").checked) return null;
     return Number(Math.pow(10, Number($("dbnd").value)).toPrecision(3));
   }
 
@@ -223,7 +224,12 @@
 
   // --- controls ---------------------------------------------------------------------------------
   for (const id of ["method", "overlay", "size", "planes"]) $(id).addEventListener("change", requestView);
-  $("dbnd").addEventListener("input", () => { $("dbnd-value").value = dBnd(); requestView(); });
+  $("dbnd").addEventListener("input", () => {
+    $("dbnd-auto").checked = false;
+    $("dbnd-value").value = dBnd();
+    requestView();
+  });
+  $("dbnd-auto").addEventListener("change", requestView);
   $("rig").addEventListener("change", () => selectRig($("rig").value));
   $("source").addEventListener("change", () => connect($("source").value));
   $("frame").addEventListener("input", () => setFrame(Number($("frame").value), true));
@@ -264,6 +270,9 @@
     $("fps").textContent = (state.arrivals.length / 2).toFixed(1);
     $("latency").textContent = sorted.length ? `p50 ${pick(0.5).toFixed(0)} ms · p95 ${pick(0.95).toFixed(0)} ms` : "–";
     $("render").textContent = `${header.render_ms.toFixed(0)} ms${header.reshaded ? " (re-shaded)" : ""} + JPEG ${header.encode_ms.toFixed(0)} ms`;
+    if (header.d_bnd !== null && header.d_bnd !== undefined) {
+      $("dbnd-value").value = `${Number(header.d_bnd).toPrecision(3)}${$("dbnd-auto").checked ? " (auto)" : ""}`;
+    }
     $("pose").textContent = `az ${state.azimuth.toFixed(0)}° el ${state.elevation.toFixed(0)}° d ${state.distance.toFixed(2)}`;
     $("depth").textContent = header.depth_found
       ? `${header.depth_found[0].toFixed(2)}–${header.depth_found[1].toFixed(2)} (swept ${header.depth_range[0].toFixed(2)}–${header.depth_range[1].toFixed(2)})`

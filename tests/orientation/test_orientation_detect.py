@@ -111,6 +111,25 @@ def test_dog_photo_is_never_given_a_wrong_rotation():
             assert report.rotation_degrees in (None, rotation)
 
 
+@pytest.mark.skipif(FACES is None or not YUNET.is_file(), reason="needs $SWEEPCAST_DATA/faces/dev and the YuNet model")
+def test_small_faces_of_a_group_photo_are_found_by_the_second_yunet_scan():
+    import cv2
+
+    from workers.orientation.detect import YuNetDetector
+
+    face = cv2.imread(str(FACES / REAL[0]), cv2.IMREAD_GRAYSCALE)
+    small = cv2.resize(face, None, fx=100 / max(face.shape), fy=100 / max(face.shape), interpolation=cv2.INTER_AREA)
+    group = np.full((900, 900), 128, np.uint8)  # faces ~1/9 of the long side: ~7 px at a 320 px scan
+    for y in (100, 400, 700):
+        for x in (100, 400, 700):
+            group[y:y + small.shape[0], x:x + small.shape[1]] = small
+    turned = rotate_view(group, 270)  # the upright group after a 90 degree clockwise turn
+    coarse_only = YuNetDetector(YUNET, PartSpec.opencv(), scan_sizes=(320,))
+    assert coarse_only.upright_faces(turned) == []
+    report = analyze(jpeg(turned), get_detector(DetectorConfig(method="combined", yunet_model=YUNET)))
+    assert report.rotation_degrees == 90, report.message
+
+
 HOPPER = dataset("exif", "pillow_hopper")
 
 

@@ -64,7 +64,7 @@ def test_rig_crud_in_every_calibration_format(stream_client, take):
 @pytest.mark.parametrize("files, data, problem", [
     ([("files", ("rig.json", b'{"cameras": [{"name": "a"}]}'))], {}, "field 'K': missing"),
     ([("files", ("rig.json", b"not json"))], {}, "not valid JSON"),
-    ([("files", ("rig.yml", b"garbage: [1, 2\n"))], {}, "not a readable OpenCV FileStorage file"),
+    ([("files", ("rig.yml", b"garbage: [1, 2\n"))], {}, "rig.yml is not a valid OpenCV FileStorage file"),
     ([("files", ("take_par.txt", b"1\n"))], {}, "give the form fields width and height"),
     ([("files", ("images.txt", b""))], {}, "needs both cameras.txt and images.txt"),
     ([("files", ("a.json", b"{}")), ("files", ("b.json", b"{}"))], {}, "only understood as COLMAP"),
@@ -98,6 +98,9 @@ def test_recording_from_videos_then_from_folders(stream_client, take, tmp_path):
     second = add_recording(client, rig_id, take)
     listed = client.get(f"/v1/rigs/{rig_id}/recordings").json()["recordings"]
     assert [x["id"] for x in listed] == [rec["id"], second]
+    refused = client.delete(f"/v1/jobs/{rec['job_id']}")  # the job's results are the recording
+    assert refused.status_code == 409 and f"/v1/rigs/{rig_id}/recordings/" in refused.json()["detail"]
+    assert client.get(f"/v1/rigs/{rig_id}/recordings/{rec['id']}").json()["state"] == "ready"
     assert client.delete(f"/v1/rigs/{rig_id}/recordings/{rec['id']}").status_code == 204
     assert client.get(f"/v1/rigs/{rig_id}/recordings/{rec['id']}").status_code == 404
     assert client.get(f"/v1/jobs/{rec['job_id']}").status_code == 404

@@ -67,6 +67,13 @@ def test_changing_only_the_weighting_reshades_the_same_depth(session, take):
     assert moved["reshaded"] is False
 
 
+def test_d_bnd_is_derived_from_the_rig_unless_the_viewer_sets_it(session, take):
+    derived, _ = session.render("v", at_camera(take, 1, method="kojima"))
+    chosen, _ = session.render("v", at_camera(take, 1, method="kojima", d_bnd=0.02))
+    assert derived["d_bnd"] is not None and 0 < derived["d_bnd"] <= 2 and derived["d_bnd"] != 0.02
+    assert chosen["d_bnd"] == 0.02 and chosen["reshaded"] is True
+
+
 def test_overlays_change_the_picture(session, take):
     _, plain = session.render("v", at_camera(take, 0))
     _, regions = session.render("v", at_camera(take, 0, overlay="regions"))

@@ -101,6 +101,15 @@ def test_opencv_yaml_missing_field(tmp_path):
         load_opencv_yaml(path)
 
 
+@pytest.mark.parametrize("text", ["%YAML:1.0\n---\ncameras:\n  - name: a\n    K: [1, 2\n",
+                                  "%YAML:1.0\n---\ncameras:\n  - name: a\n    K: 5\n    R: [1, 2, 3]\n"])
+def test_malformed_opencv_yaml_is_a_rig_error(tmp_path, text):
+    path = tmp_path / "bad.yml"
+    path.write_text(text)
+    with pytest.raises(RigError, match="bad.yml is not a valid OpenCV FileStorage file"):
+        load_opencv_yaml(path)
+
+
 def test_middlebury_par(tmp_path):
     c = _cam("x")
     vals = " ".join(f"{v:.17g}" for v in np.concatenate([c.K.ravel(), c.R.ravel(), c.t]))

@@ -44,8 +44,12 @@ YUNET_MARGIN = 0.1
 """How much that best view must beat the same face's other views for the face to be decisive."""
 PARTS_MIN_SCORE = 0.7
 """Score a YuNet detection needs before its Haar parts are checked (combined)."""
-YUNET_SCAN_SIZE = 640
-"""Long side (px) of the copy of each view YuNet searches."""
+YUNET_SCAN_SIZES = (320, 640)
+"""Long sides (px) of the copies of each view YuNet searches, in turn: the next size only when the
+previous one accepted no face at all. YuNet was trained on faces of about 10 to 300 px, so the small
+copy suits portraits (and is four times cheaper) and the large one finds the faces of group photos.
+On the dev photos (combined detector) 640 alone decided 97.7% of the trials, 320 alone and 320 then 640
+100%, all with no wrong turn; 320 then 640 took 43 ms per 12 MP photo against 81 ms for 640 alone."""
 HAAR_SCAN_SIZE = 400
 """Long side (px) of the copy of each view the Haar face cascade searches (faces >= 20 px there)."""
 HAAR_SCALE_FACTOR = 1.2
@@ -205,21 +209,30 @@ class YuNetDetector:
 
     def __init__(self, model: Path, parts: PartSpec | None = None, name: str = "yunet",
                  min_score: float = YUNET_MIN_SCORE, margin: float = YUNET_MARGIN,
-                 scan_size: int = YUNET_SCAN_SIZE) -> None:
+                 scan_sizes: Sequence[int] = YUNET_SCAN_SIZES) -> None:
         self.name = name
         self.min_score = min_score
         self.margin = margin
-        self._finder = _PerThread(lambda: YuNetFaceFinder(Path(model), scan_size=scan_size))
+        self.scan_sizes = tuple(scan_sizes)
+        self._finder = _PerThread(lambda: YuNetFaceFinder(Path(model)))
         self._verifier = _PerThread(lambda: PartVerifier(parts)) if parts is not None else None
         self._finder.get()
         if self._verifier is not None:
             self._verifier.get()
 
     def upright_faces(self, gray: np.ndarray) -> list[Face]:
-        finder = self._finder.get()
-        height, width = gray.shape[:2]
         views = {r: rotate_view(gray, r) for r in ROTATIONS}
-        tracks = group_tracks({r: finder.find(v) for r, v in views.items()}, width, height)
+        faces: list[Face] = []
+        for scan_size in self.scan_sizes:
+            faces = self._faces_at(gray.shape, views, scan_size)
+            if faces:
+                break
+        return faces
+
+    def _faces_at(self, shape: tuple[int, ...], views: dict[int, np.ndarray], scan_size: int) -> list[Face]:
+        finder = self._finder.get()
+        height, width = shape[:2]
+        tracks = group_tracks({r: finder.find(v, scan_size) for r, v in views.items()}, width, height)
         accepted = yunet_votes(tracks, self.min_score, self.margin)
         if self._verifier is not None:
             accepted.update(self._part_accepts(tracks, views, accepted))

@@ -59,7 +59,7 @@ class HaarFaceFinder:
 class YuNetFaceFinder:
     """OpenCV's YuNet CNN face detector (``cv2.FaceDetectorYN``) on a 3-channel copy of the grey scan."""
 
-    def __init__(self, model: Path, scan_size: int, score_floor: float = 0.5) -> None:
+    def __init__(self, model: Path, score_floor: float = 0.5) -> None:
         model = Path(model)
         if not model.is_file():
             raise FileNotFoundError(f"YuNet model not found: {model}")
@@ -67,11 +67,11 @@ class YuNetFaceFinder:
             self._net = cv2.FaceDetectorYN.create(str(model), "", (320, 320), score_floor, 0.3, 5000)
         except cv2.error as exc:
             raise FileNotFoundError(f"cannot load the YuNet model {model}: {exc.err or exc}") from None
-        self.scan_size = scan_size
 
-    def find(self, view: np.ndarray) -> list[Candidate]:
-        """Faces in ``view`` ((H, W) uint8 grey) with their scores in [0, 1], boxes in view px."""
-        scan, s = _shrink(view, self.scan_size)
+    def find(self, view: np.ndarray, scan_size: int) -> list[Candidate]:
+        """Faces in ``view`` ((H, W) uint8 grey), searched on a copy at most ``scan_size`` px on its long
+        side, with their scores in [0, 1]; boxes in view px."""
+        scan, s = _shrink(view, scan_size)
         self._net.setInputSize((scan.shape[1], scan.shape[0]))
         _, rows = self._net.detect(cv2.cvtColor(scan, cv2.COLOR_GRAY2BGR))
         if rows is None:

@@ -77,7 +77,8 @@ class SweepSettings(BaseModel):
 
     model_config = STRICT
     method: Method = "kojima"
-    d_bnd: float = Field(0.005, gt=0.0, le=2.0)
+    d_bnd: float | None = Field(None, gt=0.0, le=2.0,
+                                description="the paper's D_bnd; None: derived from the rig (suggest_d_bnd)")
     k: int = Field(3, ge=2, le=8)
     planes: int = Field(48, ge=2, le=MAX_PLANES)
     near: float | None = Field(None, gt=0.0)

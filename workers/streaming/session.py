@@ -108,7 +108,7 @@ class Session:
         found = np.isfinite(result.depth)
         header = {
             "type": "frame", "id": vp.id, "frame": frame_label, "seq": self.seq,
-            "width": vp.width, "height": vp.height, "method": vp.method, "d_bnd": vp.d_bnd, "planes": vp.planes,
+            "width": vp.width, "height": vp.height, "method": vp.method, "d_bnd": result.d_bnd, "planes": vp.planes,
             "overlay": vp.overlay,
             "depth_range": [float(result.planes.min()), float(result.planes.max())],
             "depth_found": [float(result.depth[found].min()), float(result.depth[found].max())] if found.any() else None,

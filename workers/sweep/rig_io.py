@@ -168,9 +168,18 @@ _YAML_KEYS = {
 def load_opencv_yaml(path: str | Path) -> Rig:
     """Read an OpenCV FileStorage file (YAML or XML) in the layout of the module docstring."""
     path = Path(path)
+    try:
+        return _read_file_storage(path)
+    except (cv2.error, SystemError) as exc:  # OpenCV's parser fails with these on malformed text
+        cause = exc if isinstance(exc, cv2.error) else exc.__cause__
+        detail = re.sub(r"^OpenCV\([^)]*\) \S+ error: \([^)]*\) ", "", " ".join(str(cause or exc).split()))
+        raise RigError(None, "file", f"{path.name} is not a valid OpenCV FileStorage file ({detail})") from None
+
+
+def _read_file_storage(path: Path) -> Rig:
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     if not fs.isOpened():
-        raise RigError(None, "file", f"{path} is not a readable OpenCV FileStorage file")
+        raise RigError(None, "file", f"{path.name} is not a valid OpenCV FileStorage file")
     try:
         seq = fs.getNode("cameras")
         nodes = [seq.at(i) for i in range(seq.size())] if seq.isSeq() else [fs.root()]
