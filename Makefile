@@ -13,8 +13,6 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 serve: $(STAMP)
-	@# the optional YuNet face model (orientation); offline, the paper's detector is used
-	-$(BIN)/sweepcast models fetch --if-missing --timeout 10
 	$(BIN)/sweepcast serve
 
 test: $(STAMP)

@@ -15,6 +15,7 @@ from app.errors import install_error_handlers
 from app.limits import BodyLimitMiddleware
 from app.services import Services, build_services
 from app.settings import Settings
+from workers.common.models import MODELS, MODELS_DIR_ENV, ModelError, install, installed, models_dir
 
 log = logging.getLogger("sweepcast")
 
@@ -39,11 +40,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.services = svc
         starter = asyncio.create_task(_start_ray(svc))
         demo = asyncio.create_task(ensure_demo_rig(svc))
+        fetcher = asyncio.create_task(fetch_missing_models(settings))
         try:
             yield
         finally:
             starter.cancel()
             demo.cancel()
+            fetcher.cancel()
             await svc.dispatcher.shutdown()
             if svc.ray_owned:
                 import ray
@@ -98,11 +101,28 @@ async def _start_ray(svc: Services) -> None:
     await svc.dispatcher.start()
 
 
+async def fetch_missing_models(settings: Settings) -> None:
+    """Download the optional models not yet in ``<data_dir>/models`` (when ``fetch_models`` is on and no
+    setting names another file). Never raises: offline, the engines work without them."""
+    if not settings.fetch_models:
+        return
+    for model in MODELS.values():
+        if installed(model, settings.data_dir) or (model.name == "yunet" and settings.orientation_yunet_model):
+            continue
+        try:
+            path = await asyncio.to_thread(install, model, settings.data_dir)
+            log.info("installed the %s model at %s (%s)", model.name, path, model.used_for)
+        except ModelError as exc:
+            log.warning("optional model %s not installed: %s; 'sweepcast models fetch %s --from FILE' installs "
+                        "a copy you have", model.name, exc, model.name)
+
+
 def worker_env(settings: Settings) -> dict[str, str]:
     """Settings the engines read on the workers, passed to every Ray worker of this service."""
     env = {"SWEEPCAST_MAX_IMAGE_PIXELS": str(settings.max_image_pixels)}
-    if (yunet := settings.resolved_yunet_model) is not None:
-        env["SWEEPCAST_ORIENTATION_YUNET_MODEL"] = str(yunet.resolve())
+    env[MODELS_DIR_ENV] = str(models_dir(settings.data_dir).resolve())  # models fetched later are found too
+    if settings.orientation_yunet_model is not None:
+        env["SWEEPCAST_ORIENTATION_YUNET_MODEL"] = str(settings.orientation_yunet_model.resolve())
     return env
 
 

@@ -34,9 +34,11 @@ class Settings(BaseSettings):
     job_resources: dict[str, float] = Field(default_factory=dict, description="Custom Ray resources every batch job requires (JSON).")
     job_unschedulable_seconds: float = Field(120.0, gt=0, description="Fail a job when no live Ray node offers its resources for this long.")
 
+    fetch_models: bool = Field(True, description="At start-up, download the optional models that are missing (YuNet) "
+                                                 "into <data_dir>/models, checked by SHA-256; offline, log it and go on.")
     orientation_yunet_model: Path | None = Field(
         None, description="YuNet ONNX model for the stronger face detector; default: the one "
-                          "'sweepcast models fetch yunet' installed in <data_dir>/models, if any.")
+                          "installed in <data_dir>/models (fetch_models, 'sweepcast models fetch'), if any.")
 
     max_rig_cameras: int = Field(64, ge=2, description="Most cameras in one rig.")
     max_recording_frames: int = Field(3000, ge=1, description="Most frames per camera in one recording.")

@@ -48,7 +48,8 @@ def photos(count: int) -> list[tuple[str, bytes]]:
 def api(env_extra: dict[str, str]) -> Iterator[str]:
     port = free_port()
     data = tempfile.mkdtemp(prefix="sweepcast-bench-")
-    env = {**os.environ, "SWEEPCAST_DATA_DIR": data, "RAY_AUTH_MODE": "disabled", **env_extra}
+    env = {**os.environ, "SWEEPCAST_DATA_DIR": data, "RAY_AUTH_MODE": "disabled", "SWEEPCAST_FETCH_MODELS": "false",
+           **env_extra}
     proc = subprocess.Popen([sys.executable, "-m", "app", "serve", "--port", str(port), "--log-level", "warning"],
                             cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     base = f"http://127.0.0.1:{port}"

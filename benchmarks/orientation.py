@@ -233,7 +233,8 @@ def run_http_speed(large: list[bytes], yunet: Path | None, clients: int, repeats
     port = _free_port()
     base = f"http://127.0.0.1:{port}"
     with tempfile.TemporaryDirectory(prefix="sweepcast-bench-") as tmp:
-        env = {**os.environ, "SWEEPCAST_DATA_DIR": tmp, "RAY_USAGE_STATS_ENABLED": "0"}
+        env = {**os.environ, "SWEEPCAST_DATA_DIR": tmp, "RAY_USAGE_STATS_ENABLED": "0",
+               "SWEEPCAST_FETCH_MODELS": "false"}  # the paper run must not pick up a fetched model
         env.pop("SWEEPCAST_ORIENTATION_YUNET_MODEL", None)
         if yunet is not None:
             env["SWEEPCAST_ORIENTATION_YUNET_MODEL"] = str(yunet)

@@ -182,7 +182,8 @@ class Baseline:
 
 # --- the server ----------------------------------------------------------------------------------
 def start_server(data_dir: Path, port: int, log: Path) -> subprocess.Popen:
-    env = {**os.environ, "SWEEPCAST_DATA_DIR": str(data_dir), "RAY_USAGE_STATS_ENABLED": "0"}
+    env = {**os.environ, "SWEEPCAST_DATA_DIR": str(data_dir), "RAY_USAGE_STATS_ENABLED": "0",
+           "SWEEPCAST_FETCH_MODELS": "false"}
     with open(log, "wb") as out:
         return subprocess.Popen([sys.executable, "-m", "app", "serve", "--port", str(port)],
                                 cwd=Path(__file__).resolve().parents[1], env=env, stdout=out,

@@ -31,7 +31,7 @@ def settings_factory(tmp_path):
 
     def make(**overrides):
         # No demo rig unless a test asks: building it costs seconds of CPU at every start.
-        values = {"data_dir": tmp_path / "data", "job_lease_seconds": 5.0, "demo_rig": False, **overrides}
+        values = {"data_dir": tmp_path / "data", "job_lease_seconds": 5.0, "demo_rig": False, "fetch_models": False, **overrides}
         return Settings(**values)
 
     return make

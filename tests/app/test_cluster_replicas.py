@@ -52,7 +52,8 @@ def test_two_replicas_share_jobs_and_survive_a_lost_node(cluster, postgres_url, 
     try:
         for name in ("a", "b"):
             port = free_port()
-            env = {**os.environ, "RAY_AUTH_MODE": "disabled", "SWEEPCAST_RAY_ADDRESS": cluster,
+            env = {**os.environ, "RAY_AUTH_MODE": "disabled", "SWEEPCAST_FETCH_MODELS": "false",
+                   "SWEEPCAST_RAY_ADDRESS": cluster,
                    "SWEEPCAST_DATABASE_URL": postgres_url, "SWEEPCAST_STORAGE_URL": s3_url,
                    "SWEEPCAST_DATA_DIR": str(tmp_path / name), "SWEEPCAST_JOB_LEASE_SECONDS": "5",
                    "SWEEPCAST_JOB_RESOURCES": '{"sweepcast_worker": 1}'}

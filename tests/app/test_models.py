@@ -1,4 +1,5 @@
 """Optional third-party models: fetched and verified before use, found by the service once installed."""
+import asyncio
 import dataclasses
 import hashlib
 import http.server
@@ -9,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from app.cli import main as cli
+from app.main import fetch_missing_models
 from app.settings import Settings
 from workers.common.models import YUNET, ModelError, ModelFile, install, installed
 
@@ -94,3 +96,21 @@ def test_cli_installs_the_real_yunet_and_lists_it(tmp_path, capsys):
     assert "installed at" in capsys.readouterr().out
     # already there: --if-missing does not touch the network
     assert cli(["models", "fetch", "--if-missing", "--data-dir", str(tmp_path)]) == 0
+
+
+def test_the_service_fetches_missing_models_at_start_and_goes_on_when_it_cannot(tmp_path, http_root, monkeypatch,
+                                                                                 caplog):
+    root, base = http_root
+    payload = os.urandom(3000)
+    (root / "m.onnx").write_bytes(payload)
+    good = dataclasses.replace(fake_model(payload), name="good", url=f"{base}/m.onnx")
+    gone = dataclasses.replace(fake_model(payload), name="gone", filename="gone.onnx", url=f"{base}/missing.onnx")
+    monkeypatch.setattr("app.main.MODELS", {"good": good, "gone": gone})
+    settings = Settings(data_dir=tmp_path / "data")
+
+    asyncio.run(fetch_missing_models(settings.model_copy(update={"fetch_models": False})))
+    assert installed(good, settings.data_dir) is None  # off: nothing fetched
+    asyncio.run(fetch_missing_models(settings))
+    assert installed(good, settings.data_dir).read_bytes() == payload
+    assert installed(gone, settings.data_dir) is None
+    assert "optional model gone not installed" in caplog.text

@@ -178,3 +178,15 @@ def test_cli_yunet_without_a_model_exits_2(tmp_path, monkeypatch, capsys):
     assert "YuNet model" in capsys.readouterr().err
     assert run(["orient", str(tmp_path / "a.jpg"), "--yunet", str(tmp_path / "none.onnx")]) == 2
     assert "not found" in capsys.readouterr().err
+
+
+def test_workers_use_the_named_model_else_the_installed_one(tmp_path, monkeypatch):
+    from workers.common.models import MODELS_DIR_ENV, YUNET
+
+    monkeypatch.delenv(job.YUNET_MODEL_ENV, raising=False)
+    monkeypatch.setenv(MODELS_DIR_ENV, str(tmp_path))
+    assert job.detector_config_from_env().yunet_model is None  # nothing installed yet
+    (tmp_path / YUNET.filename).write_bytes(b"model")
+    assert job.detector_config_from_env().yunet_model == tmp_path / YUNET.filename
+    monkeypatch.setenv(job.YUNET_MODEL_ENV, "/elsewhere/yunet.onnx")
+    assert job.detector_config_from_env().yunet_model == Path("/elsewhere/yunet.onnx")

@@ -44,8 +44,19 @@ YUNET = ModelFile(
 MODELS: dict[str, ModelFile] = {YUNET.name: YUNET}
 
 
+MODELS_DIR_ENV = "SWEEPCAST_MODELS_DIR"
+"""Where a worker process finds the installed models (the service passes ``<data_dir>/models``)."""
+
+
 def models_dir(data_dir: Path) -> Path:
     return Path(data_dir) / "models"
+
+
+def installed_from_env(model: ModelFile) -> Path | None:
+    """The model's file in the folder named by ``$SWEEPCAST_MODELS_DIR``, or None (unset or not installed)."""
+    folder = os.environ.get(MODELS_DIR_ENV)
+    path = Path(folder) / model.filename if folder else None
+    return path if path is not None and path.is_file() else None
 
 
 def installed(model: ModelFile, data_dir: Path) -> Path | None:

@@ -24,6 +24,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from workers.common.jobctx import JobContext, JobInputError
+from workers.common.models import YUNET, installed_from_env
 from workers.orientation.decode import DEFAULT_MAX_PIXELS
 from workers.orientation.detect import DetectorConfig, Method, OrientationDetector, get_detector
 from workers.orientation.errors import OrientationInputError
@@ -47,9 +48,10 @@ class OrientationBatchParams(BaseModel):
 
 
 def detector_config_from_env(method: Method = "auto") -> DetectorConfig:
-    """The detector configuration of this worker: ``method`` with the YuNet model from the environment."""
-    model = os.environ.get(YUNET_MODEL_ENV) or None
-    return DetectorConfig(method=method, yunet_model=Path(model) if model else None)
+    """The detector configuration of this worker: ``method`` with the YuNet model the environment names
+    (``$SWEEPCAST_ORIENTATION_YUNET_MODEL``), else the one installed in ``$SWEEPCAST_MODELS_DIR``, if any."""
+    model = os.environ.get(YUNET_MODEL_ENV)
+    return DetectorConfig(method=method, yunet_model=Path(model) if model else installed_from_env(YUNET))
 
 
 def max_pixels_from_env() -> int:
