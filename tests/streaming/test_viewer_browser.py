@@ -104,6 +104,14 @@ def test_viewer_connects_orbits_with_a_drag_and_toggles_the_overlay(server, tmp_
             settled(page, received)
             assert np.abs(canvas(page) - dragged).mean() < 1  # toggled back: the same view
 
+            derived = page.evaluate("window.viewerState.lastHeader.d_bnd")
+            assert derived > 0 and page.locator("#dbnd-value").inner_text().endswith("(auto)")
+            received = page.evaluate("window.viewerState.received")
+            page.locator("#dbnd").fill("-1")  # the slider sets D_bnd = 10**-1 and leaves auto
+            settled(page, received)
+            assert page.evaluate("window.viewerState.lastHeader.d_bnd") == 0.1
+            assert not page.locator("#dbnd-auto").is_checked()
+
             assert page.locator("#fps").inner_text() != "–"
             assert page.locator("#latency").inner_text().startswith("p50")
             assert page.evaluate("window.viewerState.errors.length") == 0
