@@ -12,9 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -29,7 +27,7 @@ import httpx  # noqa: E402
 from websockets.sync.client import connect  # noqa: E402
 
 from benchmarks._report import md_table, publish  # noqa: E402
-from tests.servers import create_database, free_port, ray_cluster, temp_postgres  # noqa: E402
+from tests.servers import create_database, ray_cluster, serve_app, temp_postgres  # noqa: E402
 from workers.common.datasets import dataset  # noqa: E402
 
 
@@ -46,31 +44,10 @@ def photos(count: int) -> list[tuple[str, bytes]]:
 
 @contextmanager
 def api(env_extra: dict[str, str]) -> Iterator[str]:
-    port = free_port()
     data = tempfile.mkdtemp(prefix="sweepcast-bench-")
-    env = {**os.environ, "SWEEPCAST_DATA_DIR": data, "RAY_AUTH_MODE": "disabled", "SWEEPCAST_FETCH_MODELS": "false",
-           **env_extra}
-    proc = subprocess.Popen([sys.executable, "-m", "app", "serve", "--port", str(port), "--log-level", "warning"],
-                            cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    base = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + 120
-        while True:
-            try:
-                if httpx.get(f"{base}/readyz", timeout=2).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            if time.monotonic() > deadline or proc.poll() is not None:
-                raise RuntimeError("the API did not become ready")
-            time.sleep(0.3)
-        yield base
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+    with serve_app({"SWEEPCAST_DATA_DIR": data, "RAY_AUTH_MODE": "disabled", **env_extra},
+                   args=("--log-level", "warning"), ready_timeout=120) as app:
+        yield app.base
 
 
 def wait_done(base: str, job_ids: list[str], timeout: float = 1800) -> None:

@@ -29,10 +29,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures
-import os
-import socket
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -45,6 +42,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._report import md_table, publish  # noqa: E402
+from tests.servers import serve_app  # noqa: E402
 from workers.common.datasets import data_root, dataset  # noqa: E402
 from workers.orientation.decode import decode_gray  # noqa: E402
 from workers.orientation.detect import DetectorConfig, OrientationDetector, get_detector  # noqa: E402
@@ -220,58 +218,18 @@ def run_engine_speed(large: list[bytes], detectors: dict[str, OrientationDetecto
     return out
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def run_http_speed(large: list[bytes], yunet: Path | None, clients: int, repeats: int) -> dict:
     """Photos per second through ``POST /v1/photos/orientation`` of a real server subprocess."""
     import httpx
 
-    port = _free_port()
-    base = f"http://127.0.0.1:{port}"
     with tempfile.TemporaryDirectory(prefix="sweepcast-bench-") as tmp:
-        env = {**os.environ, "SWEEPCAST_DATA_DIR": tmp, "RAY_USAGE_STATS_ENABLED": "0",
-               "SWEEPCAST_FETCH_MODELS": "false"}  # the paper run must not pick up a fetched model
-        env.pop("SWEEPCAST_ORIENTATION_YUNET_MODEL", None)
-        if yunet is not None:
-            env["SWEEPCAST_ORIENTATION_YUNET_MODEL"] = str(yunet)
-        log = open(Path(tmp) / "server.log", "wb")
-        server = subprocess.Popen([sys.executable, "-m", "app", "serve", "--port", str(port)],
-                                  cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
+        # fetching stays off (serve_app): the paper run must not pick up a fetched model
+        env = {"SWEEPCAST_DATA_DIR": tmp, "SWEEPCAST_ORIENTATION_YUNET_MODEL": str(yunet) if yunet else None}
         try:
-            _wait_ready(base, server, timeout=180.0)
-            return _post_all(base, large, clients, repeats, httpx)
+            with serve_app(env, log=Path(tmp) / "server.log") as app:
+                return _post_all(app.base, large, clients, repeats, httpx)
         except RuntimeError as exc:
-            log.flush()
-            tail = (Path(tmp) / "server.log").read_text(errors="replace")[-2000:]
-            return {"error": f"{exc}; server log tail: {tail}"}
-        finally:
-            server.terminate()
-            try:
-                server.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                server.kill()
-                server.wait()
-            log.close()
-
-
-def _wait_ready(base: str, server: subprocess.Popen, timeout: float) -> None:
-    import httpx
-
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if server.poll() is not None:
-            raise RuntimeError(f"the server exited with code {server.returncode}")
-        try:
-            if httpx.get(f"{base}/readyz", timeout=2.0).status_code == 200:
-                return
-        except httpx.HTTPError:
-            pass
-        time.sleep(0.25)
-    raise RuntimeError(f"the server was not ready after {timeout:.0f} s")
+            return {"error": str(exc)}
 
 
 def _post_all(base: str, large: list[bytes], clients: int, repeats: int, httpx) -> dict:

@@ -24,7 +24,6 @@ import argparse
 import asyncio
 import json
 import os
-import socket
 import statistics
 import subprocess
 import sys
@@ -39,6 +38,7 @@ import websockets
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._report import md_table, publish  # noqa: E402
+from tests.servers import serve_app  # noqa: E402
 from workers.streaming.framing import unpack_message  # noqa: E402
 from workers.streaming.params import Viewpoint  # noqa: E402
 from workers.streaming.recording import RecordingArchive  # noqa: E402
@@ -53,12 +53,6 @@ PLANES = 48
 WARMUP_FRAMES = 3
 STEP_DEG = 1.5
 TARGET = {"fps": 15.0, "latency_p95_ms": 150.0}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 # --- the server's CPU time (the process tree under the server's pid) -------------------------------
@@ -181,15 +175,6 @@ class Baseline:
 
 
 # --- the server ----------------------------------------------------------------------------------
-def start_server(data_dir: Path, port: int, log: Path) -> subprocess.Popen:
-    env = {**os.environ, "SWEEPCAST_DATA_DIR": str(data_dir), "RAY_USAGE_STATS_ENABLED": "0",
-           "SWEEPCAST_FETCH_MODELS": "false"}
-    with open(log, "wb") as out:
-        return subprocess.Popen([sys.executable, "-m", "app", "serve", "--port", str(port)],
-                                cwd=Path(__file__).resolve().parents[1], env=env, stdout=out,
-                                stderr=subprocess.STDOUT)
-
-
 def wait_for(check, timeout: float, what: str, proc: subprocess.Popen, log: Path):
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -231,19 +216,18 @@ def main() -> int:
     args = ap.parse_args()
     seconds = args.seconds or (5.0 if args.quick else 15.0)
     load_before = os.getloadavg()[0]
-    port = free_port()
     with tempfile.TemporaryDirectory(prefix="sweepcast-bench-") as tmp:
         data_dir = Path(tmp) / "data"
         log = Path(tmp) / "server.log"
         t_start = time.monotonic()
-        proc = start_server(data_dir, port, log)
-        try:
-            with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as http:
+        with serve_app({"SWEEPCAST_DATA_DIR": str(data_dir)}, log=log, wait=False) as app:
+            proc = app.proc
+            with httpx.Client(base_url=app.base, timeout=30) as http:
                 wait_for(lambda: http.get("/readyz").status_code == 200, 120, "the server", proc, log)
                 ready_s = time.monotonic() - t_start
                 rig_id, recording = wait_for(lambda: demo_recording(http), 900, "the demo recording", proc, log)
                 demo_s = time.monotonic() - t_start
-            url = f"ws://127.0.0.1:{port}/v1/rigs/{rig_id}/view?source={recording['id']}"
+            url = f"{app.base.replace('http', 'ws')}/v1/rigs/{rig_id}/view?source={recording['id']}"
             asyncio.run(first_frame(url))
             first_frame_s = time.monotonic() - t_start
             print(f"server ready {ready_s:.1f} s, demo recording {demo_s:.1f} s, first frame {first_frame_s:.1f} s "
@@ -259,12 +243,6 @@ def main() -> int:
                     print(f"{n:2d} viewers {key}: {r['fps']:.1f} fps each, latency p50 {r['latency_p50_ms']:.0f} ms "
                           f"p95 {r['latency_p95_ms']:.0f} ms, server {r['server_cpu_cores']:.2f} cores",
                           file=sys.stderr)
-        finally:
-            proc.terminate()
-            try:
-                proc.wait(60)
-            except subprocess.TimeoutExpired:
-                proc.kill()
     one = results["viewers"]["1"]["320x240"]
     results["first_run"] = {"server_ready_s": ready_s, "demo_ready_s": demo_s, "first_frame_s": first_frame_s}
     results["target"] = {**TARGET, "met": one["fps"] >= TARGET["fps"] and one["latency_p95_ms"] <= TARGET["latency_p95_ms"]}

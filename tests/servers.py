@@ -1,4 +1,4 @@
-"""Throw-away servers on loopback for tests and benchmarks: PostgreSQL and a Ray cluster."""
+"""Throw-away servers on loopback for tests and benchmarks: PostgreSQL, a Ray cluster and the service itself."""
 from __future__ import annotations
 
 import contextlib
@@ -11,6 +11,8 @@ import socket
 import subprocess
 import sys
 import tempfile
+import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
@@ -111,3 +113,63 @@ def ray_cluster(worker_nodes: int = 2, cpus_per_node: int = 1, resources: str = 
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
         shutil.rmtree(temp, ignore_errors=True)
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass
+class ServedApp:
+    """``python -m app serve`` running as a child process."""
+
+    base: str
+    """http://127.0.0.1:<port>"""
+    proc: subprocess.Popen
+    log: Path | None
+
+    def log_tail(self, chars: int = 3000) -> str:
+        return self.log.read_text(errors="replace")[-chars:] if self.log is not None and self.log.exists() else ""
+
+    def wait_ready(self, timeout: float = 180.0) -> None:
+        """Until ``/readyz`` answers 200; RuntimeError (with the log's tail) when the server exits or is late."""
+        import httpx
+
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"the server exited with code {self.proc.returncode}; log: {self.log_tail()}")
+            try:
+                if httpx.get(f"{self.base}/readyz", timeout=2.0).status_code == 200:
+                    return
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.25)
+        raise RuntimeError(f"the server was not ready after {timeout:.0f} s; log: {self.log_tail()}")
+
+
+@contextlib.contextmanager
+def serve_app(env: dict[str, str | None], log: Path | None = None, args: tuple[str, ...] = (), wait: bool = True,
+              ready_timeout: float = 180.0) -> Iterator[ServedApp]:
+    """Run the service on a free port with ``env`` over this environment (None removes a variable; model
+    fetching and Ray usage stats off), its output to ``log`` (else discarded); wait for ``/readyz`` unless
+    ``wait`` is False; stop it (terminate, then kill after 30 s) on leaving."""
+    port = free_port()
+    merged = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "SWEEPCAST_FETCH_MODELS": "false", **env}
+    env = {k: v for k, v in merged.items() if v is not None}
+    out = open(log, "wb") if log is not None else subprocess.DEVNULL
+    proc = subprocess.Popen([sys.executable, "-m", "app", "serve", "--port", str(port), *args], cwd=ROOT, env=env,
+                            stdout=out, stderr=subprocess.STDOUT)
+    try:
+        app = ServedApp(f"http://127.0.0.1:{port}", proc, log)
+        if wait:
+            app.wait_ready(ready_timeout)
+        yield app
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        if log is not None:
+            out.close()

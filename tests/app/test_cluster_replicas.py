@@ -5,12 +5,10 @@ node running the job loses its raylet mid-job and the job finishes on the other 
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import httpx
@@ -18,26 +16,13 @@ import pytest
 from websockets.sync.client import connect
 
 from tests.app.photos import batch_files
-from tests.servers import free_port, ray_cluster
+from tests.servers import ray_cluster, serve_app
 
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def parent_pid(pid: int) -> int:
     stat = Path(f"/proc/{pid}/stat").read_text()
     return int(stat[stat.rindex(")") + 2:].split()[1])
-
-
-def wait_ready(base: str, timeout: float = 90) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            if httpx.get(f"{base}/readyz", timeout=2).status_code == 200:
-                return
-        except httpx.HTTPError:
-            pass
-        time.sleep(0.3)
-    raise AssertionError(f"{base} not ready")
 
 
 @pytest.fixture
@@ -48,21 +33,15 @@ def cluster():
 
 @pytest.mark.slow
 def test_two_replicas_share_jobs_and_survive_a_lost_node(cluster, postgres_url, s3_url, tmp_path):
-    replicas = []
-    try:
-        for name in ("a", "b"):
-            port = free_port()
-            env = {**os.environ, "RAY_AUTH_MODE": "disabled", "SWEEPCAST_FETCH_MODELS": "false",
-                   "SWEEPCAST_RAY_ADDRESS": cluster,
-                   "SWEEPCAST_DATABASE_URL": postgres_url, "SWEEPCAST_STORAGE_URL": s3_url,
-                   "SWEEPCAST_DATA_DIR": str(tmp_path / name), "SWEEPCAST_JOB_LEASE_SECONDS": "5",
-                   "SWEEPCAST_JOB_RESOURCES": '{"sweepcast_worker": 1}'}
-            proc = subprocess.Popen([sys.executable, "-m", "app", "serve", "--port", str(port)], cwd=ROOT, env=env,
-                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-            replicas.append((proc, f"http://127.0.0.1:{port}"))
-        (_, base_a), (_, base_b) = replicas
-        wait_ready(base_a)
-        wait_ready(base_b)
+    with contextlib.ExitStack() as replicas:
+        apps = [replicas.enter_context(serve_app({
+            "RAY_AUTH_MODE": "disabled", "SWEEPCAST_RAY_ADDRESS": cluster, "SWEEPCAST_DATABASE_URL": postgres_url,
+            "SWEEPCAST_STORAGE_URL": s3_url, "SWEEPCAST_DATA_DIR": str(tmp_path / name),
+            "SWEEPCAST_JOB_LEASE_SECONDS": "5", "SWEEPCAST_JOB_RESOURCES": '{"sweepcast_worker": 1}'},
+            wait=False)) for name in ("a", "b")]  # both start at once, then both must get ready
+        for app in apps:
+            app.wait_ready(90)
+        base_a, base_b = (app.base for app in apps)
 
         files = [("files", f) for _, f in batch_files(40, width=1600, height=1200)]
         job = httpx.post(f"{base_b}/v1/photos/batches", files=files, timeout=60).json()
@@ -86,11 +65,3 @@ def test_two_replicas_share_jobs_and_survive_a_lost_node(cluster, postgres_url, 
         assert any(e["type"] == "progress" for e in seen_on_a), seen_on_a
         report = httpx.get(f"{base_a}/v1/jobs/{job['id']}/results/report.json").json()
         assert len(report) == 40
-    finally:
-        for proc, _ in replicas:
-            proc.terminate()
-        for proc, _ in replicas:
-            try:
-                proc.wait(30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
