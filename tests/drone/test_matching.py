@@ -5,9 +5,10 @@ import numpy as np
 
 from workers.drone.features import fast_corners, sift_features, spread
 from workers.drone.frames import Frame
-from workers.drone.matching import (fast_lk_match, fast_rule_mask, global_motion, global_shift,
+from workers.drone.matching import (fast_lk_match, fast_rule_mask, global_motion, global_shift, sampson_distance,
                                     sift_ratio_matches)
 from workers.drone.params import ReconstructionParams
+from workers.drone import tracks as tracks_module
 from workers.drone.tracks import FlowTracker, SiftTracker
 
 K = np.array([[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]])
@@ -58,6 +59,80 @@ def test_fast_lk_follows_a_known_shift_and_drops_occluded_points():
     # Each stage keeps a subset of the previous one.
     assert (res.after_fb <= res.converged).all() and (res.after_rule <= res.after_fb).all()
     assert (res.inliers <= res.after_rule).all()
+
+
+def test_sampson_distance_of_matches_off_their_epipolar_lines():
+    # Second camera moved along x: epipolar lines are the image rows of both views, and a match
+    # d pixels off its row is d / sqrt(2) from the nearest exact match (half the error each side).
+    E = np.array([[0.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # [t]x with t = (1, 0, 0), R = I
+    m0 = np.array([[100.0, 50.0], [20.0, 200.0], [300.0, 10.0]])
+    m1 = m0 + [[7.0, 0.0], [-3.0, 2.0], [0.5, -0.6]]
+    np.testing.assert_allclose(sampson_distance(E, K, m0, m1), np.array([0.0, 2.0, 0.6]) / np.sqrt(2), atol=1e-9)
+
+
+def test_fast_lk_match_marks_flows_only_the_rule_rejected_as_consistent():
+    g0 = _texture(4)
+    dx, dy = 2.5, 1.75
+    g1 = cv2.warpAffine(g0, np.array([[1, 0, dx], [0, 1, dy]]), (320, 240), borderMode=cv2.BORDER_REFLECT)
+    pts, _ = fast_corners(g0, 20)
+    pts = pts[spread(pts, 6, 800, shape=g0.shape)]
+    corners1, _ = fast_corners(g1, 20)
+    hole = (corners1[:, 0] > 80) & (corners1[:, 0] < 180)  # frame k+1 "misses" every corner here
+    res = fast_lk_match(g0, g1, pts, corners1[~hole], K, motion=np.array([[1.0, 0, dx], [0, 1.0, dy]]))
+    in_hole = (pts[:, 0] + dx > 85) & (pts[:, 0] + dx < 175) & (pts[:, 1] > 20) & (pts[:, 1] < 220)
+    assert in_hole.sum() > 50
+    assert not res.after_rule[in_hole].any()
+    # Their flows are right: they fit the pair's geometry, unlike what the rule says.
+    assert res.consistent[in_hole & res.after_fb].mean() > 0.9
+    assert (res.inliers <= res.consistent).all() and (res.consistent <= res.after_fb).all()
+
+
+def _shifted_frames(n: int, step: tuple[float, float]) -> list[Frame]:
+    g0 = _texture(5)
+    frames = []
+    for i in range(n):
+        A = np.array([[1.0, 0, i * step[0]], [0, 1.0, i * step[1]]])
+        g = cv2.warpAffine(g0, A, (320, 240), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+        frames.append(Frame(i, i / 25, f"f{i}", cv2.cvtColor(g, cv2.COLOR_GRAY2BGR), g))
+    return frames
+
+
+def test_flow_tracker_bridges_a_frame_where_the_rule_rejects_a_track(monkeypatch):
+    """FAST misses every corner of a region in frame 2 only. Without gaps the tracks there end
+    and new ones start in frame 3; with a gap of one frame the same tracks go on, unrecorded in
+    frame 2."""
+    real = tracks_module.fast_corners_adaptive
+    frames = _shifted_frames(4, (1.5, 1.0))
+    region = (120.0, 200.0, 80.0, 160.0)  # x0, x1, y0, y1 in frame 2
+
+    def corners_missing_in_frame_2(gray, threshold, min_count):
+        pts = real(gray, threshold, min_count)
+        if gray is frames[2].gray:
+            x0, x1, y0, y1 = region
+            pts = pts[~((pts[:, 0] > x0 - 5) & (pts[:, 0] < x1 + 5) & (pts[:, 1] > y0 - 5) & (pts[:, 1] < y1 + 5))]
+        return pts
+
+    monkeypatch.setattr(tracks_module, "fast_corners_adaptive", corners_missing_in_frame_2)
+
+    def run(gap: int):
+        tracker = FlowTracker(K, ReconstructionParams(max_features=600, max_track_gap=gap))
+        for f in frames:
+            tracker.add(f)
+        ts = tracker.result()
+        xy1 = ts.obs_xy[ts.frame_slice(1)] + [1.5, 1.0]  # where frame 1's tracks are in frame 2
+        x0, x1, y0, y1 = region
+        inside = (xy1[:, 0] > x0) & (xy1[:, 0] < x1) & (xy1[:, 1] > y0) & (xy1[:, 1] < y1)
+        ids = {f: set(ts.obs_track[ts.frame_slice(f)].tolist()) for f in range(4)}
+        return set(ts.obs_track[ts.frame_slice(1)][inside].tolist()), ids, [pair.bridged for pair in ts.pairs]
+
+    tracked, ids, bridged = run(0)
+    assert len(tracked) > 30
+    assert not tracked & ids[2] and not tracked & ids[3]
+    assert bridged == [0, 0, 0]
+    tracked, ids, bridged = run(1)
+    assert not tracked & ids[2]
+    assert len(tracked & ids[3]) > 0.8 * len(tracked)
+    assert bridged[1] >= len(tracked)  # the pair (1, 2) bridged at least those tracks
 
 
 def test_global_motion_estimates_shift_and_half_turn():

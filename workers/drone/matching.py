@@ -24,7 +24,8 @@ class PairStats:
     ``proposed``: correspondences the matcher proposes (LK flows that converged, or SIFT
     matches passing the ratio test); ``after_fb`` and ``after_rule`` the flows left after the
     forward–backward check and the paper's FAST rule (equal to ``proposed`` for SIFT);
-    ``inliers``: consistent with the RANSAC essential matrix.
+    ``inliers``: consistent with the RANSAC essential matrix. ``bridged`` (FAST+LK tracking):
+    tracks that only the paper's rule rejected in this pair and that go on unrecorded.
     """
 
     frame0: int
@@ -33,6 +34,7 @@ class PairStats:
     after_fb: int
     after_rule: int
     inliers: int
+    bridged: int = 0
 
     @property
     def inlier_ratio(self) -> float:
@@ -138,6 +140,20 @@ def estimate_essential(m0: np.ndarray, m1: np.ndarray, K: np.ndarray, threshold:
     return E[:3], mask.ravel().astype(bool)
 
 
+def sampson_distance(E: np.ndarray, K: np.ndarray, m0: np.ndarray, m1: np.ndarray) -> np.ndarray:
+    """First-order geometric distance (N,) in pixels of matches m0 <-> m1 (N, 2) pixels from the
+    epipolar geometry of the essential matrix E (3, 3) with intrinsics K (3, 3)."""
+    Kinv = np.linalg.inv(K)
+    F = Kinv.T @ E @ Kinv
+    x0 = np.column_stack([m0, np.ones(len(m0))])
+    x1 = np.column_stack([m1, np.ones(len(m1))])
+    Fx0 = x0 @ F.T
+    Ftx1 = x1 @ F
+    num = np.einsum("ij,ij->i", x1, Fx0)
+    den = Fx0[:, 0] ** 2 + Fx0[:, 1] ** 2 + Ftx1[:, 0] ** 2 + Ftx1[:, 1] ** 2
+    return np.abs(num) / np.sqrt(np.maximum(den, 1e-300))
+
+
 def essential_inliers(m0: np.ndarray, m1: np.ndarray, K: np.ndarray, threshold: float) -> np.ndarray:
     """Inlier mask (N,) of matches m0 <-> m1 (pixels) under a RANSAC essential matrix."""
     return estimate_essential(m0, m1, K, threshold)[1]
@@ -146,13 +162,16 @@ def essential_inliers(m0: np.ndarray, m1: np.ndarray, K: np.ndarray, threshold: 
 @dataclass(frozen=True)
 class FlowResult:
     """FAST+LK correspondences of one pair: end points (N, 2) for all input points and the
-    masks of each stage (N,) bool, each a subset of the previous."""
+    masks of each stage (N,) bool, each a subset of the previous. ``consistent`` (N,) bool:
+    flows passing the forward-backward check that also fit the RANSAC essential matrix,
+    whether or not the paper's rule kept them (a superset of ``inliers``)."""
 
     end_points: np.ndarray
     converged: np.ndarray
     after_fb: np.ndarray
     after_rule: np.ndarray
     inliers: np.ndarray
+    consistent: np.ndarray
 
 
 def fast_lk_match(gray0: np.ndarray, gray1: np.ndarray, pts0: np.ndarray, corners1: np.ndarray, K: np.ndarray,
@@ -188,8 +207,12 @@ def fast_lk_match(gray0: np.ndarray, gray1: np.ndarray, pts0: np.ndarray, corner
     rule = fb.copy()
     rule[fb] = fast_rule_mask(p1[fb], corners1, rule_threshold)
     inl = rule.copy()
-    inl[rule] = essential_inliers(pts0[rule], p1[rule], K, ransac_threshold)
-    return FlowResult(p1, ok, fb, rule, inl)
+    E, inl[rule] = estimate_essential(pts0[rule], p1[rule], K, ransac_threshold)
+    consistent = inl.copy()
+    if E is not None:
+        consistent[fb] = sampson_distance(E, K, pts0[fb], p1[fb]) <= ransac_threshold
+        consistent |= inl
+    return FlowResult(p1, ok, fb, rule, inl, consistent)
 
 
 def sift_ratio_matches(desc0: np.ndarray, desc1: np.ndarray, ratio: float = 0.8) -> np.ndarray:

@@ -47,6 +47,9 @@ class ReconstructionParams(BaseModel):
     feature_spacing: float = Field(8.0, ge=1, le=200, description="Minimum distance between features, pixels.")
     outlier_threshold: float = Field(2.0, gt=0, le=50,
                                      description="The paper's rule: flow end point to nearest FAST corner, pixels.")
+    max_track_gap: int = Field(4, ge=0, le=50,
+                               description="Frames in a row a track may fail the paper's rule (its flow otherwise "
+                                           "consistent) and still go on; 0 ends it at the first failure.")
     fb_threshold: float = Field(1.0, gt=0, le=50, description="Forward-backward flow error limit, pixels.")
     ransac_threshold: float = Field(1.0, gt=0, le=50, description="Epipolar distance for RANSAC on E, pixels.")
     lk_window: int = Field(21, ge=5, le=101, description="Lucas-Kanade window size, pixels.")

@@ -482,6 +482,8 @@ def _report(model: SparseModel, tr: _Tracked, p: ReconstructionParams, keyframes
         matcher["rejected_forward_backward"] = sum(s.proposed - s.after_fb for s in pairs) / proposed
         matcher["rejected_fast_rule"] = sum(s.after_fb - s.after_rule for s in pairs) / proposed
         matcher["rejected_ransac"] = sum(s.after_rule - s.inliers for s in pairs) / proposed
+        # Flows only the rule rejected, whose tracks went on (params.max_track_gap).
+        matcher["bridged_by_track_gap"] = sum(s.bridged for s in pairs) / proposed
     warnings = list(tr.errors[:20])
     if stats.truncated:
         warnings.append(f"stopped after max_frames={p.max_frames} selected frames; the rest of the video was not used")

@@ -2,8 +2,12 @@
 
 :class:`FlowTracker` is the paper's method run along the sequence: FAST corners start tracks,
 Lucas–Kanade flow extends them frame to frame, and the III-A rule (plus a forward–backward
-check and RANSAC on E) ends a track at its first doubtful step; new FAST corners refill the
-empty parts of the image. :class:`SiftTracker` is the comparison: SIFT matched with the next
+check and RANSAC on E) rejects doubtful end points; new FAST corners refill the empty parts of the
+image. A track whose end point fails only the paper's rule (its flow passed the forward-backward
+check and fits the pair's essential matrix) is not recorded in that frame but keeps being
+followed for up to ``max_track_gap`` frames in a row: under sensor noise and blur a FAST corner
+is often missed in one frame and found again in the next, and ending the track there would cut
+every track short. :class:`SiftTracker` is the comparison: SIFT matched with the next
 few frames (ratio test, RANSAC on E), tracks joined as connected components.
 
 Both take frames one at a time (:meth:`add`) and return a :class:`TrackSet`.
@@ -19,7 +23,8 @@ from scipy.sparse.csgraph import connected_components
 
 from .features import fast_corners_adaptive, sift_features, spread
 from .frames import Frame
-from .matching import PairStats, essential_inliers, fast_lk_match, global_motion, global_shift, sift_ratio_matches
+from .matching import (FlowResult, PairStats, essential_inliers, fast_lk_match, global_motion, global_shift,
+                       sift_ratio_matches)
 from .params import ReconstructionParams
 
 _MIN_PEAK = 0.15  # phase-correlation peak below which the shift is not trusted as the motion
@@ -85,6 +90,7 @@ class FlowTracker:
         self.prev: np.ndarray | None = None
         self.pts = np.zeros((0, 2), np.float32)
         self.ids = np.zeros(0, np.int64)
+        self.misses = np.zeros(0, np.int64)  # frames in a row each live track's end point failed the rule
         self.next_id = 0
         self.n = 0
         self._f: list[np.ndarray] = []
@@ -107,11 +113,10 @@ class FlowTracker:
             res = fast_lk_match(self.prev, frame.gray, self.pts, corners, self.K, p.outlier_threshold,
                                 p.fb_threshold, p.ransac_threshold, p.lk_window, p.lk_levels,
                                 motion=self._motion(frame.gray))
+            seen = self._follow(res)
             self.pairs.append(PairStats(self.n - 1, self.n, int(res.converged.sum()), int(res.after_fb.sum()),
-                                        int(res.after_rule.sum()), int(res.inliers.sum())))
-            self.pts = res.end_points[res.inliers]
-            self.ids = self.ids[res.inliers]
-            self._record(frame, self.pts, self.ids)
+                                        int(res.after_rule.sum()), int(res.inliers.sum()), int((~seen).sum())))
+            self._record(frame, self.pts[seen], self.ids[seen])
         # Refill: FAST corners of this frame in grid cells no live track occupies.
         room = p.max_features - len(self.pts)
         if room > 0:
@@ -121,8 +126,21 @@ class FlowTracker:
             self._record(frame, new, new_ids)
             self.pts = np.vstack([self.pts, new]).astype(np.float32)
             self.ids = np.concatenate([self.ids, new_ids])
+            self.misses = np.concatenate([self.misses, np.zeros(len(new), np.int64)])
         self.prev = frame.gray
         self.n += 1
+
+    def _follow(self, res: FlowResult) -> np.ndarray:
+        """Keep the tracks that go on after a matched pair: the inliers, and the flows that only
+        the paper's rule rejected while the track has not missed ``max_track_gap`` frames in a
+        row yet. Returns (N_kept,) bool: True where the new end point is an inlier (recorded)."""
+        bridged = res.consistent & ~res.inliers & (self.misses < self.p.max_track_gap)
+        keep = res.inliers | bridged
+        seen = res.inliers[keep]
+        self.pts = res.end_points[keep]
+        self.ids = self.ids[keep]
+        self.misses = np.where(seen, 0, self.misses[keep] + 1)
+        return seen
 
     def _motion(self, gray: np.ndarray) -> np.ndarray | None:
         """Approximate image motion (2, 3) from the previous frame: a phase-correlation shift
