@@ -168,3 +168,29 @@ def test_silhouette_box_is_widened_by_half_a_pixel():
     m[5:9, 12:20] = True
     m[22, 3] = True
     assert silhouette_box(m) == (2.5, 19.5, 4.5, 22.5)
+
+
+def test_pruning_keeps_a_nearer_plane_that_ties_the_seed_after_rounding():
+    """Seven cameras sample 0, 0, 0, 0, 0, 0, 3 at plane 0 and one level more at plane 1: equal variances,
+    54/49 levels^2, which float64 rounds so that cost * 49 falls below the exact SSD. Pixel 1 tries plane 1
+    first (its left neighbour's choice); the full search keeps plane 0 (ties go to the nearer plane)."""
+    n_cam, W, H, bits = 7, 4, 4, 1
+    imgs = np.zeros((n_cam, H, W, 3), np.uint8)
+    imgs[:, 1, 1, 0] = [0, 0, 0, 0, 0, 0, 3]  # plane 0 (s = 0) projects to pixel (1, 1) in every camera
+    imgs[:, 2, 2, 0] = [1, 1, 1, 1, 1, 1, 4]  # plane 1 (s = 1) to pixel (2, 2)
+    sizes = np.tile([W, H], (n_cam, 1)).astype(np.int64)
+    pix = np.zeros((n_cam, H + 1, W + 1), np.uint64)
+    kernels.pack_images(imgs, sizes, pix)
+    camf = np.zeros((n_cam, kernels.CAM_F))
+    camf[:, [2, 5, 8]] = 1.0  # a_i(x, y) = (1, 1, 1) at every pixel
+    camf[:, [9, 10]] = 1.0  # B_i = (1, 1, 0): the point of plane s at (1 + s, 1 + s)
+    cami = np.array([((W - 1) << bits, (H - 1) << bits, i * (H + 1) * (W + 1), W + 1, i * H * W, W, 0, 0)
+                     for i in range(n_cam)], np.int64)
+    lo = np.array([[1, 0]], np.int32)  # pixel 0 may only take plane 1, pixel 1 either
+    hi = np.array([[1, 1]], np.int32)
+    best = np.empty((1, 2), np.int32)
+    cost = np.empty((1, 2), np.float32)
+    kernels.sweep_depth(camf.ravel(), cami.ravel(), pix.ravel(), np.ones(n_cam * H * W, np.uint8), False, 2, 0.0,
+                        bits, np.array([0.0, 1.0]), lo, hi, np.zeros(1, np.int64), 16, best, cost)
+    np.testing.assert_array_equal(best, [[1, 0]])
+    np.testing.assert_allclose(cost, [[54 / 49, 54 / 49]], rtol=1e-6)
