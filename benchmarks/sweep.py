@@ -1,6 +1,6 @@
 """Sweep renderer benchmark: quality of the four colour weightings and speed of the fused kernel.
 
-    python benchmarks/sweep.py [--quick] [--skip-speed] [--skip-data]
+    python benchmarks/sweep.py [--quick] [--skip-speed] [--skip-data] [--speed-only]
 
 Quality: (1) procedural scene, virtual views between rig cameras against the analytic truth
 (PSNR/SSIM inside the object); (2) a virtual camera moving along the arc across camera switches:
@@ -17,6 +17,7 @@ Writes benchmarks/results/sweep.json and the "sweep" section of benchmarks/RESUL
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import time
@@ -360,19 +361,36 @@ def markdown(results: dict, notes: list[str]) -> str:
     return "\n\n".join(parts)
 
 
+def quality_notes() -> list[str]:
+    return [f"Procedural rig: 10 cameras on a 90 deg arc, per-camera colour gains within +-{GAIN_SPREAD:.0%} "
+            "(real cameras differ in exposure/white balance); truth rendered with gain 1; scored inside the object.",
+            "kojima uses the renderer's default D_bnd: suggest_d_bnd(camera spacing seen from the surface, 0.5); "
+            "ulrK blends K cameras.",
+            "The depth (one sweep) is shared by all methods of a row; only the colour weighting differs."]
+
+
+MIDDLEBURY_NOTES = [
+    "Middlebury rectified sets: depth range from the ground-truth disparity's 0.5-99.5 percentiles; scored on "
+    "pixels where >= 2 input views agree on a depth (coverage in the JSON). For scale, NOTES.md: forward-warp DIBR "
+    "with ground-truth disparity, Teddy im2+im6 -> im4, 29.3 dB; copying the nearest view 16.9 dB.",
+    "templeSparseRing: silhouettes by thresholding against the black background (70 levels, above the dark "
+    "cloth); the held-out view's silhouette is the scoring mask.",
+]
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="a short run (fewer views, frames and configurations)")
     ap.add_argument("--skip-speed", action="store_true")
     ap.add_argument("--skip-data", action="store_true", help="skip the Middlebury sets")
+    ap.add_argument("--speed-only", action="store_true",
+                    help="measure speed only; keep the quality and temporal results of the previous run (marked)")
     args = ap.parse_args()
+    if args.speed_only:
+        return speed_only(args.quick)
     load0 = os.getloadavg()[0]
     results: dict = {"quality": {}, "temporal": {}, "speed": {}}
-    notes = [f"Procedural rig: 10 cameras on a 90 deg arc, per-camera colour gains within +-{GAIN_SPREAD:.0%} "
-             "(real cameras differ in exposure/white balance); truth rendered with gain 1; scored inside the object.",
-             "kojima uses the renderer's default D_bnd: suggest_d_bnd(camera spacing seen from the surface, 0.5); "
-             "ulrK blends K cameras.",
-             "The depth (one sweep) is shared by all methods of a row; only the colour weighting differs."]
+    notes = quality_notes()
     size = (320, 240) if args.quick else (640, 480)
     t0 = time.perf_counter()
     scene, renderer = procedural_capture(size)
@@ -405,12 +423,7 @@ def main() -> int:
             for k, v in temple_quality(temple, args.quick, planes).items():
                 results["quality"][f"temple_{k}"] = v
             print(f"temple done ({time.perf_counter() - t0:.0f} s)", flush=True)
-        notes.append("Middlebury rectified sets: depth range from the ground-truth disparity's 0.5-99.5 percentiles; "
-                     "scored on pixels where >= 2 input views agree on a depth (coverage in the JSON). For scale, "
-                     "NOTES.md: forward-warp DIBR with ground-truth disparity, Teddy im2+im6 -> im4, 29.3 dB; "
-                     "copying the nearest view 16.9 dB.")
-        notes.append("templeSparseRing: silhouettes by thresholding against the black background (70 levels, above the dark cloth); "
-                     "the held-out view's silhouette is the scoring mask.")
+        notes += MIDDLEBURY_NOTES
     if not args.skip_speed:
         results["speed"] = speed(args.quick)
         print(f"speed done ({time.perf_counter() - t0:.0f} s)", flush=True)
@@ -422,6 +435,26 @@ def main() -> int:
                  f"{numba.get_num_threads()} threads and the reference mostly on one, so under contention the sweep "
                  "loses its second core first and the wall-clock speedup understates the quiet-machine figure; the "
                  "CPU-time speedup is the work ratio, nearly independent of the load.")
+    publish("sweep", results, markdown(results, notes))
+    return 0
+
+
+def speed_only(quick: bool) -> int:
+    """Re-measure the speed section; the quality and temporal sections (and their notes) come from the
+    previous results file, whose date is said in the notes."""
+    previous = json.loads((Path(__file__).resolve().parent / "results" / "sweep.json").read_text())
+    origin = previous.get("quality_from_run", previous["meta"])  # a speed-only run keeps the first origin
+    load0 = os.getloadavg()[0]
+    results = {"quality": previous["quality"], "temporal": previous["temporal"], "quality_from_run": origin,
+               "speed": speed(quick)}
+    load1 = os.getloadavg()[0]
+    results["load_average"] = {"start": load0, "end": load1}
+    notes = quality_notes() + MIDDLEBURY_NOTES + [
+        f"Speed measured in this run; the quality and temporal tables are from the run of {origin['date']} "
+        f"(`{origin['command']}`), kept unchanged.",
+        f"1-minute load average {load0:.1f} at the start and {load1:.1f} at the end on {os.cpu_count()} cores. "
+        f"The sweep runs on {numba.get_num_threads()} threads and the reference mostly on one; the CPU-time "
+        "speedup is the work ratio, nearly independent of the load."]
     publish("sweep", results, markdown(results, notes))
     return 0
 
