@@ -236,7 +236,7 @@ def speed(quick: bool) -> dict:
         renders: list[RenderResult] = []
         m = interleaved({"render": lambda: renders.append(full.render(cam, opts)) or renders[-1],
                          "reference": lambda: reference_sweep(cams, images, cam, planes)[0]},
-                        {"render": 3 if big else 5, "reference": 1 if big or quick else 2})
+                        {"render": 5 if big else 9, "reference": 1 if big or quick else 2})
         t_sweep = float(np.median([r.timings["sweep_ms"] for r in renders[1:]])) / 1e3  # the sweep stage alone
         res, ref_best = m["render"]["res"], m["reference"]["res"]
         seen = all_cameras_see(cams, cam, res.planes, ref_best)
