@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import asyncio
-import functools
 import logging
 import os
 import uuid
@@ -50,9 +49,9 @@ def build_services(settings: Settings) -> Services:
     return Services(settings, jobs, store, hub, Dispatcher(settings, jobs, hub, store.url), compute)
 
 
-async def run_compute(svc: Services, fn: Callable[..., R], *args: Any) -> R:
-    """``fn(*args)`` on the service's compute threads, awaited without blocking the event loop."""
-    return await asyncio.get_running_loop().run_in_executor(svc.compute, functools.partial(fn, *args))
+async def run_compute(svc: Services, fn: Callable[[], R]) -> R:
+    """``fn()`` on the service's compute threads, awaited without blocking the event loop."""
+    return await asyncio.get_running_loop().run_in_executor(svc.compute, fn)
 
 
 def services(request: Request) -> Services:

@@ -8,6 +8,8 @@ from typing import Annotated, Any
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
+from workers.common.models import YUNET, installed
+
 MiB = 1 << 20
 
 
@@ -62,8 +64,6 @@ class Settings(BaseSettings):
     @property
     def resolved_yunet_model(self) -> Path | None:
         """The YuNet model the orientation engine uses: the setting, else an installed copy, else None."""
-        from workers.common.models import YUNET, installed
-
         if self.orientation_yunet_model is not None:
             return self.orientation_yunet_model
         return installed(YUNET, self.data_dir)

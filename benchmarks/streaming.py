@@ -222,9 +222,9 @@ def main() -> int:
         t_start = time.monotonic()
         with serve_app({"SWEEPCAST_DATA_DIR": str(data_dir)}, log=log, wait=False) as app:
             proc = app.proc
+            app.wait_ready(120)
+            ready_s = time.monotonic() - t_start
             with httpx.Client(base_url=app.base, timeout=30) as http:
-                wait_for(lambda: http.get("/readyz").status_code == 200, 120, "the server", proc, log)
-                ready_s = time.monotonic() - t_start
                 rig_id, recording = wait_for(lambda: demo_recording(http), 900, "the demo recording", proc, log)
                 demo_s = time.monotonic() - t_start
             url = f"{app.base.replace('http', 'ws')}/v1/rigs/{rig_id}/view?source={recording['id']}"

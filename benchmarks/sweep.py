@@ -429,14 +429,18 @@ def main() -> int:
         print(f"speed done ({time.perf_counter() - t0:.0f} s)", flush=True)
     load1 = os.getloadavg()[0]
     results["load_average"] = {"start": load0, "end": load1}
-    notes.append(f"1-minute load average {load0:.1f} at the start and {load1:.1f} at the end on "
-                 f"{os.cpu_count()} cores: speed figures under CPU contention are not representative; "
-                 "the renderer and the reference were measured in the same run, interleaved. The sweep runs on "
-                 f"{numba.get_num_threads()} threads and the reference mostly on one, so under contention the sweep "
-                 "loses its second core first and the wall-clock speedup understates the quiet-machine figure; the "
-                 "CPU-time speedup is the work ratio, nearly independent of the load.")
+    notes.append(load_note(load0, load1))
     publish("sweep", results, markdown(results, notes))
     return 0
+
+
+def load_note(load0: float, load1: float) -> str:
+    return (f"1-minute load average {load0:.1f} at the start and {load1:.1f} at the end on "
+            f"{os.cpu_count()} cores: speed figures under CPU contention are not representative; "
+            "the renderer and the reference were measured in the same run, interleaved. The sweep runs on "
+            f"{numba.get_num_threads()} threads and the reference mostly on one, so under contention the sweep "
+            "loses its second core first and the wall-clock speedup understates the quiet-machine figure; the "
+            "CPU-time speedup is the work ratio, nearly independent of the load.")
 
 
 def speed_only(quick: bool) -> int:
@@ -452,9 +456,7 @@ def speed_only(quick: bool) -> int:
     notes = quality_notes() + MIDDLEBURY_NOTES + [
         f"Speed measured in this run; the quality and temporal tables are from the run of {origin['date']} "
         f"(`{origin['command']}`), kept unchanged.",
-        f"1-minute load average {load0:.1f} at the start and {load1:.1f} at the end on {os.cpu_count()} cores. "
-        f"The sweep runs on {numba.get_num_threads()} threads and the reference mostly on one; the CPU-time "
-        "speedup is the work ratio, nearly independent of the load."]
+        load_note(load0, load1)]
     publish("sweep", results, markdown(results, notes))
     return 0
 

@@ -52,17 +52,21 @@ def models_dir(data_dir: Path) -> Path:
     return Path(data_dir) / "models"
 
 
-def installed_from_env(model: ModelFile) -> Path | None:
-    """The model's file in the folder named by ``$SWEEPCAST_MODELS_DIR``, or None (unset or not installed)."""
-    folder = os.environ.get(MODELS_DIR_ENV)
-    path = Path(folder) / model.filename if folder else None
+def installed_in(model: ModelFile, folder: Path | None) -> Path | None:
+    """The model's file in ``folder`` (a models folder), or None when there is none (or no folder)."""
+    path = Path(folder) / model.filename if folder is not None else None
     return path if path is not None and path.is_file() else None
 
 
 def installed(model: ModelFile, data_dir: Path) -> Path | None:
     """The model's file in ``data_dir``'s model folder, or None when it is not installed."""
-    path = models_dir(data_dir) / model.filename
-    return path if path.is_file() else None
+    return installed_in(model, models_dir(data_dir))
+
+
+def env_models_dir() -> Path | None:
+    """The models folder named by ``$SWEEPCAST_MODELS_DIR`` (set by the service for its workers), or None."""
+    folder = os.environ.get(MODELS_DIR_ENV)
+    return Path(folder) if folder else None
 
 
 def _copy_checked(model: ModelFile, source: BinaryIO, out: BinaryIO) -> None:

@@ -15,12 +15,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from workers.common.cliutil import ProgressBar, format_table
-from workers.common.models import YUNET, installed
+from workers.common.models import models_dir
 from workers.orientation.detect import DetectorConfig, get_detector
 from workers.orientation.errors import OrientationInputError
 from workers.orientation.exif import TAGGABLE_FORMATS
 from workers.orientation.headers import sniff_format
-from workers.orientation.job import MAX_PIXELS_ENV, YUNET_MODEL_ENV, max_pixels_from_env
+from workers.orientation.job import MAX_PIXELS_ENV, YUNET_MODEL_ENV, configured_yunet, max_pixels_from_env
 from workers.orientation.service import OrientationReport, analyze, orient_jpeg, plan_tag
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp")
@@ -33,7 +33,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("paths", nargs="+", type=Path, metavar="PATH", help="photos or folders of photos")
     p.add_argument("--write", action="store_true", help="write the Orientation tag into the files")
     p.add_argument("--force", action="store_true", help="replace existing tags other than 1")
-    p.add_argument("--yunet", type=Path, default=_default_yunet(), metavar="MODEL",
+    data_models = models_dir(Path(os.environ.get("SWEEPCAST_DATA_DIR", "./sweepcast-data")))
+    p.add_argument("--yunet", type=Path, default=configured_yunet(data_models), metavar="MODEL",
                    help=f"YuNet ONNX model for the stronger detector (default ${YUNET_MODEL_ENV}, else the one "
                         "'sweepcast models fetch yunet' installed in the data folder)")
     p.add_argument("--method", choices=("auto", "paper", "yunet", "combined"), default="auto",
@@ -42,12 +43,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"refuse images larger than this (default ${MAX_PIXELS_ENV} or 64,000,000)")
     p.add_argument("--json", action="store_true", help="print the reports as JSON instead of a table")
     p.set_defaults(func=_orient)
-
-
-def _default_yunet() -> Path | None:
-    if model := os.environ.get(YUNET_MODEL_ENV):
-        return Path(model)
-    return installed(YUNET, Path(os.environ.get("SWEEPCAST_DATA_DIR", "./sweepcast-data")))
 
 
 def _orient(args: argparse.Namespace) -> int:

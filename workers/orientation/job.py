@@ -24,7 +24,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from workers.common.jobctx import JobContext, JobInputError
-from workers.common.models import YUNET, installed_from_env
+from workers.common.models import YUNET, env_models_dir, installed_in
 from workers.orientation.decode import DEFAULT_MAX_PIXELS
 from workers.orientation.detect import DetectorConfig, Method, OrientationDetector, get_detector
 from workers.orientation.errors import OrientationInputError
@@ -47,11 +47,17 @@ class OrientationBatchParams(BaseModel):
                                                "paper, yunet or combined")
 
 
-def detector_config_from_env(method: Method = "auto") -> DetectorConfig:
-    """The detector configuration of this worker: ``method`` with the YuNet model the environment names
-    (``$SWEEPCAST_ORIENTATION_YUNET_MODEL``), else the one installed in ``$SWEEPCAST_MODELS_DIR``, if any."""
+def configured_yunet(models_folder: Path | None) -> Path | None:
+    """The YuNet model ``$SWEEPCAST_ORIENTATION_YUNET_MODEL`` names, else the one installed in
+    ``models_folder``, else None."""
     model = os.environ.get(YUNET_MODEL_ENV)
-    return DetectorConfig(method=method, yunet_model=Path(model) if model else installed_from_env(YUNET))
+    return Path(model) if model else installed_in(YUNET, models_folder)
+
+
+def detector_config_from_env(method: Method = "auto") -> DetectorConfig:
+    """The detector configuration of this worker: ``method`` with the YuNet model the environment names,
+    else the one installed in ``$SWEEPCAST_MODELS_DIR``, if any."""
+    return DetectorConfig(method=method, yunet_model=configured_yunet(env_models_dir()))
 
 
 def max_pixels_from_env() -> int:
