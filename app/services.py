@@ -18,7 +18,7 @@ from app.events import EventHub
 from app.jobstore import Job, JobStore
 from app.settings import Settings
 from workers.registry import get_kind
-from workers.runtime import inputs_prefix
+from workers.runtime import inputs_prefix, results_prefix
 from workers.storage import BlobStore, open_store
 
 log = logging.getLogger("sweepcast")
@@ -52,6 +52,13 @@ def build_services(settings: Settings) -> Services:
 async def run_compute(svc: Services, fn: Callable[[], R]) -> R:
     """``fn()`` on the service's compute threads, awaited without blocking the event loop."""
     return await asyncio.get_running_loop().run_in_executor(svc.compute, fn)
+
+
+async def delete_job_and_files(svc: Services, job_id: str) -> None:
+    """Delete a job's row, then its results and its inputs from the blob store."""
+    await asyncio.to_thread(svc.jobs.delete, job_id)
+    await asyncio.to_thread(svc.store.delete_prefix, results_prefix(job_id))
+    await asyncio.to_thread(svc.store.delete_prefix, inputs_prefix(job_id))
 
 
 def services(request: Request) -> Services:

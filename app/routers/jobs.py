@@ -13,8 +13,8 @@ from app.auth import require_key, websocket_key_ok
 from app.errors import ApiError
 from app.jobstore import JobState, job_public
 from app.routers.rig_support import rig_of_recording_job
-from app.services import Services, services
-from workers.runtime import inputs_prefix, results_prefix
+from app.services import Services, delete_job_and_files, services
+from workers.runtime import results_prefix
 from workers.storage import BlobNotFound
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"], dependencies=[Depends(require_key)])
@@ -128,9 +128,7 @@ async def delete_job(job_id: str, svc: Services = Depends(services)) -> Any:
     if rig_id is not None:  # its results are the recording: deleting them here would break it
         raise ApiError(409, f"job {job_id} holds recording {job_id} of rig {rig_id}; delete the recording "
                             f"instead (DELETE /v1/rigs/{rig_id}/recordings/{job_id})", "job_holds_recording")
-    await asyncio.to_thread(svc.jobs.delete, job_id)
-    await asyncio.to_thread(svc.store.delete_prefix, results_prefix(job_id))
-    await asyncio.to_thread(svc.store.delete_prefix, inputs_prefix(job_id))
+    await delete_job_and_files(svc, job_id)
     return Response(status_code=204)
 
 

@@ -10,8 +10,7 @@ from typing import Any
 
 from app.errors import ApiError
 from app.jobstore import Job, JobState
-from app.services import Services, Upload, create_job
-from workers.runtime import inputs_prefix, results_prefix
+from app.services import Services, Upload, create_job, delete_job_and_files
 from workers.streaming import store as rigstore
 from workers.streaming.actor import LIVE, SessionConfig
 from workers.streaming.demo import DEMO_NAME, demo_rig
@@ -102,9 +101,7 @@ async def delete_recording_data(svc: Services, rig_id: str, recording: dict[str,
     job = await asyncio.to_thread(svc.jobs.get, job_id)
     if job is not None and not JobState(job.state).finished:
         await svc.dispatcher.cancel(job_id)
-    await asyncio.to_thread(svc.jobs.delete, job_id)
-    await asyncio.to_thread(svc.store.delete_prefix, results_prefix(job_id))
-    await asyncio.to_thread(svc.store.delete_prefix, inputs_prefix(job_id))
+    await delete_job_and_files(svc, job_id)
     await asyncio.to_thread(rigstore.delete_recording_meta, svc.store, rig_id, recording["id"])
 
 
