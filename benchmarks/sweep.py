@@ -435,12 +435,17 @@ def main() -> int:
 
 
 def load_note(load0: float, load1: float) -> str:
-    return (f"1-minute load average {load0:.1f} at the start and {load1:.1f} at the end on "
-            f"{os.cpu_count()} cores: speed figures under CPU contention are not representative; "
-            "the renderer and the reference were measured in the same run, interleaved. The sweep runs on "
-            f"{numba.get_num_threads()} threads and the reference mostly on one, so under contention the sweep "
-            "loses its second core first and the wall-clock speedup understates the quiet-machine figure; the "
-            "CPU-time speedup is the work ratio, nearly independent of the load.")
+    """The machine's load around the speed section: the start figure tells whether anything else was
+    running (the end figure includes this benchmark's own threads)."""
+    threads = numba.get_num_threads()
+    note = (f"1-minute load average {load0:.1f} at the start and {load1:.1f} at the end on {os.cpu_count()} cores "
+            f"(the end figure includes this benchmark's own {threads} threads)")
+    if load0 > 0.5:
+        note += (": other work was running, and speed figures under CPU contention are not representative; the "
+                 "renderer and the reference were measured in the same run, interleaved, and the sweep loses its "
+                 "second core first, so the wall-clock speedup understates the quiet-machine figure")
+    return note + (f". The sweep runs on {threads} threads and the reference mostly on one; the CPU-time speedup is "
+                   "the work ratio, nearly independent of the load.")
 
 
 def speed_only(quick: bool) -> int:

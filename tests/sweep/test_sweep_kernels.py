@@ -1,10 +1,13 @@
 """The compiled sweep against plain numpy evaluations of the same definitions (packed fixed-point
 sampling, pruning, visual-hull culling and its bounding-box pre-cut, window refinement)."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from workers.camera import Camera
 from workers.sweep import kernels
+from workers.sweep.lanes import LANES
 from workers.sweep.renderer import RenderOptions, SweepRenderer
 from workers.sweep.silhouette import silhouette_box, silhouette_from_background
 
@@ -172,8 +175,9 @@ def test_silhouette_box_is_widened_by_half_a_pixel():
 
 def test_pruning_keeps_a_nearer_plane_that_ties_the_seed_after_rounding():
     """Seven cameras sample 0, 0, 0, 0, 0, 0, 3 at plane 0 and one level more at plane 1: equal variances,
-    54/49 levels^2, which float64 rounds so that cost * 49 falls below the exact SSD. Pixel 1 tries plane 1
-    first (its left neighbour's choice); the full search keeps plane 0 (ties go to the nearer plane)."""
+    54/49 levels^2, which float64 rounds so that cost * 49 falls below the exact SSD. The last pixel tries
+    plane 1 first (the choice of the pixel left of its group of lanes); the full search keeps plane 0 (ties
+    go to the nearer plane)."""
     n_cam, W, H, bits = 7, 4, 4, 1
     imgs = np.zeros((n_cam, H, W, 3), np.uint8)
     imgs[:, 1, 1, 0] = [0, 0, 0, 0, 0, 0, 3]  # plane 0 (s = 0) projects to pixel (1, 1) in every camera
@@ -186,11 +190,37 @@ def test_pruning_keeps_a_nearer_plane_that_ties_the_seed_after_rounding():
     camf[:, [9, 10]] = 1.0  # B_i = (1, 1, 0): the point of plane s at (1 + s, 1 + s)
     cami = np.array([((W - 1) << bits, (H - 1) << bits, i * (H + 1) * (W + 1), W + 1, i * H * W, W, 0, 0)
                      for i in range(n_cam)], np.int64)
-    lo = np.array([[1, 0]], np.int32)  # pixel 0 may only take plane 1, pixel 1 either
-    hi = np.array([[1, 1]], np.int32)
-    best = np.empty((1, 2), np.int32)
-    cost = np.empty((1, 2), np.float32)
+    w = LANES + 1
+    lo = np.ones((1, w), np.int32)  # the first group of lanes may only take plane 1, the last pixel either
+    lo[0, -1] = 0
+    hi = np.ones((1, w), np.int32)
+    best = np.empty((1, w), np.int32)
+    cost = np.empty((1, w), np.float32)
     kernels.sweep_depth(camf.ravel(), cami.ravel(), pix.ravel(), np.ones(n_cam * H * W, np.uint8), False, 2, 0.0,
                         bits, np.array([0.0, 1.0]), lo, hi, np.zeros(1, np.int64), 16, best, cost)
-    np.testing.assert_array_equal(best, [[1, 0]])
-    np.testing.assert_allclose(cost, [[54 / 49, 54 / 49]], rtol=1e-6)
+    np.testing.assert_array_equal(best[0], [1] * LANES + [0])
+    np.testing.assert_allclose(cost, np.full((1, w), 54 / 49), rtol=1e-6)
+
+
+@pytest.mark.parametrize("hull", [False, True])
+def test_search_honours_each_pixels_window_at_any_width(small, hull):
+    """Per-pixel plane windows (coarse-to-fine gives such) and a view width that is no multiple of the
+    pixels swept together: every pixel gets the best plane of its own window, -1 for an empty one."""
+    rig, views, cam = small
+    K = cam.K.copy()
+    K[:2, 2] -= [(cam.width - 45) / 2, (cam.height - 37) / 2]  # the centre of the view
+    cam = replace(cam, K=K, width=45, height=37)
+    images = [v.image for v in views]
+    r = SweepRenderer(rig, images, backgrounds=[v.background for v in views]) if hull else SweepRenderer(rig, images)
+    P = 20
+    s_planes = 1.0 / r.depth_planes(cam, P, NEAR, FAR)
+    rng = np.random.default_rng(7)
+    lo = rng.integers(0, P, (cam.height, cam.width)).astype(np.int32)
+    hi = np.minimum(lo + rng.integers(-1, 8, lo.shape), P - 1).astype(np.int32)  # lo > hi: an empty window
+    Q, B, _ = r._geometry(cam)
+    best, _ = r._sweep(Q, B, cam.center, s_planes, hull, RenderOptions(subpixel_bits=4), lo, hi)
+    costs = _numpy_costs(list(rig.cameras), images, r.silhouettes() if hull else None, cam, s_planes, 4)
+    j = np.arange(P)[:, None, None]
+    costs[(j < lo) | (j > hi)] = np.inf
+    assert (best == _best(costs)).mean() > 0.999  # rounding at exact .5 positions may differ
+    assert (best[hi < lo] == -1).all() and (best >= 0).mean() > (0.1 if hull else 0.5)  # the hull culls many

@@ -289,7 +289,8 @@ class SweepRenderer:
         """The sweep kernel's per-camera rows, (N * CAM_F,) float64 and (N * CAM_I,) int64 (see
         :mod:`workers.sweep.kernels`), in sampling order: nearest to the virtual centre (3,) first. A
         near camera sees every plane of a pixel at nearly the same place, so its samples come from
-        cache (measured: 5-8% less time than widely spread cameras first, despite ~4% more samples)."""
+        cache (measured with the 16-lane search, 640x480, 32 planes: 2-3% less time than widely spread
+        cameras first or the rig's order)."""
         n, hm, wm = self._sils.shape
         camf = np.zeros((n, kernels.CAM_F))
         cami = np.zeros((n, kernels.CAM_I), np.int64)
