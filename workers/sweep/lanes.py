@@ -249,9 +249,8 @@ def _lane_search(use_hull: bool):
         for k in prange(bands.shape[0]):
             A = np.empty(n_cam * 3 * LANES)
             state = np.zeros(STATE_ROWS * LANES)
-            order = np.empty(s_planes.shape[0] + LANES + 1, np.int64)
-            bc = np.empty(LANES)
-            bj = np.empty(LANES, np.int64)
+            order = np.empty(s_planes.shape[0], np.int64)  # distinct planes of the lanes' windows
+            bc = np.empty(LANES)  # best cost per lane (the state holds it widened, and the best plane)
             y_a = bands[k] * band_h
             rows = min(band_h, h - y_a)
             for tr in range(rows * (-(-w // TILE_COLS))):  # the band tile by tile, so cameras' data stays in cache
@@ -264,7 +263,8 @@ def _lane_search(use_hull: bool):
                     j_hi = -1
                     for t in range(LANES):
                         bc[t] = _BIG
-                        bj[t] = -1
+                        state[ROW_BC_SAFE * LANES + t] = _BIG * _SAFE
+                        state[ROW_BJ * LANES + t] = -1.0
                     for t in range(nl):
                         j_lo = min(j_lo, np.int64(lo[y, x0 + t]))
                         j_hi = max(j_hi, np.int64(hi[y, x0 + t]))
@@ -307,9 +307,6 @@ def _lane_search(use_hull: bool):
                                 alive |= 1 << t
                         if alive == 0:
                             continue
-                        for t in range(LANES):
-                            state[ROW_BC_SAFE * LANES + t] = bc[t] * _SAFE
-                            state[ROW_BJ * LANES + t] = float(bj[t])
                         s = s_planes[j]
                         if use_hull:
                             alive = _plane_sweep_hull(pix, silflat, A, camf, cami, n_cam, s, scale, bits, alive,
@@ -322,12 +319,14 @@ def _lane_search(use_hull: bool):
                                 n = state[ROW_N * LANES + t]
                                 if n >= min_views:
                                     cost = state[ROW_NSSD * LANES + t] / (n * n)
-                                    if cost < bc[t] or (cost == bc[t] and j < bj[t]):
+                                    if cost < bc[t] or (cost == bc[t] and j < state[ROW_BJ * LANES + t]):
                                         bc[t] = cost
-                                        bj[t] = j
+                                        state[ROW_BC_SAFE * LANES + t] = cost * _SAFE
+                                        state[ROW_BJ * LANES + t] = float(j)
                     for t in range(nl):
-                        best[y, x0 + t] = bj[t]
-                        best_cost[y, x0 + t] = bc[t] * inv_s4 if bj[t] >= 0 else np.inf
+                        bj = np.int64(state[ROW_BJ * LANES + t])
+                        best[y, x0 + t] = bj
+                        best_cost[y, x0 + t] = bc[t] * inv_s4 if bj >= 0 else np.inf
 
     return search
 
