@@ -33,13 +33,13 @@ from llvmlite import ir
 from numba import njit, prange, types
 from numba.extending import intrinsic
 
-from .kernels import _FAST, _Z_MIN, CAM_F, CAM_I, TILE_COLS
+from .layout import BIG as _BIG
+from .layout import CAM_F, CAM_I, TILE_COLS
+from .layout import FAST as _FAST
+from .layout import SAFE as _SAFE
+from .layout import Z_MIN as _Z_MIN
 
 LANES = 16
-_BIG = 1e300  # "no plane yet": finite, so that bc * n stays a valid bound
-# the pruning bound is a rounded product: widened by a few ulps it never cuts a plane whose rounded cost ties or
-# beats the best one, so the choice is the full search's whatever the order the planes are tried in
-_SAFE = 1.0 + 2.0**-50
 _D = ir.VectorType(ir.DoubleType(), LANES)
 _Q = ir.VectorType(ir.IntType(64), LANES)
 _I32 = ir.IntType(32)
@@ -65,6 +65,21 @@ def _const(vty, value):
 def _row_ptr(builder, base, row):
     p = builder.gep(base, [ir.Constant(_I64, row * LANES)], inbounds=True)
     return builder.bitcast(p, _D.as_pointer())
+
+
+# Every vector load and store says the alignment the array really has: a float64's 8 bytes. Without it LLVM
+# assumes the vector type's own alignment (128 bytes for <16 x double>) and emits aligned moves; on AVX-512
+# those are 64-byte `vmovaps zmm`, while numba and numpy allocate with 16- or 32-byte alignment, so the
+# move faults whenever an array happens not to sit on a 64-byte boundary (a SIGSEGV one run in a few).
+_ALIGN = 8
+
+
+def _vload(builder, ptr):
+    return builder.load(ptr, align=_ALIGN)
+
+
+def _vstore(builder, value, ptr):
+    builder.store(value, ptr, align=_ALIGN)
 
 
 def _concat(builder, parts):
@@ -94,7 +109,7 @@ def _taps(builder, pixp, o, row):
     out = []
     for d in (ir.Constant(_I64, 0), row):
         pairs = [builder.load(builder.bitcast(builder.gep(pixp, [builder.add(i, d)], inbounds=True), pair.as_pointer()),
-                              align=8) for i in idx]
+                              align=_ALIGN) for i in idx]
         out.append(_concat(builder, [builder.shuffle_vector(pairs[k], pairs[k + 1], first) for k in range(0, LANES, 2)]))
         out.append(_concat(builder, [builder.shuffle_vector(pairs[k], pairs[k + 1], second) for k in range(0, LANES, 2)]))
     return out
@@ -129,8 +144,8 @@ def _plane_sweep_codegen(use_hull: bool):
         ub = _splat(builder, ubv, _Q)
         fmask = builder.and_(builder.sub(builder.shl(_const(_Q, 1), ub), _const(_Q, 1)), _const(_Q, 63))
         low32 = _const(_Q, 0xFFFFFFFF)  # tells LLVM the row product fits one 32x32->64 multiply
-        bc_safe = builder.load(_row_ptr(builder, stp, ROW_BC_SAFE))
-        farther = builder.fcmp_ordered(">", _splat(builder, jfv, _D), builder.load(_row_ptr(builder, stp, ROW_BJ)))
+        bc_safe = _vload(builder, _row_ptr(builder, stp, ROW_BC_SAFE))
+        farther = builder.fcmp_ordered(">", _splat(builder, jfv, _D), _vload(builder, _row_ptr(builder, stp, ROW_BJ)))
         n_cam = builder.sitofp(ncv, ir.DoubleType())
 
         entry = builder.block
@@ -150,8 +165,8 @@ def _plane_sweep_codegen(use_hull: bool):
         fb, ib, ab = builder.mul(m, c(CAM_F)), builder.mul(m, c(CAM_I)), builder.mul(m, c(3 * LANES))
         camf = lambda k: builder.load(builder.gep(cfp, [builder.add(fb, c(k))], inbounds=True))
         cami = lambda k: builder.load(builder.gep(cip, [builder.add(ib, c(k))], inbounds=True))
-        a = [builder.load(builder.bitcast(builder.gep(alp, [builder.add(ab, c(r * LANES))], inbounds=True),
-                                          _D.as_pointer())) for r in range(3)]
+        a = [_vload(builder, builder.bitcast(builder.gep(alp, [builder.add(ab, c(r * LANES))], inbounds=True),
+                                             _D.as_pointer())) for r in range(3)]
         b = [_splat(builder, camf(9 + r), _D) for r in range(3)]
         hz = builder.fadd(a[2], builder.fmul(s, b[2], flags=fl), flags=fl)
         per = builder.fmul(builder.fdiv(_const(_D, 1.0), hz), scale)
@@ -210,8 +225,8 @@ def _plane_sweep_codegen(use_hull: bool):
             p.add_incoming(new, end)
         builder.cbranch(more, loop, done)
         builder.position_at_end(done)
-        builder.store(nn, _row_ptr(builder, stp, ROW_N))
-        builder.store(nssd, _row_ptr(builder, stp, ROW_NSSD))
+        _vstore(builder, nn, _row_ptr(builder, stp, ROW_N))
+        _vstore(builder, nssd, _row_ptr(builder, stp, ROW_NSSD))
         return alive_n
 
     return codegen

@@ -273,16 +273,17 @@ class SweepRenderer:
         return image, regions, primary
 
     def _sweep(self, Q: np.ndarray, B: np.ndarray, center: np.ndarray, s_planes: np.ndarray, use_hull: bool,
-               opt: RenderOptions, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+               opt: RenderOptions, lo: np.ndarray, hi: np.ndarray, lanes: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Best plane (h, w) int32 and its cost (h, w) float32 for windows lo..hi; center (3,): the
-        virtual camera's centre."""
+        virtual camera's centre; lanes False: the variance cost's per-pixel search (the same result; the
+        baseline the 16-lane search is measured against)."""
         best = np.empty(lo.shape, np.int32)
         cost = np.empty(lo.shape, np.float32)
         trunc2 = opt.truncation**2 if opt.consistency == "truncated" else 0.0
         bits = opt.subpixel_bits if 0 < opt.subpixel_bits <= kernels.MAX_BITS else kernels.MAX_BITS
         camf, cami = self._camera_table(Q, B, center, bits)
         kernels.sweep_depth(camf, cami, self._pix.reshape(-1), self._sils.reshape(-1), use_hull, opt.min_views,
-                            trunc2, bits, s_planes, lo, hi, self._bands(lo.shape[0]), BAND_ROWS, best, cost)
+                            trunc2, bits, s_planes, lo, hi, self._bands(lo.shape[0]), BAND_ROWS, best, cost, lanes)
         return best, cost
 
     def _camera_table(self, Q: np.ndarray, B: np.ndarray, center: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray]:
