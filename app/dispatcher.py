@@ -4,6 +4,10 @@ One dispatcher per API process. It owns the jobs it holds the lease of: it renew
 leases while it follows them and gives them back on a clean shutdown. A sweep claims jobs
 whose lease expired (their owner died), so jobs survive a restart of the service or the
 loss of a replica; the job table, not Ray, is the source of truth.
+
+Only lost workers spend a job's retry budget (``job_max_attempts``). An attempt cut short because
+the service stopped or died is counted apart (``service_restarts``, by the job store when the
+lease is given back or claimed): restarting the service never fails a healthy job.
 """
 from __future__ import annotations
 
@@ -41,6 +45,19 @@ _PROGRESS_WRITE_INTERVAL_S = 0.25
 
 class _Unschedulable(Exception):
     """No live node offers what the job needs."""
+
+
+def _gave_up(job: Job) -> str:
+    """The error of a job whose retry budget lost workers spent; restarts are named, not counted."""
+    error = f"the worker running this job was lost {_times(job.worker_losses)}; giving up"
+    if job.service_restarts:
+        error += (f" (the service also restarted {_times(job.service_restarts)} while it ran; "
+                  "restarts do not count against the attempts)")
+    return error
+
+
+def _times(n: int) -> str:
+    return "once" if n == 1 else f"{n} times"
 
 
 def _describe(options: dict[str, Any]) -> str:
@@ -85,7 +102,8 @@ class Dispatcher:
         claimed = await asyncio.to_thread(self.jobs.claim_expired, self.owner, self.lease_s)
         for job in claimed:
             if job.id not in self._tasks:
-                log.info("recovering job %s (%s, %d attempts so far)", job.id, job.kind, job.attempts)
+                log.info("recovering job %s (%s, %d attempts so far: %d lost workers, %d service restarts)",
+                         job.id, job.kind, job.attempts, job.worker_losses, job.service_restarts)
                 self.submit(job.id)
         return len(claimed)
 
@@ -148,15 +166,17 @@ class Dispatcher:
     async def _drive(self, job_id: str) -> None:
         try:
             await self.ray_ready.wait()
+            budget = self.settings.job_max_attempts
             while True:
-                job = await asyncio.to_thread(self.jobs.begin_attempt, job_id, self.owner, self.lease_s)
+                job = await asyncio.to_thread(self.jobs.begin_attempt, job_id, self.owner, self.lease_s, budget)
                 if job is None or job_id in self._cancelled:
                     return
-                if job.attempts > self.settings.job_max_attempts:
-                    await self._fail(job_id, f"the worker running this job was lost {job.attempts - 1} times; giving up")
+                if job.worker_losses >= budget:
+                    await self._fail(job_id, _gave_up(job))
                     return
                 if await self._run_attempt(job):
                     return
+                await asyncio.to_thread(self.jobs.record_worker_loss, job_id, self.owner)
         except asyncio.CancelledError:
             raise
         except Exception as exc:  # noqa: BLE001 - never leave a row in "running" because of a bug here
@@ -214,7 +234,8 @@ class Dispatcher:
                 return True
             log.warning("job %s attempt %d lost its worker: %s", job.id, job.attempts, type(exc).__name__)
             self.hub.publish(job.id, {"type": "retrying", "job_id": job.id, "attempt": job.attempts,
-                                      "reason": type(exc).__name__, "time": time.time()})
+                                      "reason": type(exc).__name__, "worker_losses": job.worker_losses + 1,
+                                      "service_restarts": job.service_restarts, "time": time.time()})
             return False
         except ray.exceptions.RayTaskError as exc:
             await self._fail(job.id, f"internal error on the worker: {exc.cause!r}" if exc.cause else str(exc))
@@ -222,7 +243,7 @@ class Dispatcher:
         if job.id in self._cancelled:
             return True
         log.warning("job %s attempt %d ended without a final event", job.id, job.attempts)
-        return False
+        return False  # counted as a lost worker: it spends the budget, so a job cannot loop forever
 
     async def _wait_schedulable(self, options: dict[str, Any]) -> str | None:
         """Wait until some live node offers the resources; after the limit, say why it cannot run."""

@@ -3,6 +3,12 @@
 Ray keeps nothing across a restart, so a row is committed before its job is submitted, and a
 replica owns a job only while it holds the row's lease. Claiming is a single conditional
 UPDATE, so two replicas (or a replica and its own recovery sweep) never run the same attempt.
+
+Every attempt that began (``attempts``) ends in one of three ways: a final state, a lost worker
+(``worker_losses``, counted by the dispatcher; these spend the retry budget) or a service restart
+(``service_restarts``: the replica that ran it stopped or died, counted when its lease is given
+back or claimed; these never spend the budget). While a job is active, ``attempts`` minus the two
+counters is 1 when an attempt is open, else 0.
 """
 from __future__ import annotations
 
@@ -11,7 +17,8 @@ import enum
 import uuid
 from typing import Any, Iterable
 
-from sqlalchemy import JSON, DateTime, Float, Integer, String, Text, create_engine, event, select, update
+from sqlalchemy import (JSON, DateTime, Float, Integer, String, Text, and_, case, create_engine, event, select,
+                        update)
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, sessionmaker
 
@@ -53,6 +60,8 @@ class Job(Base):
     result: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
     error: Mapped[str | None] = mapped_column(Text, nullable=True)
     attempts: Mapped[int] = mapped_column(Integer, default=0)
+    worker_losses: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    service_restarts: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
     lease_owner: Mapped[str | None] = mapped_column(String(64), nullable=True)
     lease_expires_at: Mapped[dt.datetime | None] = mapped_column(DateTime(timezone=True), nullable=True, index=True)
     created_at: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
@@ -62,6 +71,16 @@ class Job(Base):
 
     def as_dict(self) -> dict[str, Any]:
         return {c.name: getattr(self, c.name) for c in self.__table__.columns}
+
+
+def _restart_interrupts_open_attempt(new_owner: str | None = None) -> Any:
+    """SQL for ``service_restarts`` when a job leaves its replica: one more if an attempt was open
+    (begun, and neither lost nor interrupted yet). With ``new_owner``, a replica re-claiming its
+    own lapsed lease is no restart: its attempt still runs."""
+    open_attempt = Job.attempts > Job.worker_losses + Job.service_restarts
+    if new_owner is not None:
+        open_attempt = and_(open_attempt, Job.lease_owner != new_owner)
+    return case((open_attempt, Job.service_restarts + 1), else_=Job.service_restarts)
 
 
 def as_utc(value: dt.datetime | None) -> dt.datetime | None:
@@ -135,6 +154,8 @@ class JobStore:
             stage="queued",
             progress=0.0,
             attempts=0,
+            worker_losses=0,
+            service_restarts=0,
             lease_owner=owner,
             lease_expires_at=now + dt.timedelta(seconds=lease_seconds),
             created_at=now,
@@ -158,7 +179,8 @@ class JobStore:
             return list(s.scalars(query))
 
     def claim_expired(self, owner: str, lease_seconds: float, limit: int = 100) -> list[Job]:
-        """Take over active jobs whose lease has expired (their owner is gone); return them."""
+        """Take over active jobs whose lease has expired (their owner is gone); return them. An
+        attempt their owner had open was interrupted by a service restart: counted as one."""
         now = utcnow()
         with self._session() as s:
             candidates = list(s.scalars(
@@ -173,20 +195,32 @@ class JobStore:
                 lease_expires_at=now + dt.timedelta(seconds=lease_seconds),
                 state=JobState.queued.value,
                 stage="recovered, queued again",
+                service_restarts=_restart_interrupts_open_attempt(owner),
             ):
                 claimed.append(self.get(job_id))
         return [j for j in claimed if j is not None]
 
-    def begin_attempt(self, job_id: str, owner: str, lease_seconds: float) -> Job | None:
-        """Count a new attempt of a job this owner holds; None when it is no longer ours or active."""
+    def begin_attempt(self, job_id: str, owner: str, lease_seconds: float,
+                      max_worker_losses: int | None = None) -> Job | None:
+        """Count a new attempt of a job this owner holds; None when it is no longer ours or active.
+        When ``max_worker_losses`` attempts were already lost, nothing is counted: the caller sees
+        ``job.worker_losses >= max_worker_losses`` and gives up."""
         with self._session.begin() as s:
             job = s.get(Job, job_id, with_for_update=True)
             if job is None or job.state not in ACTIVE or job.lease_owner != owner:
                 return None
+            if max_worker_losses is not None and job.worker_losses >= max_worker_losses:
+                return job
             job.attempts += 1
             job.lease_expires_at = utcnow() + dt.timedelta(seconds=lease_seconds)
             job.updated_at = utcnow()
         return job
+
+    def record_worker_loss(self, job_id: str, owner: str) -> bool:
+        """The open attempt of a job this owner holds lost its worker (it spends the retry budget)."""
+        return self._conditional_update(
+            job_id, [Job.state.in_(ACTIVE), Job.lease_owner == owner], worker_losses=Job.worker_losses + 1,
+        )
 
     def mark_running(self, job_id: str, owner: str) -> bool:
         now = utcnow()
@@ -212,10 +246,12 @@ class JobStore:
             )
 
     def release(self, job_id: str, owner: str) -> bool:
-        """Give an active job back (on shutdown): anyone may claim it at once."""
+        """Give an active job back (on shutdown): anyone may claim it at once. Its open attempt,
+        if any, counts as interrupted by a service restart."""
         return self._conditional_update(
             job_id, [Job.state.in_(ACTIVE), Job.lease_owner == owner],
             state=JobState.queued.value, stage="queued (service restarted)", lease_expires_at=utcnow(),
+            service_restarts=_restart_interrupts_open_attempt(),
         )
 
     def finish(self, job_id: str, owner: str | None, state: JobState, result: dict | None = None,
@@ -260,6 +296,8 @@ def job_public(job: Job) -> dict[str, Any]:
         "result": job.result,
         "error": job.error,
         "attempts": job.attempts,
+        "worker_losses": job.worker_losses or 0,
+        "service_restarts": job.service_restarts or 0,
         "created_at": as_utc(job.created_at),
         "started_at": as_utc(job.started_at),
         "finished_at": as_utc(job.finished_at),

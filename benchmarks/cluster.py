@@ -27,7 +27,7 @@ import httpx  # noqa: E402
 from websockets.sync.client import connect  # noqa: E402
 
 from benchmarks._report import md_table, publish  # noqa: E402
-from tests.servers import create_database, ray_cluster, serve_app, temp_postgres  # noqa: E402
+from tests.servers import create_database, exit_on_sigterm, ray_cluster, serve_app, temp_postgres  # noqa: E402
 from workers.common.datasets import dataset  # noqa: E402
 
 
@@ -44,9 +44,9 @@ def photos(count: int) -> list[tuple[str, bytes]]:
 
 @contextmanager
 def api(env_extra: dict[str, str]) -> Iterator[str]:
-    data = tempfile.mkdtemp(prefix="sweepcast-bench-")
-    with serve_app({"SWEEPCAST_DATA_DIR": data, "RAY_AUTH_MODE": "disabled", **env_extra},
-                   args=("--log-level", "warning"), ready_timeout=120) as app:
+    with tempfile.TemporaryDirectory(prefix="sweepcast-bench-", ignore_cleanup_errors=True) as data, \
+            serve_app({"SWEEPCAST_DATA_DIR": data, "RAY_AUTH_MODE": "disabled", **env_extra},
+                      args=("--log-level", "warning"), ready_timeout=120) as app:
         yield app.base
 
 
@@ -140,4 +140,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    with exit_on_sigterm():  # SIGTERM unwinds the server blocks (API, Ray nodes, PostgreSQL), which stop them
+        main()

@@ -42,7 +42,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._report import md_table, publish  # noqa: E402
-from tests.servers import serve_app  # noqa: E402
+from tests.servers import exit_on_sigterm, serve_app  # noqa: E402
 from workers.common.datasets import data_root, dataset  # noqa: E402
 from workers.orientation.decode import decode_gray  # noqa: E402
 from workers.orientation.detect import DetectorConfig, OrientationDetector, get_detector  # noqa: E402
@@ -384,4 +384,5 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    with exit_on_sigterm():  # SIGTERM unwinds the serve_app block, which stops the server and its Ray
+        sys.exit(main())

@@ -38,7 +38,7 @@ import websockets
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._report import md_table, publish  # noqa: E402
-from tests.servers import serve_app  # noqa: E402
+from tests.servers import exit_on_sigterm, serve_app  # noqa: E402
 from workers.streaming.framing import unpack_message  # noqa: E402
 from workers.streaming.params import Viewpoint  # noqa: E402
 from workers.streaming.recording import RecordingArchive  # noqa: E402
@@ -278,4 +278,5 @@ def markdown(results: dict) -> str:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    with exit_on_sigterm():  # SIGTERM unwinds the serve_app block, which stops the server and its Ray
+        raise SystemExit(main())

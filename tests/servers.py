@@ -1,7 +1,21 @@
-"""Throw-away servers on loopback for tests and benchmarks: PostgreSQL, a Ray cluster and the service itself."""
+"""Throw-away servers on loopback for tests and benchmarks: PostgreSQL, a Ray cluster and the service itself.
+
+None of them outlives the process that started it, however that process ends:
+
+- a normal exit, an exception or Ctrl-C leaves the ``with`` block, whose ``finally`` stops the server;
+- a script wraps its work in :func:`exit_on_sigterm`: SIGTERM then raises SystemExit, so the same
+  ``finally`` blocks run (not installed here for everyone: under pytest a SystemExit would only
+  fail the running test, and the run would go on);
+- any other death (SIGKILL, SIGTERM without that handler) runs nothing in the dying process, so each
+  server has a watchdog process beside it (:func:`watch`) that stops it once its starter's pid is
+  gone. The service, in its own process group, also gets SIGTERM from the kernel when the thread
+  that started it dies (``PR_SET_PDEATHSIG``, Linux): start servers from a thread that lives as
+  long as they should.
+"""
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import glob
 import os
 import pwd
@@ -11,14 +25,122 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 
 class Unavailable(RuntimeError):
     """The server cannot be started on this machine (the message says why)."""
+
+
+# --- cleanup whatever ends the starter ---------------------------------------------------------------
+ROOT = Path(__file__).resolve().parents[1]
+PR_SET_PDEATHSIG = 1
+WATCH_PERIOD_S = 0.2
+
+
+@contextlib.contextmanager
+def exit_on_sigterm() -> Iterator[None]:
+    """Inside the block SIGTERM raises SystemExit(143), so ``finally`` blocks (and ``with`` exits) run,
+    as they do for Ctrl-C. Only where Python can (the main thread) and only over the default action:
+    a handler the program installed itself is left alone."""
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGTERM) != signal.SIG_DFL:
+        yield
+        return
+
+    def _raise(signum: int, _frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, _raise)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _die_with_parent(sig: int = signal.SIGTERM) -> Callable[[], None] | None:
+    """A ``preexec_fn`` that makes the kernel send ``sig`` to the child when the thread that started
+    it dies (prctl PR_SET_PDEATHSIG); None off Linux. libc is loaded here, not in the forked child."""
+    if not sys.platform.startswith("linux"):
+        return None
+    prctl = ctypes.CDLL(None, use_errno=True).prctl
+    parent = os.getpid()
+
+    def preexec() -> None:
+        prctl(PR_SET_PDEATHSIG, sig, 0, 0, 0)
+        if os.getppid() != parent:  # the parent died before prctl took effect: nobody would tell us
+            os._exit(1)
+
+    return preexec
+
+
+def start_watchdog(*, group: int | None = None, marker: str | None = None, grace_s: float = 20.0
+                   ) -> subprocess.Popen:
+    """A process that outlives this one and, if this one dies without stopping it (SIGKILL), ends
+    process group ``group`` (SIGTERM to its leader, SIGKILL to the group after ``grace_s``) or every
+    process whose command line mentions ``marker``. Stop it (terminate) once the server is down."""
+    args = [str(os.getpid()), str(group or 0), marker or "", str(grace_s)]
+    return subprocess.Popen([sys.executable, "-c", "import sys; from tests.servers import watch; watch(*sys.argv[1:])",
+                             *args], cwd=ROOT, start_new_session=True,  # Ctrl-C on a terminal is not for it
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
+
+
+def watch(parent: str, group: str, marker: str, grace_s: str) -> None:
+    """The watchdog's body (see :func:`start_watchdog`): poll until ``parent`` is gone, then clean up.
+    SIGTERM (the parent's clean exit) ends it without touching anything."""
+    while os.getppid() == int(parent):
+        time.sleep(WATCH_PERIOD_S)
+    if int(group):
+        stop_group(int(group), float(grace_s))
+    if marker:
+        kill_mentioning(marker)
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie waiting to be reaped does not)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
+def stop_group(leader: int, grace_s: float, proc: subprocess.Popen | None = None) -> None:
+    """SIGTERM to ``leader`` (it shuts its own children down), up to ``grace_s`` for it to end, then
+    SIGKILL to its whole process group: what the leader left behind, or the leader itself when late.
+    ``proc``: the leader's Popen when we are its parent (it is reaped)."""
+    try:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(leader, signal.SIGTERM)
+        deadline = time.monotonic() + grace_s
+        while time.monotonic() < deadline and (proc.poll() is None if proc is not None else _alive(leader)):
+            time.sleep(0.1)
+    finally:  # even when a second Ctrl-C cuts the wait short
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(leader, signal.SIGKILL)
+        if proc is not None:
+            proc.wait()
+
+
+def kill_mentioning(text: str) -> None:
+    """SIGKILL every process whose command line mentions ``text``."""
+    for pid in processes_mentioning(text):
+        if pid != os.getpid():
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.kill(pid, signal.SIGKILL)
+
+
+@contextlib.contextmanager
+def guarded(*, group: int | None = None, marker: str | None = None, grace_s: float = 20.0) -> Iterator[None]:
+    """A watchdog for the block's servers (see :func:`start_watchdog`), stopped when the block ends."""
+    dog = start_watchdog(group=group, marker=marker, grace_s=grace_s)
+    try:
+        yield
+    finally:
+        dog.terminate()
+        dog.wait()
 
 
 def free_port() -> int:
@@ -55,16 +177,18 @@ def temp_postgres() -> Iterator[str]:
             shutil.chown(path, user.pw_uid, user.pw_gid)
         prefix = ["runuser", "-u", "postgres", "--"]
     port = free_port()
-    try:
-        subprocess.run([*prefix, initdb, "-D", str(data), "-U", "sweepcast", "--auth=trust", "--no-sync", "-E", "UTF8"],
-                       check=True, capture_output=True)
-        subprocess.run([*prefix, pg_ctl, "-D", str(data), "-l", str(base / "log"), "-w", "-t", "60", "start",
-                        "-o", f"-p {port} -k {sockets} -c listen_addresses=127.0.0.1 -c fsync=off"],
-                       check=True, capture_output=True)
-        yield f"postgresql://sweepcast@127.0.0.1:{port}"
-    finally:
-        subprocess.run([*prefix, pg_ctl, "-D", str(data), "-m", "immediate", "stop"], capture_output=True)
-        shutil.rmtree(base, ignore_errors=True)
+    # pg_ctl daemonises the server: it leaves our process tree, so it is found by its data folder.
+    with guarded(marker=str(base)):
+        try:
+            subprocess.run([*prefix, initdb, "-D", str(data), "-U", "sweepcast", "--auth=trust", "--no-sync",
+                            "-E", "UTF8"], check=True, capture_output=True)
+            subprocess.run([*prefix, pg_ctl, "-D", str(data), "-l", str(base / "log"), "-w", "-t", "60", "start",
+                            "-o", f"-p {port} -k {sockets} -c listen_addresses=127.0.0.1 -c fsync=off"],
+                           check=True, capture_output=True)
+            yield f"postgresql://sweepcast@127.0.0.1:{port}"
+        finally:
+            subprocess.run([*prefix, pg_ctl, "-D", str(data), "-m", "immediate", "stop"], capture_output=True)
+            shutil.rmtree(base, ignore_errors=True)
 
 
 def create_database(server_url: str, name: str) -> str:
@@ -100,22 +224,19 @@ def ray_cluster(worker_nodes: int = 2, cpus_per_node: int = 1, resources: str = 
     env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
     ray = str(Path(sys.executable).parent / "ray")
     common = [f"--temp-dir={temp}", "--disable-usage-stats"]
-    try:
-        subprocess.run([ray, "start", "--head", f"--port={port}", "--num-cpus=0", "--include-dashboard=false",
-                        *common], check=True, capture_output=True, env=env, timeout=120)
-        for _ in range(worker_nodes):
-            subprocess.run([ray, "start", f"--address=127.0.0.1:{port}", f"--num-cpus={cpus_per_node}",
-                            f"--resources={resources}", *common], check=True, capture_output=True, env=env,
-                           timeout=120)
-        yield f"127.0.0.1:{port}"
-    finally:
-        for pid in processes_mentioning(temp):
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(pid, signal.SIGKILL)
-        shutil.rmtree(temp, ignore_errors=True)
-
-
-ROOT = Path(__file__).resolve().parents[1]
+    # `ray start` daemonises its nodes: they leave our process tree, so they are found by their temp dir.
+    with guarded(marker=temp):
+        try:
+            subprocess.run([ray, "start", "--head", f"--port={port}", "--num-cpus=0", "--include-dashboard=false",
+                            *common], check=True, capture_output=True, env=env, timeout=120)
+            for _ in range(worker_nodes):
+                subprocess.run([ray, "start", f"--address=127.0.0.1:{port}", f"--num-cpus={cpus_per_node}",
+                                f"--resources={resources}", *common], check=True, capture_output=True, env=env,
+                               timeout=120)
+            yield f"127.0.0.1:{port}"
+        finally:
+            kill_mentioning(temp)
+            shutil.rmtree(temp, ignore_errors=True)
 
 
 @dataclass
@@ -152,24 +273,29 @@ def serve_app(env: dict[str, str | None], log: Path | None = None, args: tuple[s
               ready_timeout: float = 180.0) -> Iterator[ServedApp]:
     """Run the service on a free port with ``env`` over this environment (None removes a variable; model
     fetching and Ray usage stats off), its output to ``log`` (else discarded); wait for ``/readyz`` unless
-    ``wait`` is False; stop it (terminate, then kill after 30 s) on leaving."""
+    ``wait`` is False. On leaving the block, or when this process dies (see the module docstring), the
+    server and everything it started (its own process group: Ray's processes, workers) are stopped:
+    SIGTERM, then SIGKILL to the group after 30 s (20 s when the watchdog does it)."""
     port = free_port()
     merged = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "SWEEPCAST_FETCH_MODELS": "false", **env}
     env = {k: v for k, v in merged.items() if v is not None}
     out = open(log, "wb") if log is not None else subprocess.DEVNULL
-    proc = subprocess.Popen([sys.executable, "-m", "app", "serve", "--port", str(port), *args], cwd=ROOT, env=env,
-                            stdout=out, stderr=subprocess.STDOUT)
     try:
-        app = ServedApp(f"http://127.0.0.1:{port}", proc, log)
-        if wait:
-            app.wait_ready(ready_timeout)
-        yield app
-    finally:
-        proc.terminate()
+        proc = subprocess.Popen([sys.executable, "-m", "app", "serve", "--port", str(port), *args], cwd=ROOT,
+                                env=env, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                start_new_session=True, preexec_fn=_die_with_parent())
+        dog = start_watchdog(group=proc.pid)
         try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+            app = ServedApp(f"http://127.0.0.1:{port}", proc, log)
+            if wait:
+                app.wait_ready(ready_timeout)
+            yield app
+        finally:
+            try:
+                stop_group(proc.pid, 30.0, proc)
+            finally:  # only once the server is down: until then it still guards against our SIGKILL
+                dog.terminate()
+                dog.wait()
+    finally:
         if log is not None:
             out.close()

@@ -7,7 +7,7 @@ from typing import Any, Literal
 
 from fastapi import APIRouter, Depends, Query, WebSocket, WebSocketDisconnect
 from fastapi.responses import JSONResponse, Response, StreamingResponse
-from pydantic import BaseModel
+from pydantic import BaseModel, Field
 
 from app.auth import require_key, websocket_key_ok
 from app.errors import ApiError
@@ -20,6 +20,7 @@ from workers.storage import BlobNotFound
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"], dependencies=[Depends(require_key)])
 ws_router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 _POLL_S = 0.5  # how often a socket looks at the row when its own replica sends nothing
+MAX_OFFSET = 1_000_000_000  # far past any job table; keeps the value inside a 64-bit SQL integer
 
 
 class JobProgress(BaseModel):
@@ -42,7 +43,11 @@ class JobOut(BaseModel):
     inputs: list[JobInput]
     result: dict[str, Any] | None
     error: str | None
-    attempts: int
+    attempts: int = Field(description="Attempts begun: lost workers + service restarts + the open or final one.")
+    worker_losses: int = Field(description="Attempts whose worker or node was lost; the job fails once they "
+                                           "reach SWEEPCAST_JOB_MAX_ATTEMPTS.")
+    service_restarts: int = Field(description="Attempts cut short because the service stopped or died; they "
+                                              "never count against SWEEPCAST_JOB_MAX_ATTEMPTS.")
     created_at: dt.datetime
     started_at: dt.datetime | None
     finished_at: dt.datetime | None
@@ -71,9 +76,9 @@ async def load_job(job_id: str, svc: Services) -> Any:
 @router.get("", response_model=JobList, summary="List jobs, newest first")
 async def list_jobs(
     state: Literal["queued", "running", "succeeded", "failed", "cancelled"] | None = None,
-    kind: str | None = None,
+    kind: str | None = Query(None, max_length=100),
     limit: int = Query(50, ge=1, le=500),
-    offset: int = Query(0, ge=0),
+    offset: int = Query(0, ge=0, le=MAX_OFFSET),
     svc: Services = Depends(services),
 ) -> dict[str, Any]:
     rows = await asyncio.to_thread(svc.jobs.list, state, kind, limit, offset)

@@ -7,14 +7,22 @@ text (:class:`workers.streaming.params.Viewpoint`); the server answers each rend
 binary message (4-byte big-endian header length, JSON header ``{"type": "frame", "id", "frame",
 "depth_range", "render_ms", "encode_ms", ...}``, then the JPEG). Latest viewpoint wins: while a
 render is in flight only the newest viewpoint waits (``skipped`` counts those replaced). A bad
-viewpoint gets ``{"type": "error", "error", "detail", "id"}`` and the socket stays open; a binary
-message closes it with 1003.
+viewpoint gets ``{"type": "error", "error", "detail", "id"}`` and the socket stays open: so does a
+text message over ``MAX_TEXT_CHARS`` characters (``message_too_large``, not parsed at all) or one
+that is not JSON or nests too deeply to parse (``bad_json``). A binary message closes it with 1003.
+
+A failure costs one viewpoint, never the socket or the session: an exception in the renderer is
+answered with ``render_failed``; when the session's process is lost during a render (it restarts
+and reloads its frames) the viewpoint gets ``session_restarting`` and is not rendered again (it
+may be what crashed it); the next viewpoint is rendered once the session is back.
 
 Live socket: the server sends ``{"type": "hello", "cameras": [...]}``; the client sends frame sets
 as binary messages (header ``{"sizes": [...], "cameras"?, "background"?, "seq"?}``, then one JPEG per
 camera; see :mod:`workers.streaming.framing`). Each applied set is acknowledged with ``{"type":
 "ack", "seq", "live_seq", "dropped", ...}``; a bad set gets ``{"type": "error", ..., "seq"}`` and the
-previous set stays on show. A text message other than ``{"type": "ping"}`` closes it with 1003.
+previous set stays on show; a set the session failed on gets ``frame_set_failed`` (or
+``session_restarting`` when its process was lost meanwhile; the set is not sent again). A text
+message other than ``{"type": "ping"}`` (at most ``MAX_TEXT_CHARS`` characters) closes it with 1003.
 
 Unknown rigs or recordings, and wrong API keys, close with 1008 and a reason. Either socket keeps
 its session alive while open; when the last one goes, the session ends after the idle timeout.
@@ -38,7 +46,7 @@ from app.auth import websocket_key_ok
 from app.errors import ApiError
 from app.routers.rig_support import Source, resolve_source, session_config
 from app.services import Services
-from workers.streaming.actor import LIVE, SessionClient
+from workers.streaming.actor import LIVE, SessionClient, SessionInterrupted
 from workers.streaming.framing import FramingError, pack_message, unpack_frame_set
 from workers.streaming.params import Viewpoint
 
@@ -48,6 +56,32 @@ ws_router = APIRouter(prefix="/v1/rigs", tags=["rigs"])
 UNSUPPORTED_DATA = 1003
 POLICY_VIOLATION = 1008
 INTERNAL_ERROR = 1011
+MAX_TEXT_CHARS = 8192
+"""Longest text message parsed: a viewpoint or a ping is a few hundred characters. The cap also
+bounds the work of a hostile message before json.loads sees it."""
+
+
+class BadMessage(ValueError):
+    """A client's text message that cannot be read: ``code`` and ``detail`` go back in an error."""
+
+    def __init__(self, code: str, detail: str) -> None:
+        super().__init__(detail)
+        self.code = code
+        self.detail = detail
+
+
+def parse_text(text: str) -> Any:
+    """The JSON value of a client text message; BadMessage when too long, not JSON or nested too
+    deeply for the parser (json.loads raises RecursionError there, which would end the handler)."""
+    if len(text) > MAX_TEXT_CHARS:
+        raise BadMessage("message_too_large", f"a text message is at most {MAX_TEXT_CHARS} characters; "
+                                              f"got {len(text)}")
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise BadMessage("bad_json", f"not JSON: {exc}") from None
+    except RecursionError:
+        raise BadMessage("bad_json", "not usable JSON: nested too deeply") from None
 
 
 class Channel:
@@ -146,6 +180,11 @@ async def _serve(websocket: WebSocket, channel: Channel, client: SessionClient, 
         await reader()
     except WebSocketDisconnect:
         pass
+    except Exception:  # noqa: BLE001 - as in guarded(): close with a code, never drop the connection
+        log.exception("a rig socket's reader failed")
+        with contextlib.suppress(Exception):  # the socket itself may be what failed
+            await channel.error("internal_error", "the server failed on this socket")
+            await channel.close(INTERNAL_ERROR, "internal error")
     finally:
         channel.closed = True
         for task in tasks:
@@ -194,7 +233,10 @@ async def view_socket(websocket: WebSocket, rig_id: str, source: str | None = No
             vp: Viewpoint = await mailbox.take()
             t0 = time.perf_counter()
             try:
-                reply = await client.call("render", viewer, vp.model_dump(mode="json"))
+                reply = await client.call("render", viewer, vp.model_dump(mode="json"), resend=False)
+            except SessionInterrupted as exc:
+                await channel.error("session_restarting", str(exc), id=vp.id)
+                continue
             except ray.exceptions.RayError as exc:
                 await channel.error("session_failed", f"the render failed: {_cause(exc)}", id=vp.id)
                 continue
@@ -211,9 +253,9 @@ async def view_socket(websocket: WebSocket, rig_id: str, source: str | None = No
 async def _viewpoint(channel: Channel, text: str, svc: Services) -> Viewpoint | None:
     """The viewpoint in a text message, or None after answering with an error (or a pong)."""
     try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        await channel.error("bad_json", f"not JSON: {exc}")
+        data = parse_text(text)
+    except BadMessage as exc:
+        await channel.error(exc.code, exc.detail)
         return None
     if not isinstance(data, dict):
         await channel.error("bad_viewpoint", "a viewpoint is a JSON object")
@@ -274,7 +316,10 @@ async def live_socket(websocket: WebSocket, rig_id: str) -> None:
         while True:
             frame_set = await mailbox.take()
             try:
-                reply = await client.call("push", frame_set.jpegs, frame_set.background)
+                reply = await client.call("push", frame_set.jpegs, frame_set.background, resend=False)
+            except SessionInterrupted as exc:
+                await channel.error("session_restarting", str(exc), seq=frame_set.seq)
+                continue
             except ray.exceptions.RayError as exc:
                 await channel.error("session_failed", f"the frame set was not applied: {_cause(exc)}",
                                     seq=frame_set.seq)
@@ -290,8 +335,10 @@ async def live_socket(websocket: WebSocket, rig_id: str) -> None:
 
 
 def _is_ping(text: str | None) -> bool:
-    with contextlib.suppress(TypeError, json.JSONDecodeError):
-        data = json.loads(text)
+    if text is None:
+        return False
+    with contextlib.suppress(BadMessage):
+        data = parse_text(text)
         return isinstance(data, dict) and data.get("type") == "ping"
     return False
 

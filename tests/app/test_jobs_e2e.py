@@ -87,6 +87,7 @@ def test_worker_killed_mid_batch_is_retried_and_nothing_is_lost(client_factory):
     final = wait_final(client, job["id"])
     assert final["state"] == "succeeded", final
     assert final["attempts"] >= 2
+    assert final["worker_losses"] >= 1 and final["service_restarts"] == 0
     entries = client.get(f"/v1/jobs/{job['id']}/results/report.json").json()
     assert len(entries) == 40 and not any(e.get("error") for e in entries)
 
@@ -109,6 +110,8 @@ def test_jobs_queued_when_the_service_stops_complete_after_restart(ray_local, se
             job = wait_final(second, job_id)
             assert job["state"] == "succeeded", job
             assert len(second.get(f"/v1/jobs/{job_id}/results/report.json").json()) == 12
+            # The stop interrupted attempts: counted as restarts, never as lost workers.
+            assert job["worker_losses"] == 0 and job["attempts"] == job["service_restarts"] + 1, job
 
 
 @pytest.mark.slow

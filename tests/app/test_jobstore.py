@@ -102,3 +102,44 @@ def test_migrations_match_the_model_and_run_twice(database_url):
         diff = compare_metadata(MigrationContext.configure(conn), Base.metadata)
     store.close()
     assert diff == []
+
+
+def _counts(jobs, job_id):
+    job = jobs.get(job_id)
+    return job.attempts, job.worker_losses, job.service_restarts
+
+
+def test_lost_workers_and_service_restarts_are_counted_apart(jobs):
+    job = _new(jobs, owner="A", lease=60)
+    jobs.begin_attempt(job.id, "A", 60)
+    assert jobs.record_worker_loss(job.id, "A") and not jobs.record_worker_loss(job.id, "B")
+    assert jobs.begin_attempt(job.id, "A", 0.01).attempts == 2
+    time.sleep(0.05)  # "A" was killed with its attempt open: its lease runs out
+    assert [j.id for j in jobs.claim_expired("B", 60)] == [job.id]
+    assert _counts(jobs, job.id) == (2, 1, 1)
+    jobs.begin_attempt(job.id, "B", 60)
+    assert jobs.release(job.id, "B")  # a clean stop with an attempt open
+    assert _counts(jobs, job.id) == (3, 1, 2)
+    assert [j.id for j in jobs.claim_expired("C", 60)] == [job.id]
+    assert _counts(jobs, job.id) == (3, 1, 2)  # the release already counted that restart
+    public = job_public(jobs.get(job.id))
+    assert (public["attempts"], public["worker_losses"], public["service_restarts"]) == (3, 1, 2)
+
+
+def test_a_restart_before_any_attempt_and_an_own_lapsed_lease_count_nothing(jobs):
+    never_begun = _new(jobs, owner="dead", lease=0.01)
+    own = _new(jobs, owner="A", lease=60)
+    jobs.begin_attempt(own.id, "A", 0.01)
+    time.sleep(0.05)
+    assert {j.id for j in jobs.claim_expired("A", 60)} == {never_begun.id, own.id}
+    assert _counts(jobs, never_begun.id) == (0, 0, 0)
+    assert _counts(jobs, own.id) == (1, 0, 0)  # A's attempt still runs: no restart happened
+
+
+def test_begin_attempt_counts_nothing_once_the_lost_worker_budget_is_spent(jobs):
+    job = _new(jobs, owner="A", lease=60)
+    for _ in range(2):
+        jobs.begin_attempt(job.id, "A", 60, max_worker_losses=2)
+        jobs.record_worker_loss(job.id, "A")
+    spent = jobs.begin_attempt(job.id, "A", 60, max_worker_losses=2)
+    assert spent.worker_losses == 2 and spent.attempts == 2

@@ -39,3 +39,9 @@ def test_frame_set_is_split_in_rig_order_even_when_sent_in_another():
 def test_malformed_frame_sets_say_what_is_wrong(data, problem):
     with pytest.raises(FramingError, match=problem):
         unpack_frame_set(data, NAMES)
+
+
+def test_a_header_nested_too_deeply_is_a_framing_error():
+    head = b"[" * 30000 + b"]" * 30000  # within the header limit, beyond the parser's recursion limit
+    with pytest.raises(FramingError, match="nested too deeply"):
+        unpack_message(struct.pack(">I", len(head)) + head)

@@ -1,5 +1,9 @@
 """Viewer and live-ingest sockets end to end: frames, latest-wins, bad input, sharing, idle end, restarts."""
 import json
+import os
+import signal
+import tempfile
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -8,6 +12,8 @@ import ray
 from starlette.websockets import WebSocketDisconnect
 
 from tests.streaming.capture import frame_set, jpeg
+from app.routers.rig_sockets import MAX_TEXT_CHARS
+from app.routers.rig_support import session_config
 from tests.streaming.conftest import IDLE_S, add_recording, add_rig, wait_until
 from workers.streaming import actor
 from workers.streaming.framing import unpack_message
@@ -204,9 +210,131 @@ def test_a_crashed_session_restarts_and_reloads_from_the_blob_store(stream_clien
         pid = actor.session_info(session["name"])["pid"]
         ray.kill(ray.get_actor(session["name"], namespace=actor.NAMESPACE), no_restart=False)
         ws.send_text(json.dumps({**VIEW, "id": 2, "frame": frame}))
-        after, _, seen = until(ws, "frame", limit=50)
+        got, message, _ = receive(ws)
+        if got == "json":  # it went to the dead process: reported once, never resent (it might be the cause)
+            assert message["error"] == "session_restarting" and message["id"] == 2, message
+            ws.send_text(json.dumps({**VIEW, "id": 3, "frame": frame}))
+            message, _, seen = until(ws, "frame", limit=50)
+            assert not seen
+        after = message
     info = actor.session_info(session["name"])
     assert info["restarted"] is True and info["pid"] != pid
-    assert after["id"] == 2 and after["seq"] == before["seq"]
+    assert after["id"] in (2, 3) and after["seq"] == before["seq"]
     assert after["coverage"] == pytest.approx(before["coverage"], abs=0.02)
     assert after["depth_found"] == pytest.approx(before["depth_found"], abs=0.05)
+
+
+# --- failures inside the session ------------------------------------------------------------------
+RAISES_WIDTH, CRASHES_WIDTH = 97, 98
+
+
+def crash_log(rig_id: str) -> Path:
+    return Path(tempfile.gettempdir()) / f"sweepcast-test-crashes-{rig_id}"
+
+
+class FaultyHost(actor.SessionHost):
+    """A session actor whose renderer raises for views RAISES_WIDTH wide and kills its own process
+    (as a segfault would) for views CRASHES_WIDTH wide, noting each crash in crash_log()."""
+
+    def _load(self):
+        session = super()._load()
+        render = session.renderer.render
+        log = crash_log(self.config.rig_id)
+
+        def faulty(cam, options=None, **kwargs):
+            if cam.width == RAISES_WIDTH:
+                raise FloatingPointError("injected: the sweep went wrong")
+            if cam.width == CRASHES_WIDTH:
+                with log.open("a") as f:
+                    f.write(f"{os.getpid()}\n")
+                os.kill(os.getpid(), signal.SIGKILL)
+            return render(cam, options, **kwargs)
+
+        session.renderer.render = faulty
+        return session
+
+
+FaultyActor = ray.remote(FaultyHost)
+
+
+@pytest.fixture
+def faulty(recorded):
+    """A recording whose session actor (made before any viewer) is a FaultyHost."""
+    client, rig_id, rec = recorded
+    svc = client.app.state.services
+    handle = actor.get_or_create(session_config(svc, rig_id, rec), svc.settings.session_resources, FaultyActor)
+    pid = ray.get(handle.info.remote())["pid"]
+    yield client, rig_id, rec, pid
+    actor.end_sessions(rig_id)
+    crash_log(rig_id).unlink(missing_ok=True)
+
+
+def test_a_renderer_exception_costs_one_viewpoint_not_the_session(faulty):
+    client, rig_id, rec, pid = faulty
+    with client.websocket_connect(f"/v1/rigs/{rig_id}/view?source={rec}") as ws:
+        ready, _, _ = until(ws, "ready")
+        assert ready["session"]["pid"] == pid  # the viewer found the faulty actor
+        ws.send_text(json.dumps({**VIEW, "id": 1, "frame": 1}))
+        assert until(ws, "frame")[0]["id"] == 1
+        ws.send_text(json.dumps({**VIEW, "id": 2, "frame": 2, "width": RAISES_WIDTH}))
+        error, _, seen = until(ws, "error")
+        assert not seen and error["error"] == "render_failed" and error["id"] == 2
+        assert "FloatingPointError: injected" in error["detail"]
+        ws.send_text(json.dumps({**VIEW, "id": 3, "frame": 1}))
+        header, data, seen = until(ws, "frame")
+        assert not seen and header["id"] == 3 and header["frame"] == 1 and header["reshaded"] is False
+        assert cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR).shape == (72, 96, 3)
+    (session,) = sessions_of(rig_id)
+    info = actor.session_info(session["name"])
+    assert info["pid"] == pid and info["restarted"] is False and info["failures"] == 1
+
+
+def test_a_crash_during_a_render_is_reported_once_and_never_resent(faulty):
+    client, rig_id, rec, pid = faulty
+    with client.websocket_connect(f"/v1/rigs/{rig_id}/view?source={rec}") as ws:
+        until(ws, "ready")
+        ws.send_text(json.dumps({**VIEW, "id": 1, "width": CRASHES_WIDTH}))
+        error, _, seen = until(ws, "error")
+        assert not seen and error["error"] == "session_restarting" and error["id"] == 1
+        ws.send_text(json.dumps({**VIEW, "id": 2, "frame": 2}))
+        header, _, seen = until(ws, "frame")
+        assert not seen and header["id"] == 2 and header["frame"] == 2
+    (session,) = sessions_of(rig_id)
+    info = actor.session_info(session["name"])
+    assert info["restarted"] is True and info["pid"] != pid
+    # The viewpoint that crashed the renderer was not sent again: one crash, one restart.
+    assert len(crash_log(rig_id).read_text().split()) == 1
+
+
+# --- hostile text messages ------------------------------------------------------------------------
+DEEP = "[" * 100000 + "]" * 100000
+
+
+def test_deep_or_huge_text_gets_an_error_and_the_viewer_socket_stays_open(recorded):
+    client, rig_id, rec = recorded
+    with client.websocket_connect(f"/v1/rigs/{rig_id}/view?source={rec}") as ws:
+        until(ws, "ready")
+        ws.send_text(DEEP)
+        error, _, _ = until(ws, "error")
+        assert error["error"] == "message_too_large" and str(MAX_TEXT_CHARS) in error["detail"]
+        ws.send_text("[" * (MAX_TEXT_CHARS // 2) + "]" * (MAX_TEXT_CHARS // 2))  # under the cap, still too deep
+        error, _, _ = until(ws, "error")
+        assert error["error"] == "bad_json" and "nested too deeply" in error["detail"]
+        ws.send_text(json.dumps({**VIEW, "id": 1}))
+        assert until(ws, "frame")[0]["id"] == 1
+
+
+def test_deep_text_or_header_on_the_live_socket_is_answered_not_dropped(stream_client, take):
+    rig_id = add_rig(stream_client, take)
+    with stream_client.websocket_connect(f"/v1/rigs/{rig_id}/live") as live:
+        until(live, "hello")
+        head = ("[" * 30000 + "]" * 30000).encode()
+        live.send_bytes(len(head).to_bytes(4, "big") + head)
+        error, _, _ = until(live, "error")
+        assert error["error"] == "bad_frame_set" and "nested too deeply" in error["detail"]
+        live.send_bytes(frame_set([jpeg(b) for b in take.backgrounds], background=True, seq=1))
+        assert until(live, "ack")[0]["seq"] == 1  # the socket still works
+        live.send_text(DEEP)
+        with pytest.raises(WebSocketDisconnect) as closed:
+            until(live, "ack")
+        assert closed.value.code == 1003  # a close frame with a code, as for any text but a ping

@@ -46,6 +46,8 @@ def unpack_message(data: bytes) -> tuple[dict[str, Any], memoryview]:
         header = json.loads(bytes(data[_LEN.size:_LEN.size + n]).decode())
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise FramingError(f"the header is not UTF-8 JSON: {exc}") from None
+    except RecursionError:  # "[[[[..." within the size limit: the parser gives up, the socket must not
+        raise FramingError("the header is nested too deeply to parse") from None
     if not isinstance(header, dict):
         raise FramingError("the header must be a JSON object")
     return header, memoryview(data)[_LEN.size + n:]

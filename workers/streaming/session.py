@@ -122,6 +122,16 @@ class Session:
         """Drop what is kept for ``viewer`` (it left)."""
         self._previous.pop(viewer, None)
 
+    def discard_after_failure(self, viewer: str | None) -> None:
+        """After an unexpected exception in a render for ``viewer`` (None: in applying frames),
+        drop what it may have left half-made: the kept renders it could be re-shaded from, and
+        which frames the renderer holds (the next render loads them again)."""
+        if viewer is None:
+            self._previous.clear()
+        else:
+            self._previous.pop(viewer, None)
+        self.frame_key = None
+
     def describe(self) -> dict[str, Any]:
         return {"kind": self.kind, "cameras": len(self.rig), "renders": self.renders}
 
