@@ -12,6 +12,9 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match, Mount
+
+_METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS", "TRACE")
 
 
 class ApiError(StarletteHTTPException):
@@ -35,9 +38,12 @@ def error_body(status: int, detail: Any, code: str | None = None, **extra: Any) 
 
 def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(StarletteHTTPException)
-    async def _http_error(_request: Request, exc: StarletteHTTPException) -> JSONResponse:
+    async def _http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         code = getattr(exc, "code", None)
-        return JSONResponse(error_body(exc.status_code, exc.detail, code), exc.status_code, headers=exc.headers)
+        headers = exc.headers
+        if exc.status_code == 405 and headers and "Allow" in headers:  # a route's 405 (not a mount's)
+            headers = {**headers, "Allow": ", ".join(allowed_methods(request)) or headers["Allow"]}
+        return JSONResponse(error_body(exc.status_code, exc.detail, code), exc.status_code, headers=headers)
 
     @app.exception_handler(RequestValidationError)
     async def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:
@@ -47,3 +53,12 @@ def install_error_handlers(app: FastAPI) -> None:
         ]
         summary = "; ".join(f"{'.'.join(f['loc'][1:] or f['loc'])}: {f['msg']}" for f in fields)
         return JSONResponse(error_body(422, f"invalid request: {summary}", "invalid_request", fields=fields), 422)
+
+
+def allowed_methods(request: Request) -> list[str]:
+    """Every method some route serves at this path. Starlette's 405 names only the first route that
+    matched the path, so ``GET /v1/jobs/{id}`` and ``DELETE /v1/jobs/{id}`` (two routes) said ``Allow: GET``."""
+    routes = [r for r in request.app.router.routes if not isinstance(r, Mount)]  # a mount matches any method
+    scope = {"type": "http", "path": request.scope["path"], "root_path": request.scope.get("app_root_path", ""),
+             "headers": [], "query_string": b""}
+    return [m for m in _METHODS if any(r.matches({**scope, "method": m})[0] == Match.FULL for r in routes)]

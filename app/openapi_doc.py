@@ -1,13 +1,266 @@
-"""The OpenAPI document as committed in ``openapi/openapi.json``."""
+"""The OpenAPI document: FastAPI's schema corrected to say what the service really answers.
+
+FastAPI documents only the success response and its own 422 body (``HTTPValidationError``, whose
+``detail`` is a list), and it describes multipart form fields as Python sees them. The service
+answers every error as ``{"error", "detail"}`` (app/errors.py), guards ``/v1`` with bearer keys,
+limits bodies, and reads each ``params`` form field as a JSON object. :func:`document_contract`
+rewrites the generated schema to say so, in one place, so that routes stay plain; the live
+``/openapi.json`` and the committed ``openapi/openapi.json`` are the same document.
+``tests/app/test_contract_fuzz.py`` fuzzes the live service against it.
+"""
 from __future__ import annotations
 
+import copy
 import json
+from typing import TYPE_CHECKING, Any, Callable
 
-from app.main import create_app
-from app.settings import Settings
+from pydantic import BaseModel
+
+from workers.depth.params import DepthFilterParams, DepthVideoParams, SynthesizeParams
+from workers.drone.params import ReconstructionParams
+from workers.faces.job import FaceTrainParams, FaceTransformParams
+from workers.streaming.params import RecordingRequest
+
+if TYPE_CHECKING:
+    from fastapi import FastAPI
+
+ERROR = "Error"
+VALIDATION_ERROR = "ValidationErrorResponse"
+BEARER = "bearerAuth"
+SECURITY_SCHEMES = {BEARER: {
+    "type": "http", "scheme": "bearer",
+    "description": "one of the service's API keys (SWEEPCAST_API_KEYS); a service started on loopback without "
+                   "keys accepts requests without one. Sockets also take `?access_token=<key>`.",
+}}
+_FASTAPI_422 = "#/components/schemas/HTTPValidationError"
+
+# Statuses every operation of a kind can answer (what causes them is the same everywhere).
+AUTH_STATUS = {401: "missing or wrong API key: send `Authorization: Bearer <key>` (only when the service has keys)"}
+BODY_STATUSES = {
+    400: "the body could not be parsed (malformed multipart or JSON), or an upload is empty or unreadable",
+    413: "the request body, or one upload in it, is over the service's limit",
+}
+PATH_STATUS = {404: "nothing exists under the id (or name) in the path"}
+VALIDATION_DESCRIPTION = ("invalid request: a parameter, form field or `params` object is wrong; request "
+                          "validation errors list each problem in `fields`")
+
+# What only some operations answer, read off their routes. Keys must name documented operations
+# (rendering fails otherwise, so a renamed route cannot leave a stale entry here).
+OPERATION_STATUSES: dict[tuple[str, str], dict[int, str]] = {
+    ("get", "/v1/jobs/{job_id}/results/{name}"): {
+        409: "the job has not succeeded (it has no results)",
+        410: "the result was listed but is no longer stored",
+    },
+    ("delete", "/v1/jobs/{job_id}"): {
+        409: "the job imported a recording that still exists: delete the recording instead",
+    },
+    ("post", "/v1/face-models/{model_id}/transform"): {
+        409: "the model's training job has not succeeded",
+        410: "the model's files are no longer stored",
+    },
+    ("post", "/v1/rigs/{rig_id}/renders"): {409: "the recording is still being imported, or its import failed"},
+    ("post", "/v1/depth/filter"): {415: "an upload is not an image in a format this route reads"},
+    ("post", "/v1/depth/synthesize"): {415: "an upload is not an image in a format this route reads"},
+    ("post", "/v1/photos/orientation"): {415: "the file is not an image, or not a format this route reads"},
+    ("post", "/v1/photos/orient"): {415: "the file is not a JPEG or WebP image"},
+}
+
+# Extra media types a success response can have.
+EXTRA_SUCCESS_MEDIA: dict[tuple[str, str], list[str]] = {
+    ("post", "/v1/photos/orient"): ["image/webp"],  # a WebP upload comes back as WebP
+}
+
+
+# The model each operation's ``params`` form field (JSON text, read by app.services.parse_params) is.
+PARAMS_MODELS: dict[tuple[str, str], type[BaseModel]] = {
+    ("post", "/v1/depth/filter"): DepthFilterParams,
+    ("post", "/v1/depth/synthesize"): SynthesizeParams,
+    ("post", "/v1/depth/videos"): DepthVideoParams,
+    ("post", "/v1/face-models"): FaceTrainParams,
+    ("post", "/v1/face-models/{model_id}/transform"): FaceTransformParams,
+    ("post", "/v1/reconstructions"): ReconstructionParams,
+    ("post", "/v1/rigs/{rig_id}/recordings"): RecordingRequest,
+}
+
+
+class ContractError(RuntimeError):
+    """The routes and this module's tables disagree (a route was added, renamed or removed)."""
+
+
+def error_schemas() -> dict[str, Any]:
+    field_error = {
+        "type": "object",
+        "required": ["loc", "msg", "type"],
+        "properties": {
+            "loc": {"type": "array", "items": {"type": "string"},
+                    "description": "where: 'query', 'path', 'body' or 'header', then the field's path"},
+            "msg": {"type": "string"},
+            "type": {"type": "string", "description": "pydantic's error type, e.g. missing"},
+        },
+    }
+    return {
+        ERROR: {
+            "title": ERROR,
+            "type": "object",
+            "required": ["error", "detail"],
+            "properties": {
+                "error": {"type": "string", "description": "a short code, e.g. job_not_found"},
+                "detail": {"type": "string", "description": "what was wrong, for a person"},
+            },
+        },
+        VALIDATION_ERROR: {
+            "title": VALIDATION_ERROR,
+            "type": "object",
+            "required": ["error", "detail"],
+            "properties": {
+                "error": {"type": "string", "description": "invalid_request for request validation, else a "
+                                                          "route's code such as invalid_parameters"},
+                "detail": {"type": "string", "description": "what was wrong, for a person"},
+                "fields": {"type": "array", "items": field_error,
+                           "description": "request validation only: each field that was wrong"},
+            },
+        },
+    }
+
+
+def _ref(name: str) -> dict[str, str]:
+    return {"$ref": f"#/components/schemas/{name}"}
+
+
+def _error_response(description: str, schema: str = ERROR) -> dict[str, Any]:
+    return {"description": description, "content": {"application/json": {"schema": _ref(schema)}}}
+
+
+def _operations(doc: dict[str, Any]) -> list[tuple[str, str, dict[str, Any]]]:
+    methods = ("get", "put", "post", "delete", "patch", "head", "options", "trace")
+    return [(m, path, op) for path, item in doc.get("paths", {}).items() for m, op in item.items() if m in methods]
+
+
+def _add_errors(op: dict[str, Any], statuses: dict[int, str]) -> None:
+    """Document ``statuses`` with the error body; keep a description a route gave (it says more)."""
+    responses = op.setdefault("responses", {})
+    for status, description in statuses.items():
+        given = responses.get(str(status), {}).get("description")
+        responses[str(status)] = _error_response(given or description)
+
+
+def _document_errors(doc: dict[str, Any]) -> None:
+    for method, path, op in _operations(doc):
+        responses = op.setdefault("responses", {})
+        statuses: dict[int, str] = {}
+        if path.startswith("/v1/"):  # app.auth guards every /v1 route
+            statuses |= AUTH_STATUS
+            op["security"] = [{BEARER: []}]
+        if "requestBody" in op:
+            statuses |= BODY_STATUSES  # app.limits guards every body; parsing can fail on any
+        if any(p.get("in") == "path" for p in op.get("parameters", [])):
+            statuses |= PATH_STATUS
+        statuses |= OPERATION_STATUSES.get((method, path), {})
+        _add_errors(op, statuses)
+        if "422" in responses or op.get("parameters") or "requestBody" in op:
+            responses["422"] = _error_response(VALIDATION_DESCRIPTION, VALIDATION_ERROR)
+
+
+def _check_keys(doc: dict[str, Any], *tables: dict[tuple[str, str], Any]) -> None:
+    known = {(m, p) for m, p, _ in _operations(doc)}
+    stale = sorted({key for table in tables for key in table} - known)
+    if stale:
+        raise ContractError(f"app/openapi_doc.py names operations the app does not have: {stale}")
+
+
+def _without_null(schema: dict[str, Any]) -> dict[str, Any]:
+    """``X | None`` form fields: a multipart part cannot be null, a client leaves it out."""
+    options = schema.get("anyOf")
+    if not isinstance(options, list):
+        return schema
+    kept = [o for o in options if o != {"type": "null"}]
+    if not kept:
+        return schema
+    rest = {k: v for k, v in schema.items() if k != "anyOf" and not (k == "default" and v is None)}
+    return {**kept[0], **rest} if len(kept) == 1 else {**rest, "anyOf": kept}
+
+
+def _model_schema(model: type[BaseModel], components: dict[str, Any]) -> dict[str, Any]:
+    """``model``'s JSON schema under components (with its $defs), as a reference."""
+    schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
+    for name, sub in {**schema.pop("$defs", {}), model.__name__: schema}.items():
+        if components.setdefault(name, sub) != sub:
+            raise ContractError(f"two different schemas are called {name!r}; rename one of the models")
+    return _ref(model.__name__)
+
+
+def _document_forms(doc: dict[str, Any]) -> None:
+    components = doc["components"]["schemas"]
+    for method, path, op in _operations(doc):
+        media = op.get("requestBody", {}).get("content", {}).get("multipart/form-data")
+        if media is None:
+            continue
+        body = components[media["schema"]["$ref"].rsplit("/", 1)[-1]]
+        required = set(body.get("required", []))
+        props = body.get("properties", {})
+        for name, prop in list(props.items()):
+            prop = _without_null(prop)
+            if prop.get("type") == "array" and name in required:
+                prop["minItems"] = 1  # a list with no part is a missing field
+            props[name] = prop
+        if "params" in props:
+            model = PARAMS_MODELS.get((method, path))
+            if model is None:
+                raise ContractError(f"{method.upper()} {path} has a 'params' form field: add its model to "
+                                    f"PARAMS_MODELS in app/openapi_doc.py")
+            keep = {k: props["params"][k] for k in ("description", "title") if k in props["params"]}
+            props["params"] = {**_model_schema(model, components), **keep}
+            # JSON text in a form field; a client (and the fuzzer) sends the object as application/json.
+            media.setdefault("encoding", {})["params"] = {"contentType": "application/json"}
+
+
+def _document_media(doc: dict[str, Any]) -> None:
+    for method, path, op in _operations(doc):
+        for media_type in EXTRA_SUCCESS_MEDIA.get((method, path), []):
+            success = next(r for s, r in op["responses"].items() if s.startswith("2"))
+            success.setdefault("content", {}).setdefault(media_type, {})
+
+
+def _drop_unused(doc: dict[str, Any], names: tuple[str, ...]) -> None:
+    """Remove the schemas ``names`` (in order) that nothing else refers to any more."""
+    schemas = doc["components"]["schemas"]
+    for name in names:
+        others = {**doc, "components": {**doc["components"], "schemas": {k: v for k, v in schemas.items() if k != name}}}
+        if f'"#/components/schemas/{name}"' not in json.dumps(others):
+            schemas.pop(name, None)
+
+
+def document_contract(doc: dict[str, Any]) -> dict[str, Any]:
+    """A copy of FastAPI's ``doc`` that describes the service's real errors and form fields."""
+    doc = copy.deepcopy(doc)
+    _check_keys(doc, OPERATION_STATUSES, PARAMS_MODELS, EXTRA_SUCCESS_MEDIA)
+    doc.setdefault("components", {}).setdefault("schemas", {}).update(error_schemas())
+    doc["components"]["securitySchemes"] = SECURITY_SCHEMES
+    _document_errors(doc)
+    _document_forms(doc)
+    _document_media(doc)
+    if _FASTAPI_422 in json.dumps(doc["paths"]):
+        raise ContractError("a response still uses FastAPI's HTTPValidationError")
+    _drop_unused(doc, ("HTTPValidationError", "ValidationError"))
+    return doc
+
+
+def install_contract(app: FastAPI) -> None:
+    """Serve the corrected document at ``/openapi.json`` (and so in ``/docs``)."""
+    generate: Callable[[], dict[str, Any]] = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if not getattr(app.state, "contract_openapi", None):
+            app.state.contract_openapi = document_contract(generate())
+        return app.state.contract_openapi
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
 
 def render_openapi() -> str:
     """The app's schema, serialised stably (sorted keys, 2-space indent, trailing newline)."""
+    from app.main import create_app  # here: app.main imports this module
+    from app.settings import Settings
+
     app = create_app(Settings(api_keys=[]))
     return json.dumps(app.openapi(), indent=2, sort_keys=True) + "\n"
