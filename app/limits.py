@@ -1,42 +1,88 @@
-"""Request-body limits enforced while the body is read, before it is buffered.
+"""Request-body limits per route, enforced while the body is read, before it is buffered.
 
-A declared Content-Length over the limit is refused at once; a body without one (chunked)
-is counted as it streams and refused when it passes the limit. Both give 413 with a JSON body.
+Each route (method + path template) gets the limit of what it takes (:class:`RouteBodyLimits`):
+JSON or no body: ``max_json_bytes``; a single-file upload: ``max_upload_bytes``; a batch
+upload (the routes the app names): ``max_batch_bytes``. The limit is looked up when the route
+first asks for the body (the router has matched it by then and put it in the scope): a declared
+Content-Length over the limit is refused before a byte is read; a body without one (chunked) is
+counted as it streams and refused when it passes the limit. Both give 413 with a JSON body.
 """
 from __future__ import annotations
 
 import json
-from typing import Callable
+from typing import Callable, Iterable, Literal
 
+from fastapi import params
+from fastapi.dependencies.models import Dependant
+from fastapi.routing import APIRoute
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app.errors import ApiError, error_body
 
+BodyKind = Literal["json", "upload", "batch"]
+
 
 class BodyTooLarge(ApiError):
     def __init__(self, limit: int) -> None:
-        super().__init__(413, f"request body is larger than the limit of {limit} bytes", "payload_too_large")
+        super().__init__(413, _too_large(limit), "payload_too_large")
+
+
+class RouteBodyLimits:
+    """The body limit of a request by its route (``scope["route"]``), resolved once per route.
+
+    ``limits``: bytes per kind of body; ``batch_routes``: (method, path template) of the true batch
+    uploads. A route with a ``File`` parameter is an upload, any other route takes JSON (or nothing).
+    """
+
+    def __init__(self, limits: dict[BodyKind, int], batch_routes: Iterable[tuple[str, str]]) -> None:
+        self.limits = limits
+        self._batch = frozenset(batch_routes)
+        self._kinds: dict[tuple[str, str], BodyKind] = {}
+
+    def __call__(self, scope: Scope) -> int:
+        return self.limits[self.kind(scope)]
+
+    def kind(self, scope: Scope) -> BodyKind:
+        """What the matched route of ``scope`` takes; "json" (the smallest) when there is none."""
+        route = scope.get("route")
+        if not isinstance(route, APIRoute):
+            return "json"
+        key = (scope["method"], route.path)
+        if key not in self._kinds:
+            self._kinds[key] = "batch" if key in self._batch else ("upload" if _takes_files(route) else "json")
+        return self._kinds[key]
+
+
+def _takes_files(route: APIRoute) -> bool:
+    """Whether the route's body has a file field (``File(...)``: multipart uploads)."""
+    return _has_file(route.dependant)
+
+
+def _has_file(dependant: Dependant) -> bool:
+    return (any(isinstance(f.field_info, params.File) for f in dependant.body_params)
+            or any(_has_file(d) for d in dependant.dependencies))
 
 
 class BodyLimitMiddleware:
-    def __init__(self, app: ASGIApp, limit_for: Callable[[str], int]) -> None:
+    def __init__(self, app: ASGIApp, limit_for: Callable[[Scope], int]) -> None:
         self.app = app
         self.limit_for = limit_for
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or scope["method"] not in ("POST", "PUT", "PATCH"):
+        if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        limit = self.limit_for(scope["path"])
         declared = _content_length(scope)
-        if declared is not None and declared > limit:
-            await _send_413(send, limit)
-            return
+        limit: int | None = None
         received = 0
         started = False
 
         async def counting_receive() -> Message:
-            nonlocal received
+            nonlocal received, limit
+            if limit is None:  # the first read: the route is matched and in the scope
+                limit = self.limit_for(scope)
+                if declared is not None and declared > limit:
+                    raise BodyTooLarge(limit)
             message = await receive()
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
@@ -52,9 +98,13 @@ class BodyLimitMiddleware:
 
         try:
             await self.app(scope, counting_receive, tracking_send)
-        except BodyTooLarge:
+        except BodyTooLarge as exc:
             if not started:
-                await _send_413(send, limit)
+                await send_error(send, 413, str(exc.detail), "payload_too_large")
+
+
+def _too_large(limit: int) -> str:
+    return f"request body is larger than the limit of {limit} bytes for this route"
 
 
 def _content_length(scope: Scope) -> int | None:
@@ -67,12 +117,14 @@ def _content_length(scope: Scope) -> int | None:
     return None
 
 
-async def _send_413(send: Send, limit: int) -> None:
-    body = json.dumps(error_body(413, f"request body is larger than the limit of {limit} bytes", "payload_too_large")).encode()
+async def send_error(send: Send, status: int, detail: str, code: str,
+                     headers: Iterable[tuple[bytes, bytes]] = ()) -> None:
+    """Answer with the service's JSON error body from ASGI middleware (the body unread: close after)."""
+    body = json.dumps(error_body(status, detail, code)).encode()
     await send({
         "type": "http.response.start",
-        "status": 413,
+        "status": status,
         "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
-                    (b"connection", b"close")],
+                    (b"connection", b"close"), *headers],
     })
     await send({"type": "http.response.body", "body": body})

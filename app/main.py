@@ -11,16 +11,22 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
 from app import raycluster
+from app.auth import ApiKeyMiddleware
 from app.errors import install_error_handlers
-from app.limits import BodyLimitMiddleware
+from app.limits import BodyLimitMiddleware, RouteBodyLimits
+from app.logredact import install_log_redaction
+from app.openapi_doc import install_contract
 from app.services import Services, build_services
 from app.settings import Settings
 from workers.common.models import MODELS, MODELS_DIR_ENV, ModelError, install, installed, models_dir
+from workers.common.safezip import ZIP_SETTINGS
 
 log = logging.getLogger("sweepcast")
 
-# Routes whose uploads are batches or media (the larger body limit applies).
-BATCH_UPLOAD_PATHS = ("/v1/photos/batches", "/v1/reconstructions", "/v1/depth/videos", "/v1/face-models", "/v1/rigs")
+# The true batch uploads (many files, videos, archives): max_batch_bytes. Every other route that
+# takes files gets max_upload_bytes, and a route that takes JSON or nothing max_json_bytes.
+BATCH_UPLOAD_ROUTES = (("POST", "/v1/photos/batches"), ("POST", "/v1/reconstructions"), ("POST", "/v1/depth/videos"),
+                       ("POST", "/v1/face-models"), ("POST", "/v1/rigs/{rig_id}/recordings"))
 
 API_DESCRIPTION = """
 sweepcast takes synchronised camera streams or uploaded media, queues jobs to worker processes
@@ -63,13 +69,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     install_error_handlers(app)
+    install_contract(app)  # /openapi.json says what the service really answers
 
-    def limit_for(path: str) -> int:
-        if path.startswith(BATCH_UPLOAD_PATHS):
-            return settings.max_batch_bytes
-        return settings.max_upload_bytes
+    install_log_redaction()  # ?access_token= stays out of uvicorn's request lines
 
-    app.add_middleware(BodyLimitMiddleware, limit_for=limit_for)
+    limits = {"json": settings.max_json_bytes, "upload": settings.max_upload_bytes, "batch": settings.max_batch_bytes}
+    app.add_middleware(BodyLimitMiddleware, limit_for=RouteBodyLimits(limits, BATCH_UPLOAD_ROUTES))
+    app.add_middleware(ApiKeyMiddleware, keys=settings.api_keys)  # added last: runs first, before any body is read
 
     from app.routers import depth, faces, jobs, photos, reconstructions, rig_sockets, rigs, system
     from app.routers.rig_support import ensure_demo_rig
@@ -119,7 +125,10 @@ async def fetch_missing_models(settings: Settings) -> None:
 
 def worker_env(settings: Settings) -> dict[str, str]:
     """Settings the engines read on the workers, passed to every Ray worker of this service."""
-    env = {"SWEEPCAST_MAX_IMAGE_PIXELS": str(settings.max_image_pixels)}
+    env = {"SWEEPCAST_MAX_IMAGE_PIXELS": str(settings.max_image_pixels),
+           # OpenCV's own guard, read once when a fresh worker imports cv2: a second line behind the header check
+           "OPENCV_IO_MAX_IMAGE_PIXELS": str(settings.max_image_pixels)}
+    env.update({f"SWEEPCAST_{name.upper()}": str(getattr(settings, name)) for name in ZIP_SETTINGS})
     env[MODELS_DIR_ENV] = str(models_dir(settings.data_dir).resolve())  # models fetched later are found too
     if settings.orientation_yunet_model is not None:
         env["SWEEPCAST_ORIENTATION_YUNET_MODEL"] = str(settings.orientation_yunet_model.resolve())

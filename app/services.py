@@ -34,7 +34,7 @@ class Services:
     hub: EventHub
     dispatcher: Dispatcher
     compute: ThreadPoolExecutor
-    """Runs per-request image work in this process (orientation): one thread per core, so that a burst of
+    """Runs per-request image work in this process (photos, depth, faces): one thread per core, so that a burst of
     requests neither oversubscribes the CPU nor builds a detector per thread of a large pool."""
     ray_owned: bool = False
     ray_error: str | None = None
@@ -90,7 +90,9 @@ def validate_params(kind: str, params: dict[str, Any]) -> dict[str, Any]:
 def parse_params(model: type[M], text: str | None) -> M:
     """A request's ``params`` form field (a JSON object) as ``model``; 422 naming the problem otherwise."""
     try:
-        return model.model_validate_json(text or "{}")
+        # strict: the JSON types the schema documents (no true for 1, no "5" for 5); JSON still gives
+        # floats from integers, enums from strings and tuples from arrays.
+        return model.model_validate_json(text or "{}", strict=True)
     except ValidationError as exc:
         if any(e["type"] == "json_invalid" for e in exc.errors()):
             raise ApiError(422, f"params must be a JSON object: {exc.errors()[0]['msg']}", "invalid_parameters") from None

@@ -9,6 +9,7 @@ from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from workers.common.models import YUNET, installed
+from workers.common.safezip import ZipLimits
 
 MiB = 1 << 20
 
@@ -27,8 +28,14 @@ class Settings(BaseSettings):
 
     max_upload_bytes: int = Field(64 * MiB, ge=1, description="Largest request body of single-file endpoints.")
     max_batch_bytes: int = Field(1024 * MiB, ge=1, description="Largest request body of batch uploads.")
-    max_image_pixels: int = Field(64_000_000, ge=1, description="Largest image (width x height) decoded.")
+    max_json_bytes: int = Field(1 * MiB, ge=1, description="Largest request body of routes that take JSON (or no body).")
+    max_image_pixels: int = Field(50_000_000, ge=1, description="Largest image (width x height) decoded: a 50 MP photo (8160x6120) passes, a 7900x7900 bomb does not.")
     max_batch_files: int = Field(500, ge=1, description="Most files in one batch upload.")
+    max_zip_members: int = Field(200_000, ge=1, description="Most files in one uploaded zip archive.")
+    max_zip_member_bytes: int = Field(512 * MiB, ge=1, description="Largest uncompressed file in an uploaded zip.")
+    max_zip_total_bytes: int = Field(4096 * MiB, ge=1, description="Largest uncompressed size of an uploaded zip.")
+    max_zip_ratio: float = Field(200.0, ge=1, allow_inf_nan=False,
+                                 description="Largest compression ratio of a zip member (of 1 MiB or more).")
     request_threads: int | None = Field(None, ge=1, description="Threads for per-request image work in the API process (default: one per core).")
 
     job_max_attempts: int = Field(3, ge=1, le=10, description="Attempts per job when a worker is lost.")
@@ -56,6 +63,11 @@ class Settings(BaseSettings):
         if isinstance(value, str):
             return [k.strip() for k in value.split(",") if k.strip()]
         return value
+
+    @property
+    def zip_limits(self) -> ZipLimits:
+        """The limits of every zip archive the service reads (its workers get them as environment)."""
+        return ZipLimits(self.max_zip_members, self.max_zip_member_bytes, self.max_zip_total_bytes, self.max_zip_ratio)
 
     @cached_property
     def resolved_database_url(self) -> str:

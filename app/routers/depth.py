@@ -4,18 +4,17 @@ from __future__ import annotations
 import base64
 
 import cv2
-import numpy as np
 
 from fastapi import APIRouter, Depends, File, Form, UploadFile
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
-from starlette.concurrency import run_in_threadpool
 
 from app.auth import require_key
 from app.errors import ApiError
 from app.routers.jobs import JobOut, job_accepted
-from app.services import Services, Upload, create_job, parse_params, services
+from app.services import Services, Upload, create_job, parse_params, run_compute, services
 from app.uploads import check_size, read_upload
+from workers.common.images import ImageInputError, decode_image
 from workers.depth.errors import DepthInputError
 from workers.depth.io import YuvFormat, yuv_frame_count
 from workers.depth.params import DepthFilterParams, DepthVideoParams, SynthesizeParams
@@ -32,8 +31,14 @@ class SynthesisOut(BaseModel):
     holes_fraction: float = Field(description="share of pixels no source view saw")
 
 
+# Statuses by DepthInputError.code (as the photo routes answer for the same image problems);
+# other codes (bad_depth_input) are 400.
+_STATUS = {"too_many_pixels": 413, "not_an_image": 415, "unsupported_format": 415, "corrupt_image": 422,
+           "output_too_large": 422}
+
+
 def _bad_input(exc: DepthInputError) -> ApiError:
-    return ApiError(400, str(exc), "bad_depth_input")
+    return ApiError(_STATUS.get(exc.code, 400), str(exc), exc.code)
 
 
 @router.post("/filter", response_class=Response,
@@ -48,8 +53,9 @@ async def filter_depth(
     p = parse_params(DepthFilterParams, params)
     depth_bytes = await read_upload(depth, svc.settings.max_upload_bytes)
     texture_bytes = await read_upload(texture, svc.settings.max_upload_bytes) if texture is not None else None
+    limit = svc.settings.max_image_pixels
     try:
-        out = await run_in_threadpool(filter_depth_bytes, depth_bytes, p, texture_bytes)
+        out = await run_compute(svc, lambda: filter_depth_bytes(depth_bytes, p, texture_bytes, limit))
     except DepthInputError as exc:
         raise _bad_input(exc) from None
     return Response(out, media_type="image/png", headers={"X-Depth-Method": p.method})
@@ -69,17 +75,23 @@ async def synthesize(
                        "invalid_request")
     views = [(await read_upload(t, svc.settings.max_upload_bytes), await read_upload(d, svc.settings.max_upload_bytes))
              for t, d in zip(textures, depths)]
+    limit = svc.settings.max_image_pixels
     try:
-        image, holes = await run_in_threadpool(synthesize_bytes, views, p)
+        image, holes, fraction = await run_compute(svc, lambda: _synthesize(views, p, limit))
     except DepthInputError as exc:
         raise _bad_input(exc) from None
     return SynthesisOut(image_png=base64.b64encode(image).decode(), holes_png=base64.b64encode(holes).decode(),
-                        holes_fraction=await run_in_threadpool(_hole_fraction, holes))
+                        holes_fraction=fraction)
 
 
-def _hole_fraction(holes_png: bytes) -> float:
-    mask = cv2.imdecode(np.frombuffer(holes_png, np.uint8), cv2.IMREAD_GRAYSCALE)
-    return float((mask > 0).mean())
+def _synthesize(views: list[tuple[bytes, bytes]], p: SynthesizeParams, limit: int) -> tuple[bytes, bytes, float]:
+    """(view PNG, hole mask PNG, share of hole pixels): the mask decoded back within the same limit."""
+    image, holes = synthesize_bytes(views, p, limit)
+    try:
+        mask = decode_image(holes, cv2.IMREAD_GRAYSCALE, limit)
+    except ImageInputError as exc:  # pragma: no cover - our own PNG, at most the size of a checked input
+        raise DepthInputError(f"hole mask: {exc}", exc.code) from None
+    return image, holes, float((mask > 0).mean())
 
 
 @router.post("/videos", status_code=202, response_model=JobOut,

@@ -17,7 +17,7 @@ from app.auth import require_key
 from app.errors import ApiError
 from app.jobstore import JobState, as_utc
 from app.routers.jobs import JobOut, job_accepted
-from app.services import Services, Upload, create_job, parse_params, services
+from app.services import Services, Upload, create_job, parse_params, run_compute, services
 from app.uploads import read_upload
 from workers.faces.errors import FaceInputError
 from workers.faces.model import FaceModel
@@ -61,7 +61,7 @@ def _default_model(svc: Services) -> FaceModel:
 
 async def _model(model_id: str, svc: Services) -> FaceModel:
     if model_id == DEFAULT_ID:
-        return await run_in_threadpool(_default_model, svc)
+        return await run_compute(svc, lambda: _default_model(svc))  # trains on first use: CPU work
     job = await asyncio.to_thread(svc.jobs.get, model_id)
     if job is None or job.kind != KIND:
         raise ApiError(404, f"no face model {model_id!r}: use 'default' or the id of a faces training job",
@@ -71,9 +71,9 @@ async def _model(model_id: str, svc: Services) -> FaceModel:
                             + (f" ({job.error})" if job.error else ""), "model_not_ready")
     try:
         path = await asyncio.to_thread(svc.store.local_path, f"{results_prefix(model_id)}/{MODEL_RESULT}")
-    except BlobNotFound:
-        raise ApiError(410, f"the files of face model {model_id} are gone", "model_gone") from None
-    return await run_in_threadpool(load_model, path)
+        return await run_in_threadpool(load_model, path)
+    except (BlobNotFound, FaceInputError):  # its message names a server path: not for the client
+        raise ApiError(410, f"the files of face model {model_id} are gone or unreadable", "model_gone") from None
 
 
 @router.post("", status_code=202, response_model=JobOut,
@@ -116,11 +116,11 @@ async def transform(
     model = await _model(model_id, svc)
     mesh_bytes = await read_upload(mesh, svc.settings.max_upload_bytes)
     neutral_bytes = await read_upload(neutral, svc.settings.max_upload_bytes) if neutral is not None else None
-    try:
-        out = await run_in_threadpool(
-            transform_mesh_bytes, model, mesh_bytes, mesh.filename or "mesh", **p.model_dump(),
-            neutral_bytes=neutral_bytes, neutral_filename=neutral.filename if neutral is not None else None,
-        )
+    neutral_name = neutral.filename if neutral is not None else None
+    try:  # on the bounded compute pool: parsing, transfer and the preview are CPU work
+        out = await run_compute(svc, lambda: transform_mesh_bytes(
+            model, mesh_bytes, mesh.filename or "mesh", **p.model_dump(),
+            neutral_bytes=neutral_bytes, neutral_filename=neutral_name))
     except FaceInputError as exc:
         raise ApiError(422, str(exc), "bad_face_input") from None
     return TransformOut(mesh_base64=base64.b64encode(out.mesh).decode(), format=out.info["format"],

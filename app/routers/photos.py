@@ -51,8 +51,9 @@ async def detect_orientation(file: UploadFile = File(..., description="a JPEG, P
 @router.post("/orient", response_class=Response,
              summary="Return the same JPEG with its EXIF Orientation tag set (image data untouched)",
              responses={200: {"content": {"image/jpeg": {}},
-                              "description": "the JPEG; headers X-Orientation (the tag the returned file carries, "
-                                             "or 'none'), X-Orientation-Decision (upright, rotated, rejected) and "
+                              "description": "the JPEG; headers X-Orientation (the tag the returned file carries, 1-8, "
+                                             "or 'none' when it has none or an invalid one), X-Orientation-Decision "
+                                             "(upright, rotated, rejected) and "
                                              "X-Orientation-Action (written, kept_existing, already_set, "
                                              "not_written_rejected)"}})
 async def orient_photo(file: UploadFile = File(..., description="a JPEG (or WebP) photo"),

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import asyncio
 import tempfile
-import zipfile
 from pathlib import Path
 from typing import Any, Literal
 
@@ -23,6 +22,7 @@ from app.routers.rig_support import (delete_recording_data, load_rig, recording_
 from app.services import Services, Upload, create_job, parse_params, services
 from app.uploads import check_size
 from workers.camera import CameraError
+from workers.common.safezip import SafeZip, ZipLimits
 from workers.storage import safe_name
 from workers.streaming import actor
 from workers.streaming import store as rigstore
@@ -127,26 +127,42 @@ async def create_rig(
 
 
 def _parse_calibration(contents: list[tuple[str, bytes]], width: int | None, height: int | None) -> tuple[Rig, str]:
-    """The rig of uploaded calibration files and the format's name."""
-    names = sorted(n for n, _ in contents)
+    """The rig of uploaded calibration files and the format's name. The readers name the files they
+    read by path: an error shows the client's file name, never this temporary folder."""
     with tempfile.TemporaryDirectory(prefix="sweepcast-rig-") as tmp:
-        folder = Path(tmp)
-        for filename, data in contents:
-            (folder / filename).write_bytes(data)
-        if len(contents) > 1:
-            if names != ["cameras.txt", "images.txt"]:
-                raise ValueError(f"several files are only understood as COLMAP text (cameras.txt + images.txt); "
-                                 f"got {', '.join(names)}")
-            return load_rig_file(folder), "colmap"
-        path = folder / names[0]
-        if path.name.endswith("_par.txt"):
-            if width is None or height is None:
-                raise ValueError("a Middlebury *_par.txt has no image size: give the form fields width and height")
-            return load_middlebury_par(path, width, height), "middlebury"
-        if path.name in ("cameras.txt", "images.txt"):
-            raise ValueError("COLMAP text needs both cameras.txt and images.txt")
-        fmt = {".json": "json", ".yml": "opencv", ".yaml": "opencv", ".xml": "opencv"}.get(path.suffix.lower())
-        return load_rig_file(path), fmt or "unknown"
+        try:
+            return _read_calibration(Path(tmp), contents, width, height)
+        except (RigError, CameraError, ValueError) as exc:
+            raise ValueError(_without_folder(str(exc), Path(tmp))) from None
+
+
+def _without_folder(message: str, folder: Path) -> str:
+    """``message`` with every path inside ``folder`` shortened to the file's own name."""
+    for form in {str(folder), str(folder.resolve())}:
+        message = message.replace(form + "/", "").replace(form, "the upload")
+    return message
+
+
+def _read_calibration(folder: Path, contents: list[tuple[str, bytes]], width: int | None,
+                      height: int | None) -> tuple[Rig, str]:
+    """Write the files into ``folder`` and read them with the reader their names call for."""
+    names = sorted(n for n, _ in contents)
+    for filename, data in contents:
+        (folder / filename).write_bytes(data)
+    if len(contents) > 1:
+        if names != ["cameras.txt", "images.txt"]:
+            raise ValueError(f"several files are only understood as COLMAP text (cameras.txt + images.txt); "
+                             f"got {', '.join(names)}")
+        return load_rig_file(folder), "colmap"
+    path = folder / names[0]
+    if path.name.endswith("_par.txt"):
+        if width is None or height is None:
+            raise ValueError("a Middlebury *_par.txt has no image size: give the form fields width and height")
+        return load_middlebury_par(path, width, height), "middlebury"
+    if path.name in ("cameras.txt", "images.txt"):
+        raise ValueError("COLMAP text needs both cameras.txt and images.txt")
+    fmt = {".json": "json", ".yml": "opencv", ".yaml": "opencv", ".xml": "opencv"}.get(path.suffix.lower())
+    return load_rig_file(path), fmt or "unknown"
 
 
 def _check_rig(rig: Rig, svc: Services) -> None:
@@ -219,7 +235,8 @@ async def create_recording(
             await run_in_threadpool(_probe_videos, videos, cameras, rig, svc.settings.max_recording_frames)
         else:
             cameras = []
-            await run_in_threadpool(_probe_archive, archive, rig, svc.settings.max_recording_frames)
+            await run_in_threadpool(_probe_archive, archive, rig, svc.settings.max_recording_frames,
+                                    svc.settings.zip_limits)
         bg_cameras = match_cameras([b.filename or "" for b in backgrounds], rig, "backgrounds") if backgrounds else []
         if backgrounds:
             await run_in_threadpool(_check_backgrounds, backgrounds, bg_cameras, rig)
@@ -253,12 +270,12 @@ def _probe_videos(videos: list[UploadFile], cameras: list[int], rig: Rig, max_fr
     check_videos(infos, cameras, rig, max_frames)
 
 
-def _probe_archive(archive: UploadFile, rig: Rig, max_frames: int) -> None:
+def _probe_archive(archive: UploadFile, rig: Rig, max_frames: int, limits: ZipLimits) -> None:
+    """Check the archive's structure (SafeZip: member count, sizes, ratio, names) and its layout
+    against the rig before a job is made of it."""
     try:
-        with zipfile.ZipFile(archive.file) as zf:
-            check_image_sizes(zf, scan_image_zip(zf, rig, max_frames), rig)
-    except zipfile.BadZipFile:
-        raise RecordingError(f"{archive.filename or 'the archive'} is not a zip file") from None
+        with SafeZip(archive.file, limits, archive.filename or "the archive", RecordingError) as zf:
+            check_image_sizes(zf.zipfile, scan_image_zip(zf.zipfile, rig, max_frames), rig)
     finally:
         archive.file.seek(0)
 

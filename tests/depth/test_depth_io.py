@@ -36,7 +36,7 @@ def test_grey_saved_as_colour_is_accepted_but_colour_is_not():
     ok, buf = cv2.imencode(".png", colour)
     with pytest.raises(DepthInputError, match="single-channel"):
         io.decode_depth(buf.tobytes())
-    with pytest.raises(DepthInputError, match="not a readable PNG or PGM"):
+    with pytest.raises(DepthInputError, match="depth map: not a readable image"):
         io.decode_depth(b"hello")
 
 

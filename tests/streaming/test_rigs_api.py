@@ -198,3 +198,17 @@ def test_first_start_creates_the_demo_rig_and_starts_its_recording(client_factor
     retry = again.get(f"/v1/rigs/{rig['id']}/recordings").json()["recordings"][1]
     assert retry["state"] in ("processing", "ready")
     again.delete(f"/v1/jobs/{retry['job_id']}")
+
+
+def test_deeply_nested_json_in_a_form_field_or_a_body_is_a_4xx_not_a_500(stream_client, take):
+    client = stream_client
+    rig_id = add_rig(client, take)
+    deep = "[" * 100000 + "]" * 100000
+    r = client.post(f"/v1/rigs/{rig_id}/recordings", files={"archive": ("take.zip", zip_bytes(take))},
+                    data={"params": deep})
+    assert r.status_code == 422 and r.json()["error"] == "invalid_parameters", r.text
+    assert "recursion limit" in r.json()["detail"]
+    r = client.post(f"/v1/rigs/{rig_id}/renders", content=deep, headers={"content-type": "application/json"})
+    assert 400 <= r.status_code < 500 and set(r.json()) >= {"error", "detail"}, r.text
+    r = client.post("/v1/rigs", files={"files": ("rig.json", deep.encode())})
+    assert r.status_code == 422 and "nests too deeply" in r.json()["detail"], r.text

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from workers.camera import Camera, CameraError
+from workers.common import images
 
 from .errors import DepthInputError
 from .levels import check_bits, check_levels, level_dtype
@@ -27,15 +28,23 @@ from .levels import check_bits, check_levels, level_dtype
 CHROMA_FORMATS = ("400", "420")
 
 
-def decode_depth(data: bytes, bits: int | None = None) -> tuple[np.ndarray, int]:
+def decode_image_checked(data: bytes, flags: int, what: str, max_pixels: int | None = None) -> np.ndarray:
+    """:func:`workers.common.images.decode_image` (header size checked against ``max_pixels``, None:
+    the process's limit, before decoding) with its errors as DepthInputError naming ``what``."""
+    try:
+        return images.decode_image(data, flags, max_pixels)
+    except images.ImageInputError as exc:
+        raise DepthInputError(f"{what}: {exc}", exc.code) from None
+
+
+def decode_depth(data: bytes, bits: int | None = None, max_pixels: int | None = None) -> tuple[np.ndarray, int]:
     """PNG/PGM bytes -> (levels (H, W) uint8/uint16, bit depth).
 
     bits: the expected bit depth (8..16); None takes 8 or 16 from the file. A file whose sample
-    size does not match ``bits`` raises DepthInputError.
+    size does not match ``bits`` raises DepthInputError, as does an image over ``max_pixels``
+    (width x height; None: the process's limit), refused before decoding.
     """
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
-    if img is None:
-        raise DepthInputError("depth map is not a readable PNG or PGM image")
+    img = decode_image_checked(data, cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION, "depth map", max_pixels)
     if img.ndim == 3:
         if img.shape[2] == 3 and (img == img[..., :1]).all():
             img = np.ascontiguousarray(img[..., 0])
@@ -67,13 +76,10 @@ def encode_depth(depth: np.ndarray, fmt: str = "png") -> bytes:
     return buf.tobytes()
 
 
-def decode_texture(data: bytes) -> np.ndarray:
+def decode_texture(data: bytes, max_pixels: int | None = None) -> np.ndarray:
     """Image bytes -> (H, W, 3) uint8 BGR, stored pixels (EXIF orientation ignored so it stays
-    aligned with its depth map)."""
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
-    if img is None:
-        raise DepthInputError("texture is not a readable image")
-    return img
+    aligned with its depth map); over ``max_pixels`` (None: the process's limit) it is refused undecoded."""
+    return decode_image_checked(data, cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION, "texture", max_pixels)
 
 
 def encode_png(image: np.ndarray) -> bytes:

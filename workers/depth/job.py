@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 from pydantic import ValidationError
 
+from workers.common import images
 from workers.common.jobctx import JobContext, JobInputError
 
 from . import io
@@ -35,7 +36,7 @@ def run_depth_video(ctx: JobContext) -> dict[str, Any]:
     fmt_in = io.YuvFormat(p.width, p.height, p.bits, p.chroma)
     depth_path = ctx.input_path("depth")
     count = io.yuv_frame_count(depth_path.stat().st_size, fmt_in)
-    out_w, out_h = target_size((p.height, p.width), p.scale, p.out_size())
+    out_w, out_h = target_size((p.height, p.width), p.scale, p.out_size(), images.max_pixels_from_env())
     fmt_out = io.YuvFormat(out_w, out_h, p.bits, p.chroma)
     pipeline = FramePipeline((p.height, p.width), (out_w, out_h), p.method, p.upsampler, p.options(p.bits))
     frames: list[dict[str, float]] = []

@@ -15,6 +15,8 @@ from workers.camera import Camera
 
 from .methods import FilterOptions
 
+# Unknown fields are typos; NaN and Infinity (which JSON parsers accept) are no sizes or positions.
+STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 MethodName = Literal["none", "dilation", "modified", "modified_morph", "wmf"]
 
 
@@ -27,7 +29,7 @@ def _odd(value: int) -> int:
 class _FilterFields(BaseModel):
     """The method, its parameters and the output size (shared by the filter requests)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = STRICT
 
     method: MethodName = "modified_morph"
     window: int = Field(3, ge=1, le=31, description="side of the neighbourhood N(k), odd pixels")
@@ -104,7 +106,7 @@ class CameraModel(BaseModel):
     """A pinhole camera: K (3x3), world-to-camera R (3x3) and t (3), x_cam = R X + t (metres);
     width/height only for the target (default: the source views' size)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = STRICT
 
     K: list[list[float]]
     R: list[list[float]] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
@@ -129,7 +131,7 @@ class SynthesizeParams(BaseModel):
     ``target_camera`` (inverse depth only).
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = STRICT
 
     geometry: Literal["rectified", "general"] = "rectified"
     depth_units: Literal["inverse_depth", "disparity"] = "inverse_depth"

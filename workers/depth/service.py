@@ -9,56 +9,75 @@ from typing import Any, Sequence
 import numpy as np
 
 from workers.camera import CameraError
+from workers.common import images
 
 from . import dibr, io
 from .errors import DepthInputError
 from .levels import levels_to_depth, levels_to_disparity
 from .methods import postprocess
 from .params import DepthFilterParams, SynthesizeParams
+from .upsample import target_size
 
 
 def filter_depth_bytes(
-    depth: bytes, params: DepthFilterParams | dict[str, Any], texture: bytes | None = None
+    depth: bytes, params: DepthFilterParams | dict[str, Any], texture: bytes | None = None,
+    max_pixels: int | None = None,
 ) -> bytes:
     """Upsample and post-filter one depth map.
 
     depth: PNG/PGM bytes (8- or 16-bit grey levels). texture: image bytes at the output size, needed
     by guided methods ("wmf"); its size also sets the output size when no scale/size is given.
-    Returns the filtered depth as PNG bytes with the input's bit depth.
+    max_pixels: the largest input image and output (width x height); None: the process's limit
+    (:func:`workers.common.images.max_pixels_from_env`). Each is refused with DepthInputError before
+    it is decoded or allocated. Returns the filtered depth as PNG bytes with the input's bit depth.
     """
     p = params if isinstance(params, DepthFilterParams) else DepthFilterParams.model_validate(params)
-    levels, bits = io.decode_depth(depth, p.bits)
-    guide = io.decode_texture(texture) if texture is not None else None
-    out = postprocess(
-        levels, p.method, scale=p.scale, size=p.out_size(), upsampler=p.upsampler, guide=guide,
-        options=p.options(bits),
-    )
+    limit = max_pixels if max_pixels is not None else images.max_pixels_from_env()
+    levels, bits = io.decode_depth(depth, p.bits, limit)
+    size = p.out_size()
+    if p.scale is not None or size is not None:  # else the guide's size, checked when it is decoded
+        size = target_size(levels.shape, p.scale, size, limit)
+    guide = io.decode_texture(texture, limit) if texture is not None else None
+    out = postprocess(levels, p.method, size=size, upsampler=p.upsampler, guide=guide, options=p.options(bits))
     return io.encode_depth(out, "png")
 
 
 def synthesize_bytes(
-    views: Sequence[tuple[bytes, bytes]], params: SynthesizeParams | dict[str, Any]
+    views: Sequence[tuple[bytes, bytes]], params: SynthesizeParams | dict[str, Any], max_pixels: int | None = None
 ) -> tuple[bytes, bytes]:
     """Synthesise a virtual view from texture + depth of one or more views.
 
     views: (texture image bytes, depth PNG/PGM bytes) per source view, in the order of
-    ``positions``/``cameras``. Returns (synthesised view PNG (BGR 8-bit), hole mask PNG: 8-bit,
-    255 where no source view saw the pixel, before hole filling).
+    ``positions``/``cameras``. max_pixels: the largest image (width x height) decoded and the
+    largest target view; None: the process's limit. Returns (synthesised view PNG (BGR 8-bit),
+    hole mask PNG: 8-bit, 255 where no source view saw the pixel, before hole filling).
     """
     p = params if isinstance(params, SynthesizeParams) else SynthesizeParams.model_validate(params)
     if len(views) != p.view_count:
         raise DepthInputError(
             f"got {len(views)} views but the parameters describe {p.view_count} camera(s): they must match"
         )
+    limit = max_pixels if max_pixels is not None else images.max_pixels_from_env()
+    _check_target_size(p, limit)
     textures, depths = [], []
     for i, (tex_bytes, depth_bytes) in enumerate(views):
-        tex = io.decode_texture(tex_bytes)
-        levels, bits = io.decode_depth(depth_bytes, p.bits)
+        tex = io.decode_texture(tex_bytes, limit)
+        levels, bits = io.decode_depth(depth_bytes, p.bits, limit)
         dibr.check_texture_depth(tex, levels, f"depth map of view {i}")
         textures.append(tex)
         depths.append((levels, bits))
     result = synthesize_levels(textures, depths, p)
     return io.encode_png(result.image), io.encode_png(result.holes.astype(np.uint8) * 255)
+
+
+def _check_target_size(p: SynthesizeParams, max_pixels: int) -> None:
+    """Refuse a general-geometry target camera over ``max_pixels`` (width x height) before anything is
+    decoded; a target without a size (and every rectified one) has the source views' size, which
+    their decoding checks."""
+    cam = p.target_camera
+    if cam is not None and cam.width is not None and cam.height is not None and cam.width * cam.height > max_pixels:
+        raise DepthInputError(f"the target view would be {cam.width}x{cam.height} = {cam.width * cam.height:,} "
+                              f"pixels; the limit is {max_pixels:,} pixels", "output_too_large")
 
 
 def synthesize_levels(

@@ -17,13 +17,16 @@ MAX_SIDE = 32768
 
 
 def target_size(
-    shape_hw: tuple[int, int], scale: float | None = None, size: tuple[int, int] | None = None
+    shape_hw: tuple[int, int], scale: float | None = None, size: tuple[int, int] | None = None,
+    max_pixels: int | None = None,
 ) -> tuple[int, int]:
     """The output (width, height) from either a scale factor or an explicit size.
 
     shape_hw: (H, W) of the input. scale: factor > 0 (output side = round(side * scale)).
     size: (width, height) in pixels. Exactly one of them may be given; neither means factor 1.
-    Raises DepthInputError for a factor <= 0, a non-finite one, or a size that is not positive.
+    Raises DepthInputError for a factor <= 0, a non-finite one, a size that is not positive, or
+    an output over ``max_pixels`` (width x height; None: no limit but MAX_SIDE per side), with code
+    ``output_too_large``: checked here, before any output array is allocated.
     """
     h, w = shape_hw
     if scale is not None and size is not None:
@@ -38,7 +41,10 @@ def target_size(
             raise DepthInputError(f"scale factor must be a positive number, got {scale}")
         tw, th = max(1, int(round(w * s))), max(1, int(round(h * s)))
     if tw > MAX_SIDE or th > MAX_SIDE:
-        raise DepthInputError(f"target size {tw}x{th} exceeds the {MAX_SIDE}-pixel limit per side")
+        raise DepthInputError(f"target size {tw}x{th} exceeds the {MAX_SIDE}-pixel limit per side", "output_too_large")
+    if max_pixels is not None and tw * th > max_pixels:
+        raise DepthInputError(f"the output would be {tw}x{th} = {tw * th:,} pixels; the limit is {max_pixels:,} "
+                              f"pixels (ask for a smaller scale or out_width/out_height)", "output_too_large")
     return tw, th
 
 

@@ -17,7 +17,9 @@ import av
 import cv2
 import numpy as np
 
+from workers.common import images
 from workers.common.jobctx import JobInputError
+from workers.common.safezip import SafeZip
 
 from .calibration import Intrinsics
 from .matching import global_shift
@@ -59,71 +61,73 @@ def _natural_key(name: str) -> list:
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
 
 
-def open_media(path: str | Path) -> MediaSource:
+def open_media(path: str | Path, name: str | None = None) -> MediaSource:
     """Open a video file, a zip of images or a folder of images (sorted by natural name order).
 
+    ``name``: how messages call the media (the client's file name; default the path's last part,
+    which for an uploaded job input is a storage key, never what the user sent).
     Raises JobInputError when the file is neither a decodable video nor an image archive.
     """
     path = Path(path)
+    name = name or path.name
     if not path.exists():
-        raise JobInputError(f"{path.name}: no such file")
+        raise JobInputError(f"{name}: no such file")
     if path.is_dir():
         names = sorted((p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES), key=lambda p: _natural_key(p.name))
         if not names:
-            raise JobInputError(f"the folder {path.name} holds no images ({', '.join(IMAGE_SUFFIXES)})")
-        src = MediaSource("images", path.name, len(names), lambda: None)
+            raise JobInputError(f"the folder {name} holds no images ({', '.join(IMAGE_SUFFIXES)})")
+        src = MediaSource("images", name, len(names), lambda: None)
         src._iter = lambda: _decode_stills(((p.name, p.read_bytes) for p in names), src)
         return src
     if zipfile.is_zipfile(path):
-        return _open_zip(path)
-    return _open_video(path)
+        return _open_zip(path, name)
+    return _open_video(path, name)
 
 
-def _open_zip(path: Path) -> MediaSource:
-    try:
-        with zipfile.ZipFile(path) as zf:
-            names = [i.filename for i in zf.infolist()
-                     if not i.is_dir() and Path(i.filename).suffix.lower() in IMAGE_SUFFIXES
-                     and not Path(i.filename).name.startswith(".")]
-    except (zipfile.BadZipFile, OSError) as exc:
-        raise JobInputError(f"{path.name}: the zip archive is damaged ({exc})") from None
+def _open_zip(path: Path, name: str) -> MediaSource:
+    """The images of a zip, checked by :class:`SafeZip` (member count, sizes, ratio, names) on
+    opening and read with its cap; its limits come from the environment (the service's settings)."""
+    label = f"the zip archive {name}"
+    with SafeZip(path, label=label, error=JobInputError) as zf:
+        names = [n for n in zf.names()
+                 if Path(n).suffix.lower() in IMAGE_SUFFIXES and not Path(n).name.startswith(".")]
     if not names:
-        raise JobInputError(f"the zip archive {path.name} holds no images ({', '.join(IMAGE_SUFFIXES)})")
+        raise JobInputError(f"{label} holds no images ({', '.join(IMAGE_SUFFIXES)})")
     names.sort(key=lambda n: _natural_key(Path(n).name))
 
     def items():
-        with zipfile.ZipFile(path) as zf:
+        with SafeZip(path, label=label, error=JobInputError) as zf:
             for n in names:
                 yield Path(n).name, lambda n=n: zf.read(n)
 
-    src = MediaSource("images", path.name, len(names), lambda: None)
+    src = MediaSource("images", name, len(names), lambda: None)
     src._iter = lambda: _decode_stills(items(), src)
     return src
 
 
 def _decode_stills(items, src: MediaSource) -> Iterator[tuple[int, float | None, str, np.ndarray]]:
+    """Decode each still (JPEG, PNG, ...) with the service's pixel limit; an image that is not one,
+    or too large, is recorded in ``src.errors`` and skipped. A damaged archive stops the job."""
     index = 0
+    limit = images.max_pixels_from_env()
     for name, read in items:
         try:
-            img = cv2.imdecode(np.frombuffer(read(), np.uint8), cv2.IMREAD_COLOR)
-        except (OSError, zipfile.BadZipFile, cv2.error) as exc:
-            img = None
+            img = images.decode_image(read(), cv2.IMREAD_COLOR, limit)
+        except (OSError, images.ImageInputError) as exc:
             src.errors.append(f"{name}: {exc}")
-        if img is None:
-            src.errors.append(f"{name}: not a decodable image")
             continue
         yield index, None, name, img
         index += 1
 
 
-def _open_video(path: Path) -> MediaSource:
+def _open_video(path: Path, name: str) -> MediaSource:
     try:
         container = av.open(str(path))
     except (av.error.FFmpegError, OSError, UnicodeDecodeError, ValueError):
-        raise JobInputError(f"{path.name} is not a video or a zip of images that can be decoded") from None
+        raise JobInputError(f"{name} is not a video or a zip of images that can be decoded") from None
     try:
         if not container.streams.video:
-            raise JobInputError(f"{path.name} has no video stream")
+            raise JobInputError(f"{name} has no video stream")
         stream = container.streams.video[0]
         count = int(stream.frames or 0)
         if count <= 0 and stream.duration and stream.average_rate:
@@ -131,7 +135,7 @@ def _open_video(path: Path) -> MediaSource:
     finally:
         container.close()
 
-    src = MediaSource("video", path.name, count or None, lambda: None)
+    src = MediaSource("video", name, count or None, lambda: None)
 
     def frames():
         with av.open(str(path)) as cont:

@@ -71,7 +71,9 @@ def run_reconstruction(ctx: JobContext) -> dict[str, Any]:
     calib = ctx.read_input("calibration") if "calibration" in ctx.inputs else None
     intrinsics = resolve_intrinsics(params, calib)
     ctx.progress(0.0, "decode")
-    model = reconstruct(ctx.input_path("media"), intrinsics, params, ctx.progress)
+    # Messages name the file the user sent, not its storage key (or an object store's cache file).
+    media_name = ctx.input_meta.get("media", {}).get("filename") or "the media"
+    model = reconstruct(ctx.input_path("media"), intrinsics, params, ctx.progress, media_name)
     ctx.progress(0.98, "export")
     model.report["timings_s"].update({k: round(v, 4) for k, v in write_outputs(model, ctx.write_result).items()})
     ctx.write_result("report.json", json.dumps(model.report, indent=1).encode())

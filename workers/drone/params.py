@@ -16,7 +16,7 @@ class ReconstructionParams(BaseModel):
     """Settings of one reconstruction. Pixel values refer to the media's native resolution
     (intrinsics) or to the working resolution after ``max_width`` (thresholds)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)  # NaN/Infinity: never a valid value
 
     fx: float | None = Field(None, gt=0, description="Focal length x, pixels (native resolution).")
     fy: float | None = Field(None, gt=0, description="Focal length y, pixels (native resolution).")

@@ -88,9 +88,10 @@ class _Tracked:
 
 
 def track_media(media: str | Path, intrinsics: Intrinsics, p: ReconstructionParams,
-                progress: ProgressFn | None = None, span: float = 0.55) -> _Tracked:
-    """Decode, select and track frames of ``media`` (progress from 0 to ``span``)."""
-    source = open_media(media)
+                progress: ProgressFn | None = None, span: float = 0.55, media_name: str | None = None) -> _Tracked:
+    """Decode, select and track frames of ``media`` (progress from 0 to ``span``); ``media_name``
+    names it in messages (see :func:`open_media`)."""
+    source = open_media(media, media_name)
     stats = SelectionStats()
     K = None
     tracker = None
@@ -339,17 +340,17 @@ class _Mapper:
 # The pipeline
 # ---------------------------------------------------------------------------------------------
 def reconstruct(media: str | Path, intrinsics: Intrinsics, params: ReconstructionParams,
-                progress: ProgressFn | None = None) -> SparseModel:
+                progress: ProgressFn | None = None, media_name: str | None = None) -> SparseModel:
     """Reconstruct cameras and a sparse point cloud from a video or ordered stills.
 
     ``intrinsics`` refer to the media's native resolution. ``progress(fraction, stage)`` reports
     stages 'decode', 'track k/N', 'keyframes', 'initialise', 'register k/N', 'BA iteration i'
     and 'localise' with fractions up to 0.97 (the caller writes the outputs and reports 'done').
-    User-caused failures raise JobInputError.
+    User-caused failures raise JobInputError; ``media_name`` names the media in their messages.
     """
     p = params
     timings: dict[str, float] = {}
-    tr = track_media(media, intrinsics, p, progress)
+    tr = track_media(media, intrinsics, p, progress, media_name=media_name)
     timings["decode"] = tr.seconds_decode
     timings["track"] = tr.seconds_track
     tracks, stats = tr.tracks, tr.stats

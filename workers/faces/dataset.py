@@ -18,11 +18,11 @@ from typing import Callable
 
 import numpy as np
 
+from workers.common.safezip import SafeZip
 from workers.faces.errors import FaceInputError
 from workers.faces.mesh import Mesh, check_finite, read_mesh, write_mesh
 
 NEUTRAL = "neutral"
-MAX_ZIP_BYTES = 4 << 30  # declared uncompressed size, against zip bombs
 MAX_MESHES = 20000
 _LABEL = re.compile(r"^[a-z][a-z0-9_]{0,39}$")
 
@@ -96,16 +96,12 @@ def load_dataset_zip(
 ) -> FaceDataset:
     """Read a zip of registered meshes with a ``person,expression,file`` CSV manifest.
 
-    ``source``: the zip's bytes or a path. Raises FaceInputError with the offending file named.
+    ``source``: the zip's bytes or a path. The archive is read through :class:`SafeZip` (member
+    count, sizes, compression ratio and names checked; limits from the environment, i.e. the
+    service's settings). Raises FaceInputError with the offending file named.
     """
-    try:
-        archive = zipfile.ZipFile(io.BytesIO(source) if isinstance(source, bytes) else source)
-    except (zipfile.BadZipFile, OSError):
-        raise FaceInputError("the dataset is not a zip file") from None
-    with archive:
-        infos = {i.filename: i for i in archive.infolist() if not i.is_dir()}
-        if sum(i.file_size for i in infos.values()) > MAX_ZIP_BYTES:
-            raise FaceInputError("the dataset zip expands to more than 4 GiB")
+    with SafeZip(source, label="the dataset zip", error=FaceInputError) as archive:
+        infos = {i.filename: i for i in archive.members}
         manifest = _find_manifest(infos)
         rows = _read_manifest(archive.read(manifest).decode("utf-8-sig", errors="replace"))
         base = posixpath.dirname(manifest)
@@ -165,7 +161,7 @@ def _read_manifest(text: str) -> list[tuple[str, str, str]]:
     return rows
 
 
-def _read_member(archive: zipfile.ZipFile, infos: dict, base: str, name: str) -> Mesh:
+def _read_member(archive: SafeZip, infos: dict, base: str, name: str) -> Mesh:
     path = posixpath.normpath(posixpath.join(base, name.replace("\\", "/")))
     if path not in infos:
         raise FaceInputError(f"the manifest names {name!r}, which is not in the zip")

@@ -40,7 +40,7 @@ class FaceTrainParams(BaseModel):
     ``seed`` apply to the synthetic source only.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)  # NaN/Infinity: never a valid value
 
     source: Literal["auto", "dataset", "synthetic"] = "auto"
     people: int = Field(40, ge=2, le=400, description="synthetic source: number of people (7 faces each)")
@@ -66,7 +66,7 @@ class FaceTransformParams(BaseModel):
     exactly (the output is rebuilt from the K components; fine detail off the model is lost).
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)  # NaN/Infinity: never a valid value
 
     impression: str = Field(..., min_length=1, max_length=40, description="e.g. smile_open")
     method: Literal["svm", "fisher"] = "svm"

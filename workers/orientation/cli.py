@@ -15,12 +15,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from workers.common.cliutil import ProgressBar, format_table
+from workers.common.images import MAX_PIXELS_ENV, max_pixels_from_env
 from workers.common.models import models_dir
 from workers.orientation.detect import DetectorConfig, get_detector
 from workers.orientation.errors import OrientationInputError
 from workers.orientation.exif import TAGGABLE_FORMATS
 from workers.orientation.headers import sniff_format
-from workers.orientation.job import MAX_PIXELS_ENV, YUNET_MODEL_ENV, configured_yunet, max_pixels_from_env
+from workers.orientation.job import YUNET_MODEL_ENV, configured_yunet
 from workers.orientation.service import OrientationReport, analyze, orient_jpeg, plan_tag
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp")

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from workers.common import images
 from workers.orientation.errors import (CorruptImage, EmptyFile, NotAnImage, OrientationInputError, TooManyPixels,
                                         TruncatedImage, UnsupportedFormat, UnwritableExif)
 from workers.orientation.headers import ImageHeader, check_header, parse_header
@@ -27,7 +28,7 @@ __all__ = [
 WORKING_SIZE = 900
 """Longest side (px) of the decoded image handed to the detectors. A 12-megapixel photo
 (4000 x 3000) decodes at 1/8 to 500 x 375; on the dev photos 900 lost nothing against 1024."""
-DEFAULT_MAX_PIXELS = 64_000_000
+DEFAULT_MAX_PIXELS = images.DEFAULT_MAX_PIXELS
 """Default pixel limit (width x height) when the caller gives none."""
 
 _REDUCED_FLAGS = {
@@ -70,12 +71,12 @@ def decode_gray(data: bytes, max_pixels: int = DEFAULT_MAX_PIXELS, working_size:
     check_header(header, max_pixels)
     factor = reduction_factor(header.width, header.height, working_size)
     flags = _REDUCED_FLAGS[factor] | cv2.IMREAD_IGNORE_ORIENTATION
-    try:
-        gray = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
-    except cv2.error as exc:
-        raise CorruptImage(f"the {header.format.upper()} decoder failed: {exc.err or exc}") from None
-    if gray is None or gray.size == 0:
-        raise CorruptImage(f"the {header.format.upper()} decoder could not read the image data")
+    try:  # the service's one checked decoder (its own header check agrees with the one above)
+        gray = images.decode_image(data, flags, max_pixels)
+    except images.TooManyPixels as exc:
+        raise TooManyPixels(str(exc)) from None
+    except images.ImageInputError as exc:
+        raise CorruptImage(str(exc)) from None
     long_side = max(gray.shape)
     if long_side > working_size:  # beyond what DCT scaling (at most 1/8) reaches
         s = working_size / long_side

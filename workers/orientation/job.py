@@ -23,9 +23,9 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from workers.common.images import max_pixels_from_env
 from workers.common.jobctx import JobContext, JobInputError
 from workers.common.models import YUNET, env_models_dir, installed_in
-from workers.orientation.decode import DEFAULT_MAX_PIXELS
 from workers.orientation.detect import DetectorConfig, Method, OrientationDetector, get_detector
 from workers.orientation.errors import OrientationInputError
 from workers.orientation.exif import TAGGABLE_FORMATS
@@ -33,13 +33,12 @@ from workers.orientation.headers import sniff_format
 from workers.orientation.service import analyze, orient_jpeg
 
 YUNET_MODEL_ENV = "SWEEPCAST_ORIENTATION_YUNET_MODEL"
-MAX_PIXELS_ENV = "SWEEPCAST_MAX_IMAGE_PIXELS"
 
 
 class OrientationBatchParams(BaseModel):
     """Parameters of an ``orientation.batch`` job."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)  # NaN/Infinity: never a valid value
 
     force: bool = Field(False, description="replace an existing Orientation tag other than 1")
     write: bool = Field(True, description="write the fixed files (false: reports only)")
@@ -58,11 +57,6 @@ def detector_config_from_env(method: Method = "auto") -> DetectorConfig:
     """The detector configuration of this worker: ``method`` with the YuNet model the environment names,
     else the one installed in ``$SWEEPCAST_MODELS_DIR``, if any."""
     return DetectorConfig(method=method, yunet_model=configured_yunet(env_models_dir()))
-
-
-def max_pixels_from_env() -> int:
-    value = os.environ.get(MAX_PIXELS_ENV)
-    return int(value) if value else DEFAULT_MAX_PIXELS
 
 
 def run_orientation_batch(ctx: JobContext) -> dict[str, Any]:

@@ -16,12 +16,14 @@ from pydantic import BaseModel, Field
 from workers.orientation.decode import DEFAULT_MAX_PIXELS, decode_gray
 from workers.orientation.detect import (Decision, DecisionKind, DetectorConfig, Face, OrientationDetector, decide,
                                         get_detector)
-from workers.orientation.exif import (TAGGABLE_FORMATS, orientation_for_rotation, read_exif, require_taggable,
-                                      write_orientation)
+from workers.orientation.exif import (TAGGABLE_FORMATS, ExifInfo, orientation_for_rotation, read_exif,
+                                      require_taggable, write_orientation)
 from workers.orientation.headers import sniff_format
 
 __all__ = ["DetectorConfig", "FaceReport", "OrientationReport", "analyze", "get_detector", "orient_jpeg", "plan_tag"]
 
+VALID_ORIENTATIONS = range(1, 9)
+"""The eight values EXIF defines for Orientation (274)."""
 Action = Literal["analysis_only", "written", "kept_existing", "already_set", "not_written_rejected"]
 
 
@@ -51,9 +53,10 @@ class OrientationReport(BaseModel):
     height: int = Field(description="stored image height (px)")
     format: Literal["jpeg", "png", "webp"]
     detector: str = Field(description="detector configuration used: paper, yunet or combined")
-    existing_orientation: int | None = Field(description="Orientation tag found in the file, if any")
+    existing_orientation: int | None = Field(description="Orientation tag found in the file, if any and valid (1-8)")
     exif_status: Literal["absent", "ok", "unreadable", "not_applicable"]
-    exif_detail: str | None = Field(None, description="why the EXIF block is unreadable")
+    exif_detail: str | None = Field(None, description="why the EXIF block is unreadable, or that its Orientation "
+                                                      "value is invalid (not 1-8) and treated as absent")
     action: Action = Field(description="what happened to the file")
     written: bool = Field(description="whether a new Orientation tag was written")
     written_orientation: int | None = Field(description="the value written, when written")
@@ -72,6 +75,7 @@ def analyze(image_bytes: bytes, detector: OrientationDetector,
     decision = decide(faces)
     header = decoded.header
     exif = read_exif(image_bytes, header) if header.format in TAGGABLE_FORMATS else None
+    tag, detail = _valid_tag(exif)
     return OrientationReport(
         decision=decision.kind,
         orientation=None if decision.rotation is None else orientation_for_rotation(decision.rotation),
@@ -82,16 +86,31 @@ def analyze(image_bytes: bytes, detector: OrientationDetector,
         height=header.height,
         format=header.format,
         detector=detector.name,
-        existing_orientation=exif.orientation if exif is not None else None,
+        existing_orientation=tag,
         exif_status=exif.status if exif is not None else "not_applicable",
-        exif_detail=exif.detail if exif is not None and exif.detail else None,
+        exif_detail=detail,
         action="analysis_only",
         written=False,
         written_orientation=None,
-        file_orientation=exif.orientation if exif is not None else None,
+        file_orientation=tag,
         message=_describe(decision, faces),
         elapsed_ms=_ms_since(start),
     )
+
+
+def _valid_tag(exif: ExifInfo | None) -> tuple[int | None, str | None]:
+    """(the file's Orientation tag when it is one of the eight valid values, else None; the EXIF detail).
+
+    A stored value outside 1..8 means nothing to a viewer: it is reported as absent, with the
+    detail saying so, and never echoed (a client would trust it as a tag in ``X-Orientation``).
+    """
+    if exif is None:
+        return None, None
+    detail = exif.detail or None
+    if exif.orientation is not None and exif.orientation not in VALID_ORIENTATIONS:
+        note = f"the stored Orientation value {exif.orientation} is not valid (1-8): treated as absent"
+        return None, f"{detail}; {note}" if detail else note
+    return exif.orientation, detail
 
 
 def orient_jpeg(jpeg_bytes: bytes, detector: OrientationDetector, force: bool = False,
@@ -132,7 +151,7 @@ def plan_tag(report: OrientationReport, force: bool) -> tuple[Action, int | None
     (action, value to write or None)."""
     if report.orientation is None:
         return "not_written_rejected", None
-    existing = report.existing_orientation if report.existing_orientation in range(1, 9) else None
+    existing = report.existing_orientation if report.existing_orientation in VALID_ORIENTATIONS else None
     if existing is not None and existing != 1 and not force:
         return "kept_existing", None
     # What viewers show now: the tag, 1 without EXIF, unknown for an invalid or unreadable tag.

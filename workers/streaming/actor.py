@@ -7,12 +7,19 @@ restarted by Ray (``max_restarts``) and reloads its calibration and frames from 
 Renders are serialised inside the actor; each viewer has at most one render in flight (the API
 keeps only its latest viewpoint), so no render ever waits behind a stale request.
 
+Failures cost one request, never the session: an exception in a render (or in applying a live
+frame set) is caught here and answered as an error for that request alone. A process crash during
+a render or push (the actor restarts) is reported to the caller as :class:`SessionInterrupted`,
+and that request is never sent again: a viewpoint that crashes the renderer would otherwise crash
+every restart in turn until none were left.
+
 Only ids, viewpoints and JPEG bytes cross the process boundary: a recording's frames are read from
 the blob store by the actor, and a live frame set is sent to it once.
 """
 from __future__ import annotations
 
 import asyncio
+import logging
 import os
 import threading
 import time
@@ -20,18 +27,19 @@ import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
-import cv2
-import numpy as np
 import ray
 import ray.exceptions
 from pydantic import ValidationError
 
 from workers.storage import open_store
 
+from .images import decode_image
 from .params import Viewpoint
 from .recording import RecordingArchive
 from .session import LiveSession, RecordingSession, Session, SessionLimits, ViewError
 from .store import archive_key, load_live, load_rig, save_live
+
+log = logging.getLogger("sweepcast.session")
 
 NAMESPACE = "sweepcast"
 NAME_PREFIX = "session/"
@@ -61,9 +69,14 @@ def actor_name(rig_id: str, source: str) -> str:
     return f"{NAME_PREFIX}{rig_id}/{source}"
 
 
-@ray.remote
-class SessionActor:
-    """Ray actor around a :class:`Session` (see the module docstring)."""
+class SessionInterrupted(Exception):
+    """The session actor's process was lost while it handled this request (it restarts, or a new
+    one is made on the next call); the request was not served and is not sent again."""
+
+
+class SessionHost:
+    """The body of the session actor around a :class:`Session` (see the module docstring);
+    :data:`SessionActor` is its Ray actor class."""
 
     def __init__(self, config: SessionConfig) -> None:
         ctx = ray.get_runtime_context()
@@ -79,6 +92,8 @@ class SessionActor:
         self._viewers: dict[str, float] = {}
         self._persisted = 0.0
         self.persisted_seq = self.session.seq
+        self.failures = 0
+        """Renders and pushes that raised unexpectedly (each answered with an error) since (re)start."""
         self._me = ctx.current_actor
         threading.Thread(target=self._watch, name="idle-watch", daemon=True).start()
 
@@ -87,7 +102,7 @@ class SessionActor:
         if self.config.source == LIVE:
             session = LiveSession(rig, self.config.limits, self.config.bg_rate)
             seq, jpegs, pngs = load_live(self.store, self.config.rig_id, len(rig))
-            backgrounds = [cv2.imdecode(np.frombuffer(p, np.uint8), cv2.IMREAD_COLOR) for p in pngs]
+            backgrounds = [decode_image(p, (c.width, c.height)) for c, p in zip(rig.cameras, pngs)]
             session.restore(seq, jpegs, backgrounds)
             return session
         archive = RecordingArchive(self.store.local_path(archive_key(self.config.source)))
@@ -110,6 +125,12 @@ class SessionActor:
                 header, jpeg = self.session.render(viewer, vp)
             except ViewError as exc:
                 return {"ok": False, "error": exc.code, "detail": exc.detail}
+            except Exception as exc:  # noqa: BLE001 - a renderer bug costs this view, not the session
+                log.exception("render of viewpoint %s for viewer %s failed", vp.id, viewer)
+                self.failures += 1
+                self.session.discard_after_failure(viewer)
+                return {"ok": False, "error": "render_failed",
+                        "detail": f"the renderer failed on this viewpoint ({_summary(exc)}); the session goes on"}
         header["session_ms"] = round((time.perf_counter() - t0) * 1e3, 2)
         return {"ok": True, "header": header, "jpeg": jpeg}
 
@@ -123,6 +144,12 @@ class SessionActor:
                 ack = self.session.push(jpegs, background)
             except ViewError as exc:
                 return {"ok": False, "error": exc.code, "detail": exc.detail}
+            except Exception as exc:  # noqa: BLE001 - as in render: this set is lost, not the session
+                log.exception("applying a live frame set failed")
+                self.failures += 1
+                self.session.discard_after_failure(None)
+                return {"ok": False, "error": "frame_set_failed",
+                        "detail": f"the frame set could not be applied ({_summary(exc)}); send the next one"}
             if background or time.monotonic() - self._persisted >= self.config.persist_seconds:
                 self._persist_live(with_background=background)
         return {"ok": True, **ack}
@@ -151,7 +178,8 @@ class SessionActor:
         active = [v for v, t in self._viewers.items() if now - t <= self.config.idle_seconds]
         return {**self.session.describe(), "rig_id": self.config.rig_id, "source": self.config.source,
                 "viewers": len(active), "restarted": self.restarted, "pid": os.getpid(),
-                "idle_s": round(now - self._last, 3), "persisted_seq": self.persisted_seq}
+                "idle_s": round(now - self._last, 3), "persisted_seq": self.persisted_seq,
+                "failures": self.failures}
 
     # --- lifecycle --------------------------------------------------------------------------------
     def _touch(self, viewer: str | None) -> None:
@@ -175,6 +203,14 @@ class SessionActor:
                 return
 
 
+SessionActor = ray.remote(SessionHost)
+
+
+def _summary(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0][:200]}" if text else type(exc).__name__
+
+
 class _Busy:
     """Holds the render lock and marks the actor busy (the idle watch never ends a busy actor)."""
 
@@ -192,9 +228,11 @@ class _Busy:
 
 
 # --- the API side ---------------------------------------------------------------------------------
-def get_or_create(config: SessionConfig, resources: dict[str, float] | None = None) -> Any:
-    """The handle of the session actor for ``config`` (created when there is none). Blocking."""
-    return SessionActor.options(
+def get_or_create(config: SessionConfig, resources: dict[str, float] | None = None,
+                  actor_class: Any = SessionActor) -> Any:
+    """The handle of the session actor for ``config`` (created from ``actor_class`` when there is
+    none). Blocking."""
+    return actor_class.options(
         name=config.name, namespace=NAMESPACE, lifetime="detached", get_if_exists=True,
         max_restarts=MAX_RESTARTS, max_concurrency=64, num_cpus=0, resources=resources or {},
     ).remote(config)
@@ -204,7 +242,9 @@ class SessionClient:
     """Async calls to the session actor of one (rig, source), for one socket of the API.
 
     A call that finds the actor gone (it idled out, or its restarts are spent) creates a new one and
-    tries again; a call that finds it restarting waits for it."""
+    tries again; a call that finds it restarting waits for it. A call made with ``resend=False``
+    (a render or a push: it may be what crashed the actor) is not tried again: it raises
+    :class:`SessionInterrupted`, and the next such call first waits for the actor to be back."""
 
     def __init__(self, config: SessionConfig, resources: dict[str, float] | None = None,
                  restart_wait_s: float = 30.0) -> None:
@@ -212,8 +252,12 @@ class SessionClient:
         self.resources = resources
         self.restart_wait_s = restart_wait_s
         self._handle: Any = None
+        self._interrupted = False
 
-    async def call(self, method: str, *args: Any) -> Any:
+    async def call(self, method: str, *args: Any, resend: bool = True) -> Any:
+        if not resend and self._interrupted:
+            await self.call("touch", None)  # harmless to repeat: waits out the restart or makes a new actor
+            self._interrupted = False
         deadline = time.monotonic() + self.restart_wait_s
         recreated = 0
         while True:
@@ -221,15 +265,25 @@ class SessionClient:
                 self._handle = await asyncio.to_thread(get_or_create, self.config, self.resources)
             try:
                 return await getattr(self._handle, method).remote(*args)
-            except ray.exceptions.ActorUnavailableError:
+            except ray.exceptions.ActorUnavailableError as exc:
+                if not resend:
+                    raise self._interruption(exc) from exc
                 if time.monotonic() > deadline:
                     raise
                 await asyncio.sleep(0.1)
-            except ray.exceptions.ActorDiedError:
+            except ray.exceptions.ActorDiedError as exc:
                 self._handle = None
+                if not resend:
+                    raise self._interruption(exc) from exc
                 recreated += 1
                 if recreated > 2:
                     raise
+
+    def _interruption(self, exc: Exception) -> SessionInterrupted:
+        self._interrupted = True
+        log.warning("session %s lost its process during a call: %s", self.config.name, type(exc).__name__)
+        return SessionInterrupted("the session's process was lost while handling this request; it restarts "
+                                  "and reloads its frames, and the next request is served then")
 
     async def notify(self, method: str, *args: Any, timeout_s: float = 5.0) -> None:
         """Call ``method`` if this client has reached the actor; never creates one, never raises."""

@@ -27,6 +27,7 @@ from typing import BinaryIO, Callable, Iterable, Literal, Sequence
 
 import numpy as np
 
+from workers.common.safezip import SafeZip
 from workers.sweep.rig import Rig
 from workers.sweep.rig_io import IMAGE_EXTENSIONS
 
@@ -326,25 +327,22 @@ def import_image_zip(archive: str | Path, rig: Rig, out: str | Path, fps: float,
 
     backgrounds: rig index -> empty-scene image, overriding those in the zip (None: the zip's, or
     temporal medians)."""
-    try:
-        zf = zipfile.ZipFile(archive)
-    except zipfile.BadZipFile:
-        raise RecordingError("the archive is not a zip file") from None
-    with zf:
+    with SafeZip(archive, label="the archive", error=RecordingError) as safe:
+        zf = safe.zipfile
         folders = scan_image_zip(zf, rig, max_frames)
         check_image_sizes(zf, folders, rig)
         frames = len(folders.frames[0])
         samples = median_sample_indices(frames)
         given = dict(backgrounds or {})
         if not given and folders.backgrounds[0] is not None:
-            given = {c: _zip_image(zf, m, rig, c) for c, m in enumerate(folders.backgrounds) if m is not None}
+            given = {c: _zip_image(safe, m, rig, c) for c, m in enumerate(folders.backgrounds) if m is not None}
         writer = ArchiveWriter(out, rig, fps)
         try:
             total = frames * len(rig)
             for c in range(len(rig)):
                 kept = []
                 for f, member in enumerate(folders.frames[c]):
-                    image = _zip_image(zf, member, rig, c)
+                    image = _zip_image(safe, member, rig, c)
                     writer.add(c, image)
                     if f in samples:
                         kept.append(image)
@@ -358,7 +356,7 @@ def import_image_zip(archive: str | Path, rig: Rig, out: str | Path, fps: float,
             raise
 
 
-def _zip_image(zf: zipfile.ZipFile, member: str, rig: Rig, cam: int) -> np.ndarray:
+def _zip_image(zf: SafeZip, member: str, rig: Rig, cam: int) -> np.ndarray:
     c = rig[cam]
     try:
         return decode_image(zf.read(member), (c.width, c.height))

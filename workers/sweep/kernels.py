@@ -34,7 +34,7 @@ from numba.extending import intrinsic
 
 from .lanes import lane_depth_search
 from .layout import BIG as _BIG
-from .layout import CAM_F, CAM_I, MAX_BITS, TILE_COLS
+from .layout import CAM_F, CAM_I, MAX_BITS, TILE_COLS  # noqa: F401 - MAX_BITS: part of this module's interface
 from .layout import FAST as _FAST
 from .layout import SAFE as _SAFE
 from .layout import Z_MIN as _Z_MIN

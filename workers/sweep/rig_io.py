@@ -68,7 +68,9 @@ def load_rig_json(path: str | Path) -> Rig:
     try:
         d = json.loads(Path(path).read_text())
     except json.JSONDecodeError as e:
-        raise RigError(None, "file", f"{path} is not valid JSON ({e})") from None
+        raise RigError(None, "file", f"{Path(path).name} is not valid JSON ({e})") from None
+    except RecursionError:  # "[[[[...]]]]": json's recursive parser runs out of stack
+        raise RigError(None, "file", f"{Path(path).name} nests too deeply to be a rig") from None
     return rig_from_dict(d)
 
 
