@@ -127,11 +127,14 @@ def worker_env(settings: Settings) -> dict[str, str]:
     """Settings the engines read on the workers, passed to every Ray worker of this service."""
     env = {"SWEEPCAST_MAX_IMAGE_PIXELS": str(settings.max_image_pixels),
            # OpenCV's own guard, read once when a fresh worker imports cv2: a second line behind the header check
-           "OPENCV_IO_MAX_IMAGE_PIXELS": str(settings.max_image_pixels)}
+           "OPENCV_IO_MAX_IMAGE_PIXELS": str(settings.max_image_pixels),
+           "SWEEPCAST_MAX_VIDEO_FRAMES": str(settings.max_video_frames)}
     env.update({f"SWEEPCAST_{name.upper()}": str(getattr(settings, name)) for name in ZIP_SETTINGS})
     env[MODELS_DIR_ENV] = str(models_dir(settings.data_dir).resolve())  # models fetched later are found too
     if settings.orientation_yunet_model is not None:
         env["SWEEPCAST_ORIENTATION_YUNET_MODEL"] = str(settings.orientation_yunet_model.resolve())
+    env["SWEEPCAST_ORIENTATION_TEXT"] = "1" if settings.orientation_text else "0"
+    env["SWEEPCAST_ORIENTATION_TESSERACT"] = settings.orientation_tesseract
     return env
 
 

@@ -30,6 +30,7 @@ class Settings(BaseSettings):
     max_batch_bytes: int = Field(1024 * MiB, ge=1, description="Largest request body of batch uploads.")
     max_json_bytes: int = Field(1 * MiB, ge=1, description="Largest request body of routes that take JSON (or no body).")
     max_image_pixels: int = Field(50_000_000, ge=1, description="Largest image (width x height) decoded: a 50 MP photo (8160x6120) passes, a 7900x7900 bomb does not.")
+    max_video_frames: int = Field(10_000, ge=1, description="Most frames of one uploaded depth sequence (raw YUV or H.264/HEVC video).")
     max_batch_files: int = Field(500, ge=1, description="Most files in one batch upload.")
     max_zip_members: int = Field(200_000, ge=1, description="Most files in one uploaded zip archive.")
     max_zip_member_bytes: int = Field(512 * MiB, ge=1, description="Largest uncompressed file in an uploaded zip.")
@@ -48,6 +49,11 @@ class Settings(BaseSettings):
     orientation_yunet_model: Path | None = Field(
         None, description="YuNet ONNX model for the stronger face detector; default: the one "
                           "installed in <data_dir>/models (fetch_models, 'sweepcast models fetch'), if any.")
+    orientation_text: bool = Field(True, description="Orientation: when the faces decide nothing, read the text's "
+                                                     "orientation with Tesseract OSD (needs the tesseract-ocr and "
+                                                     "tesseract-ocr-osd packages; without them: faces only).")
+    orientation_tesseract: str = Field("tesseract", description="The tesseract binary for the orientation text cue: "
+                                                                "a name on PATH or a path.")
 
     max_rig_cameras: int = Field(64, ge=2, description="Most cameras in one rig.")
     max_recording_frames: int = Field(3000, ge=1, description="Most frames per camera in one recording.")

@@ -6,6 +6,7 @@ import base64
 import cv2
 
 from fastapi import APIRouter, Depends, File, Form, UploadFile
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 
@@ -17,8 +18,11 @@ from app.uploads import check_size, read_upload
 from workers.common.images import ImageInputError, decode_image
 from workers.depth.errors import DepthInputError
 from workers.depth.io import YuvFormat, yuv_frame_count
+from workers.depth.job import check_video_input
 from workers.depth.params import DepthFilterParams, DepthVideoParams, SynthesizeParams
 from workers.depth.service import filter_depth_bytes, synthesize_bytes
+from workers.depth.upsample import target_size
+from workers.depth.video import probe_depth_video
 
 router = APIRouter(prefix="/v1/depth", tags=["depth"], dependencies=[Depends(require_key)])
 
@@ -34,7 +38,7 @@ class SynthesisOut(BaseModel):
 # Statuses by DepthInputError.code (as the photo routes answer for the same image problems);
 # other codes (bad_depth_input) are 400.
 _STATUS = {"too_many_pixels": 413, "not_an_image": 415, "unsupported_format": 415, "corrupt_image": 422,
-           "output_too_large": 422}
+           "output_too_large": 422, "not_a_video": 415, "corrupt_video": 422, "too_many_frames": 413}
 
 
 def _bad_input(exc: DepthInputError) -> ApiError:
@@ -58,7 +62,7 @@ async def filter_depth(
         out = await run_compute(svc, lambda: filter_depth_bytes(depth_bytes, p, texture_bytes, limit))
     except DepthInputError as exc:
         raise _bad_input(exc) from None
-    return Response(out, media_type="image/png", headers={"X-Depth-Method": p.method})
+    return Response(out, media_type="image/png", headers={"X-Depth-Method": p.method_for(texture is not None)})
 
 
 @router.post("/synthesize", response_model=SynthesisOut,
@@ -95,11 +99,17 @@ def _synthesize(views: list[tuple[bytes, bytes]], p: SynthesizeParams, limit: in
 
 
 @router.post("/videos", status_code=202, response_model=JobOut,
-             summary="Post-filter a raw YUV depth sequence: a job with progress per frame")
+             summary="Post-filter a depth sequence (raw YUV, or H.264/HEVC video): a job with progress per frame",
+             description="`input_format` \"yuv\" (default): raw planar frames, `width` and `height` required. "
+                         "\"video\": an 8-bit H.264 or HEVC video (raw .264/.265, MP4, MKV, ...) whose luma is the "
+                         "depth; its codec, sample format, frame size (`max_image_pixels`) and frame count "
+                         "(`max_video_frames`) are checked before the job is made. Results: filtered.yuv, report.json.")
 async def filter_video(
-    depth: UploadFile = File(..., description="raw planar YUV depth frames (4:0:0 or 4:2:0, 8 or 16 bit LE)"),
-    texture: UploadFile | None = File(None, description="8-bit 4:2:0 texture at the output size (method wmf)"),
-    params: str = Form(..., description=PARAMS_HELP.format(model="DepthVideoParams") + "; width and height required"),
+    depth: UploadFile = File(..., description="raw planar YUV depth frames (4:0:0 or 4:2:0, 8 or 16 bit LE), "
+                                              "or an 8-bit H.264/HEVC depth video (input_format \"video\")"),
+    texture: UploadFile | None = File(None, description="8-bit 4:2:0 texture at the output size (guided methods)"),
+    params: str = Form(..., description=PARAMS_HELP.format(model="DepthVideoParams")
+                       + "; width and height required for raw YUV"),
     svc: Services = Depends(services),
 ) -> JSONResponse:
     p = parse_params(DepthVideoParams, params)
@@ -107,13 +117,36 @@ async def filter_video(
     if texture is not None:
         check_size(texture, svc.settings.max_batch_bytes)
         uploads.append(Upload("texture", texture.file, {"filename": texture.filename}))
-    _check_yuv(depth, p)
+    if p.input_format == "video":
+        await run_in_threadpool(_check_video, depth, p, svc)
+    else:
+        _check_yuv(depth, p, svc.settings.max_video_frames)
     return job_accepted(await create_job(svc, "depth.video", p.model_dump(mode="json"), uploads))
 
 
-def _check_yuv(depth: UploadFile, p: DepthVideoParams) -> None:
-    """Refuse at once a sequence whose size is not a whole number of frames (the job would fail anyway)."""
+def _check_yuv(depth: UploadFile, p: DepthVideoParams, max_frames: int) -> None:
+    """Refuse at once a sequence whose size is not a whole number of frames, or that has too many
+    (the job would fail anyway)."""
     try:
-        yuv_frame_count(depth.size or 0, YuvFormat(p.width, p.height, p.bits, p.chroma))
+        count = yuv_frame_count(depth.size or 0, YuvFormat(p.width, p.height, p.bits, p.chroma))
     except DepthInputError as exc:
         raise ApiError(422, f"{depth.filename or 'depth'}: {exc}", "bad_depth_input") from None
+    if count > max_frames:
+        raise ApiError(413, f"{depth.filename or 'depth'} holds {count} frames; the limit is {max_frames}",
+                       "too_many_frames")
+
+
+def _check_video(depth: UploadFile, p: DepthVideoParams, svc: Services) -> None:
+    """Probe a coded depth video (container, codec, 8-bit samples, frame size and count) before a job
+    is made of it; its problems are 4xx (:data:`_STATUS`)."""
+    name = depth.filename or "depth video"
+    if not depth.size:
+        raise ApiError(400, f"{name} is empty", "empty_file")
+    try:
+        info = probe_depth_video(depth.file, svc.settings.max_video_frames, svc.settings.max_image_pixels, name)
+        check_video_input(info, p)
+        target_size((info.height, info.width), p.scale, p.out_size(), svc.settings.max_image_pixels)
+    except DepthInputError as exc:
+        raise _bad_input(exc) from None
+    finally:
+        depth.file.seek(0)

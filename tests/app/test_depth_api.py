@@ -125,3 +125,61 @@ def test_yuv_that_is_not_whole_frames_is_refused_at_upload(client):
                     data={"params": json.dumps(params)})
     assert r.status_code == 422 and r.json()["error"] == "bad_depth_input"
     assert client.get("/v1/jobs", params={"kind": "depth.video"}).json()["jobs"] == []
+
+
+def h264_depth_video(frames) -> bytes:
+    from workers.depth.video import encode_depth_frames
+
+    return encode_depth_frames(list(frames), "h264", 20, gop=len(frames))
+
+
+def test_video_job_accepts_a_coded_h264_depth_video(client):
+    from workers.depth.methods import postprocess
+    from workers.depth.video import decode_depth_video
+
+    frames = [np.roll(square_depth(), i, axis=1) for i in range(4)]
+    data = h264_depth_video(frames)
+    params = {"input_format": "video", "method": "dilation", "scale": 2}
+    r = client.post("/v1/depth/videos", files={"depth": ("seq.264", data, "video/h264")},
+                    data={"params": json.dumps(params)})
+    assert r.status_code == 202, r.text
+    job = wait_final(client, r.json()["id"])
+    assert job["state"] == "succeeded", job
+    out = np.frombuffer(client.get(f"/v1/jobs/{job['id']}/results/filtered.yuv").content, np.uint8)
+    out = out.reshape(4, 64, 64)
+    for got, frame in zip(out, decode_depth_video(data)):
+        np.testing.assert_array_equal(got, postprocess(frame, "dilation", scale=2))
+    report = client.get(f"/v1/jobs/{job['id']}/results/report.json").json()
+    assert report["frames"] == 4 and report["input"]["codec"] == "h264"
+
+
+@pytest.mark.parametrize("make,status,error", [
+    (lambda: b"certainly not a video" * 20, 415, "not_a_video"),
+    (lambda: b"", 400, "empty_file"),
+])
+def test_depth_video_that_is_not_a_video_is_refused_at_upload(client, make, status, error):
+    r = client.post("/v1/depth/videos", files={"depth": ("seq.264", make(), "video/h264")},
+                    data={"params": json.dumps({"input_format": "video"})})
+    assert r.status_code == status, r.text
+    assert r.json()["error"] == error and r.json()["detail"]
+    assert client.get("/v1/jobs", params={"kind": "depth.video"}).json()["jobs"] == []
+
+
+def test_depth_video_limits_come_from_settings(client_factory):
+    small = client_factory(max_video_frames=2, max_image_pixels=2000)
+    data = h264_depth_video([square_depth()] * 3)
+    r = small.post("/v1/depth/videos", files={"depth": ("seq.264", data, "video/h264")},
+                   data={"params": json.dumps({"input_format": "video"})})
+    assert r.status_code == 413 and r.json()["error"] == "too_many_frames"
+    r = small.post("/v1/depth/videos", files={"depth": ("seq.264", h264_depth_video([square_depth(64)]), "video/h264")},
+                   data={"params": json.dumps({"input_format": "video"})})
+    assert r.status_code == 413 and r.json()["error"] == "too_many_pixels"
+    r = small.post("/v1/depth/videos", files={"depth": ("seq.264", h264_depth_video([square_depth()]), "video/h264")},
+                   data={"params": json.dumps({"input_format": "video", "scale": 4})})
+    assert r.status_code == 422 and r.json()["error"] == "output_too_large"
+
+
+def test_yuv_without_its_size_is_422(client):
+    r = client.post("/v1/depth/videos", files={"depth": ("seq.yuv", b"\x00" * 64, "application/octet-stream")},
+                    data={"params": json.dumps({})})
+    assert r.status_code == 422 and "width and height" in r.json()["detail"]

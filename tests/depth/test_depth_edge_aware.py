@@ -1,7 +1,9 @@
 import numpy as np
 import pytest
 
-from workers.depth.edge_aware import weighted_mode_filter
+import cv2
+
+from workers.depth.edge_aware import joint_bilateral_upsample, weighted_mode_filter
 from workers.depth.errors import DepthInputError
 from workers.depth.upsample import upsample
 
@@ -46,3 +48,41 @@ def test_wmf_bad_input():
         weighted_mode_filter(depth, None)
     with pytest.raises(DepthInputError, match="odd integer"):
         weighted_mode_filter(depth, texture, window=4)
+
+
+def area_low(depth, factor=2):
+    h, w = depth.shape
+    return cv2.resize(depth, (w // factor, h // factor), interpolation=cv2.INTER_AREA)
+
+
+@pytest.mark.parametrize("edge", [13, 14])
+def test_jbu_puts_the_edge_on_the_texture_edge(edge):
+    # area downsampling blends the two depths where the edge cuts a 2x2 block (odd edge); the guide
+    # there is mixed too, so the colour term gives that sample no weight and the edge comes back exact
+    truth, texture = step_scene(edge)
+    out = joint_bilateral_upsample(area_low(truth), texture, radius=2, sigma_color=10.0)
+    np.testing.assert_array_equal(out, truth)
+
+
+def test_jbu_with_a_flat_guide_is_a_gaussian_weighted_mean():
+    low = np.array([[0, 0, 0], [0, 90, 0], [0, 0, 0]], np.uint8)
+    guide = np.zeros((3, 3, 3), np.uint8)  # factor 1, flat guide: a normalised Gaussian blur
+    out = joint_bilateral_upsample(low, guide, radius=1, sigma_spatial=1.0)
+    g = np.exp(-0.5)  # weight of an edge neighbour, exp(-1) of a diagonal one
+    centre = 90 / (1 + 4 * g + 4 * np.exp(-1.0))
+    corner = 90 * np.exp(-1.0) / (1 + 2 * g + np.exp(-1.0))
+    assert out[1, 1] == round(centre) and out[0, 0] == round(corner)
+
+
+def test_jbu_keeps_sixteen_bits_and_a_constant_map():
+    flat = np.full((6, 8), 40000, np.uint16)
+    texture = np.random.default_rng(0).integers(0, 256, (12, 16, 3), dtype=np.uint8)
+    out = joint_bilateral_upsample(flat, texture)
+    assert out.dtype == np.uint16 and (out == 40000).all()
+
+
+def test_jbu_bad_input():
+    with pytest.raises(DepthInputError, match="radius"):
+        joint_bilateral_upsample(np.zeros((4, 4), np.uint8), np.zeros((8, 8, 3), np.uint8), radius=0)
+    with pytest.raises(DepthInputError, match="sigma_color"):
+        joint_bilateral_upsample(np.zeros((4, 4), np.uint8), np.zeros((8, 8, 3), np.uint8), sigma_color=0)

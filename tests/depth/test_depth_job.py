@@ -78,3 +78,32 @@ def test_video_job_bad_input(tmp_path):
         run_depth_video(FakeContext(tmp_path / "c", {"width": 16, "height": 12, "method": "blur"}, {"depth": data}))
     with pytest.raises(JobInputError, match="frame 0 has level .* above the 10-bit maximum 1023"):
         run_depth_video(FakeContext(tmp_path / "d", {"width": 16, "height": 12, "bits": 10}, {"depth": data}))
+
+
+def test_video_job_reads_a_coded_h264_depth_video(tmp_path):
+    from workers.depth.video import decode_depth_video, encode_depth_frames
+
+    src = frames(3, 12, 16)
+    data = encode_depth_frames(src, "h264", 20, gop=3)
+    decoded = list(decode_depth_video(data))
+    params = {"input_format": "video", "scale": 2, "method": "modified_morph"}
+    ctx = FakeContext(tmp_path / "job", params, {"depth": data})
+    summary = run_depth_video(ctx)
+    assert summary["frames"] == 3 and summary["input"]["codec"] == "h264"
+    assert summary["input"]["width"] == 16 and summary["input"]["height"] == 12
+    out = io.read_yuv(ctx.result_path("filtered.yuv"), io.YuvFormat(32, 24))
+    for got, frame in zip(out, decoded):
+        np.testing.assert_array_equal(got, postprocess(frame, "modified_morph", scale=2))
+
+
+def test_video_job_refuses_a_video_with_too_many_frames_or_the_wrong_size(tmp_path, monkeypatch):
+    from workers.depth.video import encode_depth_frames
+
+    data = encode_depth_frames(frames(3, 12, 16), "h264", 30)
+    with pytest.raises(JobInputError, match="width 20"):
+        run_depth_video(FakeContext(tmp_path / "a", {"input_format": "video", "width": 20}, {"depth": data}))
+    monkeypatch.setenv("SWEEPCAST_MAX_VIDEO_FRAMES", "2")
+    with pytest.raises(JobInputError, match="more than 2 frames"):
+        run_depth_video(FakeContext(tmp_path / "b", {"input_format": "video"}, {"depth": data}))
+    with pytest.raises(JobInputError, match="is not a video"):
+        run_depth_video(FakeContext(tmp_path / "c", {"input_format": "video"}, {"depth": b"\x00" * 500}))

@@ -47,3 +47,38 @@ def test_bit_depth_must_match_the_options():
 def test_factor_zero_is_refused():
     with pytest.raises(DepthInputError, match="scale factor must be a positive number, got 0"):
         postprocess(np.zeros((4, 4), np.uint8), "dilation", scale=0)
+
+
+def test_jbu_reads_the_low_resolution_map_itself():
+    from workers.depth.edge_aware import joint_bilateral_upsample
+
+    rng = np.random.default_rng(1)
+    low = rng.integers(0, 256, (6, 8), dtype=np.uint8)
+    guide = rng.integers(0, 256, (12, 16, 3), dtype=np.uint8)
+    expected = joint_bilateral_upsample(low, guide, 2, 1.0, 12.0)
+    for up in ("nearest", "bilinear"):
+        np.testing.assert_array_equal(postprocess(low, "jbu", upsampler=up, guide=guide), expected)
+    with pytest.raises(DepthInputError, match="needs a texture"):
+        postprocess(low, "jbu", scale=2)
+
+
+def test_wmf_dilation_is_the_weighted_mode_filter_then_dilation():
+    from workers.depth.edge_aware import weighted_mode_filter
+    from workers.depth.filters import dilation
+
+    rng = np.random.default_rng(2)
+    depth = rng.integers(0, 256, (12, 16), dtype=np.uint8)
+    guide = rng.integers(0, 256, (12, 16, 3), dtype=np.uint8)
+    out = apply_method(depth, "wmf_dilation", guide, FilterOptions(window=3))
+    np.testing.assert_array_equal(out, dilation(weighted_mode_filter(depth, guide, 9, sigma_color=40.0), 3))
+
+
+def test_auto_picks_the_recommended_method():
+    from workers.depth.methods import recommended_method
+    from workers.depth.params import DepthFilterParams
+
+    p = DepthFilterParams()
+    assert p.method == "auto"
+    assert p.method_for(True) == recommended_method(True) == "wmf_dilation"
+    assert p.method_for(False) == recommended_method(False) == "dilation"
+    assert DepthFilterParams(method="modified").method_for(True) == "modified"

@@ -1,6 +1,6 @@
 """``sweepcast depth ...``: filter depth maps or YUV depth sequences, synthesise views.
 
-    sweepcast depth filter IN OUT --method modified_morph [--scale 2] [--texture T]
+    sweepcast depth filter IN OUT [--method auto] [--scale 2] [--texture T]
     sweepcast depth filter in.yuv out.yuv --width 960 --height 544 --scale 2 [--bits 8 --chroma 420]
     sweepcast depth synthesize --view L.png Ld.png --view R.png Rd.png --positions 0 1 --target-position 0.5
         --depth-units disparity --disparity-scale 4 --out V.png [--holes H.png]
@@ -35,7 +35,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     f = verbs.add_parser("filter", help="upsample + post-filter a depth map (PNG/PGM) or a raw YUV sequence")
     f.add_argument("input", type=Path, help="depth map (.png/.pgm) or raw YUV sequence (.yuv)")
     f.add_argument("output", type=Path, help="output file (.png/.pgm, or .yuv for a sequence)")
-    f.add_argument("--method", default="modified_morph", help=f"one of {', '.join(METHODS)}")
+    f.add_argument("--method", default="auto",
+                   help=f"auto (wmf_dilation with --texture, else dilation) or one of {', '.join(METHODS)}")
     size = f.add_mutually_exclusive_group()
     size.add_argument("--scale", type=float, help="upsampling factor, e.g. 2")
     size.add_argument("--size", help="output size WIDTHxHEIGHT")

@@ -116,3 +116,71 @@ def _wmf(depth, guide, spatial, color_lut, range_k, shift):
             weight[lo:hi + 1] = 0.0
             value[lo:hi + 1] = 0.0
     return out
+
+
+def joint_bilateral_upsample(
+    depth_low: np.ndarray, guide: np.ndarray, radius: int = 2, sigma_spatial: float = 1.0,
+    sigma_color: float = 12.0,
+) -> np.ndarray:
+    """Joint bilateral upsampling (Kopf, Cohen, Lischinski & Uyttendaele, SIGGRAPH 2007; reference
+    [7] of the paper) of a low-resolution depth map to the guide's size.
+
+    Output pixel p = sum_q D_low(q) f(|p_low - q|) g(|I_p - I_q|) / sum_q f g, over the low-resolution
+    samples q within ``radius`` (low-resolution pixels) of p's position p_low in the low-resolution
+    grid (pixel-centre aligned); f, g: Gaussians of ``sigma_spatial`` (low-resolution pixels) and
+    ``sigma_color`` (grey levels, Euclidean over BGR); I_q is the guide averaged over the area sample q covers (the
+guide resized to the low resolution with ``INTER_AREA``, as the depth itself was downsampled).
+
+    depth_low: (h, w) uint8/uint16 levels. guide: (H, W, 3) uint8 BGR or (H, W) grey at the output
+    size. Returns (H, W) levels of depth_low's dtype (rounded weighted mean). A factor of 1 (same
+    size) makes it a joint bilateral filter.
+    """
+    if not isinstance(radius, (int, np.integer)) or not 1 <= radius <= 15:
+        raise DepthInputError(f"jbu radius must be an integer from 1 to 15, got {radius!r}")
+    for name, value in (("sigma_spatial", sigma_spatial), ("sigma_color", sigma_color)):
+        if not value > 0:
+            raise DepthInputError(f"{name} must be > 0, got {value}")
+    if depth_low.ndim != 2 or depth_low.dtype not in (np.uint8, np.uint16):
+        raise DepthInputError(f"depth map must be (H, W) uint8/uint16, got {depth_low.dtype} {depth_low.shape}")
+    guide = np.asarray(guide)
+    if guide.ndim < 2:
+        raise DepthInputError(f"texture must be an image, got shape {guide.shape}")
+    guide = check_guide(guide, guide.shape[:2])
+    h, w = guide.shape[:2]
+    color_lut = np.exp(-np.arange(3 * 255**2 + 1) / (2 * sigma_color**2)).astype(np.float32)
+    low_guide = cv2.resize(guide, (depth_low.shape[1], depth_low.shape[0]), interpolation=cv2.INTER_AREA)
+    out = _jbu(depth_low.astype(np.float32), guide.astype(np.int32), low_guide.astype(np.int32), int(radius),
+               float(sigma_spatial), color_lut)
+    top = 255 if depth_low.dtype == np.uint8 else 65535
+    return np.clip(np.rint(out), 0, top).astype(depth_low.dtype)
+
+
+@numba.njit(parallel=True, cache=True)
+def _jbu(depth_low, guide, low_guide, radius, sigma_spatial, color_lut):
+    h, w = guide.shape[:2]
+    lh, lw = depth_low.shape
+    sy, sx = lh / h, lw / w  # low-resolution pixels per output pixel
+    inv2s2 = 1.0 / (2.0 * sigma_spatial * sigma_spatial)
+    out = np.empty((h, w), np.float32)
+    for y in numba.prange(h):
+        yl = (y + 0.5) * sy - 0.5
+        cy = int(np.floor(yl + 0.5))
+        for x in range(w):
+            xl = (x + 0.5) * sx - 0.5
+            cx = int(np.floor(xl + 0.5))
+            b0, g0, r0 = guide[y, x, 0], guide[y, x, 1], guide[y, x, 2]
+            acc, norm = 0.0, 0.0
+            for qy in range(max(0, cy - radius), min(lh, cy + radius + 1)):
+                for qx in range(max(0, cx - radius), min(lw, cx + radius + 1)):
+                    db = low_guide[qy, qx, 0] - b0
+                    dg = low_guide[qy, qx, 1] - g0
+                    dr = low_guide[qy, qx, 2] - r0
+                    d2 = (qy - yl) ** 2 + (qx - xl) ** 2
+                    wt = np.exp(-d2 * inv2s2) * color_lut[db * db + dg * dg + dr * dr]
+                    acc += wt * depth_low[qy, qx]
+                    norm += wt
+            if norm > 1e-12:
+                out[y, x] = acc / norm
+            else:  # no sample carries weight: nearest sample
+                out[y, x] = depth_low[min(lh - 1, max(0, cy)), min(lw - 1, max(0, cx))]
+    return out

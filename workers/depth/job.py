@@ -1,13 +1,16 @@
-"""Job entry point: post-filter a raw YUV depth sequence frame by frame.
+"""Job entry point: post-filter a depth sequence frame by frame.
 
-``run_depth_video(ctx)``: input ``depth`` (raw planar YUV, :class:`DepthVideoParams` says its
-layout), optional input ``texture`` (8-bit 4:2:0 YUV at the output size, needed by "wmf").
-Results: ``filtered.yuv`` (the output size, same bit depth and chroma format) and ``report.json``.
-Progress is reported once per frame.
+``run_depth_video(ctx)``: input ``depth``, raw planar YUV (:class:`DepthVideoParams` says its
+layout) or, with ``input_format: "video"``, a coded 8-bit H.264/HEVC video whose luma is the depth
+(decoded with PyAV; at most ``SWEEPCAST_MAX_VIDEO_FRAMES`` frames and ``SWEEPCAST_MAX_IMAGE_PIXELS``
+pixels per frame, the service's settings); optional input ``texture`` (8-bit 4:2:0 YUV at the output
+size, needed by the guided methods). Results: ``filtered.yuv`` (the output size, ``bits`` deep, in
+the ``chroma`` format) and ``report.json``. Progress is reported once per frame.
 """
 from __future__ import annotations
 
 import json
+import os
 import time
 from contextlib import ExitStack
 from typing import Any, Iterator
@@ -20,11 +23,23 @@ from workers.common import images
 from workers.common.jobctx import JobContext, JobInputError
 
 from . import io
+from .errors import DepthInputError
 from .levels import levels_to_depth
 from .methods import GUIDED_METHODS
 from .params import DepthVideoParams
 from .pipeline import FramePipeline
 from .upsample import target_size
+from .video import DepthVideoInfo, decode_depth_video, probe_depth_video
+
+MAX_VIDEO_FRAMES_ENV = "SWEEPCAST_MAX_VIDEO_FRAMES"
+DEFAULT_MAX_VIDEO_FRAMES = 10_000
+
+
+def max_video_frames_from_env() -> int:
+    """Most frames of one depth sequence: ``$SWEEPCAST_MAX_VIDEO_FRAMES`` (the service's
+    ``max_video_frames`` setting), else 10 000."""
+    value = os.environ.get(MAX_VIDEO_FRAMES_ENV, "").strip()
+    return int(value) if value.isdigit() and int(value) > 0 else DEFAULT_MAX_VIDEO_FRAMES
 
 
 def run_depth_video(ctx: JobContext) -> dict[str, Any]:
@@ -33,29 +48,46 @@ def run_depth_video(ctx: JobContext) -> dict[str, Any]:
         p = DepthVideoParams.model_validate(ctx.params)
     except ValidationError as exc:
         raise JobInputError(f"invalid parameters: {exc}") from None
-    fmt_in = io.YuvFormat(p.width, p.height, p.bits, p.chroma)
     depth_path = ctx.input_path("depth")
-    count = io.yuv_frame_count(depth_path.stat().st_size, fmt_in)
-    out_w, out_h = target_size((p.height, p.width), p.scale, p.out_size(), images.max_pixels_from_env())
+    max_frames, max_pixels = max_video_frames_from_env(), images.max_pixels_from_env()
+    if p.input_format == "video":
+        info = check_video_input(probe_depth_video(depth_path, max_frames, max_pixels), p)
+        width, height, count = info.width, info.height, info.frames
+        described = {"format": "video", "codec": info.codec, "pix_fmt": info.pix_fmt}
+        frames_in = decode_depth_video(depth_path, max_frames, max_pixels)
+    else:
+        width, height = p.width, p.height
+        described = {"format": "yuv", "chroma": p.chroma}
+        fmt_in = io.YuvFormat(width, height, p.bits, p.chroma)
+        count = io.yuv_frame_count(depth_path.stat().st_size, fmt_in)
+        if count > max_frames:
+            raise DepthInputError(f"the sequence has {count} frames; the limit is {max_frames}", "too_many_frames")
+        frames_in = None
+    out_w, out_h = target_size((height, width), p.scale, p.out_size(), max_pixels)
     fmt_out = io.YuvFormat(out_w, out_h, p.bits, p.chroma)
-    pipeline = FramePipeline((p.height, p.width), (out_w, out_h), p.method, p.upsampler, p.options(p.bits))
+    method = p.method_for("texture" in ctx.inputs)
+    pipeline = FramePipeline((height, width), (out_w, out_h), method, p.upsampler, p.options(p.bits))
     frames: list[dict[str, float]] = []
     started = time.perf_counter()
     with ExitStack() as stack:
-        fin = stack.enter_context(depth_path.open("rb"))
+        if frames_in is None:
+            frames_in = io.read_yuv_frames(stack.enter_context(depth_path.open("rb")), fmt_in, count)
         fout = stack.enter_context(ctx.result_path("filtered.yuv").open("wb"))
-        guides = _guides(ctx, stack, p, out_w, out_h, count)
-        for index, frame in enumerate(io.read_yuv_frames(fin, fmt_in, count)):
+        guides = _guides(ctx, stack, method, out_w, out_h, count)
+        for index, frame in enumerate(frames_in):
+            if index >= count:
+                raise DepthInputError(f"the video decodes to more frames than its {count} packets", "corrupt_video")
             out = pipeline(frame, next(guides))
             io.write_yuv_frame(fout, out, fmt_out)
             frames.append(_frame_stats(pipeline.upsampled, out, p))
             ctx.progress((index + 1) / count, f"frame {index + 1}/{count}")
+    count = len(frames)
     seconds = time.perf_counter() - started
     summary = {
         "frames": count,
-        "input": {"width": p.width, "height": p.height, "bits": p.bits, "chroma": p.chroma},
+        "input": {"width": width, "height": height, "bits": p.bits, **described},
         "output": {"width": out_w, "height": out_h, "bits": p.bits, "chroma": p.chroma},
-        "method": p.method,
+        "method": method,
         "seconds": round(seconds, 3),
         "frames_per_second": round(count / seconds, 2) if seconds > 0 else None,
     }
@@ -64,15 +96,24 @@ def run_depth_video(ctx: JobContext) -> dict[str, Any]:
     return summary
 
 
+def check_video_input(info: DepthVideoInfo, p: DepthVideoParams) -> DepthVideoInfo:
+    """``info`` when the video agrees with the parameters (width/height, when given); DepthInputError otherwise."""
+    for name, given, found in (("width", p.width, info.width), ("height", p.height, info.height)):
+        if given is not None and given != found:
+            raise DepthInputError(f"the depth video is {info.width}x{info.height} but the parameters say "
+                                  f"{name} {given}: leave width/height out for video input, or match them")
+    return info
+
+
 def _guides(
-    ctx: JobContext, stack: ExitStack, p: DepthVideoParams, width: int, height: int, count: int
+    ctx: JobContext, stack: ExitStack, method: str, width: int, height: int, count: int
 ) -> Iterator[np.ndarray | None]:
     """Texture frames for guided methods (validated against the depth sequence), else Nones."""
-    if p.method not in GUIDED_METHODS:
+    if method not in GUIDED_METHODS:
         while True:
             yield None
     if "texture" not in ctx.inputs:
-        raise JobInputError(f"method {p.method!r} needs a 'texture' input: 8-bit 4:2:0 YUV at {width}x{height}")
+        raise JobInputError(f"method {method!r} needs a 'texture' input: 8-bit 4:2:0 YUV at {width}x{height}")
     path = ctx.input_path("texture")
     tex_frames = path.stat().st_size / (width * height * 3 // 2)
     if width % 2 or height % 2 or tex_frames != count:

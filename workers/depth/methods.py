@@ -5,7 +5,16 @@ texture size, guide (H, W, 3) uint8 BGR texture or None, options a :class:`Filte
 work with larger = nearer; :func:`apply_method` flips maps in the opposite convention around them.
 
 ``METHODS`` names: "none", "dilation" (eq. 1), "modified" (modified dilation), "modified_morph"
-(modified dilation + morphological filter), "wmf" (weighted mode filter, guided by the texture).
+(modified dilation + morphological filter), "wmf" (weighted mode filter, guided by the texture),
+"jbu" (joint bilateral upsampling guided by the texture: in :func:`postprocess` it replaces the
+plain upsampler and reads the decoded low-resolution map itself; on a map already at the texture
+size it is the joint bilateral filter), "wmf_dilation" (the weighted mode filter, then dilation
+with ``window``: the edge moves onto the texture edge, then the foreground grows by window // 2
+pixels to carry the mixed-colour boundary pixels with it; the best of the methods by BD-rate of
+synthesised views in ``benchmarks/depth.py``).
+
+:data:`RECOMMENDED` / :func:`recommended_method`: the method to use when a request does not name
+one ("wmf_dilation" when a texture is at hand, else "dilation", the measured order).
 """
 from __future__ import annotations
 
@@ -17,7 +26,7 @@ import numpy as np
 from . import edge_aware, filters
 from .errors import DepthInputError
 from .levels import check_levels, flip
-from .upsample import upsample
+from .upsample import target_size, upsample
 
 
 @dataclass(frozen=True)
@@ -27,6 +36,8 @@ class FilterOptions:
     window: side of N(k) for the dilation family (odd pixels). rule / min_contrast: the
     foreground classification (see ``filters``). morph_window / morph_order: the clean-up.
     guide_window, sigma_color, sigma_depth: the weighted mode filter (pixels, grey levels, levels).
+    jbu_radius, jbu_sigma_spatial, jbu_sigma_color: joint bilateral upsampling (low-resolution
+    pixels, low-resolution pixels, grey levels).
     bits: bit depth of the levels (8..16). larger_is_nearer: the level convention.
     """
 
@@ -38,6 +49,9 @@ class FilterOptions:
     guide_window: int = 9
     sigma_color: float = 40.0
     sigma_depth: float = 4.0
+    jbu_radius: int = 2
+    jbu_sigma_spatial: float = 1.0
+    jbu_sigma_color: float = 12.0
     bits: int = 8
     larger_is_nearer: bool = True
 
@@ -69,14 +83,37 @@ def _wmf(depth: np.ndarray, guide: np.ndarray | None, o: FilterOptions) -> np.nd
     )
 
 
+def _jbu(depth: np.ndarray, guide: np.ndarray | None, o: FilterOptions) -> np.ndarray:
+    return edge_aware.joint_bilateral_upsample(
+        depth, guide, o.jbu_radius, sigma_spatial=o.jbu_sigma_spatial, sigma_color=o.jbu_sigma_color
+    )
+
+
+def _wmf_dilation(depth: np.ndarray, guide: np.ndarray | None, o: FilterOptions) -> np.ndarray:
+    return filters.dilation(_wmf(depth, guide, o), o.window)
+
+
 METHODS: dict[str, MethodFn] = {
     "none": _none,
     "dilation": _dilation,
     "modified": _modified,
     "modified_morph": _modified_morph,
     "wmf": _wmf,
+    "jbu": _jbu,
+    "wmf_dilation": _wmf_dilation,
 }
-GUIDED_METHODS = frozenset({"wmf"})
+GUIDED_METHODS = frozenset({"wmf", "jbu", "wmf_dilation"})
+UPSAMPLING_METHODS = frozenset({"jbu"})
+"""Methods that upsample the decoded map themselves (the upsampler setting does not apply)."""
+
+
+RECOMMENDED = {"guided": "wmf_dilation", "unguided": "dilation"}
+"""Best measured method with and without a texture guide (benchmarks/RESULTS.md, section depth)."""
+
+
+def recommended_method(has_guide: bool) -> str:
+    """The method a request that names none gets: "wmf_dilation" with a texture, else "dilation"."""
+    return RECOMMENDED["guided" if has_guide else "unguided"]
 
 
 def check_method(name: str) -> str:
@@ -111,9 +148,24 @@ def postprocess(
 
     depth_low: (h, w) uint8/uint16 levels. scale or size (width, height): the output size; when
     both are None and a guide is given, the guide's size. Returns (H, W) levels, same dtype.
+    Methods in :data:`UPSAMPLING_METHODS` ("jbu") take ``depth_low`` directly and ignore ``upsampler``.
     """
     check_method(method)
     check_levels(depth_low, options.bits)
     if scale is None and size is None and guide is not None:
         size = (guide.shape[1], guide.shape[0])
+    if method in UPSAMPLING_METHODS:
+        return upsample_guided(depth_low, method, target_size(depth_low.shape, scale, size), guide, options)
     return apply_method(upsample(depth_low, scale, size, upsampler), method, guide, options)
+
+
+def upsample_guided(
+    depth_low: np.ndarray, method: str, size: tuple[int, int], guide: np.ndarray | None, options: FilterOptions,
+) -> np.ndarray:
+    """An upsampling method (``jbu``) from the decoded (h, w) levels straight to ``size`` (width,
+    height), the guide's size; honours the level convention like :func:`apply_method`."""
+    guide = edge_aware.check_guide(guide, (size[1], size[0]))
+    fn = METHODS[method]
+    if options.larger_is_nearer:
+        return fn(depth_low, guide, options)
+    return flip(fn(flip(depth_low, options.bits), guide, options), options.bits)

@@ -1,7 +1,8 @@
 """Request parameters of the depth engine (validated by the web layer and again by the jobs).
 
 - :class:`DepthFilterParams`: one depth map -> filtered depth map (``POST /v1/depth/filter``).
-- :class:`DepthVideoParams`: a raw YUV depth sequence -> filtered sequence (job ``depth.video``).
+- :class:`DepthVideoParams`: a depth sequence (raw YUV, or H.264/HEVC video) -> filtered sequence
+  (job ``depth.video``).
 - :class:`SynthesizeParams`: texture + depth of one or more views -> a virtual view (``POST /v1/depth/synthesize``).
 """
 from __future__ import annotations
@@ -13,11 +14,11 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from workers.camera import Camera
 
-from .methods import FilterOptions
+from .methods import FilterOptions, recommended_method
 
 # Unknown fields are typos; NaN and Infinity (which JSON parsers accept) are no sizes or positions.
 STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
-MethodName = Literal["none", "dilation", "modified", "modified_morph", "wmf"]
+MethodName = Literal["auto", "none", "dilation", "modified", "modified_morph", "wmf", "jbu", "wmf_dilation"]
 
 
 def _odd(value: int) -> int:
@@ -31,7 +32,9 @@ class _FilterFields(BaseModel):
 
     model_config = STRICT
 
-    method: MethodName = "modified_morph"
+    method: MethodName = Field("auto", description=(
+        "post-filter; 'auto': the best measured one the inputs allow, 'wmf_dilation' with a texture, "
+        "else 'dilation' (benchmarks/RESULTS.md, section depth)"))
     window: int = Field(3, ge=1, le=31, description="side of the neighbourhood N(k), odd pixels")
     rule: Literal["midrange", "otsu"] = Field("midrange", description="foreground/background classification")
     min_contrast: int = Field(0, ge=0, le=65535, description="levels; flatter windows have no foreground")
@@ -40,6 +43,9 @@ class _FilterFields(BaseModel):
     guide_window: int = Field(9, ge=1, le=31, description="weighted mode filter support, odd pixels")
     sigma_color: float = Field(40.0, gt=0, le=1000, description="weighted mode filter colour sigma (grey levels)")
     sigma_depth: float = Field(4.0, gt=0, le=64, description="weighted mode filter level sigma (8-bit levels)")
+    jbu_radius: int = Field(2, ge=1, le=15, description="joint bilateral upsampling support, low-resolution pixels")
+    jbu_sigma_spatial: float = Field(1.0, gt=0, le=15, description="jbu spatial sigma, low-resolution pixels")
+    jbu_sigma_color: float = Field(12.0, gt=0, le=1000, description="jbu colour sigma (grey levels)")
     larger_is_nearer: bool = Field(True, description="False for maps where larger levels are farther")
     upsampler: Literal["nearest", "bilinear"] = "nearest"
     scale: float | None = Field(None, gt=0, le=16, description="upsampling factor (or give out_width/out_height)")
@@ -61,8 +67,14 @@ class _FilterFields(BaseModel):
         return FilterOptions(
             window=self.window, rule=self.rule, min_contrast=self.min_contrast, morph_window=self.morph_window,
             morph_order=self.morph_order, guide_window=self.guide_window, sigma_color=self.sigma_color,
-            sigma_depth=self.sigma_depth, bits=bits, larger_is_nearer=self.larger_is_nearer,
+            sigma_depth=self.sigma_depth, jbu_radius=self.jbu_radius, jbu_sigma_spatial=self.jbu_sigma_spatial,
+            jbu_sigma_color=self.jbu_sigma_color, bits=bits, larger_is_nearer=self.larger_is_nearer,
         )
+
+    def method_for(self, has_texture: bool) -> str:
+        """The engine method to run: ``method``, or for "auto" the recommended one given whether a
+        texture came with the request."""
+        return recommended_method(has_texture) if self.method == "auto" else self.method
 
     def out_size(self) -> tuple[int, int] | None:
         """(width, height) when given explicitly."""
@@ -79,15 +91,19 @@ class DepthFilterParams(_FilterFields):
 
 
 class DepthVideoParams(_FilterFields):
-    """Job ``depth.video``: input ``depth`` (raw planar YUV) and, for "wmf", ``texture`` (8-bit 4:2:0
-    YUV at the output size, same frame count). Results ``filtered.yuv`` (same bit depth and chroma
-    format, output size) and ``report.json``.
+    """Job ``depth.video``: input ``depth`` and, for the guided methods, ``texture`` (8-bit 4:2:0
+    YUV at the output size, same frame count). Results ``filtered.yuv`` (raw planar YUV at the output
+    size, ``bits`` deep, in the ``chroma`` format) and ``report.json``.
 
+    input_format: "yuv" (raw planar frames: width and height required, bits and chroma say the
+    layout) or "video" (a coded H.264/HEVC 8-bit video in any container FFmpeg reads, e.g. raw
+    .264/.265, MP4, MKV: its luma plane is the depth; width/height, when given, must match it).
     z_near/z_far (metres, optional): when given, the report states each frame's depth range in metres.
     """
 
-    width: int = Field(ge=1, le=32768, description="input frame width (pixels)")
-    height: int = Field(ge=1, le=32768, description="input frame height (pixels)")
+    input_format: Literal["yuv", "video"] = Field("yuv", description="raw planar YUV, or a coded H.264/HEVC video")
+    width: int | None = Field(None, ge=1, le=32768, description="input frame width (pixels); required for YUV")
+    height: int | None = Field(None, ge=1, le=32768, description="input frame height (pixels); required for YUV")
     bits: int = Field(8, ge=8, le=16)
     chroma: Literal["400", "420"] = "400"
     z_near: float | None = Field(None, gt=0)
@@ -95,6 +111,10 @@ class DepthVideoParams(_FilterFields):
 
     @model_validator(mode="after")
     def _planes(self) -> "DepthVideoParams":
+        if self.input_format == "yuv" and (self.width is None or self.height is None):
+            raise ValueError("raw YUV input needs width and height (pixels)")
+        if self.input_format == "video" and self.bits != 8:
+            raise ValueError("a coded depth video is 8-bit: leave bits at 8")
         if (self.z_near is None) != (self.z_far is None):
             raise ValueError("give both z_near and z_far, or neither")
         if self.z_near is not None and not self.z_far > self.z_near:

@@ -26,7 +26,7 @@ def filter_depth_bytes(
     """Upsample and post-filter one depth map.
 
     depth: PNG/PGM bytes (8- or 16-bit grey levels). texture: image bytes at the output size, needed
-    by guided methods ("wmf"); its size also sets the output size when no scale/size is given.
+    by guided methods ("wmf", "jbu", "wmf_dilation"; method "auto" picks one when it is given); its size also sets the output size when no scale/size is given.
     max_pixels: the largest input image and output (width x height); None: the process's limit
     (:func:`workers.common.images.max_pixels_from_env`). Each is refused with DepthInputError before
     it is decoded or allocated. Returns the filtered depth as PNG bytes with the input's bit depth.
@@ -38,7 +38,7 @@ def filter_depth_bytes(
     if p.scale is not None or size is not None:  # else the guide's size, checked when it is decoded
         size = target_size(levels.shape, p.scale, size, limit)
     guide = io.decode_texture(texture, limit) if texture is not None else None
-    out = postprocess(levels, p.method, size=size, upsampler=p.upsampler, guide=guide, options=p.options(bits))
+    out = postprocess(levels, p.method_for(guide is not None), size=size, upsampler=p.upsampler, guide=guide, options=p.options(bits))
     return io.encode_depth(out, "png")
 
 
