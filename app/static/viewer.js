@@ -165,6 +165,7 @@
       type: "view", id: state.nextId++, width, height, fov: 50,
       orbit: { azimuth: state.azimuth, elevation: state.elevation, distance: state.distance },
       method: $("method").value, d_bnd: dBnd(), planes: Number($("planes").value) || 48,
+      aggregation: $("aggregation").value,
       frame: state.source === "live" ? "live" : state.frame, overlay: $("overlay").value, quality: 80,
     };
   }
@@ -223,7 +224,7 @@
   canvas.addEventListener("dblclick", () => { goHome(); requestView(); });
 
   // --- controls ---------------------------------------------------------------------------------
-  for (const id of ["method", "overlay", "size", "planes"]) $(id).addEventListener("change", requestView);
+  for (const id of ["method", "overlay", "size", "planes", "aggregation"]) $(id).addEventListener("change", requestView);
   $("dbnd").addEventListener("input", () => {
     $("dbnd-auto").checked = false;
     $("dbnd-value").value = dBnd();

@@ -6,8 +6,9 @@ from the scene), a virtual view (inside the rig or far outside it, a size that i
 silhouettes, random per-pixel plane windows, random row bands taken in a random order, and copies of every
 array the kernels read or write placed at an address offset from 16, 32 and 64-byte boundaries. Every
 search variant (the 16-lane variance search, the per-pixel variance and truncated searches, each with and
-without the visual hull) must choose a plane of least cost by the numpy definition (:mod:`tests.sweep.numpy_search`),
-and the two variance searches must agree exactly. Run it in a subprocess: a memory error then ends that
+without the visual hull) must choose a plane of least cost by the numpy definition
+(:mod:`tests.sweep.numpy_search`), the two variance searches must agree exactly, and the unpruned cost
+volume (the input of cost aggregation) must give every plane's cost. Run it in a subprocess: a memory error then ends that
 process with a signal, which the caller reports, instead of killing the test runner.
 
     python -m tests.sweep.kernel_stress --reps 50 --threads 2 --seed 1
@@ -24,6 +25,7 @@ import numpy as np
 
 from workers.camera import Camera
 from workers.sweep import kernels
+from workers.sweep import lanes as lanes_mod
 from workers.sweep.renderer import SweepRenderer
 
 from .numpy_search import best_plane, plane_costs
@@ -144,6 +146,17 @@ def run_case(case: dict, rng: np.random.Generator) -> dict:
             worst = max(worst, disagreement(best, costs))
             covered.append(float((best_plane(costs) >= 0).mean()))
             found[(trunc2 > 0, lanes)] = (best.copy(), cost.copy())
+        if trunc2 == 0:  # the unpruned cost volume (aggregation's input): the same costs, every plane
+            P = len(case["s_planes"])
+            ssd = misaligned(np.full((h, w, P), np.nan, np.float32), rng)
+            votes = misaligned(np.full((h, w, P), np.nan, np.float32), rng)
+            lanes_mod.lane_cost_volume(*args, use_hull, case["min_views"], case["bits"],
+                                       misaligned(case["s_planes"], rng), misaligned(case["lo"], rng),
+                                       misaligned(case["hi"], rng), misaligned(bands, rng), band_h, ssd, votes)
+            volume = np.where(votes > 0, ssd / np.maximum(votes, 1), np.inf).transpose(2, 0, 1)
+            want = np.where(np.isfinite(costs), costs, np.inf)
+            off = ~np.isclose(volume, want, rtol=1e-4, atol=1e-3) & ~(np.isinf(volume) & np.isinf(want))
+            worst = max(worst, float(off.mean()))
     (b1, c1), (b2, c2) = found[(False, True)], found[(False, False)]
     same = bool(np.array_equal(b1, b2) and np.array_equal(c1, c2, equal_nan=True))
     return {"disagreement": worst, "variance_searches_equal": same, "with_depth": float(np.mean(covered))}

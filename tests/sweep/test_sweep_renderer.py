@@ -1,4 +1,6 @@
 """The renderer on a generated scene, against the scene's exact ground truth."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from pydantic import ValidationError
@@ -98,7 +100,7 @@ def test_kernel_agrees_with_the_straightforward_sweep(capture, between_camera):
     _, rig, views = capture
     r = SweepRenderer(rig, [v.image for v in views])  # no hull: the reference has none
     cam = between_camera.scaled(0.5)
-    out = r.render(cam, planes=24, near=NEAR, far=FAR, subpixel_bits=5)
+    out = r.render(cam, planes=24, near=NEAR, far=FAR, subpixel_bits=5, aggregation="none")
     best_ref, _ = reference_sweep(list(rig.cameras), [v.image for v in views], cam, out.planes)
     best = np.full(out.depth.shape, -1)
     ok = np.isfinite(out.depth)
@@ -108,7 +110,7 @@ def test_kernel_agrees_with_the_straightforward_sweep(capture, between_camera):
 
 
 def test_coarse_to_fine_stays_close_to_the_full_search(renderer, between_camera):
-    kw = dict(planes=PLANES, near=NEAR, far=FAR)
+    kw = dict(planes=PLANES, near=NEAR, far=FAR, aggregation="none")  # the winner-take-all search at both levels
     full = renderer.render(between_camera, **kw)
     c2f = renderer.render(between_camera, coarse_to_fine=True, **kw)
     both = np.isfinite(full.depth) & np.isfinite(c2f.depth)
@@ -171,3 +173,12 @@ def test_distorted_cameras_are_undistorted(capture):
     ok = inner & np.isfinite(undistorted.depth) & np.isfinite(ignored.depth)
     assert ok.sum() > 0.5 * inner.sum()
     assert psnr(undistorted.image, truth, ok) > psnr(ignored.image, truth, ok) + 3.0
+
+
+def test_kojima_renders_a_rig_whose_cameras_share_one_place(capture, between_camera):
+    """Duplicated poses (templeSparseRing has them) leave no camera spacing: D_bnd falls back, no error."""
+    _, rig, views = capture
+    twins = SweepRenderer([rig.cameras[2], replace(rig.cameras[2], name="twin")], [views[2].image] * 2)
+    out = twins.render(between_camera, method="kojima", planes=8, near=NEAR, far=FAR)
+    assert out.d_bnd == pytest.approx(suggest_d_bnd(np.radians(10.0), 0.5))
+    assert np.isfinite(out.depth).any()

@@ -72,3 +72,10 @@ def test_neighbour_angle_of_cameras_on_a_circle():
     a = np.radians([0, 10, 20, 40])
     centers = np.stack([np.cos(a), np.sin(a), np.zeros(4)], axis=1) * 3
     assert neighbour_angle(centers, np.zeros(3)) == pytest.approx(np.radians(10))  # median of 10, 10, 10, 20
+
+
+def test_neighbour_angle_ignores_cameras_at_the_same_place():
+    a = np.radians([0, 0, 10, 30])  # a duplicated pose: its twin is no neighbour
+    centers = np.stack([np.cos(a), np.sin(a), np.zeros(4)], axis=1) * 3
+    assert neighbour_angle(centers, np.zeros(3)) == pytest.approx(np.radians(10))  # median of 10, 10, 10, 20
+    assert neighbour_angle(centers[:2], np.zeros(3)) == 0.0  # no spacing at all

@@ -85,6 +85,11 @@ class SweepSettings(BaseModel):
     far: float | None = Field(None, gt=0.0)
     visual_hull: bool | None = None
     coarse_to_fine: bool = True
+    aggregation: Literal["none", "window", "sgm"] = Field(
+        "window", description="how each pixel's depth plane is chosen: 'none' alone (winner-take-all, fastest), "
+                              "'window' on the cameras' variance over a 5x5 px window, 'sgm' the windowed cost "
+                              "with semi-global smoothing (best on real scenes, slowest); see "
+                              "workers.sweep.costs")
 
     @model_validator(mode="after")
     def _near_far(self) -> "SweepSettings":
@@ -94,7 +99,8 @@ class SweepSettings(BaseModel):
 
     def render_fields(self) -> dict:
         """The fields :class:`RenderOptions` takes."""
-        return self.model_dump(include={"method", "d_bnd", "k", "planes", "near", "far", "visual_hull", "coarse_to_fine"})
+        return self.model_dump(include={"method", "d_bnd", "k", "planes", "near", "far", "visual_hull", "coarse_to_fine",
+                                             "aggregation"})
 
 
 class Viewpoint(ViewPose, SweepSettings):

@@ -13,6 +13,8 @@ API (import from the submodules; arrays follow workers.camera conventions, image
 - ``renderer``: ``SweepRenderer(rig, images, silhouettes=None, backgrounds=None)`` with
   ``set_frames(images, silhouettes=None)`` and ``render(virtual, options=None, **fields) -> RenderResult``
   (image, depth, regions, primary, cost, planes, timings); ``RenderOptions`` (pydantic, extra=forbid).
+- ``costs``: cost-volume aggregation shared by plane searches: ``windowed_variance(ssd, votes, radius)``,
+  ``robust_cost``, ``semi_global(cost, p1, p2, directions)``, ``winner(cost)`` (best plane + parabola offset).
 - ``weighting``: ``kojima_weights``, ``ulr_weights``, ``global_camera``, ``suggest_d_bnd``, ``METHODS``.
 - ``silhouette``: ``silhouette_from_background(image, background)``.
 - ``reference``: ``reference_sweep`` (cv2.warpPerspective + numpy baseline), ``plane_homographies``.

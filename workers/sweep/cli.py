@@ -47,6 +47,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--k", type=int, default=RenderOptions.model_fields["k"].default, help="cameras blended (ulr)")
     p.add_argument("--no-hull", action="store_true", help="do not cull with the visual hull")
     p.add_argument("--coarse-to-fine", action="store_true", help="half-resolution full sweep, then a narrow window")
+    p.add_argument("--aggregation", default=RenderOptions.model_fields["aggregation"].default,
+                   choices=["none", "window", "sgm"],
+                   help="choose each pixel's depth alone (none: fastest), on the variance over a window, or that "
+                        "plus semi-global smoothing along scanlines (sgm)")
+    p.add_argument("--window", type=int, default=RenderOptions.model_fields["window"].default,
+                   help="aggregation window radius in pixels (the window is 2r+1 square)")
     p.add_argument("--truncated", type=float, metavar="T", help="truncated-variance cost with threshold T (0..255)")
     p.set_defaults(func=run_render)
 
@@ -66,6 +72,7 @@ def run_render(args: argparse.Namespace) -> int:
             visual_hull=False if args.no_hull else None, coarse_to_fine=args.coarse_to_fine,
             consistency="truncated" if args.truncated is not None else "variance",
             truncation=args.truncated if args.truncated is not None else 30.0,
+            aggregation="none" if args.truncated is not None else args.aggregation, window=args.window,
         )
         result = renderer.render(virtual, options)
     except (RigError, CameraError, ValidationError, ValueError) as e:

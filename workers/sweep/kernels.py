@@ -293,11 +293,12 @@ def _lerp2(a, b, c, d, fx, fy):  # pragma: no cover - compiled
 
 
 @njit(cache=True, parallel=True, fastmath=_FAST, error_model="numpy")
-def shade(Q, B, s_planes, best, imgs, sizes, sils, use_hull, centers, vcenter, G, method, d_bnd, k, gcam, fill,
+def shade(Q, B, s_pix, imgs, sizes, sils, use_hull, centers, vcenter, G, method, d_bnd, k, gcam, fill,
           out_img, regions, primary):  # pragma: no cover - compiled
-    """Colour of each virtual pixel at its chosen plane, by one of the four weightings.
+    """Colour of each virtual pixel at its chosen depth, by one of the four weightings.
 
-    Q (N, 3, 3), B (N, 3) in camera order; imgs (N, Hm, Wm, 3) uint8; sizes (N, 2) int64 (W, H);
+    Q (N, 3, 3), B (N, 3) in camera order; s_pix (h, w) float64: each pixel's inverse depth (1/m along
+    the virtual axis; a plane's, or between planes after sub-plane refinement), <= 0 where none; imgs (N, Hm, Wm, 3) uint8; sizes (N, 2) int64 (W, H);
     sils (N, Hm, Wm) uint8; centers (N, 3), vcenter (3,), G (3, 3) float64 (virtual ray matrix); method: GLOBAL, NEAREST,
     ULR or KOJIMA; d_bnd (kojima), k (ulr: cameras blended), gcam (global: camera index); fill (3,)
     colour for pixels without depth. Writes out_img (h, w, 3) uint8, regions (h, w) uint8 (number of
@@ -305,7 +306,7 @@ def shade(Q, B, s_planes, best, imgs, sizes, sils, use_hull, centers, vcenter, G
     Only the cameras that receive a weight are sampled.
     """
     N = Q.shape[0]
-    h, w = best.shape
+    h, w = s_pix.shape
     # cameras ranked per pixel: the nearest for nearest/global, two for kojima, k + 1 for ulr (threshold)
     n_rank = 2 if method == KOJIMA else (min(k + 1, N) if method == ULR else 1)
     for y in prange(h):
@@ -317,10 +318,9 @@ def shade(Q, B, s_planes, best, imgs, sizes, sils, use_hull, centers, vcenter, G
         theta = np.empty(N)
         wts = np.empty(N)
         for x in range(w):
-            j = best[y, x]
+            s = s_pix[y, x]
             m = 0
-            if j >= 0:
-                s = s_planes[j]
+            if s > 0:
                 z = 1.0 / s
                 rx = z * (G[0, 0] * x + G[0, 1] * y + G[0, 2])
                 ry = z * (G[1, 0] * x + G[1, 1] * y + G[1, 2])

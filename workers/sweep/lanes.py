@@ -354,3 +354,83 @@ def lane_depth_search(camf, cami, pix, silflat, use_hull, min_views, bits, s_pla
     """:func:`workers.sweep.kernels.sweep_depth` for the variance cost (same arguments but trunc2)."""
     _LANE_SEARCHES[bool(use_hull)](camf, cami, pix, silflat, np.int64(min_views), np.int64(bits), s_planes, lo, hi,
                                    bands, band_h, best, best_cost)
+
+
+def _lane_volume(use_hull: bool):
+    """:func:`lane_cost_volume` compiled for one visual-hull setting (a constant of the compiled code)."""
+
+    @njit(cache=True, parallel=True, fastmath=_FAST, error_model="numpy")
+    def volume(camf, cami, pix, silflat, min_views, bits, s_planes, lo, hi, bands, band_h, ssd,
+               votes):  # pragma: no cover - compiled
+        n_cam = cami.shape[0] // CAM_I
+        h, w, n_planes = ssd.shape
+        inv_s4 = 1.0 / float(1 << bits) ** 4  # squares are in units of 2**-4bits
+        scale = float(1 << bits)
+        for k in prange(bands.shape[0]):
+            A = np.empty(n_cam * 3 * LANES)
+            state = np.zeros(STATE_ROWS * LANES)
+            for t in range(LANES):  # never pruned: every plane's sums come back
+                state[ROW_BC_SAFE * LANES + t] = _BIG * _SAFE
+                state[ROW_BJ * LANES + t] = -1.0
+            y_a = bands[k] * band_h
+            rows = min(band_h, h - y_a)
+            for tr in range(rows * (-(-w // TILE_COLS))):
+                x_a = (tr // rows) * TILE_COLS
+                y = y_a + tr % rows
+                yf = float(y)
+                for x0 in range(x_a, min(x_a + TILE_COLS, w), LANES):
+                    nl = min(LANES, w - x0)
+                    j_lo = n_planes
+                    j_hi = -1
+                    for t in range(nl):
+                        j_lo = min(j_lo, np.int64(lo[y, x0 + t]))
+                        j_hi = max(j_hi, np.int64(hi[y, x0 + t]))
+                        for j in range(n_planes):
+                            ssd[y, x0 + t, j] = 0.0
+                            votes[y, x0 + t, j] = 0.0
+                    if j_lo > j_hi:
+                        continue
+                    for m in range(n_cam):
+                        f = m * CAM_F
+                        for t in range(LANES):
+                            xf = float(x0 + t)
+                            A[(3 * m) * LANES + t] = camf[f] * xf + camf[f + 1] * yf + camf[f + 2]
+                            A[(3 * m + 1) * LANES + t] = camf[f + 3] * xf + camf[f + 4] * yf + camf[f + 5]
+                            A[(3 * m + 2) * LANES + t] = camf[f + 6] * xf + camf[f + 7] * yf + camf[f + 8]
+                    for j in range(j_lo, j_hi + 1):
+                        alive = 0
+                        for t in range(nl):
+                            if lo[y, x0 + t] <= j <= hi[y, x0 + t]:
+                                alive |= 1 << t
+                        if alive == 0:
+                            continue
+                        if use_hull:
+                            alive = _plane_sweep_hull(pix, silflat, A, camf, cami, n_cam, s_planes[j], scale, bits,
+                                                      alive, float(j), state)
+                        else:
+                            alive = _plane_sweep(pix, silflat, A, camf, cami, n_cam, s_planes[j], scale, bits, alive,
+                                                 float(j), state)
+                        for t in range(nl):
+                            n = state[ROW_N * LANES + t]
+                            if (alive >> t) & 1 and n >= min_views:
+                                ssd[y, x0 + t, j] = state[ROW_NSSD * LANES + t] / n * inv_s4
+                                votes[y, x0 + t, j] = n
+
+    return volume
+
+
+_LANE_VOLUMES = {hull: _lane_volume(hull) for hull in (False, True)}
+
+
+def lane_cost_volume(camf, cami, pix, silflat, use_hull, min_views, bits, s_planes, lo, hi, bands, band_h, ssd,
+                     votes) -> None:
+    """Every plane's photo-consistency sums, unpruned, on the sampling of :func:`lane_depth_search`.
+
+    Arguments as :func:`workers.sweep.kernels.sweep_depth` (lo, hi (h, w) int32 windows; the variance cost).
+    Writes ssd (h, w, P) float32: the sum over the voting cameras of the squared deviation of their
+    sample from the samples' mean, summed over B, G, R (colour levels squared; the variance times the
+    votes), and votes (h, w, P) float32: the cameras that voted. Both are 0 where a plane is outside the
+    pixel's window, has fewer than ``min_views`` votes, or (hull) a vote falls outside a silhouette.
+    """
+    _LANE_VOLUMES[bool(use_hull)](camf, cami, pix, silflat, np.int64(min_views), np.int64(bits), s_planes, lo, hi,
+                                  bands, band_h, ssd, votes)

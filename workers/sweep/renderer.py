@@ -17,11 +17,12 @@ from typing import Literal, Sequence
 import cv2
 import numba
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from workers.camera import Camera
 
-from . import kernels
+from . import costs, kernels
+from .lanes import lane_cost_volume
 from .rig import Rig, RigError
 from .silhouette import dilate, silhouette_box, silhouette_from_background
 from .weighting import METHOD_CODES, global_camera, neighbour_angle, suggest_d_bnd
@@ -39,13 +40,22 @@ class RenderOptions(BaseModel):
     cameras as seen from the rendered surface (:func:`suggest_d_bnd`). k: cameras blended by ulr. planes: depth planes, uniform in inverse depth between
     near and far (metres along the virtual axis; None: the rig's range or a heuristic).
     visual_hull: cull with the silhouettes (None: when the renderer has silhouettes).
-    coarse_to_fine: sweep all planes at half resolution, then only a window of planes around the
-    coarse choice at full resolution. consistency: variance of the camera samples, or its
+    coarse_to_fine: sweep all planes at half resolution (choosing by ``aggregation``), then only a window
+    of ``refine_margin`` planes around the coarse choice at full resolution (winner-take-all there). consistency: variance of the camera samples, or its
     truncated form (each camera's squared deviation capped at ``truncation``^2).
     min_views: cameras that must see a point for it to be tested. subpixel_bits: 1..6 rounds the depth
     search's sampling positions to 1/2**bits px (5 matches OpenCV's warps, for like-for-like checks
     against :mod:`workers.sweep.reference`); 0 and values above 6 use the search's finest step, 1/64 px
     (the colour is always sampled at the exact position). fill: BGR colour where no depth.
+
+    aggregation: how a pixel's plane is chosen (:mod:`workers.sweep.costs`). "none": alone, on its own
+    cameras' variance (winner-take-all, the exactly pruned fast search); "window": on the variance over a
+    (2 ``window`` + 1)^2 px window; "sgm": the windowed cost, as an RMS deviation capped at ``cost_cap``
+    colour levels, then semi-global aggregation along ``sgm_directions`` scanlines with penalties
+    ``sgm_p1`` (one plane) and ``sgm_p2`` (a larger jump), in colour levels. Both aggregations build the
+    whole cost volume of the search window (no pruning) and place the depth between planes by a parabola
+    through the aggregated costs (``subplane``). The truncated consistency needs aggregation "none" (its
+    default then).
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -64,6 +74,25 @@ class RenderOptions(BaseModel):
     min_views: int = Field(2, ge=1)
     subpixel_bits: int = Field(0, ge=0, le=10)
     fill: tuple[int, int, int] = (0, 0, 0)
+    aggregation: Literal["none", "window", "sgm"] = "window"
+    window: int = Field(2, ge=0, le=15)
+    cost_cap: float = Field(40.0, gt=0.0, le=1000.0)
+    sgm_p1: float = Field(2.0, ge=0.0, le=1000.0)
+    sgm_p2: float = Field(32.0, ge=0.0, le=1000.0)
+    sgm_directions: Literal[4, 8] = 8
+    subplane: bool = True
+
+    @model_validator(mode="after")
+    def _compatible(self) -> "RenderOptions":
+        if self.aggregation != "none" and self.consistency != "variance":
+            if "aggregation" not in self.model_fields_set:  # the default follows the cost asked for
+                self.aggregation = "none"
+                return self
+            raise ValueError(f"aggregation {self.aggregation!r} works on the variance cost; use aggregation 'none' "
+                             f"with the {self.consistency} cost")
+        if self.sgm_p1 > self.sgm_p2:
+            raise ValueError(f"sgm_p1 ({self.sgm_p1}) must not exceed sgm_p2 ({self.sgm_p2})")
+        return self
 
 
 @dataclass(frozen=True)
@@ -74,9 +103,11 @@ class RenderResult:
     surface was found; regions (h, w) uint8: cameras with non-zero weight (kojima: 1 one-camera
     region, 2 two-camera region; 0 no surface); primary (h, w) int16: index of the nearest-angle
     camera (-1 none), which shows the one-camera regions of Fig. 4(a); cost (h, w) float32: the
-    photo-consistency at the chosen plane; planes (P,) float64 plane depths; plane_index (h, w)
-    int32 the chosen plane (-1 none); visual_hull: whether the hull culled; d_bnd: the D_bnd used
-    (kojima; None for the other methods); timings: ms per stage.
+    photo-consistency at the chosen plane (the variance without aggregation, else the aggregated cost);
+    planes (P,) float64 plane depths; plane_index (h, w) int32 the chosen plane (-1 none); plane_offset
+    (h, w) float32 the sub-plane position in planes (-0.5..0.5; the depth is at inverse depth
+    s[plane_index] + plane_offset * (s[1] - s[0])); visual_hull: whether the hull culled; d_bnd: the D_bnd
+    used (kojima; None for the other methods); timings: ms per stage.
     """
 
     camera: Camera
@@ -87,6 +118,7 @@ class RenderResult:
     cost: np.ndarray
     planes: np.ndarray
     plane_index: np.ndarray
+    plane_offset: np.ndarray
     visual_hull: bool
     d_bnd: float | None
     timings: dict[str, float] = field(default_factory=dict)
@@ -182,11 +214,12 @@ class SweepRenderer:
         timings["prepare_ms"] = (t1 - t0) * 1e3
         h, w = virtual.height, virtual.width
         Q, B, G = self._geometry(virtual)
-        if opt.coarse_to_fine and min(h, w) >= 8:
+        coarse = opt.coarse_to_fine and min(h, w) >= 8
+        if coarse:
             coarse_cam = virtual.scaled(0.5)
             Qc, Bc, _ = self._geometry(coarse_cam)
             window = self._search_window(Qc, Bc, coarse_cam.height, coarse_cam.width, s_planes, use_hull)
-            best_c, _ = self._sweep(Qc, Bc, virtual.center, s_planes, use_hull, opt, *window)
+            best_c, _, _ = self._choose(Qc, Bc, virtual.center, s_planes, use_hull, opt, *window)
             lo = np.empty((h, w), np.int32)
             hi = np.empty((h, w), np.int32)
             kernels.refine_windows(best_c, h, w, 1, opt.refine_margin, opt.planes, lo, hi)
@@ -195,16 +228,21 @@ class SweepRenderer:
             t1 = t2
         else:
             lo, hi = self._search_window(Q, B, h, w, s_planes, use_hull)
-        best, cost = self._sweep(Q, B, virtual.center, s_planes, use_hull, opt, lo, hi)
+        # after an aggregated coarse level the fine search stays within a few planes of its choice: there
+        # the pruned winner-take-all search keeps the full resolution's detail at a fraction of the cost
+        fine = opt.model_copy(update={"aggregation": "none"}) if coarse else opt
+        best, cost, offset = self._choose(Q, B, virtual.center, s_planes, use_hull, fine, lo, hi)
         t2 = time.perf_counter()
         timings["sweep_ms"] = (t2 - t1) * 1e3
-        depth = np.where(best >= 0, (1.0 / s_planes)[np.maximum(best, 0)], np.inf).astype(np.float32)
+        s_pix = pixel_inverse_depth(s_planes, best, offset)
+        with np.errstate(divide="ignore"):
+            depth = (1.0 / s_pix).astype(np.float32)  # inf where s_pix is 0 (no surface)
         d_bnd = self._d_bnd(virtual, depth, opt)
-        image, regions, primary = self._shade(virtual, Q, B, G, s_planes, best, use_hull, opt, d_bnd)
+        image, regions, primary = self._shade(virtual, Q, B, G, s_pix, use_hull, opt, d_bnd)
         t3 = time.perf_counter()
         timings["shade_ms"] = (t3 - t2) * 1e3
         timings["total_ms"] = (t3 - t0) * 1e3
-        return RenderResult(virtual, image, depth, regions, primary, cost, 1.0 / s_planes, best, use_hull,
+        return RenderResult(virtual, image, depth, regions, primary, cost, 1.0 / s_planes, best, offset, use_hull,
                             d_bnd, timings)
 
     def reshade(self, previous: RenderResult, options: RenderOptions | None = None, **kwargs: object) -> RenderResult:
@@ -216,19 +254,21 @@ class SweepRenderer:
         Q, B, G = self._geometry(virtual)
         s_planes = 1.0 / previous.planes
         d_bnd = self._d_bnd(virtual, previous.depth, opt)
-        image, regions, primary = self._shade(virtual, Q, B, G, s_planes, previous.plane_index,
-                                              previous.visual_hull, opt, d_bnd)
+        s_pix = pixel_inverse_depth(s_planes, previous.plane_index, previous.plane_offset)
+        image, regions, primary = self._shade(virtual, Q, B, G, s_pix, previous.visual_hull, opt, d_bnd)
         ms = (time.perf_counter() - t0) * 1e3
         return replace(previous, image=image, regions=regions, primary=primary, d_bnd=d_bnd,
                        timings={"shade_ms": ms, "total_ms": ms})
 
     def auto_d_bnd(self, virtual: Camera, depth: np.ndarray) -> float:
         """D_bnd blending over half the angle between neighbouring cameras, seen from the surface
-        point on ``virtual``'s central ray at the median of ``depth`` (h, w) (1 m without any)."""
-        ok = np.isfinite(depth)
+        point on ``virtual``'s central ray at the median of ``depth`` (h, w) (1 m without any). Cameras
+        that all share one centre have no spacing: then the D_bnd of cameras FALLBACK_SPACING_RAD apart."""
+        ok = np.isfinite(depth) & (depth > 0)
         z = float(np.median(depth[ok])) if ok.any() else 1.0
         centre = np.array([[(virtual.width - 1) / 2, (virtual.height - 1) / 2]])
-        return suggest_d_bnd(neighbour_angle(self._centers, virtual.backproject(centre, z)[0]), 0.5)
+        spacing = neighbour_angle(self._centers, virtual.backproject(centre, z)[0])
+        return suggest_d_bnd(spacing if spacing > 0 else FALLBACK_SPACING_RAD, 0.5)
 
     def _d_bnd(self, virtual: Camera, depth: np.ndarray, opt: RenderOptions) -> float | None:
         if opt.method != "kojima":
@@ -258,19 +298,46 @@ class SweepRenderer:
         B = np.ascontiguousarray(M @ virtual.center + self._P[:, :, 3])
         return Q, B, G
 
-    def _shade(self, virtual: Camera, Q: np.ndarray, B: np.ndarray, G: np.ndarray, s_planes: np.ndarray,
-               best: np.ndarray, use_hull: bool, opt: RenderOptions,
+    def _shade(self, virtual: Camera, Q: np.ndarray, B: np.ndarray, G: np.ndarray, s_pix: np.ndarray,
+               use_hull: bool, opt: RenderOptions,
                d_bnd: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Image (h, w, 3) uint8, regions (h, w) uint8 and primary (h, w) int16 at the chosen planes."""
-        h, w = best.shape
+        """Image (h, w, 3) uint8, regions (h, w) uint8 and primary (h, w) int16 at the inverse depths
+        s_pix (h, w) float64 (1/m; 0 where no surface)."""
+        h, w = s_pix.shape
         image = np.empty((h, w, 3), np.uint8)
         regions = np.empty((h, w), np.uint8)
         primary = np.empty((h, w), np.int16)
         gcam = global_camera(self._axes, virtual.axis)
-        kernels.shade(Q, B, s_planes, best, self._imgs, self._sizes, self._sils, use_hull, self._centers,
+        kernels.shade(Q, B, s_pix, self._imgs, self._sizes, self._sils, use_hull, self._centers,
                       virtual.center, G, METHOD_CODES[opt.method], d_bnd or 1.0, opt.k, gcam,
                       np.asarray(opt.fill, np.uint8), image, regions, primary)
         return image, regions, primary
+
+    def _choose(self, Q: np.ndarray, B: np.ndarray, center: np.ndarray, s_planes: np.ndarray, use_hull: bool,
+                opt: RenderOptions, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Best plane (h, w) int32 (-1 none), its cost (h, w) float32 and the sub-plane offset (h, w) float32
+        (planes) in windows lo..hi, by ``opt.aggregation``: the pruned winner-take-all search, or the
+        aggregated cost volume (:mod:`workers.sweep.costs`)."""
+        if opt.aggregation == "none":
+            best, cost = self._sweep(Q, B, center, s_planes, use_hull, opt, lo, hi)
+            return best, cost, np.zeros(best.shape, np.float32)
+        ssd, votes = self._volume(Q, B, center, s_planes, use_hull, opt, lo, hi)
+        best, cost, offset = costs.winner(aggregate(ssd, votes, opt))
+        if not opt.subplane:
+            offset[:] = 0.0
+        return best, cost, offset
+
+    def _volume(self, Q: np.ndarray, B: np.ndarray, center: np.ndarray, s_planes: np.ndarray, use_hull: bool,
+                opt: RenderOptions, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The unpruned sums ssd, votes (h, w, P) float32 of windows lo..hi (:func:`lane_cost_volume`)."""
+        shape = lo.shape + (len(s_planes),)
+        ssd = np.empty(shape, np.float32)
+        votes = np.empty(shape, np.float32)
+        bits = opt.subpixel_bits if 0 < opt.subpixel_bits <= kernels.MAX_BITS else kernels.MAX_BITS
+        camf, cami = self._camera_table(Q, B, center, bits)
+        lane_cost_volume(camf, cami, self._pix.reshape(-1), self._sils.reshape(-1), use_hull, opt.min_views, bits,
+                         s_planes, lo, hi, self._bands(lo.shape[0]), BAND_ROWS, ssd, votes)
+        return ssd, votes
 
     def _sweep(self, Q: np.ndarray, B: np.ndarray, center: np.ndarray, s_planes: np.ndarray, use_hull: bool,
                opt: RenderOptions, lo: np.ndarray, hi: np.ndarray, lanes: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -349,3 +416,24 @@ class SweepRenderer:
             return img
         interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
         return cv2.remap(img, maps[0], maps[1], interp, borderMode=cv2.BORDER_CONSTANT)
+
+
+FALLBACK_SPACING_RAD = float(np.radians(10.0))
+"""Camera spacing assumed by :meth:`SweepRenderer.auto_d_bnd` when every camera stands at one place."""
+
+
+def aggregate(ssd: np.ndarray, votes: np.ndarray, opt: RenderOptions) -> np.ndarray:
+    """The cost volume (h, w, P) float32 the plane is chosen on, by ``opt.aggregation`` ("window" or
+    "sgm"), from the sweep's sums ssd, votes (h, w, P) float32 (:mod:`workers.sweep.costs`)."""
+    var = costs.windowed_variance(ssd, votes, opt.window)
+    if opt.aggregation == "window":
+        return var
+    return costs.semi_global(costs.robust_cost(var, opt.cost_cap), opt.sgm_p1, opt.sgm_p2, opt.sgm_directions)
+
+
+def pixel_inverse_depth(s_planes: np.ndarray, best: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """Inverse depth (h, w) float64 (1/m) of each pixel: plane ``best`` (h, w) int32 of s_planes (P,)
+    (uniform in inverse depth) moved by ``offset`` (h, w) float32 planes; 0 where best is -1."""
+    ds = (s_planes[-1] - s_planes[0]) / (len(s_planes) - 1)
+    s = s_planes[np.maximum(best, 0)] + offset.astype(np.float64) * ds
+    return np.where(best >= 0, s, 0.0)

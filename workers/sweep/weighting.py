@@ -76,12 +76,17 @@ def suggest_d_bnd(neighbour_angle_rad: float, blend_fraction: float = 0.5) -> fl
 
 def neighbour_angle(centers: np.ndarray, point: np.ndarray) -> float:
     """Median over cameras of the angle (radians) to the nearest other camera, seen from ``point``
-    (3,): the camera spacing that :func:`suggest_d_bnd` needs. centers (N, 3), N >= 2."""
+    (3,): the camera spacing that :func:`suggest_d_bnd` needs. centers (N, 3), N >= 2. Cameras at the
+    same place (angle below 1e-6 rad, about arccos's resolution: a duplicated pose) tell nothing of the
+    spacing and are not each other's neighbours; 0.0 when no camera has a neighbour at another place."""
     d = np.asarray(centers, np.float64) - np.asarray(point, np.float64)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     ang = np.arccos(np.clip(d @ d.T, -1.0, 1.0))
     np.fill_diagonal(ang, np.inf)
-    return float(np.median(ang.min(axis=1)))
+    ang[ang < 1e-6] = np.inf  # coincident cameras
+    nearest = ang.min(axis=1)
+    nearest = nearest[np.isfinite(nearest)]
+    return float(np.median(nearest)) if nearest.size else 0.0
 
 
 def global_camera(axes: np.ndarray, virtual_axis: np.ndarray) -> int:

@@ -1,0 +1,236 @@
+"""Photo-consistency cost volumes: aggregation before the choice of a plane, and the choice itself.
+
+One module for every depth search over planes (the sweep renderer's virtual views today, a dense
+reconstruction tomorrow). Pure functions on numpy arrays; nothing here knows cameras.
+
+Layout: a cost volume is (h, w, P) float32, pixel-major (a pixel's P plane costs are contiguous), plane
+0 nearest. ``inf`` marks a plane that is not a candidate at that pixel (outside its search window, outside
+the visual hull, or seen by too few cameras); a pixel whose every plane is ``inf`` has no surface.
+
+The sweep's raw material is, per pixel and plane, ``ssd``: the sum over the voting cameras of the
+squared distance of their (B, G, R) sample from the samples' mean (colour levels squared; the
+per-pixel variance times the votes) and ``votes``: how many cameras voted. Both are additive over
+pixels, so a window's sums are box filters and
+
+    windowed variance(p, j) = sum_{q in W(p)} ssd(q, j) / sum_{q in W(p)} votes(q, j)
+
+is exact (the vote-weighted mean of the pixels' variances; with a 1x1 window the per-pixel variance
+that the winner-take-all search minimises). Pooling the colour sums themselves over the window would
+measure the texture in the window, not the agreement between cameras, so the window sums the
+per-pixel deviations instead.
+
+Then, optionally, semi-global aggregation (Hirschmueller 2008) along 4 or 8 scanline directions with
+penalties ``p1`` (a one-plane step) and ``p2`` (a larger jump), in the cost's units; then the winner
+per pixel (ties to the nearer plane) and a parabola through the aggregated costs of its two neighbour
+planes for a sub-plane position.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from numba import njit, prange
+
+CV_MAX_CHANNELS = 512  # cv2.boxFilter filters at most this many planes per call
+
+
+def box_sum(volume: np.ndarray, radius: int) -> np.ndarray:
+    """Sum over the (2 radius + 1)^2 window of every plane: (h, w, P) float32 -> (h, w, P) float32.
+
+    Pixels beyond the border count as 0 (a window there sums what it covers). OpenCV's separable
+    running-sum box filter, in chunks of at most 512 planes."""
+    volume = np.ascontiguousarray(volume, np.float32)
+    if radius <= 0:
+        return volume.copy()
+    k = (2 * radius + 1, 2 * radius + 1)
+    out = np.empty_like(volume)
+    P = volume.shape[2]
+    for a in range(0, P, CV_MAX_CHANNELS):
+        b = min(P, a + CV_MAX_CHANNELS)
+        part = volume if (a, b) == (0, P) else np.ascontiguousarray(volume[:, :, a:b])
+        out[:, :, a:b] = cv2.boxFilter(part, -1, k, normalize=False, borderType=cv2.BORDER_CONSTANT).reshape(
+            part.shape)
+    return out
+
+
+def windowed_variance(ssd: np.ndarray, votes: np.ndarray, radius: int) -> np.ndarray:
+    """The windowed photo-consistency cost (h, w, P) float32 (colour levels squared; module docstring).
+
+    ssd, votes: (h, w, P) float32 as the module docstring says (0 where a plane is not a candidate).
+    radius: half the window side in pixels (0: the per-pixel variance). A plane stays a candidate at a
+    pixel only where that pixel voted for it itself (``inf`` elsewhere), so a window never brings a
+    plane into a pixel's search that its own window, hull or views ruled out."""
+    num = box_sum(ssd, radius)
+    den = box_sum(votes, radius)
+    return _ratio(num, den, np.ascontiguousarray(votes, np.float32))
+
+
+@njit(cache=True, parallel=True)
+def _ratio(num, den, own):  # pragma: no cover - compiled
+    h, w, P = num.shape
+    out = np.empty((h, w, P), np.float32)
+    for y in prange(h):
+        for x in range(w):
+            for j in range(P):
+                out[y, x, j] = num[y, x, j] / den[y, x, j] if own[y, x, j] > 0 else np.inf
+    return out
+
+
+def robust_cost(variance: np.ndarray, cap: float) -> np.ndarray:
+    """sqrt(variance) capped at ``cap`` (colour levels; ``inf`` stays ``inf``): (h, w, P) float32.
+
+    The RMS deviation of the cameras' samples grows linearly with a colour mismatch, and the cap stops
+    an occluded or specular pixel, which no plane explains, from dominating the aggregation."""
+    return _capped_sqrt(np.ascontiguousarray(variance, np.float32), np.float32(cap))
+
+
+@njit(cache=True, parallel=True)
+def _capped_sqrt(v, cap):  # pragma: no cover - compiled
+    h, w, P = v.shape
+    out = np.empty((h, w, P), np.float32)
+    for y in prange(h):
+        for x in range(w):
+            for j in range(P):
+                c = v[y, x, j]
+                out[y, x, j] = min(np.sqrt(c), cap) if c < np.inf else np.inf
+    return out
+
+
+def semi_global(cost: np.ndarray, p1: float, p2: float, directions: int = 4) -> np.ndarray:
+    """Semi-global aggregation: (h, w, P) float32 cost -> (h, w, P) float32, the sum over the scanline
+    directions r of
+
+        L_r(p, j) = C(p, j) + min(L_r(p-r, j), L_r(p-r, j+-1) + p1, min_k L_r(p-r, k) + p2) - min_k L_r(p-r, k)
+
+    p1, p2: penalties in the cost's units for a change of one plane and of more (p2 >= p1 >= 0).
+    directions: 4 (left, right, up, down) or 8 (and the diagonals). ``inf`` planes stay ``inf``; a
+    path restarts after a pixel with no candidate plane."""
+    if directions not in (4, 8):
+        raise ValueError(f"directions must be 4 or 8, got {directions}")
+    if not 0.0 <= p1 <= p2:
+        raise ValueError(f"needs 0 <= p1 <= p2, got p1={p1}, p2={p2}")
+    cost = np.ascontiguousarray(cost, np.float32)
+    total = np.zeros_like(cost)
+    _rows(cost, np.float32(p1), np.float32(p2), total)
+    steps = (0,) if directions == 4 else (0, -1, 1)
+    for dx in steps:
+        _columns(cost, np.float32(p1), np.float32(p2), np.int64(dx), total)
+    return total
+
+
+@njit(cache=True, inline="always")
+def _path_step(c, prev, m, cur, total, p1, p2):  # pragma: no cover - compiled
+    """One step of a path: cur (P,) from the cost c (P,) and the path's previous costs prev (P,) whose
+    minimum is m (inf: the path starts here); adds cur to total (P,) and returns the minimum of cur."""
+    P = c.shape[0]
+    out = np.inf
+    if m == np.inf:
+        for j in range(P):
+            cur[j] = c[j]
+            total[j] += c[j]
+            out = min(out, c[j])
+        return out
+    jump = m + p2
+    for j in range(P):
+        best = min(prev[j], jump)
+        if j > 0:
+            best = min(best, prev[j - 1] + p1)
+        if j < P - 1:
+            best = min(best, prev[j + 1] + p1)
+        v = c[j] + (best - m)
+        cur[j] = v
+        total[j] += v
+        out = min(out, v)
+    return out
+
+
+@njit(cache=True, parallel=True, fastmath={"nsz", "contract", "reassoc"})
+def _rows(cost, p1, p2, total):  # pragma: no cover - compiled
+    """The left-to-right and right-to-left paths, one image row per work item."""
+    h, w, P = cost.shape
+    for y in prange(h):
+        a = np.empty(P, np.float32)
+        b = np.empty(P, np.float32)
+        for direction in range(2):
+            m = np.float32(np.inf)
+            for k in range(w):
+                x = k if direction == 0 else w - 1 - k
+                prev, cur = (a, b) if k % 2 == 0 else (b, a)
+                m = _path_step(cost[y, x], prev, m, cur, total[y, x], p1, p2)
+
+
+@njit(cache=True, inline="always")
+def _path_start(s, h, w, dx, down):  # pragma: no cover - compiled
+    """First pixel (y, x) of downward (or upward) path s with horizontal step dx: column s on the first
+    row for s < w, else (diagonal) row s - w + 1 (counted from the first row) on the entering edge."""
+    if s < w:
+        return (np.int64(0) if down else np.int64(h - 1)), np.int64(s)
+    off = np.int64(s - w + 1)
+    return (off if down else np.int64(h - 1) - off), (np.int64(0) if dx > 0 else np.int64(w - 1))
+
+
+@njit(cache=True, parallel=True, fastmath={"nsz", "contract", "reassoc"})
+def _columns(cost, p1, p2, dx, total):  # pragma: no cover - compiled
+    """The downward and upward paths with horizontal step dx (0: vertical, +-1: diagonal), one path per
+    work item (:func:`_path_start`)."""
+    h, w, P = cost.shape
+    n_start = w if dx == 0 else w + h - 1
+    for direction in range(2):
+        down = direction == 0
+        for s in prange(n_start):
+            a = np.empty(P, np.float32)
+            b = np.empty(P, np.float32)
+            y, x = _path_start(s, h, w, dx, down)
+            k = 0
+            m = np.float32(np.inf)
+            while 0 <= y < h and 0 <= x < w:
+                prev, cur = (a, b) if k % 2 == 0 else (b, a)
+                m = _path_step(cost[y, x], prev, m, cur, total[y, x], p1, p2)
+                y += 1 if down else -1
+                x += dx
+                k += 1
+
+
+def winner(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The best plane per pixel and a sub-plane correction.
+
+    cost (h, w, P) float32. Returns best (h, w) int32 (lowest cost, ties to the nearer plane; -1 where
+    every plane is ``inf``), value (h, w) float32 (its cost; ``inf`` where none) and offset (h, w)
+    float32 in [-0.5, 0.5] planes: the vertex of the parabola through the costs of planes best-1, best,
+    best+1 (0 at the first and last plane, where a neighbour is not a candidate, or when the three are
+    not convex)."""
+    cost = np.ascontiguousarray(cost, np.float32)
+    h, w, _ = cost.shape
+    best = np.empty((h, w), np.int32)
+    value = np.empty((h, w), np.float32)
+    offset = np.empty((h, w), np.float32)
+    _winner(cost, best, value, offset)
+    return best, value, offset
+
+
+@njit(cache=True, inline="always")
+def parabola_vertex(c0: float, c1: float, c2: float) -> float:  # pragma: no cover - compiled
+    """Abscissa in [-0.5, 0.5] of the vertex of the parabola through (-1, c0), (0, c1), (1, c2), where
+    c1 is the smallest of the three; 0 when the curvature is not positive or a cost is not finite."""
+    den = c0 - 2.0 * c1 + c2
+    if not (den > 0.0 and den < np.inf):
+        return 0.0
+    return min(0.5, max(-0.5, 0.5 * (c0 - c2) / den))
+
+
+@njit(cache=True, parallel=True)
+def _winner(cost, best, value, offset):  # pragma: no cover - compiled
+    h, w, P = cost.shape
+    for y in prange(h):
+        for x in range(w):
+            bj = -1
+            bc = np.inf
+            for j in range(P):
+                if cost[y, x, j] < bc:
+                    bc = cost[y, x, j]
+                    bj = j
+            best[y, x] = bj
+            value[y, x] = bc
+            d = 0.0
+            if 0 < bj < P - 1:
+                d = parabola_vertex(float(cost[y, x, bj - 1]), float(bc), float(cost[y, x, bj + 1]))
+            offset[y, x] = d
