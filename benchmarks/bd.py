@@ -41,6 +41,18 @@ def psnr_overlap(psnr_anchor: Sequence[float], psnr_test: Sequence[float]) -> fl
 def bd_rate(rate_anchor: Sequence[float], psnr_anchor: Sequence[float], rate_test: Sequence[float],
             psnr_test: Sequence[float], method: str = "pchip") -> float:
     """BD-rate of the test against the anchor, percent (NaN when the PSNR ranges do not overlap)."""
+    return _bjontegaard("bd_rate", rate_anchor, psnr_anchor, rate_test, psnr_test, method)
+
+
+def bd_psnr(rate_anchor: Sequence[float], psnr_anchor: Sequence[float], rate_test: Sequence[float],
+            psnr_test: Sequence[float], method: str = "pchip") -> float:
+    """BD-PSNR of the test against the anchor, dB (positive: the test is better at equal rate)."""
+    return _bjontegaard("bd_psnr", rate_anchor, psnr_anchor, rate_test, psnr_test, method)
+
+
+def _bjontegaard(measure: str, rate_anchor: Sequence[float], psnr_anchor: Sequence[float],
+                 rate_test: Sequence[float], psnr_test: Sequence[float], method: str) -> float:
+    """``bjontegaard.<measure>`` on the two curves, with the interpolation ``method`` checked."""
     import bjontegaard
 
     if method not in INTERPOLATIONS:
@@ -49,21 +61,7 @@ def bd_rate(rate_anchor: Sequence[float], psnr_anchor: Sequence[float], rate_tes
     rt, pt = _curves(rate_test, psnr_test)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # low overlap is reported by bd_pair, not as a warning
-        return float(bjontegaard.bd_rate(ra, pa, rt, pt, method=method, min_overlap=0))
-
-
-def bd_psnr(rate_anchor: Sequence[float], psnr_anchor: Sequence[float], rate_test: Sequence[float],
-            psnr_test: Sequence[float], method: str = "pchip") -> float:
-    """BD-PSNR of the test against the anchor, dB (positive: the test is better at equal rate)."""
-    import bjontegaard
-
-    if method not in INTERPOLATIONS:
-        raise ValueError(f"unknown interpolation {method!r}; expected one of {', '.join(INTERPOLATIONS)}")
-    ra, pa = _curves(rate_anchor, psnr_anchor)
-    rt, pt = _curves(rate_test, psnr_test)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return float(bjontegaard.bd_psnr(ra, pa, rt, pt, method=method, min_overlap=0))
+        return float(getattr(bjontegaard, measure)(ra, pa, rt, pt, method=method, min_overlap=0))
 
 
 def bd_pair(rate_anchor: Sequence[float], psnr_anchor: Sequence[float], rate_test: Sequence[float],
