@@ -307,7 +307,8 @@ def fuzz(app: ServedApp, key: str, max_examples: int, seed: int) -> dict:
                           text=True, env={**os.environ, "SWEEPCAST_FUZZ_KEY": key})
     found = sorted(reports.glob("*.json"))
     report = json.loads(found[-1].read_text()) if found else {}
-    failures = {f"{f['code']} {f['title']}": f["count"] for f in report.get("failures", [])}
+    failures = {f"{f['code']} {f['title']} ({', '.join(f.get('operations', []))})": f["count"]
+                for f in report.get("failures", [])}
     cases = report.get("test_cases", {})
     return {"command": "schemathesis " + " ".join(args[:-4]).replace(str(ROOT) + "/", ""),
             "exit_code": proc.returncode, "cases": cases.get("generated", 0),

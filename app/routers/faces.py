@@ -19,6 +19,7 @@ from app.jobstore import JobState, as_utc
 from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, parse_params, run_compute, services
 from app.uploads import read_upload
+from workers.common.safezip import SafeZip, ZipInputError, ZipLimits
 from workers.faces.errors import FaceInputError
 from workers.faces.model import FaceModel
 from workers.faces.job import (MODEL_RESULT, FaceTrainParams, FaceTransformParams, ensure_default_model,
@@ -88,8 +89,22 @@ async def train_model(
         raise ApiError(422, "source 'dataset' needs a dataset zip in the 'dataset' field", "invalid_request")
     if dataset is not None and p.source == "synthetic":
         raise ApiError(422, "a dataset zip was sent but source is 'synthetic': send one or the other", "invalid_request")
+    if dataset is not None:
+        await asyncio.to_thread(_check_dataset_zip, dataset, svc.settings.zip_limits)
     uploads = [Upload("dataset", dataset.file, {"filename": dataset.filename})] if dataset is not None else []
     return job_accepted(await create_job(svc, KIND, p.model_dump(mode="json"), uploads))
+
+
+def _check_dataset_zip(dataset: UploadFile, limits: ZipLimits) -> None:
+    """422 at once, before a job is made, when the dataset is no readable zip or breaks the zip limits
+    (SafeZip reads the central directory only; the job reads the members)."""
+    try:
+        with SafeZip(dataset.file, limits, dataset.filename or "the dataset zip"):
+            pass
+    except ZipInputError as exc:
+        raise ApiError(422, str(exc), "invalid_dataset") from None
+    finally:
+        dataset.file.seek(0)
 
 
 @router.get("", response_model=FaceModelList, summary="The face models: the default and every trained one")

@@ -119,3 +119,12 @@ def test_a_bad_dataset_fails_the_job_with_the_reason(client):
     assert r.status_code == 409 and r.json()["error"] == "model_not_ready"
     assert client.post("/v1/face-models/nope/transform", files={"mesh": ("f.obj", b"v 0 0 0", "text/plain")},
                        data={"params": json.dumps({"impression": "smile_open"})}).status_code == 404
+
+
+@pytest.mark.parametrize("data", [b"null", b"PK\x03\x04 not really a zip", b""])
+def test_a_dataset_that_is_no_zip_is_refused_before_a_job_is_made(client, data):
+    before = client.get("/v1/jobs", params={"kind": "faces.train"}).json()["jobs"]
+    r = client.post("/v1/face-models", files={"dataset": ("faces.zip", data, "application/zip")})
+    assert r.status_code == 422 and r.json()["error"] == "invalid_dataset", r.text
+    assert "faces.zip" in r.json()["detail"]
+    assert client.get("/v1/jobs", params={"kind": "faces.train"}).json()["jobs"] == before
