@@ -16,6 +16,19 @@ four views were accepted) and Table III (success / reject / error). Configuratio
 - ``combined``: YuNet faces confirmed by Haar parts or by a decisive YuNet margin (the default
   when a YuNet model is configured).
 
+Faces first, then text (``$SWEEPCAST_DATA/orientation``: ``text/``, real text photos and scans,
+upright as stored; ``noup/``, textures and aerial views with no clear up), and the face photos again.
+Every image is turned by the four rotations (JPEG q95) and analysed by: ``paper`` (faces only),
+``combined_prev`` (YuNet + parts without the paper's detector: the combined detector before it
+used both detectors' evidence), ``combined`` (faces only) and ``engine`` (combined, then Tesseract
+OSD when the faces decide nothing: the service's default). Per set and cue: decided (right),
+rejected, wrong. A text/ or noup/ trial decided by faces is counted under ``faces``. The text cue's
+thresholds are calibrated here: every engine trial in which OSD ran records its four views, and the
+table "text cue calibration" re-applies the text rule to those records over a grid of
+(least mean confidence, least views that ran, all agreeing), per set: the chosen constants (``TEXT_MIN_CONFIDENCE``,
+``TEXT_MIN_AGREE`` in workers/orientation/text.py) are the loosest with no wrong turn and every
+noup/ trial rejected. Trials run on two threads (OSD is a subprocess per view).
+
 Speed. ~12-megapixel JPEGs are made by upscaling dev photos. Engine only: ``analyze`` in-process
 on one thread and on two threads (OpenCV releases the GIL), with decoding alone timed in the
 same run as the baseline. End to end: the service is started as a subprocess
@@ -23,12 +36,13 @@ same run as the baseline. End to end: the service is started as a subprocess
 ``/v1/photos/orientation`` (the clients run on the same machine and take their share of its CPU);
 after one warm-up pass over the photos (reported apart), photos per second is the median over repeats.
 
-Run: ``python benchmarks/orientation.py [--quick] [--no-http]`` from the repository root.
+Run: ``python benchmarks/orientation.py [--quick] [--no-http] [--no-speed] [--no-sets]`` from the repository root.
 """
 from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import json
 import statistics
 import sys
 import tempfile
@@ -45,9 +59,13 @@ from benchmarks._report import md_table, publish  # noqa: E402
 from tests.servers import exit_on_sigterm, serve_app  # noqa: E402
 from workers.common.datasets import data_root, dataset  # noqa: E402
 from workers.orientation.decode import decode_gray  # noqa: E402
-from workers.orientation.detect import DetectorConfig, OrientationDetector, get_detector  # noqa: E402
+from workers.orientation.detect import (Decision, DetectorConfig, OrientationDetector, YuNetDetector,  # noqa: E402
+                                        get_detector)
 from workers.orientation.geometry import ROTATIONS, rotate_view  # noqa: E402
-from workers.orientation.service import analyze  # noqa: E402
+from workers.orientation.parts import PartSpec  # noqa: E402
+from workers.orientation.service import analyze, combine_cues  # noqa: E402
+from workers.orientation.text import (TEXT_MIN_AGREE, TEXT_MIN_CONFIDENCE, OsdView, TextResult,  # noqa: E402
+                                      text_decision)
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp")
 NEGATIVES = {"dogs.jpg"}
@@ -96,13 +114,119 @@ def find_photos(root: Path) -> list[Path]:
 
 
 def configurations(yunet: Path | None, mcs: Path | None) -> dict[str, DetectorConfig]:
-    configs = {"paper": DetectorConfig(method="paper")}
+    """The face detectors of Tables I-III (faces only: the text cue off)."""
+    configs = {"paper": DetectorConfig(method="paper", text=False)}
     if mcs is not None:
-        configs["paper_mcs"] = DetectorConfig(method="paper", haar_mcs_dir=mcs)
+        configs["paper_mcs"] = DetectorConfig(method="paper", haar_mcs_dir=mcs, text=False)
     if yunet is not None:
-        configs["yunet"] = DetectorConfig(method="yunet", yunet_model=yunet)
-        configs["combined"] = DetectorConfig(method="combined", yunet_model=yunet)
+        configs["yunet"] = DetectorConfig(method="yunet", yunet_model=yunet, text=False)
+        configs["combined"] = DetectorConfig(method="combined", yunet_model=yunet, text=False)
     return configs
+
+
+def set_detectors(yunet: Path | None) -> dict[str, OrientationDetector]:
+    """The configurations run on every set: faces only, the previous combined detector, and the engine."""
+    out: dict[str, OrientationDetector] = {"paper": get_detector(DetectorConfig(method="paper", text=False))}
+    if yunet is not None:
+        out["combined_prev"] = YuNetDetector(yunet, PartSpec.opencv(), name="combined_prev")
+        out["combined"] = get_detector(DetectorConfig(method="combined", yunet_model=yunet, text=False))
+    out["engine"] = get_detector(DetectorConfig(yunet_model=yunet, text=True))
+    return out
+
+
+def run_sets(sets: dict[str, list[Path]], detectors: dict[str, OrientationDetector], threads: int = 2) -> list[dict]:
+    """Every image of every set x 4 rotations through every detector; one record per trial."""
+    jobs = [(name, path) for name, paths in sets.items() for path in paths]
+
+    def one(job: tuple[str, Path]) -> list[dict]:
+        set_name, path = job
+        out = []
+        for r, data in rotated_inputs(path).items():
+            for name, detector in detectors.items():
+                report = analyze(data, detector)
+                views = [[v.view_degrees, v.ran, v.rotation_degrees, v.confidence] for v in report.text.views]
+                out.append({"set": set_name, "image": path.name, "turn": r, "config": name,
+                            "rotation": report.rotation_degrees, "cue": report.cue, "reason": report.reject_reason,
+                            "accepted": report.accepted_rotations, "text_views": views,
+                            "text_status": report.text.status, "ms": report.elapsed_ms})
+        marks = {n: "".join("+" if t["rotation"] == t["turn"] else "." if t["rotation"] is None else "X"
+                            for t in out if t["config"] == n) for n in detectors}
+        print(f"{set_name:5s} {path.name[:40]:40s} " + " ".join(f"{n}:{m}" for n, m in marks.items()), flush=True)
+        return out
+
+    with concurrent.futures.ThreadPoolExecutor(threads) as pool:
+        return [t for trials in pool.map(one, jobs) for t in trials]
+
+
+def set_tallies(trials: list[dict]) -> dict:
+    """Per set and configuration: decided right / rejected / wrong, per cue, and the wrong cases."""
+    out: dict = {}
+    for t in trials:
+        c = out.setdefault(t["set"], {}).setdefault(t["config"], {
+            "trials": 0, "decided": 0, "rejected": 0, "wrong": 0, "by_cue": {}, "reasons": {}, "wrong_cases": [],
+            "ms": []})
+        c["trials"] += 1
+        c["ms"].append(t["ms"])
+        cue = c["by_cue"].setdefault(t["cue"], {"decided": 0, "wrong": 0, "rejected": 0})
+        if t["rotation"] is None:
+            c["rejected"] += 1
+            cue["rejected"] += 1
+            c["reasons"][t["reason"]] = c["reasons"].get(t["reason"], 0) + 1
+        elif t["set"] != "noup" and t["rotation"] == t["turn"]:
+            c["decided"] += 1
+            cue["decided"] += 1
+        else:  # a decision on a no-up image is wrong whatever it says
+            c["wrong"] += 1
+            cue["wrong"] += 1
+            c["wrong_cases"].append(f"{t['image']} turned {t['turn']}: {t['cue']} decided {t['rotation']}")
+    for configs in out.values():
+        for c in configs.values():
+            c["median_ms"] = statistics.median(c.pop("ms"))
+    return out
+
+
+def paper_vs(trials: list[dict], config: str) -> dict:
+    """Per set: trials the paper's detector decided (right) and ``config`` did not, and the reverse."""
+    by_key = {(t["set"], t["image"], t["turn"], t["config"]): t for t in trials}
+    out: dict = {}
+    for (set_name, image, turn, name), t in by_key.items():
+        if name != "paper" or (set_name, image, turn, config) not in by_key:
+            continue
+        other = by_key[set_name, image, turn, config]
+        row = out.setdefault(set_name, {"paper_only": [], "other_only": 0})
+        paper_ok, other_ok = t["rotation"] == turn, other["rotation"] == turn
+        if set_name == "noup":
+            paper_ok = other_ok = False
+        if paper_ok and not other_ok:
+            row["paper_only"].append(f"{image} turned {turn}")
+        row["other_only"] += other_ok and not paper_ok
+    return out
+
+
+CALIBRATION_CONFIDENCES = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 6.0)
+CALIBRATION_AGREE = (1, 2, 3, 4)
+
+
+def text_calibration(trials: list[dict]) -> list[dict]:
+    """The text rule re-applied to the engine trials in which OSD ran, over a grid of thresholds:
+    decided / wrong per set as the engine would decide (faces' accepted views included)."""
+    ran = [t for t in trials if t["config"] == "engine" and t["text_status"] == "ran"]
+    rows = []
+    for agree in CALIBRATION_AGREE:
+        for conf in CALIBRATION_CONFIDENCES:
+            row: dict = {"min_agree": agree, "min_confidence": conf}
+            for t in ran:
+                views = tuple(OsdView(v, ok, rot, c) for v, ok, rot, c in t["text_views"])
+                rotation, reason = text_decision(views, conf, agree)
+                faces = Decision(tuple(t["accepted"]), None)  # the faces decided nothing: only their views matter
+                final, _, _ = combine_cues(faces, TextResult(rotation, reason, views))
+                cell = row.setdefault(t["set"], {"trials": 0, "decided": 0, "wrong": 0})
+                cell["trials"] += 1
+                if final is not None:
+                    ok = t["set"] != "noup" and final == t["turn"]
+                    cell["decided" if ok else "wrong"] += 1
+            rows.append(row)
+    return rows
 
 
 def load_photo(path: Path, megapixels: float | None = None) -> np.ndarray:
@@ -297,6 +421,7 @@ def markdown(results: dict) -> str:
         md_table(["config", "0", "1", "2", "3", "4"],
                  [[n] + list(c["table2_accepted_views"].values()) for n, c in configs.items()]),
     ]
+    parts += sets_markdown(results.get("sets"))
     speed = results.get("speed")
     if speed:
         rows = []
@@ -323,12 +448,87 @@ def markdown(results: dict) -> str:
     return "\n".join(parts)
 
 
+def run_orientation_sets(face_photos: list[Path], yunet: Path | None, quick: bool,
+                         only: list[str] | None = None) -> dict | None:
+    """Faces first, then text, on text/, noup/ and the face photos: tallies, paper comparison, calibration."""
+    root = dataset("orientation")
+    if root is None:
+        print(f"note: no {data_root() / 'orientation'}: the text and no-up sets are not measured")
+        return None
+    sets = {"text": find_photos(root / "text"), "noup": find_photos(root / "noup"), "faces": face_photos}
+    if quick:
+        sets = {k: v[::3] for k, v in sets.items()}
+    if only:
+        sets = {k: v for k, v in sets.items() if k in only}
+    detectors = set_detectors(yunet)
+    text_info = detectors["engine"].text_info
+    print(f"--- faces first, then text: {', '.join(f'{k} {len(v)}' for k, v in sets.items())}; text cue {text_info}",
+          flush=True)
+    trials = run_sets(sets, detectors)
+    tallies = set_tallies(trials)
+    for set_name, configs in tallies.items():
+        for name, c in configs.items():
+            print(f"{set_name:5s} {name:13s} decided {c['decided']}/{c['trials']} rejected {c['rejected']} "
+                  f"wrong {c['wrong']} by cue {c['by_cue']}", flush=True)
+    compare = {name: paper_vs(trials, name) for name in detectors if name != "paper"}
+    return {"images": {k: len(v) for k, v in sets.items()}, "text_cue": text_info, "tallies": tallies,
+            "paper_vs": compare, "calibration": text_calibration(trials),
+            "chosen": {"min_confidence": TEXT_MIN_CONFIDENCE, "min_agree": TEXT_MIN_AGREE}, "trials": trials}
+
+
+def sets_markdown(sets: dict | None) -> list[str]:
+    if not sets:
+        return []
+    tallies, sizes = sets["tallies"], sets["images"]
+    rows = []
+    for set_name, configs in tallies.items():
+        for name, c in configs.items():
+            cues = ", ".join(f"{cue} {v['decided']}/{v['wrong']}" for cue, v in sorted(c["by_cue"].items())
+                             if cue != "none")
+            reasons = ", ".join(f"{k} {v}" for k, v in sorted(c["reasons"].items()))
+            decided_pct = 100 * c["decided"] / max(c["trials"], 1)
+            rows.append([set_name, name, c["trials"], c["decided"], f"{decided_pct:.1f}%", c["rejected"],
+                         f"{100 * c['rejected'] / max(c['trials'], 1):.1f}%", c["wrong"], cues or "-",
+                         reasons or "-", c["median_ms"]])
+    out = ["", "Faces first, then text: every image x 4 rotations (JPEG q95); "
+               + ", ".join(f"{k}/ {v} images" for k, v in sizes.items())
+               + ". 'decided' counts right turns only; on noup/ any decision is wrong. "
+               "'by cue' is decided/wrong per deciding cue. Trials ran on 2 threads (ms are not single-core).",
+           "", md_table(["set", "config", "trials", "decided", "decided %", "rejected", "rejected %", "wrong",
+                         "by cue (decided/wrong)", "reject reasons", "median ms"], rows)]
+    vs = sets.get("paper_vs", {})
+    if vs:
+        rows = [[set_name, name, len(v["paper_only"]), v["other_only"], "; ".join(v["paper_only"][:6]) or "-"]
+                for name, by_set in vs.items() for set_name, v in by_set.items()]
+        out += ["", "Faces against the paper's detector alone: trials the paper decided (right) and the config did "
+                    "not, and the reverse", "",
+                md_table(["set", "config", "paper only", "config only", "paper-only cases"], rows)]
+    cal = sets.get("calibration") or []
+    if cal:
+        names = [n for n in ("text", "noup", "faces") if any(n in r for r in cal)]
+        rows = []
+        for r in cal:
+            cells = [f"{r[n]['decided']}/{r[n]['wrong']} of {r[n]['trials']}" if n in r else "-" for n in names]
+            chosen = r["min_agree"] == TEXT_MIN_AGREE and r["min_confidence"] == TEXT_MIN_CONFIDENCE
+            rows.append([r["min_agree"], r["min_confidence"], *cells, "chosen" if chosen else ""])
+        out += ["", "Text cue calibration: the text rule re-applied to the engine trials where OSD ran "
+                    "(decided right / wrong of the trials that reached the text cue), per set", "",
+                md_table(["min views (all agreeing)", "min mean confidence", *names, ""], rows)]
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a third of the photos, fewer speed repeats")
     parser.add_argument("--no-http", action="store_true", help="skip the end-to-end HTTP measurement")
     parser.add_argument("--no-speed", action="store_true", help="accuracy only")
     parser.add_argument("--clients", type=int, default=4, help="concurrent HTTP clients (default 4)")
+    parser.add_argument("--no-sets", action="store_true", help="skip the text/no-up sets (faces first, then text)")
+    parser.add_argument("--set", action="append", choices=("text", "noup", "faces"),
+                        help="with --sets-only: only these sets (repeat; default all)")
+    parser.add_argument("--sets-only", metavar="JSON", type=Path,
+                        help="only the faces-then-text sets, written to JSON and printed (nothing published): "
+                             "for calibrating the text cue")
     args = parser.parse_args()
 
     faces_dir = dataset("faces", "dev")
@@ -346,6 +546,12 @@ def main() -> int:
     photos = find_photos(faces_dir)
     if args.quick:
         photos = [p for i, p in enumerate(photos) if i % 3 == 0 or p.name in NEGATIVES]
+    sets_result = None if args.no_sets and not args.sets_only else run_orientation_sets(photos, yunet, args.quick,
+                                                                                            args.set)
+    if args.sets_only:
+        args.sets_only.write_text(json.dumps(sets_result, indent=1))
+        print("\n".join(sets_markdown(sets_result)))
+        return 0
     detectors = {name: get_detector(cfg) for name, cfg in configurations(yunet, mcs).items()}
     tallies = run_accuracy(photos, detectors)
     print(f"--- the same photos upscaled to ~{MEGAPIXELS:.0f} MP (the speed test's size)", flush=True)
@@ -360,6 +566,7 @@ def main() -> int:
         "paper_table3": PAPER,
         "default_config": "combined" if yunet is not None else "paper",
         "photos_per_s": None,
+        "sets": {k: v for k, v in sets_result.items() if k != "trials"} if sets_result else None,
     }
     if not args.no_speed:
         repeats = 2 if args.quick else 5

@@ -1,4 +1,4 @@
-"""EXIF orientation of face photos: detect, write the tag, or fix a whole batch as a job."""
+"""EXIF orientation of photos (faces first, then text): detect, write the tag, or fix a whole batch as a job."""
 from __future__ import annotations
 
 from typing import Any
@@ -10,6 +10,7 @@ from app.auth import require_key
 from app.errors import ApiError
 from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, run_compute, services
+from app.settings import Settings
 from app.uploads import check_size, read_upload
 from workers.orientation import errors
 from workers.orientation.service import DetectorConfig, OrientationReport, analyze, get_detector, orient_jpeg
@@ -27,8 +28,14 @@ _STATUS = {
 }
 
 
+def orientation_config(settings: Settings) -> DetectorConfig:
+    """The orientation engine the service uses: YuNet when there is one, the text cue as set."""
+    return DetectorConfig(yunet_model=settings.resolved_yunet_model, text=settings.orientation_text,
+                          tesseract=settings.orientation_tesseract)
+
+
 def _detector(svc: Services) -> Any:
-    return get_detector(DetectorConfig(yunet_model=svc.settings.resolved_yunet_model))
+    return get_detector(orientation_config(svc.settings))
 
 
 def _as_api_error(exc: errors.OrientationInputError, filename: str | None) -> ApiError:
@@ -38,7 +45,8 @@ def _as_api_error(exc: errors.OrientationInputError, filename: str | None) -> Ap
 
 
 @router.post("/orientation", response_model=OrientationReport,
-             summary="Detect which way is up in a face photo (stored pixels; the EXIF tag is ignored)")
+             summary="Detect which way is up in a photo: faces first, then text; never a guess "
+                     "(stored pixels; the EXIF tag is ignored)")
 async def detect_orientation(file: UploadFile = File(..., description="a JPEG, PNG or WebP photo"),
                              svc: Services = Depends(services)) -> OrientationReport:
     data = await read_upload(file, svc.settings.max_upload_bytes)
@@ -53,7 +61,8 @@ async def detect_orientation(file: UploadFile = File(..., description="a JPEG, P
              responses={200: {"content": {"image/jpeg": {}},
                               "description": "the JPEG; headers X-Orientation (the tag the returned file carries, 1-8, "
                                              "or 'none' when it has none or an invalid one), X-Orientation-Decision "
-                                             "(upright, rotated, rejected) and "
+                                             "(upright, rotated, rejected), X-Orientation-Cue (faces, text, "
+                                             "none), X-Orientation-Needs-Review (true on a rejection) and "
                                              "X-Orientation-Action (written, kept_existing, already_set, "
                                              "not_written_rejected)"}})
 async def orient_photo(file: UploadFile = File(..., description="a JPEG (or WebP) photo"),
@@ -70,6 +79,8 @@ async def orient_photo(file: UploadFile = File(..., description="a JPEG (or WebP
         # The tag the returned file carries ("none" when it has no Orientation tag), and the decision.
         "X-Orientation": str(report.file_orientation) if report.file_orientation is not None else "none",
         "X-Orientation-Decision": report.decision,
+        "X-Orientation-Cue": report.cue,
+        "X-Orientation-Needs-Review": "true" if report.needs_review else "false",
         "X-Orientation-Action": report.action,
     })
 

@@ -7,7 +7,9 @@ from fastapi import APIRouter, Depends
 from fastapi.responses import HTMLResponse, JSONResponse
 
 from app import raycluster
+from app.routers.photos import orientation_config
 from app.services import Services, services
+from workers.orientation.service import engine_status
 
 router = APIRouter(tags=["system"])
 
@@ -26,7 +28,8 @@ def healthz() -> dict[str, str]:
     return {"status": "ok"}
 
 
-@router.get("/readyz", summary="Readiness: the database and Ray are reachable",
+@router.get("/readyz", summary="Readiness: the database and Ray are reachable (also reports what the orientation "
+                                "engine uses: face detector, YuNet model, tesseract for the text cue)",
             responses={503: {"description": "not ready; the body says which part is missing"}})
 async def readyz(svc: Services = Depends(services)) -> JSONResponse:
     checks: dict[str, dict[str, object]] = {}
@@ -40,5 +43,7 @@ async def readyz(svc: Services = Depends(services)) -> JSONResponse:
     else:
         ok, detail = await asyncio.to_thread(raycluster.ready)
         checks["ray"] = {"ok": ok and svc.dispatcher.ray_ready.is_set(), "detail": detail}
+    # The orientation engine's optional parts (YuNet, tesseract): reported, never a reason to be unready.
+    checks["orientation"] = await asyncio.to_thread(engine_status, orientation_config(svc.settings))
     ready = all(c["ok"] for c in checks.values())
     return JSONResponse({"status": "ready" if ready else "not ready", "checks": checks}, 200 if ready else 503)

@@ -73,12 +73,39 @@ def test_a_photo_without_a_face_is_rejected_and_returned_untouched(client):
     body = r.json()
     assert r.status_code == 200
     assert body["decision"] == "rejected" and body["orientation"] is None and body["faces"] == []
+    assert body["cue"] == "none" and body["needs_review"] is True and body["reject_reason"] is not None
     assert body["elapsed_ms"] > 0
     r = client.post("/v1/photos/orient", files={"file": ("n.jpg", data, "image/jpeg")})
     assert r.status_code == 200 and r.content == data
     assert r.headers["x-orientation"] == "none"
     assert r.headers["x-orientation-decision"] == "rejected"
+    assert r.headers["x-orientation-cue"] == "none" and r.headers["x-orientation-needs-review"] == "true"
     assert r.headers["x-orientation-action"] == "not_written_rejected"
+
+
+def test_a_text_photo_without_faces_is_decided_by_its_text(client):
+    from tests.orientation.test_orientation_text import needs_tesseract_reason, text_page, turned
+
+    if needs_tesseract_reason():
+        pytest.skip(needs_tesseract_reason())
+    ok, buf = cv2.imencode(".jpg", turned(text_page(), 90), [cv2.IMWRITE_JPEG_QUALITY, 92])
+    r = client.post("/v1/photos/orientation", files={"file": ("page.jpg", buf.tobytes(), "image/jpeg")})
+    body = r.json()
+    assert r.status_code == 200, r.text
+    assert body["rotation_degrees"] == 90 and body["cue"] == "text" and body["needs_review"] is False
+    assert body["text"]["status"] == "ran" and len(body["text"]["views"]) == 4
+    ready = client.get("/readyz").json()["checks"]["orientation"]
+    assert ready["ok"] and ready["text"]["available"] is True
+
+
+def test_readiness_reports_a_missing_tesseract_and_faces_still_work(client_factory):
+    client = client_factory(orientation_tesseract="/nonexistent/bin/tesseract")
+    ready = client.get("/readyz")
+    assert ready.status_code == 200  # optional: never a reason to be unready
+    text = ready.json()["checks"]["orientation"]["text"]
+    assert text["available"] is False and "faces only" in text["detail"]
+    r = client.post("/v1/photos/orientation", files={"file": ("n.jpg", gradient_jpeg(), "image/jpeg")})
+    assert r.status_code == 200 and r.json()["text"]["status"] == "unavailable" and r.json()["needs_review"]
 
 
 def test_batch_limits(client_factory):

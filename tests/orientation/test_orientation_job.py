@@ -69,7 +69,8 @@ def test_batch_with_one_corrupt_photo_among_good_ones(tmp_path, fake_detector):
 
     summary = run_orientation_batch(ctx)
 
-    assert summary == {"photos": 4, "upright": 0, "rotated": 3, "rejected": 0, "errors": 1, "written": 1}
+    assert summary == {"photos": 4, "upright": 0, "rotated": 3, "rejected": 0, "decided_by_faces": 3,
+                       "decided_by_text": 0, "errors": 1, "written": 1}
     assert [round(f, 2) for f, _ in ctx.events] == [0.25, 0.5, 0.75, 1.0]  # one event per photo
     assert "broken.jpg: error: truncated_image" in ctx.events[1][1]
     entries = json.loads((tmp_path / "out" / "report.json").read_text())

@@ -1,8 +1,12 @@
-"""EXIF orientation fixer (Shima & Shukuya): find which way is up in a face photo and tag it losslessly.
+"""EXIF orientation fixer (Shima & Shukuya): find which way is up in a photo and tag it losslessly.
+
+Faces first (the paper), then text (Tesseract OSD, optional), never a guess: a photo neither cue
+decides clearly is rejected for review.
 
 Modules: ``headers`` (container parsing without decoding), ``decode`` (checked, reduced-size grey
 decoding), ``geometry`` (the four rotations), ``faces`` (Haar and YuNet face finders), ``parts``
-(facial parts and their arrangement), ``detect`` (detectors and the exactly-one decision),
+(facial parts and their arrangement), ``detect`` (detectors, the exactly-one decision, the engine),
+``text`` (the text cue: Tesseract OSD on the four views),
 ``exif`` (the Orientation tag), ``service`` (analyze / orient_jpeg), ``job`` (the batch job),
 ``cli`` (``sweepcast orient``).
 """

@@ -1,8 +1,11 @@
-"""``sweepcast orient PATH... [--write] [--force] [--yunet MODEL]``: find which way is up, tag JPEGs.
+"""``sweepcast orient PATH... [--write] [--force] [--yunet MODEL] [--no-text]``: find which way is up, tag JPEGs.
 
 Without ``--write`` nothing is changed: the table says what would be done. With ``--write`` each
 JPEG/WebP whose tag should change is rewritten in place (atomically; only the EXIF block
 changes). Folders are searched recursively for .jpg/.jpeg/.png/.webp files.
+
+Faces first (the paper's detector, or YuNet combined with it), then text (Tesseract OSD, when
+installed); a photo neither decides clearly is rejected for review, never guessed.
 """
 from __future__ import annotations
 
@@ -23,13 +26,15 @@ from workers.orientation.exif import TAGGABLE_FORMATS
 from workers.orientation.headers import sniff_format
 from workers.orientation.job import YUNET_MODEL_ENV, configured_yunet
 from workers.orientation.service import OrientationReport, analyze, orient_jpeg, plan_tag
+from workers.orientation.text import TESSERACT_ENV, text_settings_from_env
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``orient`` command to a ``sweepcast`` sub-command parser."""
-    p = subparsers.add_parser("orient", help="detect the upright rotation of face photos and set the EXIF tag",
+    p = subparsers.add_parser("orient", help="detect the upright rotation of photos (faces, then text) and set the "
+                                            "EXIF tag",
                               description=__doc__.split("\n\n")[1].replace("\n", " "))
     p.add_argument("paths", nargs="+", type=Path, metavar="PATH", help="photos or folders of photos")
     p.add_argument("--write", action="store_true", help="write the Orientation tag into the files")
@@ -40,6 +45,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "'sweepcast models fetch yunet' installed in the data folder)")
     p.add_argument("--method", choices=("auto", "paper", "yunet", "combined"), default="auto",
                    help="detector (auto: combined with --yunet, else paper)")
+    text_on, tesseract = text_settings_from_env()
+    p.add_argument("--no-text", dest="text", action="store_false", default=text_on,
+                   help="faces only: do not read the text's orientation (Tesseract OSD) when no face decides")
+    p.add_argument("--tesseract", default=tesseract, metavar="BINARY",
+                   help=f"the tesseract binary for the text cue (default ${TESSERACT_ENV}, else 'tesseract' on PATH)")
     p.add_argument("--max-pixels", type=int, default=None,
                    help=f"refuse images larger than this (default ${MAX_PIXELS_ENV} or 64,000,000)")
     p.add_argument("--json", action="store_true", help="print the reports as JSON instead of a table")
@@ -56,7 +66,8 @@ def _orient(args: argparse.Namespace) -> int:
         print("sweepcast orient: no .jpg, .jpeg, .png or .webp files found", file=sys.stderr)
         return 2
     try:
-        detector = get_detector(DetectorConfig(method=args.method, yunet_model=args.yunet))
+        detector = get_detector(DetectorConfig(method=args.method, yunet_model=args.yunet, text=args.text,
+                                               tesseract=args.tesseract))
     except (ValueError, FileNotFoundError) as exc:
         print(f"sweepcast orient: {exc}", file=sys.stderr)
         return 2
@@ -136,11 +147,12 @@ def _print(results: list[Result], as_json: bool) -> None:
     rows = []
     for r in results:
         if r.report is None:
-            rows.append([r.path, "error", "-", "-", "-", r.error])
+            rows.append([r.path, "error", "-", "-", "-", "-", "-", r.error])
             continue
         rotation = "-" if r.report.rotation_degrees is None else f"{r.report.rotation_degrees} cw"
-        rows.append([r.path, r.report.decision, rotation, r.report.orientation or "-", len(r.report.faces), r.action])
-    print(format_table(["file", "decision", "rotation", "EXIF", "faces", "action"], rows))
+        rows.append([r.path, r.report.decision, rotation, r.report.orientation or "-", r.report.cue,
+                     r.report.reject_reason or "-", len(r.report.faces), r.action])
+    print(format_table(["file", "decision", "rotation", "EXIF", "cue", "why rejected", "faces", "action"], rows))
     decided = [r.report.decision for r in results if r.report]
     errors = sum(r.report is None for r in results)
     written = sum(bool(r.report and r.report.written) for r in results)

@@ -17,8 +17,14 @@ Detectors:
   view where the Haar facial parts confirm it (the paper's part test, with YuNet in place of the
   Haar whole-face detector, which finds far fewer faces and is several times slower). Any
   disagreement between faces or between the two tests leaves two accepted views: rejected.
+  When that leaves a photo undecided, the paper's detector runs too and both detectors' evidence
+  make one decision (:func:`fuse_paper`): a face the paper's detector accepts in one view cannot
+  also count as upright in another (YuNet's 180-degree ambiguity), so the combined detector
+  decides whatever the paper's detector alone decides, unless other faces contradict it.
 
 The decision (:func:`decide`) needs exactly one accepted view and at least one decisive face in it.
+:func:`get_detector` returns an :class:`Engine`: the face detector, and the text cue
+(:mod:`workers.orientation.text`) for the photos whose faces decide nothing.
 """
 from __future__ import annotations
 
@@ -34,6 +40,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from workers.orientation.faces import Candidate, HaarFaceFinder, YuNetFaceFinder
 from workers.orientation.geometry import ROTATIONS, Box, iou, rotate_view, view_box_to_image
 from workers.orientation.parts import PartSpec, PartVerifier, face_crop
+from workers.orientation.text import DEFAULT_TESSERACT, RejectReason, TesseractOsd, get_text_detector, text_status
 
 Method = Literal["auto", "paper", "yunet", "combined"]
 DecisionKind = Literal["upright", "rotated", "rejected"]
@@ -58,6 +65,10 @@ OpenCV's usual 1.1 at half the cost (the scan dominates the paper detector's tim
 MAX_PART_CHECKS = 16
 """Most faces whose parts are checked per photo (the highest-scoring first)."""
 _SAME_FACE_IOU = 0.3
+PAPER_FALLBACK = True
+"""Combined: when YuNet and the parts test leave a photo undecided, run the paper's detector and
+decide on both detectors' evidence (:func:`fuse_paper`), so the combined detector never decides
+fewer photos than the paper's alone where the two do not contradict each other."""
 
 
 @dataclass(frozen=True)
@@ -107,6 +118,16 @@ class Decision:
         if self.rotation is None:
             return "rejected"
         return "upright" if self.rotation == 0 else "rotated"
+
+    @property
+    def reason(self) -> RejectReason | None:
+        """Why the faces decided nothing: no face accepted (no_cue), faces accepted in several views
+        (conflicting_rotations), or only non-decisive faces in one view (low_confidence); None when decided."""
+        if self.rotation is not None:
+            return None
+        if not self.accepted_rotations:
+            return "no_cue"
+        return "conflicting_rotations" if len(self.accepted_rotations) > 1 else "low_confidence"
 
 
 def decide(faces: Sequence[Face]) -> Decision:
@@ -192,6 +213,25 @@ def yunet_votes(tracks: list[Track], min_score: float,
     return votes
 
 
+def fuse_paper(yunet: list[Face], paper: list[Face]) -> list[Face]:
+    """The combined detector's faces and the paper detector's, in one decision, for a photo the combined
+    test alone leaves undecided.
+
+    When the paper's detector (Haar whole face *and* Haar parts upright) accepts faces in exactly one
+    view, that view is the evidence: a YuNet acceptance of the *same* face (boxes overlapping) in another
+    view is dropped, since one face is upright in one view only (YuNet also fires on upside-down faces,
+    and the parts test sometimes confirms them: the 180-degree ambiguity). Faces of other people still
+    count, so a photo whose different faces point different ways stays rejected. Otherwise the union is
+    returned (and :func:`decide` rejects it as before)."""
+    views = {f.rotation for f in paper}
+    if len(views) != 1:
+        return yunet + paper
+    (view,) = views
+    kept = [f for f in yunet
+            if f.rotation == view or not any(iou(f.box, p.box) > _SAME_FACE_IOU for p in paper)]
+    return kept + paper
+
+
 def group_tracks(views: dict[int, list[Candidate]], width: int, height: int) -> list[Track]:
     """Group the detections of the four views by the image region they cover (IoU), best first."""
     found = [(c.score, r, c, view_box_to_image(c.box, r, width, height)) for r, cands in views.items() for c in cands]
@@ -205,15 +245,18 @@ def group_tracks(views: dict[int, list[Candidate]], width: int, height: int) -> 
 
 
 class YuNetDetector:
-    """YuNet faces grouped across views; with ``parts``, the combined detector (module docstring)."""
+    """YuNet faces grouped across views; with ``parts``, the combined detector (module docstring);
+    with ``paper`` too, the paper's detector settles the photos the combined test leaves undecided
+    (:func:`fuse_paper`)."""
 
     def __init__(self, model: Path, parts: PartSpec | None = None, name: str = "yunet",
                  min_score: float = YUNET_MIN_SCORE, margin: float = YUNET_MARGIN,
-                 scan_sizes: Sequence[int] = YUNET_SCAN_SIZES) -> None:
+                 scan_sizes: Sequence[int] = YUNET_SCAN_SIZES, paper: PaperDetector | None = None) -> None:
         self.name = name
         self.min_score = min_score
         self.margin = margin
         self.scan_sizes = tuple(scan_sizes)
+        self.paper = paper
         self._finder = _PerThread(lambda: YuNetFaceFinder(Path(model)))
         self._verifier = _PerThread(lambda: PartVerifier(parts)) if parts is not None else None
         self._finder.get()
@@ -227,6 +270,8 @@ class YuNetDetector:
             faces = self._faces_at(gray.shape, views, scan_size)
             if faces:
                 break
+        if self.paper is not None and decide(faces).rotation is None:
+            faces = fuse_paper(faces, self.paper.upright_faces(gray))
         return faces
 
     def _faces_at(self, shape: tuple[int, ...], views: dict[int, np.ndarray], scan_size: int) -> list[Face]:
@@ -280,6 +325,9 @@ class DetectorConfig(BaseModel):
     yunet_model: Path | None = Field(None, description="YuNet ONNX file (face_detection_yunet_2023mar.onnx)")
     haar_mcs_dir: Path | None = Field(
         None, description="folder with the paper's haarcascade_mcs_* part cascades (CC BY-NC 4.0; benchmarks)")
+    text: bool = Field(True, description="when the faces decide nothing, read the text's orientation with "
+                                         "Tesseract OSD (used when tesseract and its osd data are installed)")
+    tesseract: str = Field(DEFAULT_TESSERACT, description="the tesseract binary: a name on PATH or a path")
 
     def resolved_method(self) -> Literal["paper", "yunet", "combined"]:
         if self.method == "auto":
@@ -287,15 +335,39 @@ class DetectorConfig(BaseModel):
         return self.method
 
 
-def get_detector(config: DetectorConfig) -> OrientationDetector:
-    """The detector for ``config``, built once per process (cascades and networks load once).
+class Engine:
+    """Faces first, then text: a face detector, and Tesseract OSD (or None) for photos whose faces
+    decide nothing. Usable wherever a face detector is (``name``, ``upright_faces``)."""
+
+    def __init__(self, faces: OrientationDetector, text: TesseractOsd | None,
+                 text_info: dict[str, object] | None = None) -> None:
+        self.faces = faces
+        self.name = faces.name
+        self.text = text
+        self.text_info = text_info or {"available": False, "enabled": False, "detail": "faces only"}
+
+    def upright_faces(self, gray: np.ndarray) -> list[Face]:
+        return self.faces.upright_faces(gray)
+
+
+def get_detector(config: DetectorConfig) -> Engine:
+    """The engine for ``config`` (face detector + optional text cue), built once per process (cascades
+    and networks load once, tesseract is probed once). A missing tesseract is not an error: the engine
+    then works on faces alone and ``text_info`` says why.
 
     Raises ValueError when the method needs a YuNet model and none is configured, and
     FileNotFoundError when a configured model or cascade file cannot be loaded.
     """
     method = config.resolved_method()
-    return _build(config.model_copy(update={
+    return _engine(config.model_copy(update={
         "method": method, "yunet_model": config.yunet_model if method != "paper" else None}))
+
+
+@lru_cache(maxsize=16)
+def _engine(config: DetectorConfig) -> Engine:
+    faces = _build(config.model_copy(update={"text": True, "tesseract": DEFAULT_TESSERACT}))
+    text = get_text_detector(config.tesseract) if config.text else None
+    return Engine(faces, text, text_status(config.tesseract, config.text))
 
 
 @lru_cache(maxsize=16)
@@ -310,4 +382,5 @@ def _build(config: DetectorConfig) -> OrientationDetector:
                          "(set SWEEPCAST_ORIENTATION_YUNET_MODEL)")
     if method == "yunet":
         return YuNetDetector(config.yunet_model, name="yunet")
-    return YuNetDetector(config.yunet_model, parts, name="combined" + suffix)
+    return YuNetDetector(config.yunet_model, parts, name="combined" + suffix,
+                         paper=PaperDetector(parts, name="paper" + suffix) if PAPER_FALLBACK else None)

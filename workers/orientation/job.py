@@ -31,6 +31,7 @@ from workers.orientation.errors import OrientationInputError
 from workers.orientation.exif import TAGGABLE_FORMATS
 from workers.orientation.headers import sniff_format
 from workers.orientation.service import analyze, orient_jpeg
+from workers.orientation.text import text_settings_from_env
 
 YUNET_MODEL_ENV = "SWEEPCAST_ORIENTATION_YUNET_MODEL"
 
@@ -55,8 +56,11 @@ def configured_yunet(models_folder: Path | None) -> Path | None:
 
 def detector_config_from_env(method: Method = "auto") -> DetectorConfig:
     """The detector configuration of this worker: ``method`` with the YuNet model the environment names,
-    else the one installed in ``$SWEEPCAST_MODELS_DIR``, if any."""
-    return DetectorConfig(method=method, yunet_model=configured_yunet(env_models_dir()))
+    else the one installed in ``$SWEEPCAST_MODELS_DIR``, if any; the text cue as the service set it
+    (``$SWEEPCAST_ORIENTATION_TEXT``, ``$SWEEPCAST_ORIENTATION_TESSERACT``; default on, ``tesseract`` on PATH)."""
+    text, tesseract = text_settings_from_env()
+    return DetectorConfig(method=method, yunet_model=configured_yunet(env_models_dir()), text=text,
+                          tesseract=tesseract)
 
 
 def run_orientation_batch(ctx: JobContext) -> dict[str, Any]:
@@ -75,7 +79,7 @@ def run_orientation_batch(ctx: JobContext) -> dict[str, Any]:
         filename = str(ctx.input_meta.get(name, {}).get("filename") or name)
         entry = _process(ctx, index, name, filename, detector, params, max_pixels)
         entries.append(entry)
-        outcome = entry["report"]["decision"] if entry["report"] else f"error: {entry['error']['code']}"
+        outcome = _outcome(entry)
         ctx.progress((index + 1) / len(names), f"photo {index + 1}/{len(names)} {filename}: {outcome}")
     ctx.write_result("report.json", json.dumps(entries, indent=2).encode())
     return _summary(entries)
@@ -106,6 +110,16 @@ def _process(ctx: JobContext, index: int, name: str, filename: str, detector: Or
 _EXT = {"jpeg": "jpg", "webp": "webp"}
 
 
+def _outcome(entry: dict[str, Any]) -> str:
+    """The progress line's word for one photo: the decision and its cue, why it needs review, or the error."""
+    report = entry["report"]
+    if report is None:
+        return f"error: {entry['error']['code']}"
+    if report["needs_review"]:
+        return f"rejected ({report['reject_reason']}), needs review"
+    return f"{report['decision']} by {report['cue']}"
+
+
 def sanitize_filename(filename: str, limit: int = 80) -> str:
     """A safe file stem from an uploaded name: last path component, no extension, [A-Za-z0-9._-] only."""
     base = re.split(r"[\\/]", filename)[-1]
@@ -116,11 +130,14 @@ def sanitize_filename(filename: str, limit: int = 80) -> str:
 
 def _summary(entries: list[dict[str, Any]]) -> dict[str, Any]:
     decisions = [e["report"]["decision"] for e in entries if e["report"]]
+    cues = [e["report"]["cue"] for e in entries if e["report"]]
     return {
         "photos": len(entries),
         "upright": decisions.count("upright"),
         "rotated": decisions.count("rotated"),
         "rejected": decisions.count("rejected"),
+        "decided_by_faces": cues.count("faces"),
+        "decided_by_text": cues.count("text"),
         "errors": sum(e["error"] is not None for e in entries),
         "written": sum(e["fixed_file"] is not None for e in entries),
     }

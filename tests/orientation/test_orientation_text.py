@@ -1,0 +1,230 @@
+"""Faces first, then text: the Tesseract OSD cue, its decision rule, the combination with faces, the
+reasons a photo is rejected, and the engine without tesseract (faces only)."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from tests.orientation.builders import FakeDetector, asymmetric_image, encode, jpeg
+from workers.orientation.detect import Decision, DetectorConfig, Engine, Face, decide, fuse_paper, get_detector
+from workers.orientation.geometry import ROTATIONS, rotate_view
+from workers.orientation.service import analyze, combine_cues
+from workers.orientation.text import (OsdView, TesseractOsd, TextResult, TextUnavailable, get_text_detector,
+                                      parse_osd, prepare, text_decision, text_status)
+
+TESSERACT = get_text_detector()
+
+
+def needs_tesseract_reason() -> str | None:
+    """Why the tests that run tesseract are skipped here, or None."""
+    if TESSERACT is None:
+        return "tesseract with its osd data is not installed (apt-get install tesseract-ocr tesseract-ocr-osd)"
+    return None
+
+
+needs_tesseract = pytest.mark.skipif(TESSERACT is None, reason=str(needs_tesseract_reason()))
+MISSING = "/nonexistent/bin/tesseract"
+
+LINES = [
+    "The quick brown fox jumps over the lazy dog.",
+    "Orientation detection reads many characters",
+    "and decides which way is up for the page.",
+    "Receipts, forms and letters are mostly text,",
+    "so when no face is found the words decide.",
+    "A wrong turn is far worse than no answer:",
+    "when the views disagree the photo is left",
+    "for a person to look at, never guessed.",
+    "Total 12.50  Tax 1.25  Paid by card 13.75",
+    "Thank you for shopping with us today!",
+]
+
+
+def text_page(width: int = 1400, height: int = 1000, lines: list[str] = LINES) -> np.ndarray:
+    """A white page with black lines of text rendered by cv2.putText, upright (BGR uint8)."""
+    page = np.full((height, width, 3), 255, np.uint8)
+    step = (height - 80) // len(lines)
+    for i, line in enumerate(lines):
+        cv2.putText(page, line, (40, 80 + i * step), cv2.FONT_HERSHEY_DUPLEX, 1.3, (0, 0, 0), 2, cv2.LINE_AA)
+    return page
+
+
+def turned(image: np.ndarray, rotation: int) -> np.ndarray:
+    """``image`` turned so that rotating it ``rotation`` degrees clockwise shows it upright."""
+    return rotate_view(image, (360 - rotation) % 360)
+
+
+def _view(view: int, rotation: int | None, conf: float = 5.0) -> OsdView:
+    return OsdView(view, rotation is not None, rotation, conf if rotation is not None else 0.0)
+
+
+# ---- the pure rules -------------------------------------------------------------------------------------------
+
+def test_parse_osd_turns_tesseract_rotate_into_the_stored_images_turn():
+    out = ("Page number: 0\nOrientation in degrees: 270\nRotate: 90\nOrientation confidence: 11.52\n"
+           "Script: Latin\nScript confidence: 4.26\n")
+    v = parse_osd(180, out)
+    assert v.ran and v.rotation == 270 and v.confidence == pytest.approx(11.52)
+    assert v.script == "Latin" and v.script_confidence == pytest.approx(4.26)
+    assert parse_osd(0, out).rotation == 90
+
+
+def test_parse_osd_too_few_characters_casts_no_vote():
+    v = parse_osd(90, "", "Too few characters. Skipping this page\nError during processing.\n")
+    assert not v.ran and v.rotation is None and v.detail == "too few characters"
+    assert not parse_osd(0, "", "").ran
+
+
+def test_text_rule_needs_agreeing_confident_views():
+    assert text_decision([_view(r, 90) for r in ROTATIONS], 2.0, 3) == (90, None)
+    assert text_decision([_view(0, 90), _view(90, 90), _view(180, 90), _view(270, None)], 2.0, 3) == (90, None)
+    assert text_decision([_view(0, 90), _view(90, 90), _view(180, None), _view(270, None)], 2.0, 3) == (None, "no_cue")
+    assert text_decision([_view(0, 90), _view(90, None), _view(180, 90), _view(270, None)], 2.0, 2) == (90, None)
+    assert text_decision([_view(0, 90), _view(90, None), _view(180, None), _view(270, None)], 2.0, 2) == (
+        None, "no_cue")
+    assert text_decision([_view(r, None) for r in ROTATIONS], 2.0, 3) == (None, "no_cue")
+    # the 180-degree confusion: one view reads the page upside down, however weakly
+    assert text_decision([_view(0, 0), _view(90, 0), _view(180, 180, 0.3), _view(270, 0)], 2.0, 2) == (
+        None, "conflicting_rotations")
+    # agreeing but weak on average
+    assert text_decision([_view(0, 0, 3.0), _view(90, 0, 0.5), _view(180, 0, 1.0), _view(270, 0, 0.5)], 2.0, 2) == (
+        None, "low_confidence")
+    assert text_decision([_view(0, 0, 3.0), _view(90, 0, 1.5), _view(180, 0, 2.0), _view(270, 0, 2.0)], 2.0, 2) == (
+        0, None)
+
+
+def test_small_images_are_upscaled_and_large_ones_reduced_for_osd():
+    assert max(prepare(np.zeros((300, 400), np.uint8)).shape) == 1200  # capped at 3x
+    assert max(prepare(np.zeros((600, 800), np.uint8)).shape) == 1600
+    assert prepare(np.zeros((1500, 2000), np.uint8)).shape == (1500, 2000)
+    assert max(prepare(np.zeros((3000, 4000), np.uint8)).shape) == 2400
+
+
+def test_text_decides_only_when_it_agrees_with_the_faces():
+    text = TextResult(90, None, ())
+    assert combine_cues(Decision((), None), text) == (90, "text", None)
+    assert combine_cues(Decision((90,), None), text) == (90, "text", None)  # a non-decisive face at 90 agrees
+    assert combine_cues(Decision((0,), None), text) == (None, "none", "conflicting_rotations")
+    assert combine_cues(Decision((0, 90), None), text) == (None, "none", "conflicting_rotations")
+    assert combine_cues(Decision((0, 180), None), TextResult(None, "no_cue", ())) == (
+        None, "none", "conflicting_rotations")
+    assert combine_cues(Decision((), None), TextResult(None, "low_confidence", ())) == (
+        None, "none", "low_confidence")
+
+
+def test_face_decisions_say_why_they_rejected():
+    face = lambda r, d=True: Face((0, 0, 10, 10), r, 0.9, (), "yunet", d)  # noqa: E731
+    assert decide([]).reason == "no_cue"
+    assert decide([face(0), face(180)]).reason == "conflicting_rotations"
+    assert decide([face(90, False)]).reason == "low_confidence"
+    assert decide([face(90)]).reason is None
+
+
+def test_the_paper_detector_settles_a_face_yunet_accepted_both_ways():
+    upright = Face((100, 100, 50, 50), 0, 0.95, ("eyes",), "yunet", True)
+    upside_down = Face((102, 98, 48, 52), 180, 0.9, ("eyes", "mouth"), "yunet", True)  # the same face, turned
+    paper = [Face((95, 95, 60, 60), 0, None, ("eyes", "mouth"), "haar")]
+    assert decide([upright, upside_down]).rotation is None
+    assert decide(fuse_paper([upright, upside_down], paper)).rotation == 0
+    # another person's face accepted in another view still conflicts
+    other = Face((400, 100, 50, 50), 180, 0.95, ("eyes",), "yunet", True)
+    assert decide(fuse_paper([upright, other], paper)).rotation is None
+    # the paper's detector undecided: nothing changes
+    assert decide(fuse_paper([upright, upside_down], [])).rotation is None
+    assert decide(fuse_paper([], paper)).rotation == 0
+
+
+# ---- Tesseract on rendered text ---------------------------------------------------------------------------------
+
+@needs_tesseract
+@pytest.mark.parametrize("rotation", ROTATIONS)
+def test_osd_finds_the_upright_turn_of_rendered_text(rotation):
+    gray = cv2.cvtColor(turned(text_page(), rotation), cv2.COLOR_BGR2GRAY)
+    result = TESSERACT.upright(gray)
+    assert result.rotation == rotation, result
+    assert result.reason is None
+
+
+@needs_tesseract
+@pytest.mark.parametrize("rotation", ROTATIONS)
+def test_engine_decides_a_text_photo_by_text_when_no_face_decides(rotation):
+    engine = Engine(FakeDetector(), TESSERACT, text_status())
+    report = analyze(jpeg(turned(text_page(), rotation)), engine)
+    assert report.rotation_degrees == rotation and report.cue == "text"
+    assert not report.needs_review and report.reject_reason is None
+    assert report.text.status == "ran" and report.text.rotation_degrees == rotation
+    assert sum(v.ran for v in report.text.views) >= 2
+
+
+@needs_tesseract
+def test_small_text_image_is_upscaled_and_read():
+    small = cv2.resize(text_page(), None, fx=0.45, fy=0.45, interpolation=cv2.INTER_AREA)  # 630 x 450
+    report = analyze(jpeg(turned(small, 90)), Engine(FakeDetector(), TESSERACT, text_status()))
+    assert report.rotation_degrees == 90 and report.cue == "text"
+
+
+@needs_tesseract
+@pytest.mark.parametrize("image", ["gradient", "noise"])
+def test_an_image_without_text_is_rejected_for_review(image):
+    if image == "gradient":
+        data = jpeg(asymmetric_image(600, 800))
+    else:
+        data = encode(np.random.default_rng(3).integers(0, 256, (600, 800, 3), dtype=np.uint8), ".png")
+    report = analyze(data, Engine(FakeDetector(), TESSERACT, text_status()))
+    assert report.decision == "rejected" and report.rotation_degrees is None
+    assert report.cue == "none" and report.needs_review
+    assert report.reject_reason in ("no_cue", "conflicting_rotations", "low_confidence")
+    assert report.text.status == "ran"
+
+
+@needs_tesseract
+def test_faces_decide_first_and_text_is_not_read():
+    engine = Engine(FakeDetector((90,)), TESSERACT, text_status())
+    report = analyze(jpeg(turned(text_page(), 270)), engine)
+    assert report.rotation_degrees == 90 and report.cue == "faces"  # the (fake) face wins; text never ran
+    assert report.text.status == "not_needed" and report.text.views == []
+
+
+@needs_tesseract
+def test_text_conflicting_with_a_face_is_rejected():
+    engine = Engine(FakeDetector((0,), decisive=False), TESSERACT, text_status())
+    report = analyze(jpeg(turned(text_page(), 90)), engine)
+    assert report.rotation_degrees is None and report.cue == "none"
+    assert report.reject_reason == "conflicting_rotations" and report.needs_review
+
+
+# ---- without tesseract: faces only ---------------------------------------------------------------------------
+
+def test_a_missing_binary_is_reported_not_raised():
+    with pytest.raises(TextUnavailable, match="not found"):
+        TesseractOsd(MISSING)
+    assert get_text_detector(MISSING) is None
+    status = text_status(MISSING)
+    assert status["available"] is False and "faces only" in status["detail"]
+    assert text_status(enabled=False)["enabled"] is False
+
+
+def test_engine_without_tesseract_falls_back_to_faces_only():
+    engine = get_detector(DetectorConfig(method="paper", tesseract=MISSING))
+    assert engine.text is None and engine.text_info["available"] is False
+    assert engine.name == "paper"
+    report = analyze(jpeg(turned(text_page(), 90)), engine)  # text it cannot read: rejected, never guessed
+    assert report.decision == "rejected" and report.cue == "none" and report.needs_review
+    assert report.reject_reason is not None
+    assert report.text.status == "unavailable" and "not found" in report.text.detail
+    # faces still decide
+    faces_only = Engine(FakeDetector((270,)), None, text_status(MISSING))
+    report = analyze(jpeg(), faces_only)
+    assert report.rotation_degrees == 270 and report.cue == "faces" and report.text.status == "unavailable"
+
+
+def test_text_cue_switched_off():
+    engine = get_detector(DetectorConfig(method="paper", text=False))
+    assert engine.text is None
+    report = analyze(jpeg(), engine)
+    assert report.text.status == "off" and report.cue == "none"
+
+
+def test_a_bare_face_detector_still_works_with_analyze():
+    report = analyze(jpeg(), FakeDetector((180,)))
+    assert report.rotation_degrees == 180 and report.cue == "faces" and report.text.status == "off"
