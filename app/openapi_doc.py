@@ -61,6 +61,7 @@ OPERATION_STATUSES: dict[tuple[str, str], dict[int, str]] = {
     ("post", "/v1/rigs/{rig_id}/renders"): {409: "the recording is still being imported, or its import failed"},
     ("post", "/v1/depth/filter"): {415: "an upload is not an image in a format this route reads"},
     ("post", "/v1/depth/synthesize"): {415: "an upload is not an image in a format this route reads"},
+    ("post", "/v1/depth/videos"): {415: "input_format video: the depth is no 8-bit H.264/HEVC video this route reads"},
     ("post", "/v1/photos/orientation"): {415: "the file is not an image, or not a format this route reads"},
     ("post", "/v1/photos/orient"): {415: "the file is not a JPEG or WebP image"},
 }
