@@ -210,23 +210,31 @@ def probe_depth_video(
     ``too_many_frames``, ``corrupt_video``.
     """
     with _open(source, name) as container:
-        if not container.streams.video:
-            raise DepthInputError(f"{name} has no video stream", "not_a_video")
-        stream = container.streams.video[0]
+        stream = _video_stream(container, name)
         codec, width, height, pix_fmt = _check_stream(stream, name, max_pixels)
         frames = 0
         try:
             for packet in container.demux(stream):
                 if packet.size > 0:
                     frames += 1
-                    if max_frames is not None and frames > max_frames:
-                        raise DepthInputError(f"{name} has more than {max_frames} frames, the limit",
-                                              "too_many_frames")
+                    _check_frame_count(frames, max_frames, name)
         except av.error.FFmpegError as exc:
             raise DepthInputError(f"{name} is damaged: {exc}", "corrupt_video") from None
     if frames == 0:
         raise DepthInputError(f"{name} holds no frames", "corrupt_video")
     return DepthVideoInfo(codec, width, height, frames, pix_fmt)
+
+
+def _video_stream(container, name: str):
+    """The first video stream of an open container (DepthInputError ``not_a_video`` when none)."""
+    if not container.streams.video:
+        raise DepthInputError(f"{name} has no video stream", "not_a_video")
+    return container.streams.video[0]
+
+
+def _check_frame_count(count: int, max_frames: int | None, name: str) -> None:
+    if max_frames is not None and count > max_frames:
+        raise DepthInputError(f"{name} has more than {max_frames} frames, the limit", "too_many_frames")
 
 
 def decode_depth_video(
@@ -241,16 +249,13 @@ def decode_depth_video(
     raises DepthInputError (``corrupt_video``).
     """
     with _open(source, name) as container:
-        if not container.streams.video:
-            raise DepthInputError(f"{name} has no video stream", "not_a_video")
-        stream = container.streams.video[0]
+        stream = _video_stream(container, name)
         _, width, height, _ = _check_stream(stream, name, max_pixels)
         count = 0
         try:
             for frame in container.decode(stream):
                 count += 1
-                if max_frames is not None and count > max_frames:
-                    raise DepthInputError(f"{name} has more than {max_frames} frames, the limit", "too_many_frames")
+                _check_frame_count(count, max_frames, name)
                 if (frame.width, frame.height) != (width, height) or frame.format.name not in EIGHT_BIT_FORMATS:
                     raise DepthInputError(f"{name}: frame {count - 1} is {frame.width}x{frame.height} "
                                           f"{frame.format.name}, expected {width}x{height} 8-bit", "corrupt_video")
