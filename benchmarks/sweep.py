@@ -33,6 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._report import md_table, publish  # noqa: E402
+from workers.camera import Camera  # noqa: E402
 from workers.common.datasets import dataset  # noqa: E402
 from workers.synth import arc_angles, arc_camera, camera_gains, default_arc_rig, default_scene, render, render_views  # noqa: E402
 from workers.sweep.metrics import frame_jump, highfreq_ratio, psnr, ssim  # noqa: E402
@@ -126,6 +127,15 @@ def temporal(scene, renderer: SweepRenderer, size, quick: bool) -> dict:
 
 
 # --- Middlebury rectified sets ------------------------------------------------------------------
+def leave_one_out(files: dict[int, str], sources: list[int], target: int, w: int, h: int) -> tuple[Rig, Camera]:
+    """The rectified rig of views ``sources`` (positions = view numbers) and the held-out camera ``target``."""
+    views = sorted(sources + [target])
+    rig = rectified_rig([files[k] for k in views], w, h, positions=views)
+    inputs = Rig(tuple(c for c, k in zip(rig.cameras, views) if k != target),
+                 tuple(f for f, k in zip(rig.image_files, views) if k != target))
+    return inputs, rig.cameras[views.index(target)]
+
+
 def rectified_quality(folder: Path, prefix: str, target: int, sets: dict[str, list[int]], disp_file: str,
                       disp_div: float, disp_baselines: int, planes: int) -> dict:
     """Hold out view ``target`` and synthesise it from each set of views (PSNR/SSIM per method).
@@ -141,11 +151,7 @@ def rectified_quality(folder: Path, prefix: str, target: int, sets: dict[str, li
     near, far = w / (hi * 1.1), w / (lo * 0.9)
     out = {}
     for set_name, idx in sets.items():
-        views = sorted(idx + [target])
-        rig = rectified_rig([files[k] for k in views], w, h, positions=views)
-        inputs = Rig(tuple(c for c, k in zip(rig.cameras, views) if k != target),
-                     tuple(f for f, k in zip(rig.image_files, views) if k != target))
-        virtual = rig.cameras[views.index(target)]
+        inputs, virtual = leave_one_out(files, idx, target, w, h)
         renderer = SweepRenderer(inputs, load_images(inputs, folder))
         first = renderer.render(virtual, planes=planes, near=near, far=far)
         mask = np.isfinite(first.depth)
@@ -411,11 +417,7 @@ def stereo_case(name: str, planes: int) -> dict:
     gt_dibr_ms = (time.perf_counter() - t0) * 1e3
     out: dict = {}
     for set_name, sources in sets.items():
-        views = sorted(sources + [target])
-        rig = rectified_rig([files[k] for k in views], w, h, positions=views)
-        inputs = Rig(tuple(c for c, k in zip(rig.cameras, views) if k != target),
-                     tuple(f for f, k in zip(rig.image_files, views) if k != target))
-        virtual = rig.cameras[views.index(target)]
+        inputs, virtual = leave_one_out(files, sources, target, w, h)
         renderer = SweepRenderer(inputs, [images[k] for k in sources])
         renders, ms = {}, {}
         for agg in AGGREGATIONS:
