@@ -62,13 +62,19 @@ OPERATION_STATUSES: dict[tuple[str, str], dict[int, str]] = {
     ("post", "/v1/depth/filter"): {415: "an upload is not an image in a format this route reads"},
     ("post", "/v1/depth/synthesize"): {415: "an upload is not an image in a format this route reads"},
     ("post", "/v1/depth/videos"): {415: "input_format video: the depth is no 8-bit H.264/HEVC video this route reads"},
-    ("post", "/v1/photos/orientation"): {415: "the file is not an image, or not a format this route reads"},
-    ("post", "/v1/photos/orient"): {415: "the file is not a JPEG or WebP image"},
+    ("post", "/v1/photos/orientation"): {
+        415: "the file is not an image, or not a format this route reads",
+        503: "metadata_tool_unavailable: the file needs ExifTool (PNG, a RAW preview) and this deployment has none",
+    },
+    ("post", "/v1/photos/orient"): {
+        415: "the file is not a JPEG, WebP, TIFF, PNG, HEIC/HEIF, AVIF or RAW photo",
+        503: "metadata_tool_unavailable: the write needs ExifTool (PNG, a sidecar update) and this deployment has none",
+    },
 }
 
 # Extra media types a success response can have.
 EXTRA_SUCCESS_MEDIA: dict[tuple[str, str], list[str]] = {
-    ("post", "/v1/photos/orient"): ["image/webp"],  # a WebP upload comes back as WebP
+    ("post", "/v1/photos/orient"): ["image/webp", "image/tiff", "image/png"],  # comes back in its own format
 }
 
 

@@ -1,4 +1,5 @@
-"""EXIF orientation of photos (faces first, then text): detect, write the tag, or fix a whole batch as a job."""
+"""Orientation of photos (faces first, then text): detect, write it (the file's tag or an XMP sidecar), or fix
+a whole batch as a job. Every format a photo library holds: JPEG, WebP, TIFF, PNG, HEIC/HEIF, AVIF, RAW."""
 from __future__ import annotations
 
 from typing import Any
@@ -13,7 +14,11 @@ from app.services import Services, Upload, create_job, run_compute, services
 from app.settings import Settings
 from app.uploads import check_size, read_upload
 from workers.orientation import errors
-from workers.orientation.service import DetectorConfig, OrientationReport, analyze, get_detector, orient_jpeg
+from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
+from workers.orientation.service import DetectorConfig, OrientationReport, analyze, get_detector, orient_file
+
+_MEDIA = {"jpeg": "image/jpeg", "webp": "image/webp", "tiff": "image/tiff", "png": "image/png"}
+XMP_MEDIA = "application/rdf+xml"
 
 router = APIRouter(prefix="/v1/photos", tags=["photos"], dependencies=[Depends(require_key)])
 
@@ -44,51 +49,98 @@ def _as_api_error(exc: errors.OrientationInputError, filename: str | None) -> Ap
     return ApiError(status, f"{name}{exc}", exc.code)
 
 
+def _tool_error(exc: Exception, filename: str | None) -> ApiError:
+    """exiftool missing (a deployment without it: 503) or refusing this file (422)."""
+    name = f"{filename}: " if filename else ""
+    if isinstance(exc, ExifToolUnavailable):
+        return ApiError(503, f"{name}{exc}", "metadata_tool_unavailable")
+    return ApiError(422, f"{name}exiftool could not write this file: {exc}", "unwritable_metadata")
+
+
 @router.post("/orientation", response_model=OrientationReport,
-             summary="Detect which way is up in a photo: faces first, then text; never a guess "
-                     "(stored pixels; the EXIF tag is ignored)")
-async def detect_orientation(file: UploadFile = File(..., description="a JPEG, PNG or WebP photo"),
+             summary="Detect which way is up in a photo: faces first, then text; never a guess. The answer says "
+                     "every orientation the file states and what /orient would write where")
+async def detect_orientation(file: UploadFile = File(..., description="a JPEG, WebP, TIFF, PNG, HEIC/HEIF, AVIF "
+                                                                      "or RAW photo"),
+                             sidecar: bool = Form(False, description="plan an XMP sidecar instead of a write into "
+                                                                     "the file"),
+                             force: bool = Form(False, description="plan to replace an existing orientation other "
+                                                                   "than 1"),
                              svc: Services = Depends(services)) -> OrientationReport:
     data = await read_upload(file, svc.settings.max_upload_bytes)
+    mode = "sidecar" if sidecar else "file"
     try:
-        return await run_compute(svc, lambda: analyze(data, _detector(svc), svc.settings.max_image_pixels))
+        return await run_compute(svc, lambda: analyze(data, _detector(svc), svc.settings.max_image_pixels,
+                                                      file.filename, mode=mode, force=force))
     except errors.OrientationInputError as exc:
         raise _as_api_error(exc, file.filename) from None
+    except (ExifToolUnavailable, ExifToolError) as exc:
+        raise _tool_error(exc, file.filename) from None
 
 
 @router.post("/orient", response_class=Response,
-             summary="Return the same JPEG with its EXIF Orientation tag set (image data untouched)",
-             responses={200: {"content": {"image/jpeg": {}},
-                              "description": "the JPEG; headers X-Orientation (the tag the returned file carries, 1-8, "
-                                             "or 'none' when it has none or an invalid one), X-Orientation-Decision "
-                                             "(upright, rotated, rejected), X-Orientation-Cue (faces, text, "
-                                             "none), X-Orientation-Needs-Review (true on a rejection) and "
+             summary="Write a photo's orientation: the same file with its tag set (JPEG, WebP, TIFF: EXIF IFD0; "
+                     "PNG: eXIf), or an XMP sidecar (HEIC/HEIF, AVIF, RAW, or sidecar=true)",
+             responses={200: {"content": {"image/jpeg": {}, XMP_MEDIA: {}},
+                              "description": "the photo with its tag set, image data untouched (image/jpeg, "
+                                             "image/webp, image/tiff, image/png), or the XMP sidecar to store "
+                                             "beside it (application/rdf+xml, Content-Disposition names it: "
+                                             "photo.heic.xmp). Headers: X-Orientation (the orientation the "
+                                             "photo, with the returned sidecar, carries, 1-8, or 'none'), "
+                                             "X-Orientation-Decision (upright, rotated, rejected), "
+                                             "X-Orientation-Cue (faces, text, none), X-Orientation-Needs-Review, "
                                              "X-Orientation-Action (written, kept_existing, already_set, "
-                                             "not_written_rejected)"}})
-async def orient_photo(file: UploadFile = File(..., description="a JPEG (or WebP) photo"),
-                       force: bool = Form(False, description="replace an existing tag other than 1"),
+                                             "not_written_rejected), X-Orientation-Target (exif-ifd0, png-exif, "
+                                             "xmp-sidecar, none) and X-Orientation-Conflicts (how many "
+                                             "disagreements between the file's orientation sources)"},
+                        204: {"description": "the target is a sidecar and there is nothing to write (rejected, "
+                                             "kept, or already shown upright); the same X-Orientation headers"}})
+async def orient_photo(file: UploadFile = File(..., description="a JPEG, WebP, TIFF, PNG, HEIC/HEIF, AVIF or RAW "
+                                                                "photo"),
+                       force: bool = Form(False, description="replace an existing orientation other than 1"),
+                       sidecar: bool = Form(False, description="return an XMP sidecar instead of the tagged photo "
+                                                               "(the photo is then never changed)"),
                        svc: Services = Depends(services)) -> Response:
     data = await read_upload(file, svc.settings.max_upload_bytes)
+    mode = "sidecar" if sidecar else "file"
     try:
-        new_bytes, report = await run_compute(
-            svc, lambda: orient_jpeg(data, _detector(svc), force, svc.settings.max_image_pixels))
+        outcome = await run_compute(svc, lambda: orient_file(data, _detector(svc), force, svc.settings.max_image_pixels,
+                                                             file.filename, mode=mode))
     except errors.OrientationInputError as exc:
         raise _as_api_error(exc, file.filename) from None
-    media = "image/webp" if new_bytes[:4] == b"RIFF" else "image/jpeg"
-    return Response(new_bytes, media_type=media, headers={
-        # The tag the returned file carries ("none" when it has no Orientation tag), and the decision.
-        "X-Orientation": str(report.file_orientation) if report.file_orientation is not None else "none",
+    except (ExifToolUnavailable, ExifToolError) as exc:
+        raise _tool_error(exc, file.filename) from None
+    report = outcome.report
+    carried = report.written_orientation if report.written else report.file_orientation
+    headers = {
+        "X-Orientation": str(carried) if carried is not None else "none",
         "X-Orientation-Decision": report.decision,
         "X-Orientation-Cue": report.cue,
         "X-Orientation-Needs-Review": "true" if report.needs_review else "false",
         "X-Orientation-Action": report.action,
-    })
+        "X-Orientation-Target": report.write.target if report.write else "none",
+        "X-Orientation-Conflicts": str(len(report.conflicts)),
+    }
+    if outcome.sidecar is not None:
+        headers["Content-Disposition"] = f'attachment; filename="{_header_safe(outcome.sidecar_name or "photo.xmp")}"'
+        return Response(outcome.sidecar, media_type=XMP_MEDIA, headers=headers)
+    if report.format not in _MEDIA or mode == "sidecar":
+        return Response(status_code=204, headers=headers)
+    return Response(outcome.photo if outcome.photo is not None else data, media_type=_MEDIA[report.format],
+                    headers=headers)
+
+
+def _header_safe(name: str) -> str:
+    """A file name fit for a quoted Content-Disposition value (ASCII, no quotes or backslashes)."""
+    return "".join(c if 32 <= ord(c) < 127 and c not in '"\\' else "_" for c in name)
 
 
 @router.post("/batches", status_code=202, response_model=JobOut,
              summary="Fix many photos in one upload: a job with a report per photo and the fixed files")
 async def create_batch(files: list[UploadFile] = File(..., description="the photos (repeat the field)"),
                        force: bool = Form(False, description="replace existing tags other than 1"),
+                       sidecar: bool = Form(False, description="XMP sidecars for every photo instead of changed "
+                                                               "photos"),
                        svc: Services = Depends(services)) -> JSONResponse:
     limit = svc.settings.max_batch_files
     if len(files) > limit:
@@ -99,4 +151,4 @@ async def create_batch(files: list[UploadFile] = File(..., description="the phot
         Upload(f"photo-{i:04d}", f.file, {"filename": f.filename or f"photo-{i:04d}", "content_type": f.content_type})
         for i, f in enumerate(files)
     ]
-    return job_accepted(await create_job(svc, "orientation.batch", {"force": force}, uploads))
+    return job_accepted(await create_job(svc, "orientation.batch", {"force": force, "sidecar": sidecar}, uploads))

@@ -94,3 +94,79 @@ class FakeDetector:
     def upright_faces(self, gray: np.ndarray) -> list[Face]:
         self.seen.append(gray.shape)
         return [Face(self.box, r, 0.9, ("eyes",), "yunet", self.decisive) for r in self.rotations]
+
+
+def tiff(pages: list[np.ndarray], endian: str = "<", orientation: int | None = None,
+         orientation_type: int = 3) -> bytes:
+    """An uncompressed greyscale TIFF of one or more pages ((H, W) uint8 each), little- or big-endian,
+    with IFD0's Orientation (274) when given (as ``orientation_type``: 3 SHORT, 4 LONG)."""
+    mark = b"II*\x00" if endian == "<" else b"MM\x00*"
+    out = bytearray(mark + b"\0\0\0\0")
+    ifd_offsets = []
+    for page in pages:
+        height, width = page.shape
+        strip = len(out)
+        out += page.tobytes()
+        if len(out) & 1:
+            out += b"\0"
+        entries = [(256, 4, 1, width), (257, 4, 1, height), (258, 3, 1, 8), (259, 3, 1, 1), (262, 3, 1, 1),
+                   (273, 4, 1, strip), (277, 3, 1, 1), (278, 4, 1, height), (279, 4, 1, width * height)]
+        if orientation is not None and not ifd_offsets:
+            entries.append((274, orientation_type, 1, orientation))
+        entries.sort()
+        ifd_offsets.append(len(out))
+        out += struct.pack(endian + "H", len(entries))
+        for tag, ftype, count, value in entries:
+            packed = struct.pack(endian + "H", value) + b"\0\0" if ftype == 3 else struct.pack(endian + "I", value)
+            out += struct.pack(endian + "HHI", tag, ftype, count) + packed
+        out += b"\0\0\0\0"  # next IFD, patched below
+    struct.pack_into(endian + "I", out, 4, ifd_offsets[0])
+    for here, nxt in zip(ifd_offsets, ifd_offsets[1:]):
+        count = struct.unpack_from(endian + "H", out, here)[0]
+        struct.pack_into(endian + "I", out, here + 2 + 12 * count, nxt)
+    return bytes(out)
+
+
+def gray_pages(n: int = 3, height: int = 30, width: int = 40) -> list[np.ndarray]:
+    """``n`` different asymmetric grey pages."""
+    base = cv2.cvtColor(asymmetric_image(height, width), cv2.COLOR_BGR2GRAY)
+    return [np.ascontiguousarray(np.roll(base, 7 * i, axis=1)) for i in range(n)]
+
+
+def avif(image: np.ndarray | None = None, orientation: int | None = None) -> bytes:
+    """An AVIF (Pillow's encoder) of ``image`` (BGR); an EXIF orientation becomes its irot/imir."""
+    import io
+
+    from PIL import Image
+
+    rgb = cv2.cvtColor(asymmetric_image() if image is None else image, cv2.COLOR_BGR2RGB)
+    pil = Image.fromarray(rgb)
+    buf = io.BytesIO()
+    kwargs = {}
+    if orientation is not None:
+        exif = Image.Exif()
+        exif[274] = orientation
+        kwargs["exif"] = exif
+    pil.save(buf, "AVIF", quality=90, **kwargs)
+    return buf.getvalue()
+
+
+def xmp_packet(value: int | None, form: str = "attribute", pad: int = 200) -> bytes:
+    """An XMP packet (xpacket wrapper, ``pad`` bytes of padding) with tiff:Orientation as an attribute or element."""
+    prop = ""
+    attr = ""
+    if value is not None and form == "attribute":
+        attr = f' tiff:Orientation="{value}"'
+    elif value is not None:
+        prop = f"<tiff:Orientation>{value}</tiff:Orientation>"
+    body = (f'<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
+            f'<rdf:Description rdf:about="" xmlns:tiff="http://ns.adobe.com/tiff/1.0/" '
+            f'xmlns:dc="http://purl.org/dc/elements/1.1/"{attr}>{prop}<dc:format>image/jpeg</dc:format>'
+            f'</rdf:Description></rdf:RDF></x:xmpmeta>')
+    return ('<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?>' + body + " " * pad
+            + '<?xpacket end="w"?>').encode()
+
+
+def insert_xmp(jpeg_bytes: bytes, packet: bytes) -> bytes:
+    """The JPEG with an XMP APP1 segment (after its first APPn segment)."""
+    return insert_app1(jpeg_bytes, b"http://ns.adobe.com/xap/1.0/\x00" + packet)

@@ -86,9 +86,10 @@ def test_face_boxes_are_in_stored_pixels_and_the_detector_sees_stored_pixels():
     assert report.existing_orientation == 8 and report.exif_status == "ok"
 
 
-def test_png_is_analysed_but_has_no_exif():
+def test_png_without_exif_is_analysed_and_would_get_an_exif_chunk():
     report = analyze(encode(asymmetric_image(), ".png"), FakeDetector((180,)))
-    assert report.orientation == 3 and report.exif_status == "not_applicable"
+    assert report.orientation == 3 and report.exif_status == "absent"
+    assert report.write.target == "png-exif" and report.write.value == 3 and report.write.writer == "exiftool"
 
 
 @pytest.mark.parametrize("rotation,value", [(90, 6), (180, 3), (270, 8)])
@@ -143,10 +144,11 @@ def test_unreadable_exif_is_replaced_even_when_upright():
     assert read_exif(after).orientation == 1
 
 
-def test_orient_jpeg_refuses_png_before_detecting():
+def test_orient_jpeg_refuses_heif_before_detecting():
+    """HEIF files are never written: orient_jpeg (the photo back) refuses them; orient_file gives a sidecar."""
     detector = FakeDetector((90,))
-    with pytest.raises(UnsupportedFormat, match="PNG"):
-        orient_jpeg(encode(asymmetric_image(), ".png"), detector)
+    with pytest.raises(UnsupportedFormat, match="HEIF"):
+        orient_jpeg(b"\0\0\0\x18ftypheic" + b"\0" * 40, detector)
     assert detector.seen == []
 
 

@@ -89,12 +89,22 @@ def test_not_an_image(data):
 
 
 @pytest.mark.parametrize("data,name", [
-    (b"GIF89a" + b"\0" * 20, "GIF"), (b"BM" + b"\0" * 40, "BMP"), (b"II*\x00" + b"\0" * 20, "TIFF"),
-    (b"\0\0\0\x18ftypheic" + b"\0" * 20, "HEIC"),
+    (b"GIF89a" + b"\0" * 20, "GIF"), (b"BM" + b"\0" * 40, "BMP"), (b"II+\x00" + b"\0" * 20, "BigTIFF"),
 ])
 def test_recognised_but_unsupported_formats(data, name):
     with pytest.raises(UnsupportedFormat, match=name):
         sniff_format(data)
+
+
+@pytest.mark.parametrize("data,filename,fmt", [
+    (b"II*\x00" + b"\0" * 20, "scan.tif", "tiff"), (b"MM\x00*" + b"\0" * 20, None, "tiff"),
+    (b"II*\x00" + b"\0" * 20, "IMG_0001.NEF", "raw"), (b"II*\x00" + b"\0" * 20, "a.dng", "raw"),
+    (b"II*\x00\x10\x00\x00\x00CR\x02\x00" + b"\0" * 8, "x.bin", "raw"),
+    (b"\0\0\0\x18ftypheic" + b"\0" * 20, None, "heif"), (b"\0\0\0\x1cftypavif\0\0\0\0avifmif1", None, "avif"),
+    (b"\0\0\0\x1cftypmif1\0\0\0\0mif1heic", None, "heif"),
+])
+def test_library_formats_are_recognised(data, filename, fmt):
+    assert sniff_format(data, filename) == fmt
 
 
 @pytest.mark.parametrize("cut", [0.3, 0.6, 0.95])

@@ -9,6 +9,7 @@ existing EXIF tag would show) and, for JPEG, with libjpeg's DCT scaling
 """
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass
 
 import cv2
@@ -61,14 +62,27 @@ def reduction_factor(width: int, height: int, working_size: int = WORKING_SIZE) 
     return 8
 
 
-def decode_gray(data: bytes, max_pixels: int = DEFAULT_MAX_PIXELS, working_size: int = WORKING_SIZE) -> DecodedImage:
-    """Check and decode ``data`` (JPEG, PNG or WebP bytes) to grey with its long side <= ``working_size``.
+def decode_gray(data: bytes, max_pixels: int = DEFAULT_MAX_PIXELS, working_size: int = WORKING_SIZE,
+                filename: str | None = None) -> DecodedImage:
+    """Check and decode ``data`` to grey with its long side <= ``working_size``.
 
-    Raises EmptyFile, NotAnImage, UnsupportedFormat, TooManyPixels (header size above
-    ``max_pixels``, before any decoding), TruncatedImage or CorruptImage.
+    JPEG, PNG, WebP and TIFF: the stored pixels (any Orientation tag ignored). HEIF and AVIF: the
+    *displayed* image (their irot/imir applied, as every HEIF reader does; ``header`` keeps the coded
+    size). RAW: the largest embedded JPEG preview (stored pixels; needs exiftool). Raises EmptyFile,
+    NotAnImage, UnsupportedFormat, TooManyPixels (header size above ``max_pixels``, before any
+    decoding), TruncatedImage or CorruptImage (and ExifToolUnavailable for a RAW file without exiftool).
     """
-    header = parse_header(data)
+    header = parse_header(data, filename)
     check_header(header, max_pixels)
+    if header.format in ("heif", "avif"):
+        return _fit(_decode_heif(data, header), header, working_size)
+    if header.format == "raw":
+        preview = raw_preview(data)
+        decoded = decode_gray(preview, max_pixels, working_size)
+        return DecodedImage(decoded.gray, ImageHeader("raw", decoded.header.width, decoded.header.height),
+                            decoded.scale_x, decoded.scale_y)
+    if header.format == "tiff":
+        data = _tiff_without_orientation(data)
     factor = reduction_factor(header.width, header.height, working_size)
     flags = _REDUCED_FLAGS[factor] | cv2.IMREAD_IGNORE_ORIENTATION
     try:  # the service's one checked decoder (its own header check agrees with the one above)
@@ -77,9 +91,81 @@ def decode_gray(data: bytes, max_pixels: int = DEFAULT_MAX_PIXELS, working_size:
         raise TooManyPixels(str(exc)) from None
     except images.ImageInputError as exc:
         raise CorruptImage(str(exc)) from None
+    if gray.ndim == 3:  # a TIFF OpenCV decodes only in colour, or with alpha
+        gray = cv2.cvtColor(gray, cv2.COLOR_BGRA2GRAY if gray.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+    if gray.dtype != np.uint8:  # 16-bit TIFF
+        gray = (gray.astype(np.float32) * (255.0 / max(1.0, float(np.iinfo(gray.dtype).max)))).astype(np.uint8)
+    return _fit(gray, header, working_size)
+
+
+def _fit(gray: np.ndarray, header: ImageHeader, working_size: int) -> DecodedImage:
+    """``gray`` reduced to a long side <= ``working_size`` (INTER_AREA), with its scale to the decoded size."""
+    full_h, full_w = gray.shape[:2]
     long_side = max(gray.shape)
     if long_side > working_size:  # beyond what DCT scaling (at most 1/8) reaches
         s = working_size / long_side
         size = (max(1, round(gray.shape[1] * s)), max(1, round(gray.shape[0] * s)))
         gray = cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
+    if header.format in ("heif", "avif"):  # boxes are in the displayed image: its size, not the coded one
+        return DecodedImage(gray, header, full_w / gray.shape[1], full_h / gray.shape[0])
     return DecodedImage(gray, header, header.width / gray.shape[1], header.height / gray.shape[0])
+
+
+def _tiff_without_orientation(data: bytes) -> bytes:
+    """The TIFF with IFD0's Orientation set to 1 in memory: OpenCV 4.14 fails on IMREAD_IGNORE_ORIENTATION
+    with an oriented TIFF, and applying the tag is not what detection wants."""
+    from workers.orientation.exif import _set_orientation
+    from workers.orientation.headers import tiff_ifd0, tiff_values
+
+    try:
+        endian, _, tags = tiff_ifd0(data)
+        values = tiff_values(data, endian, tags[274]) if 274 in tags else None
+        return _set_orientation(data, 1) if values and values[0] != 1 else data
+    except ValueError as exc:
+        raise CorruptImage(f"the TIFF's first image directory cannot be read: {exc}") from None
+
+
+def _decode_heif(data: bytes, header: ImageHeader) -> np.ndarray:
+    """The displayed image of a HEIF (pillow-heif: libheif applies irot/imir) or AVIF (Pillow decodes the
+    coded image; its irot/imir are applied here) as (H, W) uint8 grey."""
+    from PIL import Image
+
+    from workers.orientation.bmff import read_heif
+    from workers.orientation.geometry import apply_orientation, heif_orientation
+
+    try:
+        if header.format == "heif":
+            import pillow_heif
+
+            heif = pillow_heif.open_heif(io.BytesIO(data), convert_hdr_to_8bit=True)
+            image = heif.to_pillow()
+        else:
+            image = Image.open(io.BytesIO(data))
+            image.load()
+        gray = np.asarray(image.convert("L"))
+    except (OSError, ValueError, RuntimeError, SyntaxError) as exc:
+        raise CorruptImage(f"the {header.format.upper()} image cannot be decoded ({exc})") from None
+    if header.format == "avif":
+        gray = np.ascontiguousarray(apply_orientation(gray, heif_orientation(read_heif(data).transforms)))
+    return gray
+
+
+def raw_preview(data: bytes) -> bytes:
+    """The largest JPEG preview embedded in a camera RAW file (JpgFromRaw, PreviewImage, OtherImage or
+    ThumbnailImage), read by exiftool. Raises UnsupportedFormat when it has none."""
+    import tempfile
+    from pathlib import Path
+
+    from workers.orientation import exiftool
+
+    with tempfile.TemporaryDirectory(prefix="sweepcast-raw-") as tmp:
+        path = Path(tmp) / "photo.raw"
+        path.write_bytes(data)
+        best = b""
+        for tag in ("JpgFromRaw", "PreviewImage", "OtherImage", "ThumbnailImage"):
+            out = exiftool.run(["-b", f"-{tag}", str(path)]).stdout
+            if out[:3] == b"\xff\xd8\xff" and len(out) > len(best):
+                best = out
+    if not best:
+        raise UnsupportedFormat("the RAW file has no embedded JPEG preview to analyse")
+    return best

@@ -87,6 +87,12 @@ def _tiff_state(tiff: bytes | None) -> ExifInfo:
     return ExifInfo("ok", value if isinstance(value, int) else None)
 
 
+def tiff_block_state(tiff: bytes) -> ExifInfo:
+    """The EXIF state of a bare TIFF structure (an EXIF block without its ``Exif\\0\\0`` header, a PNG
+    eXIf chunk, a HEIF EXIF item)."""
+    return _tiff_state(tiff)
+
+
 def write_orientation(data: bytes, value: int) -> bytes:
     """``data`` (JPEG or WebP bytes) with EXIF Orientation set to ``value`` (1-8), all else kept.
 

@@ -56,3 +56,56 @@ def iou(a: Box, b: Box) -> float:
     inter = iw * ih
     union = a[2] * a[3] + b[2] * b[3] - inter
     return inter / union if union > 0 else 0.0
+
+
+# --- the eight EXIF orientations as pixel operations ------------------------------------------------
+# Orientation v says how the stored pixels are shown: 1 as stored, 2 mirrored left-right, 3 turned 180,
+# 4 mirrored top-bottom, 5 transposed (mirrored about the top-left/bottom-right diagonal), 6 turned 90
+# degrees clockwise, 7 transversed (mirrored about the other diagonal), 8 turned 90 counter-clockwise.
+_ORIENT_OPS = {
+    1: lambda a: a,
+    2: lambda a: a[:, ::-1],
+    3: lambda a: a[::-1, ::-1],
+    4: lambda a: a[::-1, :],
+    5: lambda a: a.swapaxes(0, 1),
+    6: lambda a: np.rot90(a, -1),
+    7: lambda a: a[::-1, ::-1].swapaxes(0, 1),
+    8: lambda a: np.rot90(a, 1),
+}
+_PROBE = np.arange(6).reshape(2, 3)  # every one of the eight operations gives a different array
+
+
+def apply_orientation(image: np.ndarray, value: int) -> np.ndarray:
+    """``image`` (H, W[, C]) as a viewer shows it under EXIF Orientation ``value`` (1-8); a view, not a copy."""
+    try:
+        return _ORIENT_OPS[value](image)
+    except KeyError:
+        raise ValueError(f"EXIF Orientation must be 1-8, not {value}") from None
+
+
+def _orientation_of(result: np.ndarray) -> int:
+    return next(v for v, op in _ORIENT_OPS.items() if op(_PROBE).shape == result.shape
+                and np.array_equal(op(_PROBE), result))
+
+
+def turn_orientation(value: int, rotation: int) -> int:
+    """The Orientation that shows the stored pixels as Orientation ``value`` does, then turned ``rotation``
+    degrees clockwise (0, 90, 180, 270): how a turn found on the *displayed* image becomes a tag for
+    the stored one."""
+    if rotation not in ROTATIONS:
+        raise ValueError(f"rotation must be one of {ROTATIONS}, not {rotation}")
+    return _orientation_of(np.rot90(apply_orientation(_PROBE, value), -rotation // 90))
+
+
+def heif_orientation(transforms: Sequence[tuple[str, int]]) -> int:
+    """The EXIF Orientation equal to HEIF/AVIF display transforms applied in order: ("irot", quarter turns
+    counter-clockwise 0-3) and ("imir", axis: 0 top-bottom flip, 1 left-right flip, as libheif reads it)."""
+    a = _PROBE
+    for kind, arg in transforms:
+        if kind == "irot":
+            a = np.rot90(a, arg % 4)
+        elif kind == "imir":
+            a = a[::-1, :] if arg == 0 else a[:, ::-1]
+        else:
+            raise ValueError(f"unknown HEIF transform {kind!r}")
+    return _orientation_of(a)

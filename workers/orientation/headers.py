@@ -1,6 +1,11 @@
 """Image containers read without decoding: format, pixel size and whether the file is whole.
 
-The pixel size comes from the header (JPEG SOFn, PNG IHDR, WebP VP8/VP8L/VP8X), so a
+Formats: JPEG, PNG, WebP, TIFF (classic, either byte order), HEIF/HEIC and AVIF (ISO base media
+boxes, :mod:`workers.orientation.bmff`) and camera RAW (recognised by magic or, for the TIFF-based
+ones, by the file name's extension; their pixels are read from the embedded preview).
+
+The pixel size comes from the header (JPEG SOFn, PNG IHDR, WebP VP8/VP8L/VP8X, TIFF IFD0
+ImageWidth/ImageLength, HEIF ``ispe``), so a
 decompression bomb is refused before a single pixel is decoded. Completeness is checked on the
 container structure: a JPEG's marker segments and entropy-coded scans up to EOI (bytes after
 EOI, such as a motion-photo trailer, are allowed), a PNG's chunks up to IEND, a WebP's RIFF size.
@@ -12,19 +17,19 @@ import struct
 from dataclasses import dataclass, field
 from typing import Literal
 
+from workers.orientation.bmff import BoxError, brand_kind, read_heif
 from workers.orientation.errors import (CorruptImage, EmptyFile, NotAnImage, TooManyPixels, TruncatedImage,
                                         UnsupportedFormat)
 
-ImageFormat = Literal["jpeg", "png", "webp"]
+ImageFormat = Literal["jpeg", "png", "webp", "tiff", "heif", "avif", "raw"]
 Damage = Literal["truncated", "corrupt"]
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # Recognised image formats that this engine does not decode: (magic at offset, name).
 _OTHER_FORMATS: tuple[tuple[int, bytes, str], ...] = (
     (0, b"GIF87a", "GIF"), (0, b"GIF89a", "GIF"), (0, b"BM", "BMP"),
-    (0, b"II*\x00", "TIFF"), (0, b"MM\x00*", "TIFF"), (0, b"8BPS", "Photoshop PSD"),
-    (4, b"ftypheic", "HEIC"), (4, b"ftypheix", "HEIC"), (4, b"ftypmif1", "HEIF"), (4, b"ftypmsf1", "HEIF"),
-    (4, b"ftypavif", "AVIF"), (0, b"\x00\x00\x00\x0cjP  ", "JPEG 2000"), (0, b"\xff\x0a", "JPEG XL"),
+    (0, b"II+\x00", "BigTIFF"), (0, b"MM\x00+", "BigTIFF"), (0, b"8BPS", "Photoshop PSD"),
+    (0, b"\x00\x00\x00\x0cjP  ", "JPEG 2000"), (0, b"\xff\x0a", "JPEG XL"),
     (0, b"\x00\x00\x00\x0cJXL ", "JPEG XL"), (0, b"qoif", "QOI"), (0, b"\x00\x00\x01\x00", "ICO"),
 )
 # SOFn markers carry the frame size; C4 (DHT), C8 (JPG) and CC (DAC) share the range but do not.
@@ -66,8 +71,20 @@ class ImageHeader:
         return None if self.width is None or self.height is None else self.width * self.height
 
 
-def sniff_format(data: bytes) -> ImageFormat:
-    """The container format from the magic bytes; raises EmptyFile, UnsupportedFormat, NotAnImage."""
+SUPPORTED_TEXT = "JPEG, PNG, WebP, TIFF, HEIC/HEIF, AVIF or a camera RAW file"
+RAW_EXTENSIONS = frozenset({
+    ".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".orf", ".rw2", ".raf", ".pef",
+    ".srw", ".rwl", ".3fr", ".fff", ".iiq", ".erf", ".mef", ".mos", ".mrw", ".kdc", ".dcr", ".x3f"})
+"""File name extensions of camera RAW formats: never written, given an XMP sidecar instead."""
+# RAW formats with their own magic (the TIFF-based ones are told apart by extension).
+_RAW_MAGIC: tuple[tuple[int, bytes], ...] = (
+    (8, b"CR\x02\x00"), (4, b"ftypcrx "), (0, b"IIRO"), (0, b"IIRS"), (0, b"MMOR"), (0, b"IIU\x00"),
+    (0, b"FUJIFILMCCD-RAW"), (0, b"FOVb"), (0, b"\x00MRM"))
+
+
+def sniff_format(data: bytes, filename: str | None = None) -> ImageFormat:
+    """The container format from the magic bytes (and, for TIFF-based RAW, the extension of
+    ``filename``); raises EmptyFile, UnsupportedFormat, NotAnImage."""
     if len(data) == 0:
         raise EmptyFile("the file is empty (0 bytes)")
     if data[:3] == b"\xff\xd8\xff":
@@ -76,24 +93,41 @@ def sniff_format(data: bytes) -> ImageFormat:
         return "png"
     if data[:4] == b"RIFF" and data[8:12] == b"WEBP":
         return "webp"
+    if any(data[o:o + len(m)] == m for o, m in _RAW_MAGIC):
+        return "raw"
+    if data[:4] in (b"II*\x00", b"MM\x00*"):
+        ext = ("." + filename.rsplit(".", 1)[-1].lower()) if filename and "." in filename else ""
+        return "raw" if ext in RAW_EXTENSIONS else "tiff"
+    kind = brand_kind(data)
+    if kind is not None:
+        return kind  # type: ignore[return-value]
     for offset, magic, name in _OTHER_FORMATS:
         if data[offset:offset + len(magic)] == magic:
-            raise UnsupportedFormat(f"{name} images are not supported; send a JPEG, PNG or WebP")
-    raise NotAnImage(f"not an image: the first bytes ({data[:8].hex(' ')}) match no JPEG, PNG or WebP header")
+            raise UnsupportedFormat(f"{name} images are not supported; send {SUPPORTED_TEXT}")
+    raise NotAnImage(f"not an image: the first bytes ({data[:8].hex(' ')}) match no {SUPPORTED_TEXT} header")
 
 
-def parse_header(data: bytes) -> ImageHeader:
-    """Format, pixel size and completeness of ``data`` (never decodes pixels)."""
-    fmt = sniff_format(data)
+def parse_header(data: bytes, filename: str | None = None) -> ImageHeader:
+    """Format, pixel size and completeness of ``data`` (never decodes pixels). A RAW file's size is
+    unknown here (None: its embedded preview's is checked when it is read)."""
+    fmt = sniff_format(data, filename)
     if fmt == "jpeg":
         return _parse_jpeg(data)
     if fmt == "png":
         return _parse_png(data)
-    return _parse_webp(data)
+    if fmt == "webp":
+        return _parse_webp(data)
+    if fmt == "tiff":
+        return _parse_tiff(data)
+    if fmt in ("heif", "avif"):
+        return _parse_heif(data, fmt)
+    return ImageHeader("raw", None, None)
 
 
 def check_header(header: ImageHeader, max_pixels: int) -> None:
     """Raise the error a person should see for this header: size first (a bomb), then damage."""
+    if header.pixels is None and header.format == "raw" and header.damage is None:
+        return  # the embedded preview is checked when it is read
     if header.pixels is None:
         cls = TruncatedImage if header.damage == "truncated" else CorruptImage
         raise cls(f"the {header.format.upper()} file ends or breaks before its image size: {header.detail}")
@@ -200,3 +234,80 @@ def _parse_webp(data: bytes) -> ImageHeader:
     if riff_size + 8 > n:
         return ImageHeader("webp", width, height, "truncated", f"RIFF says {riff_size + 8} bytes, file has {n}")
     return ImageHeader("webp", width, height)
+
+
+_TIFF_TYPES = {1: 1, 2: 1, 3: 2, 4: 4, 5: 8, 6: 1, 7: 1, 8: 2, 9: 4, 10: 8, 11: 4, 12: 8, 13: 4}
+"""TIFF field type -> bytes per value."""
+
+
+def tiff_ifd0(data: bytes) -> tuple[str, int, dict[int, tuple[int, int, bytes]]]:
+    """(endian, IFD0 offset, {tag: (field type, count, the entry's 4 value bytes)}) of a classic TIFF;
+    ValueError when IFD0 lies outside the data."""
+    if data[:4] not in (b"II*\x00", b"MM\x00*"):
+        raise ValueError("not a classic TIFF header")
+    endian = "<" if data[:2] == b"II" else ">"
+    offset = struct.unpack_from(endian + "I", data, 4)[0]
+    if offset < 8 or offset + 2 > len(data):
+        raise ValueError(f"IFD0 offset {offset} lies outside the {len(data)}-byte file")
+    count = struct.unpack_from(endian + "H", data, offset)[0]
+    if offset + 2 + 12 * count + 4 > len(data):
+        raise ValueError(f"IFD0 with {count} entries runs past the end of the file")
+    tags = {}
+    for i in range(count):
+        pos = offset + 2 + 12 * i
+        tag, ftype, n = struct.unpack_from(endian + "HHI", data, pos)
+        tags[tag] = (ftype, n, data[pos + 8:pos + 12])
+    return endian, offset, tags
+
+
+def tiff_values(data: bytes, endian: str, entry: tuple[int, int, bytes]) -> list[int] | None:
+    """The unsigned integer values (BYTE, SHORT, LONG) of an IFD entry, inline or at its offset; None for
+    other types or values outside the data."""
+    ftype, count, raw = entry
+    code = {1: "B", 3: "H", 4: "I", 7: "B", 16: "Q"}.get(ftype)
+    if code is None:
+        return None
+    size = _TIFF_TYPES.get(ftype, 8) * count
+    if size <= 4:
+        return list(struct.unpack_from(endian + code * count, raw))
+    offset = struct.unpack_from(endian + "I", raw)[0]
+    if offset + size > len(data) or count > 1_000_000:
+        return None
+    return list(struct.unpack_from(endian + code * count, data, offset))
+
+
+def _parse_tiff(data: bytes) -> ImageHeader:
+    n = len(data)
+    if n < 16:
+        return ImageHeader("tiff", None, None, "truncated", f"only {n} bytes")
+    try:
+        endian, _, tags = tiff_ifd0(data)
+    except ValueError as exc:
+        return ImageHeader("tiff", None, None, "truncated", str(exc))
+    width = tiff_values(data, endian, tags[256]) if 256 in tags else None
+    height = tiff_values(data, endian, tags[257]) if 257 in tags else None
+    if not width or not height:
+        return ImageHeader("tiff", None, None, "corrupt", "IFD0 has no ImageWidth/ImageLength")
+    w, h = width[0], height[0]
+    for offsets_tag, counts_tag in ((273, 279), (324, 325)):  # strips, tiles
+        if offsets_tag in tags and counts_tag in tags:
+            offsets = tiff_values(data, endian, tags[offsets_tag])
+            counts = tiff_values(data, endian, tags[counts_tag])
+            if offsets is None or counts is None:
+                return ImageHeader("tiff", w, h, "truncated", "the strip/tile tables lie outside the file")
+            end = max((a + b for a, b in zip(offsets, counts)), default=0)
+            if end > n:
+                return ImageHeader("tiff", w, h, "truncated", f"the image data runs to byte {end}, the file has {n}")
+    return ImageHeader("tiff", w, h)
+
+
+def _parse_heif(data: bytes, fmt: ImageFormat) -> ImageHeader:
+    try:
+        info = read_heif(data)
+    except BoxError as exc:
+        return ImageHeader(fmt, None, None, "truncated" if exc.truncated else "corrupt", str(exc))
+    except (struct.error, IndexError) as exc:
+        return ImageHeader(fmt, None, None, "corrupt", f"damaged boxes ({exc})")
+    if info.width is None:
+        return ImageHeader(fmt, None, None, "corrupt", "the primary image has no size (ispe) property")
+    return ImageHeader(fmt, info.width, info.height)

@@ -6,7 +6,9 @@ original file name. Results:
 - ``report.json``: a list with one entry per photo, in input order:
   ``{"index", "input", "filename", "report": OrientationReport | null, "error": {"code", "message"} | null,
   "fixed_file": "fixed/0003-IMG_1234.jpg" | null, "note": str | null}``;
-- ``fixed/<index>-<sanitised name>.jpg`` (or ``.webp``): each photo whose tag was written.
+- ``fixed/<index>-<sanitised name>.<ext>``: each photo (JPEG, WebP, TIFF, PNG) whose tag was written;
+- ``fixed/<index>-<sanitised name>.<ext>.xmp``: the XMP sidecar of each HEIF, AVIF or RAW photo (or of
+  every photo with ``sidecar``) whose orientation was written.
 
 A photo that cannot be read is reported in its entry and the others are still processed; the job
 reports one progress event per photo. The YuNet model and the pixel limit come from the worker's
@@ -28,9 +30,9 @@ from workers.common.jobctx import JobContext, JobInputError
 from workers.common.models import YUNET, env_models_dir, installed_in
 from workers.orientation.detect import DetectorConfig, Method, OrientationDetector, get_detector
 from workers.orientation.errors import OrientationInputError
-from workers.orientation.exif import TAGGABLE_FORMATS
+from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
 from workers.orientation.headers import sniff_format
-from workers.orientation.service import analyze, orient_jpeg
+from workers.orientation.service import analyze, orient_file
 from workers.orientation.text import text_settings_from_env
 
 YUNET_MODEL_ENV = "SWEEPCAST_ORIENTATION_YUNET_MODEL"
@@ -43,6 +45,7 @@ class OrientationBatchParams(BaseModel):
 
     force: bool = Field(False, description="replace an existing Orientation tag other than 1")
     write: bool = Field(True, description="write the fixed files (false: reports only)")
+    sidecar: bool = Field(False, description="write XMP sidecars for every photo instead of changing any photo")
     method: Method = Field("auto", description="detector: auto (combined when YuNet is configured, else paper), "
                                                "paper, yunet or combined")
 
@@ -91,23 +94,31 @@ def _process(ctx: JobContext, index: int, name: str, filename: str, detector: Or
                              "report": None, "error": None, "fixed_file": None, "note": None}
     try:
         data = ctx.read_input(name)
-        fmt = sniff_format(data)
-        if params.write and fmt in TAGGABLE_FORMATS:
-            new_bytes, report = orient_jpeg(data, detector, params.force, max_pixels)
-            if report.written:
-                entry["fixed_file"] = f"fixed/{index:04d}-{sanitize_filename(filename)}.{_EXT[fmt]}"
-                ctx.write_result(entry["fixed_file"], new_bytes)
+        fmt = sniff_format(data, filename)
+        mode = "sidecar" if params.sidecar else "file"
+        if params.write:
+            outcome = orient_file(data, detector, params.force, max_pixels, filename, mode=mode)
+            report = outcome.report
+            stem = f"fixed/{index:04d}-{sanitize_filename(filename)}.{_EXT[fmt]}"
+            if outcome.photo is not None:
+                entry["fixed_file"] = stem
+                ctx.write_result(stem, outcome.photo)
+            elif outcome.sidecar is not None:
+                entry["fixed_file"] = stem + ".xmp"
+                ctx.write_result(entry["fixed_file"], outcome.sidecar)
+            if report.write is not None and report.write.note:
+                entry["note"] = report.write.note
         else:
-            report = analyze(data, detector, max_pixels)
-            if params.write:
-                entry["note"] = f"{fmt.upper()} cannot carry an EXIF Orientation tag; nothing written"
+            report = analyze(data, detector, max_pixels, filename, mode=mode)
         entry["report"] = report.model_dump(mode="json")
     except OrientationInputError as exc:
         entry["error"] = {"code": exc.code, "message": str(exc)}
+    except (ExifToolUnavailable, ExifToolError) as exc:
+        entry["error"] = {"code": "metadata_tool", "message": str(exc)}
     return entry
 
 
-_EXT = {"jpeg": "jpg", "webp": "webp"}
+_EXT = {"jpeg": "jpg", "webp": "webp", "tiff": "tif", "png": "png", "heif": "heic", "avif": "avif", "raw": "raw"}
 
 
 def _outcome(entry: dict[str, Any]) -> str:

@@ -1,10 +1,16 @@
-"""What the web layer, the batch job and the CLI call: analyse a photo, tag a JPEG.
+"""What the web layer, the batch job and the CLI call: analyse a photo, write its orientation.
 
     detector = get_detector(DetectorConfig(yunet_model=...))   # once per process
-    report = analyze(data, detector, max_pixels)                 # any JPEG/PNG/WebP
-    new_bytes, report = orient_jpeg(data, detector, force, max_pixels)
+    report = analyze(data, detector, max_pixels, filename="a.heic")   # any format; says what it would write where
+    outcome = orient_file(data, detector, force, max_pixels, filename="a.tif", mode="file")  # bytes to store
+    new_bytes, report = orient_jpeg(data, detector, force, max_pixels)   # the photo itself, for in-file targets
 
-Both raise :class:`workers.orientation.errors.OrientationInputError` subclasses for bad input.
+They raise :class:`workers.orientation.errors.OrientationInputError` subclasses for bad input, and
+:class:`workers.orientation.exiftool.ExifToolUnavailable` when a write needs exiftool and it is missing.
+
+Orientation values are relative to the *stored* pixels (EXIF meaning; HEIF/AVIF: the coded image),
+while ``rotation_degrees`` is the clockwise turn found on the image the detector saw: the stored
+pixels, except for HEIF/AVIF, whose displayed image (irot/imir applied) is analysed.
 """
 from __future__ import annotations
 
@@ -14,15 +20,19 @@ from typing import Literal
 from pydantic import BaseModel, Field
 
 from workers.orientation.decode import DEFAULT_MAX_PIXELS, decode_gray
+from workers.orientation.errors import UnsupportedFormat
 from workers.orientation.detect import (Decision, DecisionKind, DetectorConfig, Engine, Face, OrientationDetector,
                                         decide, get_detector)
-from workers.orientation.exif import (TAGGABLE_FORMATS, ExifInfo, orientation_for_rotation, read_exif,
-                                      require_taggable, write_orientation)
-from workers.orientation.headers import sniff_format
+from workers.orientation.exif import ExifInfo, orientation_for_rotation
+from workers.orientation.geometry import turn_orientation
+from workers.orientation.headers import ImageFormat, parse_header, sniff_format
+from workers.orientation.metadata import (Inspection, OrientationSource, WriteMode, WritePlan, inspect, sidecar_for,
+                                          target_for, write_in_file)
+from workers.orientation.xmp import SidecarNaming, sidecar_name
 from workers.orientation.text import TEXT_MAX_SIDE, RejectReason, TextResult
 
-__all__ = ["DetectorConfig", "FaceReport", "OrientationReport", "TextReport", "analyze", "engine_status", "get_detector",
-           "orient_jpeg", "plan_tag"]
+__all__ = ["DetectorConfig", "FaceReport", "OrientOutcome", "OrientationReport", "TextReport", "analyze",
+           "engine_status", "get_detector", "orient_file", "orient_jpeg", "plan_tag", "plan_write"]
 
 VALID_ORIENTATIONS = range(1, 9)
 """The eight values EXIF defines for Orientation (274)."""
@@ -34,7 +44,8 @@ TextStatus = Literal["ran", "not_needed", "unavailable", "off"]
 class FaceReport(BaseModel):
     """One face accepted as upright in one of the four views."""
 
-    box: list[int] = Field(description="[x, y, width, height] in pixels of the stored image (EXIF ignored)")
+    box: list[int] = Field(description="[x, y, width, height] in pixels of the stored image (EXIF ignored; "
+                                       "HEIF/AVIF: of the displayed image)")
     rotation_degrees: int = Field(description="clockwise rotation that makes this face upright")
     score: float | None = Field(description="YuNet confidence; null for a Haar face")
     parts: list[str] = Field(description="facial parts found in an upright arrangement")
@@ -71,15 +82,22 @@ class OrientationReport(BaseModel):
 
     decision: DecisionKind = Field(description="upright, rotated, or rejected (no cue, conflicting cues, or a cue "
                                                "not clear enough: see reject_reason)")
-    orientation: int | None = Field(description="EXIF Orientation for the detected rotation (1, 6, 3, 8); "
-                                                "null when rejected")
-    rotation_degrees: int | None = Field(description="clockwise rotation that shows the stored pixels upright; "
+    orientation: int | None = Field(description="EXIF Orientation (1-8) that shows the stored pixels upright: 1, 6, "
+                                                "3, 8 for the detected rotation; for HEIF/AVIF the turn found on "
+                                                "the displayed image combined with the file's irot/imir (it may "
+                                                "then be a mirrored value); null when rejected")
+    rotation_degrees: int | None = Field(description="clockwise rotation that shows the analysed image upright "
+                                                     "(the stored pixels; HEIF/AVIF: the displayed image); "
                                                      "null when rejected")
     accepted_rotations: list[int] = Field(description="the views (clockwise degrees) in which a face was accepted")
     faces: list[FaceReport]
     cue: Cue = Field(description="what decided: faces (the paper's detector), text (Tesseract OSD, when the faces "
                                  "decided nothing), or none (rejected)")
     needs_review: bool = Field(description="true when rejected: a person has to say which way is up")
+    confidence: float | None = Field(None, description="how clear the deciding cue was: the best YuNet score of the "
+                                                       "decisive faces (0-1; null for the paper's Haar faces), or the "
+                                                       "mean Tesseract OSD confidence of the agreeing text views; "
+                                                       "null when rejected")
     reject_reason: RejectReason | None = Field(description="why it was rejected: no_cue (no face and no readable "
                                                            "text), conflicting_rotations (faces or text views, or "
                                                            "faces and text, disagree), low_confidence (a cue "
@@ -88,12 +106,20 @@ class OrientationReport(BaseModel):
     text: TextReport = Field(description="the text cue")
     width: int = Field(description="stored image width (px)")
     height: int = Field(description="stored image height (px)")
-    format: Literal["jpeg", "png", "webp"]
+    format: ImageFormat = Field(description="jpeg, png, webp, tiff, heif, avif or raw (RAW: its embedded preview "
+                                            "is analysed; width/height are the preview's)")
     detector: str = Field(description="detector configuration used: paper, yunet or combined")
-    existing_orientation: int | None = Field(description="Orientation tag found in the file, if any and valid (1-8)")
+    existing_orientation: int | None = Field(description="the orientation viewers apply now, if valid (1-8): the "
+                                                         "EXIF tag (else the embedded XMP); HEIF/AVIF: irot/imir "
+                                                         "(1 when none)")
     exif_status: Literal["absent", "ok", "unreadable", "not_applicable"]
     exif_detail: str | None = Field(None, description="why the EXIF block is unreadable, or that its Orientation "
                                                       "value is invalid (not 1-8) and treated as absent")
+    sources: list[OrientationSource] = Field(default_factory=list, description="every place in or beside the file "
+                                                                            "that states an orientation")
+    conflicts: list[str] = Field(default_factory=list, description="disagreements between those places (EXIF "
+                                                                   "IFD0, embedded XMP, sidecars, irot/imir)")
+    write: WritePlan | None = Field(None, description="what writing does (or, in an analysis, would do) and where")
     action: Action = Field(description="what happened to the file")
     written: bool = Field(description="whether a new Orientation tag was written")
     written_orientation: int | None = Field(description="the value written, when written")
@@ -103,47 +129,74 @@ class OrientationReport(BaseModel):
     elapsed_ms: float = Field(description="decode + detection (+ writing) time")
 
 
-def analyze(image_bytes: bytes, detector: OrientationDetector,
-            max_pixels: int = DEFAULT_MAX_PIXELS) -> OrientationReport:
-    """Detect the upright rotation of a JPEG, PNG or WebP photo (its stored pixels)."""
+def analyze(image_bytes: bytes, detector: OrientationDetector, max_pixels: int = DEFAULT_MAX_PIXELS,
+            filename: str | None = None, sidecars: dict[str, bytes] | None = None, mode: WriteMode = "file",
+            naming: SidecarNaming = "ext", force: bool = False) -> OrientationReport:
+    """Detect the upright rotation of a photo in any supported format and say what writing it would do.
+
+    ``filename`` tells TIFF-based RAW files from TIFFs and names the sidecar; ``sidecars`` (name -> bytes)
+    are the XMP files beside the photo; ``mode``, ``naming`` and ``force`` shape the plan in ``write``."""
     start = time.perf_counter()
-    decoded = decode_gray(image_bytes, max_pixels)
+    decoded = decode_gray(image_bytes, max_pixels, filename=filename)
     faces = detector.upright_faces(decoded.gray)
     decision = decide(faces)
     rotation, cue, reason = decision.rotation, ("faces" if decision.rotation is not None else "none"), decision.reason
     text = _text_report_unused(detector)
     engine = detector if isinstance(detector, Engine) else None
     if rotation is None and engine is not None and engine.text is not None:
-        result = engine.text.upright(decode_gray(image_bytes, max_pixels, TEXT_MAX_SIDE).gray)
+        result = engine.text.upright(decode_gray(image_bytes, max_pixels, TEXT_MAX_SIDE, filename=filename).gray)
         text = _text_report(result)
         rotation, cue, reason = combine_cues(decision, result)
     header = decoded.header
-    exif = read_exif(image_bytes, header) if header.format in TAGGABLE_FORMATS else None
+    insp = inspect(image_bytes, header, sidecars)
+    exif = insp.exif
     tag, detail = _valid_tag(exif)
-    return OrientationReport(
+    shown = insp.shown()
+    if rotation is None:
+        orientation = None
+    elif header.format in ("heif", "avif"):
+        orientation = turn_orientation(shown or 1, rotation)
+    else:
+        orientation = orientation_for_rotation(rotation)
+    report = OrientationReport(
         decision=_kind(rotation),
-        orientation=None if rotation is None else orientation_for_rotation(rotation),
+        orientation=orientation,
         rotation_degrees=rotation,
         accepted_rotations=list(decision.accepted_rotations),
         faces=[_face_report(f, decoded.scale_x, decoded.scale_y) for f in _ordered(faces)],
         cue=cue,
         needs_review=rotation is None,
+        confidence=_confidence(cue, rotation, faces, text),
         reject_reason=reason,
         text=text,
         width=header.width,
         height=header.height,
         format=header.format,
         detector=detector.name,
-        existing_orientation=tag,
+        existing_orientation=shown if shown in VALID_ORIENTATIONS else tag,
         exif_status=exif.status if exif is not None else "not_applicable",
         exif_detail=detail,
+        sources=insp.sources,
+        conflicts=insp.conflicts(),
         action="analysis_only",
         written=False,
         written_orientation=None,
-        file_orientation=tag,
+        file_orientation=shown if header.format in ("heif", "avif") else tag,
         message=_describe(decision, faces, text, rotation, cue, reason),
         elapsed_ms=_ms_since(start),
     )
+    _, _, plan = plan_write(report, insp, mode, force, naming, filename)
+    return report.model_copy(update={"write": plan})
+
+
+def _confidence(cue: Cue, rotation: int | None, faces: list[Face], text: TextReport) -> float | None:
+    if rotation is None:
+        return None
+    if cue == "faces":
+        scores = [f.score for f in faces if f.rotation == rotation and f.decisive and f.score is not None]
+        return round(max(scores), 4) if scores else None
+    votes = [v.confidence for v in text.views if v.ran and v.rotation_degrees == rotation]
+    return round(sum(votes) / len(votes), 2) if votes else None
 
 
 def _kind(rotation: int | None) -> DecisionKind:
@@ -216,36 +269,77 @@ def _valid_tag(exif: ExifInfo | None) -> tuple[int | None, str | None]:
     return exif.orientation, detail
 
 
-def orient_jpeg(jpeg_bytes: bytes, detector: OrientationDetector, force: bool = False,
-                max_pixels: int = DEFAULT_MAX_PIXELS) -> tuple[bytes, OrientationReport]:
-    """Detect the upright rotation of a JPEG (or WebP) and set its EXIF Orientation losslessly.
+class OrientOutcome(BaseModel):
+    """What :func:`orient_file` produced: the report, and the bytes to store where the plan says."""
 
-    Returns the new file bytes (the input itself when nothing is written) and the report. A tag
-    other than 1 already in the file is kept unless ``force``; a rejected photo is never tagged;
-    an unreadable EXIF block is replaced by a valid one (``exif_status`` says so). PNG and other
-    formats raise UnsupportedFormat before any decoding.
-    """
+    report: OrientationReport
+    photo: bytes | None = Field(None, description="the photo's new bytes (in-file targets), when written")
+    sidecar: bytes | None = Field(None, description="the sidecar's bytes (xmp-sidecar target), when written")
+    sidecar_name: str | None = None
+    updated_sidecars: dict[str, bytes] = Field(default_factory=dict, description="existing sidecars brought into "
+                                                                                 "agreement (name -> new bytes)")
+
+
+def orient_file(data: bytes, detector: OrientationDetector, force: bool = False,
+                max_pixels: int = DEFAULT_MAX_PIXELS, filename: str | None = None,
+                sidecars: dict[str, bytes] | None = None, mode: WriteMode = "file",
+                naming: SidecarNaming = "ext") -> OrientOutcome:
+    """Detect the upright rotation and produce what writing it takes: the photo's new bytes (JPEG, WebP,
+    TIFF, PNG in ``file`` mode), or a sidecar's (HEIF, AVIF, RAW, or ``sidecar`` mode), plus the existing
+    ``sidecars`` that must change to agree. Nothing is written to disk here; a rejected photo, a kept
+    tag and an orientation already shown produce no bytes."""
     start = time.perf_counter()
-    require_taggable(sniff_format(jpeg_bytes))
-    report = analyze(jpeg_bytes, detector, max_pixels)
-    action, value = plan_tag(report, force)
-    out = write_orientation(jpeg_bytes, value) if action == "written" else jpeg_bytes
-    report = report.model_copy(update={
+    report = analyze(data, detector, max_pixels, filename, sidecars, mode, naming, force)
+    insp = inspect(data, parse_header(data, filename), sidecars)
+    action, value, plan = plan_write(report, insp, mode, force, naming, filename)
+    outcome = OrientOutcome(report=report)
+    if action == "written" and value is not None:
+        if plan.target in ("exif-ifd0", "png-exif"):
+            outcome.photo, _ = write_in_file(data, insp, value)
+        else:
+            name = plan.where or sidecar_name(filename or "photo", naming)
+            outcome.sidecar, _ = sidecar_for(value, (sidecars or {}).get(name))
+            outcome.sidecar_name = name
+        for name, text in (sidecars or {}).items():
+            state = insp.sidecars.get(name)
+            if name != outcome.sidecar_name and state is not None and state.value is not None and state.value != value:
+                outcome.updated_sidecars[name], _ = sidecar_for(value, text)
+    file_value = value if action == "written" and plan.target != "xmp-sidecar" else report.file_orientation
+    outcome.report = report.model_copy(update={
         "action": action,
         "written": action == "written",
         "written_orientation": value if action == "written" else None,
-        "file_orientation": value if action == "written" else report.file_orientation,
+        "file_orientation": file_value,
+        "write": plan,
         "message": f"{report.message}; {_ACTION_TEXT[action]}",
         "elapsed_ms": _ms_since(start),
     })
-    return out, report
+    return outcome
+
+
+def orient_jpeg(jpeg_bytes: bytes, detector: OrientationDetector, force: bool = False,
+                max_pixels: int = DEFAULT_MAX_PIXELS, filename: str | None = None) -> tuple[bytes, OrientationReport]:
+    """Detect the upright rotation of a JPEG, WebP, TIFF or PNG and set its EXIF Orientation in the file.
+
+    Returns the new file bytes (the input itself when nothing is written) and the report. A tag
+    other than 1 already in the file is kept unless ``force``; a rejected photo is never tagged;
+    an unreadable EXIF block is replaced by a valid one (``exif_status`` says so). Formats that
+    take no tag (HEIF, AVIF, RAW) raise UnsupportedFormat before any decoding: use
+    :func:`orient_file` for their sidecar.
+    """
+    fmt = sniff_format(jpeg_bytes, filename)
+    if target_for(fmt, "file")[0] == "xmp-sidecar":
+        raise UnsupportedFormat(f"{fmt.upper()} files are never written; ask for an XMP sidecar instead")
+    outcome = orient_file(jpeg_bytes, detector, force, max_pixels, filename)
+    return (outcome.photo if outcome.photo is not None else jpeg_bytes), outcome.report
 
 
 _ACTION_TEXT: dict[str, str] = {
-    "written": "Orientation tag written",
-    "kept_existing": "the file's own Orientation tag was kept (use force to replace it)",
+    "written": "orientation written",
+    "kept_existing": "the file's own orientation was kept (use force to replace it)",
     "already_set": "the file already shows it upright; nothing written",
     "not_written_rejected": "nothing written",
+    "analysis_only": "nothing written",
 }
 
 
@@ -258,10 +352,53 @@ def plan_tag(report: OrientationReport, force: bool) -> tuple[Action, int | None
     if existing is not None and existing != 1 and not force:
         return "kept_existing", None
     # What viewers show now: the tag, 1 without EXIF, unknown for an invalid or unreadable tag.
-    shown = existing if existing is not None else (1 if report.exif_status == "absent" else None)
+    shown = existing if existing is not None else (1 if report.exif_status in ("absent", "not_applicable") else None)
     if shown == report.orientation:
         return "already_set", None
     return "written", report.orientation
+
+
+def plan_write(report: OrientationReport, insp: Inspection, mode: WriteMode = "file", force: bool = False,
+               naming: SidecarNaming = "ext", filename: str | None = None) -> tuple[Action, int | None, WritePlan]:
+    """(action, value, plan) for writing ``report``'s orientation into or beside the photo ``insp`` describes.
+
+    The existing orientation is what the target holds (a sidecar's value, when the target is a sidecar that
+    exists), else what viewers show now. Rejected: nothing. An existing valid value other than 1 and other
+    than the detected one is kept unless ``force``. Nothing is written when the target already holds the
+    detected value and every place that would be written (embedded XMP, existing sidecars) agrees."""
+    target, note = target_for(insp.format, mode, insp)
+    where = sidecar_name(filename or "photo", naming) if target == "xmp-sidecar" else "the photo"
+    writer = "exiftool" if target == "png-exif" else "sweepcast"
+    value = report.orientation
+
+    def plan(action: Action, why: str | None = None, also: list[str] | None = None) -> tuple[Action, int | None, WritePlan]:
+        written = action == "written"
+        return action, value if written else None, WritePlan(
+            target=target if written else "none", where=where if written else None,
+            value=value if written else None, also=also or [], writer=writer if written else None,
+            note="; ".join(n for n in (note, why) if n) or None)
+
+    if value is None:
+        return plan("not_written_rejected", "rejected: nothing is written")
+    in_sidecar = insp.sidecars.get(where) if target == "xmp-sidecar" else None
+    if in_sidecar is not None and in_sidecar.value in VALID_ORIENTATIONS:
+        existing = in_sidecar.value
+    else:
+        existing = insp.shown()
+    if existing in VALID_ORIENTATIONS and existing not in (1, value) and not force:
+        return plan("kept_existing", f"the existing orientation {existing} is kept (force replaces it)")
+    also = []
+    if target != "xmp-sidecar" and insp.xmp_value is not None and insp.xmp_value != value:
+        also.append("XMP packet in the file")
+    also += [name for name, st in insp.sidecars.items()
+             if name != where and st.value is not None and st.value != value]
+    target_ok = existing == value and (target != "xmp-sidecar" or in_sidecar is None or in_sidecar.value == value)
+    if target != "xmp-sidecar":
+        target_ok = target_ok and insp.value_of("exif-ifd0", applied_only=True) in (value, None) and not (
+            value != 1 and insp.value_of("exif-ifd0", applied_only=True) is None)
+    if target_ok and not also:
+        return plan("already_set", "the photo already shows it upright")
+    return plan("written", None, also)
 
 
 def _ordered(faces: list[Face]) -> list[Face]:
