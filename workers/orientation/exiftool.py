@@ -13,10 +13,13 @@ operations that need it raise :class:`ExifToolUnavailable` with a message saying
 """
 from __future__ import annotations
 
+import ctypes
 import os
 import shutil
+import signal
 import subprocess
 import threading
+import weakref
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -60,13 +63,43 @@ def exiftool_version(binary: str | None = None) -> str | None:
     return out.stdout.strip() or None if out.returncode == 0 else None
 
 
+try:  # looked up here: the child may only call it (no loading, no allocating, after fork)
+    _PRCTL = ctypes.CDLL(None, use_errno=True).prctl
+except (OSError, AttributeError):  # not Linux
+    _PRCTL = None
+_PR_SET_PDEATHSIG = 1
+
+
+def _end_with_creator() -> None:
+    """In the child, before exec: SIGTERM it when the thread that started it ends (Linux). exiftool with
+    ``-stay_open`` does not stop at the end of its input, so a process whose user was killed would
+    otherwise run on forever."""
+    if _PRCTL is not None:
+        _PRCTL(_PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    """Ask exiftool to stop, then kill it (its owner is gone or the interpreter is exiting)."""
+    if proc.poll() is not None:
+        return
+    try:
+        proc.stdin.write(b"-stay_open\nFalse\n")
+        proc.stdin.flush()
+        proc.wait(timeout=5)
+    except (OSError, subprocess.SubprocessError, ValueError):
+        proc.kill()
+        proc.wait()
+
+
 class _Process:
-    """One ``-stay_open`` exiftool process (not thread-safe: one per thread)."""
+    """One ``-stay_open`` exiftool process (not thread-safe: one per thread). It is stopped when this object
+    goes (its thread ended), at interpreter exit, and by the kernel when the starting thread dies."""
 
     def __init__(self, path: str) -> None:
         self._proc = subprocess.Popen([path, "-stay_open", "True", "-@", "-"], stdin=subprocess.PIPE,
-                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=_end_with_creator)
         self._seq = 0
+        self.close = weakref.finalize(self, _stop, self._proc)
 
     def alive(self) -> bool:
         return self._proc.poll() is None
@@ -99,14 +132,6 @@ class _Process:
             buf += chunk
         body = bytes(buf.rstrip())
         return body[:-len(marker)]
-
-    def close(self) -> None:
-        try:
-            self._proc.stdin.write(b"-stay_open\nFalse\n")
-            self._proc.stdin.flush()
-            self._proc.wait(timeout=5)
-        except (OSError, subprocess.SubprocessError, ValueError):
-            self._proc.kill()
 
 
 _local = threading.local()
