@@ -16,9 +16,11 @@ router = APIRouter(prefix="/v1/reconstructions", tags=["reconstructions"], depen
 
 @router.post("", status_code=202, response_model=JobOut,
              summary="Reconstruct cameras and a point cloud from a drone video or a zip of ordered images",
-             description="A job with progress per stage (decode, track k/N, initialise, BA iteration i). Results: "
-                         "points.ply, cameras.txt, images.txt, points3D.txt (COLMAP text), trajectory.json, "
-                         "report.json, preview.png.")
+             description="A job with progress per stage (decode, track k/N, initialise, BA iteration i; with "
+                         "dense: dense depth k/M, dense fusion). Results: points.ply, cameras.txt, images.txt, "
+                         "points3D.txt (COLMAP text), trajectory.json, report.json, preview.png; with "
+                         '`"dense": true` also dense.ply (points, normals, colours) and depth.zip (16-bit depth '
+                         "PNGs, scales in report.json under dense); the dense_* parameters tune that pass.")
 async def create_reconstruction(
     media: UploadFile = File(..., description="a video (MP4, MOV, MKV, AVI, ...) or a zip of ordered images"),
     calibration: UploadFile | None = File(None, description="calibration file (OpenCV YAML/XML/JSON, COLMAP "

@@ -1,7 +1,8 @@
 """``sweepcast reconstruct VIDEO --intrinsics fx,fy,cx,cy [--out DIR]``: drone video -> point cloud.
 
 VIDEO may also be a zip or a folder of ordered still images. The results are the job's:
-points.ply, cameras.txt, images.txt, points3D.txt, trajectory.json, report.json, preview.png.
+points.ply, cameras.txt, images.txt, points3D.txt, trajectory.json, report.json, preview.png, and with
+``--dense`` dense.ply and depth.zip.
 """
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from pydantic import ValidationError
 from workers.common.cliutil import ProgressBar, format_table
 from workers.common.jobctx import JobInputError
 
-from .job import resolve_intrinsics, write_outputs
+from .job import dense_pass, resolve_intrinsics, write_outputs
 from .params import ReconstructionParams
 from .reconstruction import reconstruct
 
@@ -32,6 +33,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--matcher", choices=["fast_lk", "sift"], default="fast_lk")
     p.add_argument("--max-frames", type=int, help="most frames to track")
     p.add_argument("--max-width", type=int, help="downscale wider frames to this width")
+    p.add_argument("--dense", action="store_true", default=None,
+                   help="also a dense reconstruction: dense.ply (points, normals, colours) and depth.zip")
+    p.add_argument("--dense-planes", type=int, help="depth planes per depth map (default 128)")
+    p.add_argument("--dense-scale", type=float,
+                   help="depth-map resolution as a fraction of the working one (default 1)")
     p.add_argument("--params", help="further ReconstructionParams as JSON, e.g. '{\"outlier_threshold\": 3}'")
     p.set_defaults(func=_reconstruct)
 
@@ -52,7 +58,7 @@ def _params(args: argparse.Namespace) -> ReconstructionParams:
         fields.update(zip(("fx", "fy", "cx", "cy"), values))
     if args.distortion:
         fields["distortion"] = _numbers(args.distortion, "--distortion")
-    for name in ("frame_step", "matcher", "max_frames", "max_width"):
+    for name in ("frame_step", "matcher", "max_frames", "max_width", "dense", "dense_planes", "dense_scale"):
         if getattr(args, name) is not None:
             fields[name] = getattr(args, name)
     return ReconstructionParams.model_validate(fields)
@@ -65,7 +71,13 @@ def _reconstruct(args: argparse.Namespace) -> int:
         calib = args.calibration.read_bytes() if args.calibration else None
         intrinsics = resolve_intrinsics(params, calib)
         bar = ProgressBar("reconstruct")
-        model = reconstruct(args.video, intrinsics, params, bar)
+        share = 0.6 if params.dense else 1.0
+        model = reconstruct(args.video, intrinsics, params, lambda f, s: bar(f * share, s))
+        dense = None
+        if params.dense:
+            dense = dense_pass(model, args.video, intrinsics, params, lambda f, s: bar(0.6 + 0.37 * f, s))
+            model.report["dense"] = dense.report
+            model.report["timings_s"]["dense"] = dense.report["seconds_total"]
     except (JobInputError, ValidationError, json.JSONDecodeError, OSError) as exc:
         if bar is not None:
             bar.close()
@@ -74,7 +86,8 @@ def _reconstruct(args: argparse.Namespace) -> int:
         return 2
     bar(0.98, "export")
     args.out.mkdir(parents=True, exist_ok=True)
-    model.report["timings_s"].update(write_outputs(model, lambda name, data: (args.out / name).write_bytes(data)))
+    model.report["timings_s"].update(
+        write_outputs(model, lambda name, data: (args.out / name).write_bytes(data), dense))
     (args.out / "report.json").write_text(json.dumps(model.report, indent=1))
     bar(1.0, "done")
     bar.close()
@@ -89,8 +102,13 @@ def _reconstruct(args: argparse.Namespace) -> int:
         ["points", rep["points"]],
         ["reprojection error before BA (mean, px)", _fmt(err["before_ba"]["mean"])],
         ["reprojection error after BA (mean, px)", _fmt(err["after_ba"]["mean"])],
-        ["total time (s)", f"{sum(rep['timings_s'].values()):.1f}"],
     ]
+    if dense is not None:
+        d = dense.report
+        rows += [["dense depth maps", d["depth_maps"]], ["dense points", d["points"]],
+                 ["dense: consistent in >= 3 views", _fmt(d["views_per_point"]["at_least_3"])],
+                 ["dense: seconds per depth map (median)", _fmt(d["seconds_per_depth_map"]["median"])]]
+    rows.append(["total time (s)", f"{sum(rep['timings_s'].values()):.1f}"])
     print(format_table(["", "value"], rows))
     print(f"results in {args.out}/")
     return 0

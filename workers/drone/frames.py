@@ -258,3 +258,36 @@ def select_frames(
         since = 0
         stats.selected += 1
         yield Frame(index, time, name, image, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))
+
+
+def load_frames(media: str | Path, intrinsics: Intrinsics, indices: set[int] | list[int], max_width: int,
+                name: str | None = None) -> dict[int, np.ndarray]:
+    """The frames ``indices`` (decoded-frame numbers, as :class:`Frame.index`) of ``media`` again, exactly as
+    :func:`select_frames` gave them: (H, W, 3) uint8 BGR at the working resolution (at most ``max_width``
+    wide), undistorted with ``intrinsics.dist``. Decodes the media once more and keeps only those frames."""
+    want = set(int(i) for i in indices)
+    out: dict[int, np.ndarray] = {}
+    if not want:
+        return out
+    source = open_media(media, name)
+    native = None
+    size = None
+    maps = None
+    for index, _, _, bgr in source:
+        if native is None:
+            h, w = bgr.shape[:2]
+            native = (w, h)
+            scale = min(1.0, max_width / w)
+            size = (int(round(w * scale)), int(round(h * scale)))
+            if intrinsics.dist is not None:
+                k = intrinsics.scaled(scale).K
+                maps = cv2.initUndistortRectifyMap(k, intrinsics.dist, None, k, size, cv2.CV_16SC2)
+        if index not in want or bgr.shape[1::-1] != native:
+            continue
+        image = bgr if size == native else cv2.resize(bgr, size, interpolation=cv2.INTER_AREA)
+        if maps is not None:
+            image = cv2.remap(image, maps[0], maps[1], cv2.INTER_LINEAR)
+        out[index] = image
+        if len(out) == len(want):
+            break
+    return out

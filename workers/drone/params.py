@@ -5,11 +5,23 @@ the media (intrinsics against the image size, enough frames) happen in the job.
 """
 from __future__ import annotations
 
+import os
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 _DIST_LENGTHS = (4, 5, 8, 12, 14)
+
+MAX_DENSE_VOLUME_ENV = "SWEEPCAST_MAX_DENSE_VOLUME"
+DEFAULT_MAX_DENSE_VOLUME = 300_000_000
+
+
+def max_dense_volume_from_env() -> int:
+    """Most cost-volume cells (depth-map pixels x planes) a dense pass with ``dense_aggregation: "sgm"``
+    may hold at once: ``$SWEEPCAST_MAX_DENSE_VOLUME``, else 300,000,000 (about 1.2 GB of float32, twice
+    that while aggregating). The streamed ``window`` aggregation holds no volume and has no such limit."""
+    value = os.environ.get(MAX_DENSE_VOLUME_ENV, "").strip()
+    return int(value) if value.isdigit() and int(value) > 0 else DEFAULT_MAX_DENSE_VOLUME
 
 
 class ReconstructionParams(BaseModel):
@@ -65,6 +77,32 @@ class ReconstructionParams(BaseModel):
     ba_loss_scale: float = Field(2.0, gt=0, le=100, description="Robust loss scale, pixels.")
     ba_iterations: int = Field(50, ge=1, le=1000, description="LM iterations of each global adjustment.")
 
+    dense: bool = Field(False, description="After the sparse model, a dense pass: a depth map per reference frame "
+                                           "(plane sweep, ZNCC), fused into dense.ply (points, normals, colours).")
+    dense_frames: int = Field(60, ge=1, le=400,
+                              description="Dense: most reference frames (spread evenly over the registered ones).")
+    dense_neighbours: int = Field(8, ge=1, le=16, description="Dense: neighbours swept against each reference.")
+    dense_best_k: int = Field(4, ge=1, le=16,
+                              description="Dense: a plane's cost is the mean over the best k neighbours (occlusions).")
+    dense_planes: int = Field(128, ge=4, le=512, description="Dense: depth planes, uniform in inverse depth.")
+    dense_window: int = Field(5, ge=1, le=15, description="Dense: ZNCC window side, pixels (odd).")
+    dense_scale: float = Field(1.0, gt=0, le=1,
+                               description="Dense: depth-map resolution as a fraction of the working resolution.")
+    dense_min_texture: float = Field(1.5, ge=0, le=64,
+                                     description="Dense: grey-level standard deviation a window needs to be matched.")
+    dense_max_cost: float = Field(0.5, gt=0, le=2, description="Dense: largest accepted cost (mean 1 - ZNCC).")
+    dense_aggregation: Literal["window", "sgm"] = Field(
+        "window", description="Dense: 'window' (ZNCC window alone, streamed) or 'sgm' (+ semi-global smoothing; "
+                              "slower, holds a cost volume).")
+    dense_coarse_to_fine: bool = Field(True, description="Dense: sweep all planes at half resolution, then only "
+                                                         "those near the coarse depth at full resolution.")
+    dense_min_views: int = Field(3, ge=1, le=17,
+                                 description="Dense: frames (the reference included) that must agree on a point.")
+    dense_max_reprojection: float = Field(1.0, gt=0, le=20,
+                                          description="Dense: consistency, reprojection error limit, pixels.")
+    dense_max_depth_error: float = Field(0.01, gt=0, le=0.5,
+                                         description="Dense: consistency, relative depth difference limit.")
+
     @model_validator(mode="after")
     def _check(self) -> "ReconstructionParams":
         given = [v is not None for v in (self.fx, self.fy, self.cx, self.cy)]
@@ -73,4 +111,12 @@ class ReconstructionParams(BaseModel):
         if self.distortion is not None and len(self.distortion) not in _DIST_LENGTHS:
             raise ValueError(f"distortion needs {', '.join(map(str, _DIST_LENGTHS))} coefficients, "
                              f"got {len(self.distortion)}")
+        if self.dense_window % 2 == 0:
+            raise ValueError(f"dense_window must be odd, got {self.dense_window}")
+        if self.dense_best_k > self.dense_neighbours:
+            raise ValueError(f"dense_best_k ({self.dense_best_k}) cannot exceed dense_neighbours "
+                             f"({self.dense_neighbours})")
+        if self.dense_min_views > self.dense_neighbours + 1:
+            raise ValueError(f"dense_min_views ({self.dense_min_views}) cannot exceed dense_neighbours + 1 "
+                             f"({self.dense_neighbours + 1})")
         return self

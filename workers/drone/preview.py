@@ -27,18 +27,20 @@ def _frame(points: np.ndarray, centres: np.ndarray) -> np.ndarray:
 
 
 def render_preview(points: np.ndarray, colors_bgr: np.ndarray, R: np.ndarray, t: np.ndarray,
-                   panel: int = 420) -> np.ndarray:
+                   panel: int = 420, label: str = "", frame: np.ndarray | None = None) -> np.ndarray:
     """Three panels side by side, (panel, 3 * panel, 3) uint8 BGR.
 
     points (N, 3), colors_bgr (N, 3) uint8, and the registered cameras' world-to-camera
-    R (M, 3, 3), t (M, 3) in sequence order.
+    R (M, 3, 3), t (M, 3) in sequence order. ``label`` prefixes the panels' titles; ``frame``
+    (3, 3) the viewing frame (rows e1, e2, up) to use instead of the cloud's own (two previews of
+    one scene then look from the same directions).
     """
     points = np.asarray(points, np.float64).reshape(-1, 3)
     centres = -np.einsum("nji,nj->ni", R, t) if len(R) else np.zeros((0, 3))
     out = np.full((panel, 3 * panel, 3), _BG, np.uint8)
     if len(points) + len(centres) < 2:
         return out
-    F = _frame(points, centres)
+    F = _frame(points, centres) if frame is None else np.asarray(frame, np.float64)
     P, C = points @ F.T, centres @ F.T
     A = C.copy()
     if len(R):
@@ -76,14 +78,26 @@ def render_preview(points: np.ndarray, colors_bgr: np.ndarray, R: np.ndarray, t:
             for a, b in zip(cu, au):
                 cv2.line(img, tuple(int(x) for x in a), tuple(int(x) for x in b), (0, 200, 255), 1, cv2.LINE_AA)
                 cv2.circle(img, tuple(int(x) for x in a), 2, _CAM, -1, cv2.LINE_AA)
-        cv2.putText(img, title, (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (230, 230, 230), 1, cv2.LINE_AA)
+        cv2.putText(img, f"{label} {title}".strip(), (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (230, 230, 230), 1,
+                    cv2.LINE_AA)
         cv2.rectangle(img, (0, 0), (panel - 1, panel - 1), (90, 90, 90), 1)
     return out
 
 
-def preview_png(points: np.ndarray, colors_bgr: np.ndarray, R: np.ndarray, t: np.ndarray, panel: int = 420) -> bytes:
-    """:func:`render_preview` encoded as PNG."""
-    ok, buf = cv2.imencode(".png", render_preview(points, colors_bgr, R, t, panel))
+def preview_png(points: np.ndarray, colors_bgr: np.ndarray, R: np.ndarray, t: np.ndarray, panel: int = 420,
+                dense: tuple[np.ndarray, np.ndarray] | None = None, max_dense_points: int = 400_000) -> bytes:
+    """:func:`render_preview` encoded as PNG; with ``dense`` (points (N, 3), colours (N, 3) uint8 BGR) a
+    second row shows the dense cloud from the same directions (at most ``max_dense_points``, evenly
+    subsampled), so the image is (2 * panel, 3 * panel)."""
+    img = render_preview(points, colors_bgr, R, t, panel, "sparse" if dense is not None else "")
+    if dense is not None:
+        dp, dc = dense
+        step = max(1, -(-len(dp) // max_dense_points))
+        centres = -np.einsum("nji,nj->ni", R, t) if len(R) else np.zeros((0, 3))
+        frame = _frame(np.asarray(points, np.float64).reshape(-1, 3), centres) if len(points) + len(centres) >= 3 \
+            else None
+        img = np.vstack([img, render_preview(dp[::step], dc[::step], R, t, panel, "dense", frame)])
+    ok, buf = cv2.imencode(".png", img)
     if not ok:
         raise RuntimeError("PNG encoding failed")
     return buf.tobytes()

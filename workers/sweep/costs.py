@@ -234,3 +234,71 @@ def _winner(cost, best, value, offset):  # pragma: no cover - compiled
             if 0 < bj < P - 1:
                 d = parabola_vertex(float(cost[y, x, bj - 1]), float(bc), float(cost[y, x, bj + 1]))
             offset[y, x] = d
+
+
+# ---------------------------------------------------------------------------------------------
+# Costs that survive exposure changes (the dense reconstruction's; the renderer keeps the variance)
+# ---------------------------------------------------------------------------------------------
+def window_count(h: int, w: int, radius: int) -> np.ndarray:
+    """(h, w) float32: how many pixels of the (2 radius + 1)^2 window around each pixel lie inside
+    the h x w image (the window's size away from the border, fewer near it)."""
+    ones = np.ones((h, w, 1), np.float32)
+    return box_sum(ones, radius)[:, :, 0]
+
+
+def zncc_cost(ref: np.ndarray, warped: np.ndarray, radius: int, min_std: float,
+              valid: np.ndarray | None = None) -> np.ndarray:
+    """Zero-mean normalised cross-correlation cost over a window: (h, w, P) float32, ``1 - ZNCC`` in [0, 2].
+
+    ref (h, w) float32: the reference image (grey levels). warped (h, w, P) float32: another view's
+    image resampled into the reference for each of P planes (finite everywhere: a caller clamps
+    positions to the image so a window near its border still has samples). radius: half the window
+    side in pixels; the window is cut at the image border (:func:`window_count` pixels). min_std: grey
+    levels; where the reference window's standard deviation is below it the pixel has no cost (``inf``
+    on every plane: a textureless window says nothing), where the warped window's is below it ZNCC
+    counts as 0 (cost 1). valid (h, w, P) bool or None: False where the centre sample does not exist
+    (outside that view's image or behind it): cost 1 there, a view that cannot vote neither helps nor
+    hurts a plane.
+
+    ZNCC is unchanged by any gain and offset of either image, so exposure and white-balance changes
+    between frames do not move the minimum (the colour variance of the renderer is not)."""
+    ref = np.ascontiguousarray(ref, np.float32)
+    warped = np.ascontiguousarray(warped, np.float32)
+    h, w, P = warped.shape
+    if ref.shape != (h, w):
+        raise ValueError(f"ref {ref.shape} and warped {warped.shape} differ in size")
+    n = window_count(h, w, radius)[:, :, None].astype(np.float64)
+    a = ref[:, :, None].astype(np.float64)
+    sa = box_sum(ref[:, :, None], radius).astype(np.float64)
+    saa = box_sum((a * a).astype(np.float32), radius).astype(np.float64)
+    sb = box_sum(warped, radius).astype(np.float64)
+    sbb = box_sum(warped * warped, radius).astype(np.float64)
+    sab = box_sum(warped * ref[:, :, None], radius).astype(np.float64)
+    va = saa - sa * sa / n
+    vb = sbb - sb * sb / n
+    floor = n * float(min_std) ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = (sab - sa * sb / n) / np.sqrt(va * vb)
+    z = np.where(vb >= floor, np.clip(z, -1.0, 1.0), 0.0)
+    cost = (1.0 - z).astype(np.float32)
+    if valid is not None:
+        cost[~np.asarray(valid, bool)] = 1.0
+    cost[np.broadcast_to(va < floor, cost.shape)] = np.inf
+    return cost
+
+
+def best_k_mean(view_costs: np.ndarray, k: int) -> np.ndarray:
+    """Combine per-view costs (V, h, w, P) float32 into (h, w, P) float32: the mean of the ``k``
+    smallest of the V views' costs at each pixel and plane (all V when k >= V).
+
+    Taking the best k of the neighbours, not all, lets a plane win where some neighbours do not see
+    the surface (occlusion, leaving the image): their costs are simply not among the best. ``inf``
+    (no cost at that pixel) stays ``inf``."""
+    view_costs = np.asarray(view_costs, np.float32)
+    V = view_costs.shape[0]
+    if k < 1:
+        raise ValueError(f"k must be >= 1, got {k}")
+    k = min(k, V)
+    part = np.partition(view_costs, k - 1, axis=0)[:k] if k < V else view_costs
+    return part.mean(axis=0, dtype=np.float64).astype(np.float32)
+
