@@ -12,6 +12,9 @@ from workers.common.models import YUNET, installed
 from workers.common.safezip import ZipLimits
 
 MiB = 1 << 20
+DEFAULT_VIEWER_SIZE = "400x300"
+"""The browser viewer's starting size (benchmarks/RESULTS.md, streaming_viewer_size: one viewer of the demo
+rig at 20 fps or more on 2 cores)."""
 
 
 class Settings(BaseSettings):
@@ -62,6 +65,10 @@ class Settings(BaseSettings):
     session_idle_seconds: float = Field(60.0, gt=0, description="A virtual-view session nobody has used for this long ends.")
     session_resources: dict[str, float] = Field(default_factory=dict, description="Custom Ray resources every session actor requires (JSON).")
     demo_rig: bool = Field(True, description="At start-up, build the procedural demo rig and its recording when there is none.")
+    viewer_size: str = Field(DEFAULT_VIEWER_SIZE, pattern=r"^[1-9][0-9]{1,4}x[1-9][0-9]{1,4}$",
+                             description="The view size (WIDTHxHEIGHT px) the browser viewer starts at (sent in the "
+                                         "view socket's hello): the largest at which one viewer of the demo rig gets "
+                                         ">= 20 fps on 2 cores (benchmarks/streaming.py --viewer-sizes).")
 
     @field_validator("api_keys", mode="before")
     @classmethod
@@ -69,6 +76,12 @@ class Settings(BaseSettings):
         if isinstance(value, str):
             return [k.strip() for k in value.split(",") if k.strip()]
         return value
+
+    @property
+    def viewer_size_px(self) -> tuple[int, int]:
+        """:attr:`viewer_size` as (width, height) px."""
+        w, h = self.viewer_size.split("x")
+        return int(w), int(h)
 
     @property
     def zip_limits(self) -> ZipLimits:

@@ -1,12 +1,22 @@
-"""Sweep renderer benchmark: quality of the four colour weightings and speed of the fused kernel.
+"""Sweep renderer benchmark: quality of the colour weightings and speed of the fused kernel.
 
     python benchmarks/sweep.py [--quick] [--skip-speed] [--skip-data] [--skip-stereo] [--speed-only] [--stereo-only]
+                               [--weighting-only]
 
 Quality: (1) procedural scene, virtual views between rig cameras against the analytic truth
 (PSNR/SSIM inside the object); (2) a virtual camera moving along the arc across camera switches:
 the largest frame-to-frame colour jump and a blur measure (Laplacian energy over the truth's);
 (3) Middlebury Teddy im4 and Art view3 held out and synthesised from other views; (4)
 templeSparseRing leave-one-out from ring neighbours, scored inside the object.
+Weightings compared (one sweep per view, every method colours the same depth): global, nearest, ulr2/3/4,
+kojima (the paper's two-camera rule) and kojima_k (k-camera boundary blending, issue 22; eq. (6k) in
+workers/sweep/weighting.py). Beside PSNR/SSIM each view gets a seam measure (:func:`seam_measure`): on the
+curves where the method's blended camera set changes, the colour step between neighbouring pixels beyond the
+truth's step there. (5) A two-dimensional rig (the dome: 14 cameras on a triangular lattice, 10 deg apart, where
+three one-camera regions meet at every triangle's centre): quality and seams at views around triple points, a
+moving camera through triple points (frame-to-frame jumps beyond the truth's, pops, blur) and a picture of one
+triple junction (benchmarks/results/sweep_triple_junction.png). --weighting-only runs just (1)-(5) (all the
+weighting figures, issue 22) and keeps the speed and SGBM sections of the previous run.
 Speed: 10 cameras at 640x480, virtual 640x480 / 320x240, 32/64/128 planes, the fused kernel
 against the straightforward per-plane cv2.warpPerspective + numpy variance, in the same run
 (interleaved repeats, medians; wall and CPU time); the live configuration (320x240, 48 planes)
@@ -14,7 +24,9 @@ with and without visual hull and coarse-to-fine, with the depth error against th
 each, and the per-frame extras of a stream (set_frames, JPEG encode).
 Depth choice (issue 20): the sweep with each aggregation (none / window / sgm) against OpenCV SGBM +
 DIBR (workers/depth/dibr.py) on Middlebury Teddy and Art, two views and all views, PSNR and bad-1px on
-the same pixels, and the live configuration's speed with each aggregation (--stereo-only runs just this).
+the same pixels, each also with visibility-aware colouring (RenderOptions.visibility) and split into the pixels
+both source views see and the half-occluded ones, and the live configuration's speed with each aggregation, with
+and without visibility (--stereo-only runs just this).
 Writes benchmarks/results/sweep.json and the "sweep" section of benchmarks/RESULTS.md.
 """
 from __future__ import annotations
@@ -38,10 +50,13 @@ from workers.common.datasets import dataset  # noqa: E402
 from workers.synth import arc_angles, arc_camera, camera_gains, default_arc_rig, default_scene, render, render_views  # noqa: E402
 from workers.sweep.metrics import frame_jump, highfreq_ratio, psnr, ssim  # noqa: E402
 from workers.sweep.reference import reference_sweep  # noqa: E402
-from workers.sweep.renderer import RenderOptions, RenderResult, SweepRenderer  # noqa: E402
+from workers.sweep.renderer import RenderOptions, RenderResult, SweepRenderer, pixel_inverse_depth  # noqa: E402
 from workers.sweep.rig import Rig, depth_range_from_box  # noqa: E402
 from workers.sweep.rig_io import load_images, load_middlebury_par, rectified_rig  # noqa: E402
+from workers.sweep.overlays import regions_image  # noqa: E402
 from workers.sweep.silhouette import silhouette_from_background  # noqa: E402
+from workers.sweep.virtual import sphere_camera, sphere_lattice  # noqa: E402
+from workers.synth.rigs import DEFAULT_TARGET  # noqa: E402
 
 # name -> weighting options; d_bnd of kojima is set per scene from the camera spacing
 METHODS = {
@@ -51,15 +66,132 @@ METHODS = {
     "ulr3": {"method": "ulr", "k": 3},
     "ulr4": {"method": "ulr", "k": 4},
     "kojima": {"method": "kojima"},
+    "kojima_k": {"method": "kojima_k"},
 }
 NEAR, FAR = 1.6, 3.6  # the procedural object lies within these depths from the arc
 GAIN_SPREAD = 0.06
 
 
 def all_methods(renderer: SweepRenderer, first: RenderResult) -> dict[str, RenderResult]:
-    """``first`` re-coloured by every method (one sweep, six colourings); kojima's D_bnd is the
-    renderer's default, derived from the camera spacing."""
+    """``first`` re-coloured by every method (one sweep, seven colourings); kojima's and kojima_k's D_bnd is
+    the renderer's default, derived from the camera spacing (the same for both)."""
     return {name: renderer.reshade(first, **opts) for name, opts in METHODS.items()}
+
+
+def all_weights(renderer: SweepRenderer, first: RenderResult) -> dict[str, np.ndarray]:
+    """Per method, every camera's weight at every pixel of ``first`` ((h, w, N) float32; see
+    :meth:`SweepRenderer.blend_weights`)."""
+    return {name: renderer.blend_weights(first, **opts) for name, opts in METHODS.items()}
+
+
+# --- seams: colour steps where the blended camera set changes (issue 22) -------------------------
+SEAM_TAU = 2.0
+"""Colour levels (RMS over B, G, R) of a seam step above which a pair of pixels counts as a seam, and of a
+frame-to-frame change beyond the truth's above which a pixel counts as a pop."""
+SAME_SURFACE = 0.02
+"""Neighbouring pixels whose rendered depths differ by more than this fraction are across a depth edge: the
+camera set changes there for visibility, and the colour step is the edge's; such pairs are not scored."""
+
+
+def camera_samples(renderer: SweepRenderer, res: RenderResult) -> tuple[np.ndarray, np.ndarray]:
+    """What every camera sees at every pixel's surface point: colours (h, w, N, 3) float32 (bilinear, BGR
+    levels) and valid (h, w, N) bool (the point in front of the camera and inside its image; False where the
+    pixel has no surface). The cameras' images as the renderer holds them (undistorted)."""
+    cam = res.camera
+    h, w = res.depth.shape
+    Q, B, _ = renderer._geometry(cam)
+    s_pix = pixel_inverse_depth(1.0 / res.planes, res.plane_index, res.plane_offset)
+    x, y = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    n = len(renderer.cameras)
+    colours = np.zeros((h, w, n, 3), np.float32)
+    valid = np.zeros((h, w, n), bool)
+    for i, c in enumerate(renderer.cameras):
+        a = [Q[i, r, 0] * x + Q[i, r, 1] * y + Q[i, r, 2] + s_pix * B[i, r] for r in range(3)]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u, v = a[0] / a[2], a[1] / a[2]
+        ok = (s_pix > 0) & (a[2] > 0) & (u >= 0) & (u <= c.width - 1) & (v >= 0) & (v <= c.height - 1)
+        img = np.ascontiguousarray(renderer._imgs[i, :c.height, :c.width])
+        colours[:, :, i] = cv2.remap(img, np.where(ok, u, -1).astype(np.float32), np.where(ok, v, -1).astype(np.float32),
+                                     cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        valid[:, :, i] = ok
+    return colours, valid
+
+
+def seam_measure(weights: np.ndarray, colours: np.ndarray, valid: np.ndarray, depth: np.ndarray,
+                 mask: np.ndarray) -> tuple[dict, np.ndarray]:
+    """The seam measure of one rendered view.
+
+    A seam is a colour discontinuity along a curve where the set of cameras a method blends changes (a camera's
+    weight becomes 0 or non-zero). The curves: 4-neighbour pixel pairs p, q both in ``mask``, on one surface
+    (rendered depths within SAME_SURFACE of each other), whose sets of cameras with non-zero weight differ.
+    The seam step of such a pair is the colour step the change of weights makes with the scene held fixed::
+
+        s(p, q) = RMS over B, G, R of  sum_i (w_i(q) - w_i(p)) C_i(p, q)      (colour levels)
+
+    with C_i(p, q) camera i's colour at the two pixels' surface points (their mean; the one it sees when it
+    sees only one). The texture's own step between p and q does not enter, so s is 0 for weights that do not
+    change across the curve, and it is large where weights jump between cameras that see different colours
+    (exposure, view-dependent shading, parallax from depth errors): kojima where a third camera overtakes the
+    secondary, nearest where the primary changes, any method where a camera enters with a non-zero weight.
+    Returns ({"curve_pairs": pairs on the curves, "seams": pairs with s > SEAM_TAU, "seams_per_10k_px": that
+    per 10^4 pixels of ``mask``, "mean_step": mean s over the curve pairs, "max_step": the largest s (levels),
+    "seam_strength": mean s over the seams (0 without any),
+    "step_per_px": sum of s over the curve pairs / pixels of ``mask``}, map (h, w) float32: per pixel the
+    largest s of the pairs it starts (right and down neighbour), NaN off the curves).
+
+    weights (h, w, N) float32 (:meth:`SweepRenderer.blend_weights`); colours (h, w, N, 3), valid (h, w, N) from
+    :func:`camera_samples`; depth (h, w) float32 metres (inf: none); mask (h, w) bool: the pixels scored.
+    """
+    blended = weights > 0
+    emap = np.full(mask.shape, np.nan, np.float32)
+    steps = []
+    for axis in (1, 0):
+        n = mask.shape[axis] - 1
+        a = (slice(None), slice(0, n)) if axis == 1 else (slice(0, n), slice(None))
+        b = (slice(None), slice(1, n + 1)) if axis == 1 else (slice(1, n + 1), slice(None))
+        with np.errstate(invalid="ignore"):
+            same = np.abs(depth[a] - depth[b]) <= SAME_SURFACE * np.minimum(depth[a], depth[b])
+        on = mask[a] & mask[b] & same & np.any(blended[a] != blended[b], axis=2)
+        va, vb = valid[a][on][..., None], valid[b][on][..., None]
+        ca, cb = colours[a][on], colours[b][on]
+        c = np.where(va & vb, (ca + cb) / 2, np.where(va, ca, cb))  # (pairs, N, 3)
+        dw = (weights[b][on] - weights[a][on]).astype(np.float64)  # (pairs, N)
+        st = np.sqrt(np.mean(np.einsum("pn,pnc->pc", dw, c) ** 2, axis=1))
+        steps.append(st)
+        sub = emap[a]
+        sub[on] = np.fmax(sub[on], st)
+    st = np.concatenate(steps)
+    px = max(int(mask.sum()), 1)
+    seams = int((st > SEAM_TAU).sum())
+    return ({"curve_pairs": int(st.size), "seams": seams, "seams_per_10k_px": 1e4 * seams / px,
+             "mean_step": float(st.mean()) if st.size else 0.0, "max_step": float(st.max()) if st.size else 0.0,
+             "seam_strength": float(st[st > SEAM_TAU].mean()) if seams else 0.0,
+             "step_per_px": float(st.sum() / px)}, emap)
+
+
+def weighting_scores(res: RenderResult, truth: np.ndarray, weights: np.ndarray, samples: tuple[np.ndarray, np.ndarray],
+                     mask: np.ndarray) -> dict:
+    """PSNR/SSIM of one method's view against ``truth`` over ``mask``, its blur (:func:`highfreq_ratio`), its
+    seam measure (``samples``: :func:`camera_samples` of the view), and the share of ``mask`` where it blends 3
+    or more cameras."""
+    seam, _ = seam_measure(weights, *samples, res.depth, mask)
+    return {"psnr_db": psnr(res.image, truth, mask), "ssim": ssim(res.image, truth, mask),
+            "blur_hf_ratio": highfreq_ratio(res.image, truth, mask),
+            "share_3plus": float((res.regions[mask] >= 3).mean()) if mask.any() else 0.0, **seam}
+
+
+def mean_scores(per_view: list[dict]) -> dict:
+    """Means over views of :func:`weighting_scores` (seam and curve-pair counts summed; the largest seam step
+    of all views)."""
+    out = {k: float(np.mean([v[k] for v in per_view])) for k in ("psnr_db", "ssim", "blur_hf_ratio", "share_3plus",
+                                                                 "mean_step", "seams_per_10k_px", "step_per_px")}
+    out["max_step"] = float(max(v["max_step"] for v in per_view))
+    n = sum(v["seams"] for v in per_view)
+    out["seam_strength"] = float(sum(v["seam_strength"] * v["seams"] for v in per_view) / n) if n else 0.0
+    out["seams"] = int(sum(v["seams"] for v in per_view))
+    out["curve_pairs"] = int(sum(v["curve_pairs"] for v in per_view))
+    out["views"] = len(per_view)
+    return out
 
 
 # --- procedural scene ---------------------------------------------------------------------------
@@ -74,20 +206,19 @@ def procedural_capture(size: tuple[int, int]):
 def procedural_quality(scene, renderer: SweepRenderer, size, quick: bool) -> dict:
     angles = arc_angles(10, 90.0)
     pairs = [(2, 3), (5, 6)] if quick else [(1, 2), (3, 4), (5, 6), (7, 8)]
-    scores: dict[str, dict[str, list[float]]] = {m: {"psnr": [], "ssim": [], "depth_mae": []} for m in METHODS}
+    scores: dict[str, list[dict]] = {m: [] for m in METHODS}
+    depth_mae = []
     for a, b in pairs:
         for s in (0.25, 0.5, 0.75):
             cam = arc_camera(float(angles[a] + s * (angles[b] - angles[a])), width=size[0], height=size[1], name="v")
             gt = render(scene, cam, with_background=False)
             first = renderer.render(cam, planes=64, near=NEAR, far=FAR)
             mask = gt.silhouette & np.isfinite(first.depth)
+            weights, samples = all_weights(renderer, first), camera_samples(renderer, first)
             for name, res in all_methods(renderer, first).items():
-                scores[name]["psnr"].append(psnr(res.image, gt.image, mask))
-                scores[name]["ssim"].append(ssim(res.image, gt.image, mask))
-                scores[name]["depth_mae"].append(float(np.mean(np.abs(res.depth[mask] - gt.depth[mask]))))
-    out = {m: {"psnr_db": float(np.mean(v["psnr"])), "ssim": float(np.mean(v["ssim"])),
-               "depth_mae_m": float(np.mean(v["depth_mae"])), "views": len(v["psnr"])} for m, v in scores.items()}
-    return out
+                scores[name].append(weighting_scores(res, gt.image, weights[name], samples, mask))
+            depth_mae.append(float(np.mean(np.abs(first.depth[mask] - gt.depth[mask]))))
+    return {m: {**mean_scores(v), "depth_mae_m": float(np.mean(depth_mae))} for m, v in scores.items()}
 
 
 def temporal(scene, renderer: SweepRenderer, size, quick: bool) -> dict:
@@ -95,12 +226,41 @@ def temporal(scene, renderer: SweepRenderer, size, quick: bool) -> dict:
     angles = arc_angles(10, 90.0)
     step = 1.0 if quick else 0.5
     path = np.arange(angles[2], angles[6] + 1e-9, step)
+    out = moving_camera(scene, renderer, [arc_camera(float(a), width=size[0], height=size[1], name=f"f{k}")
+                                          for k, a in enumerate(path)])
+    out["truth"]["step_deg"] = step
+    return out
+
+
+POP_SIGMA = 1.5  # px: frame differences are smoothed before pops are counted (a seam is a curve, aliasing a pixel)
+POP_FRAME = 0.05  # a frame pair pops when more than this share of its pixels does (depth flicker alone: 2-4 %)
+
+
+def pop_share(prev: np.ndarray, cur: np.ndarray, prev_t: np.ndarray, cur_t: np.ndarray, mask: np.ndarray) -> float:
+    """Share of ``mask`` that pops between two frames: where the frame-to-frame colour change (RMS over B, G, R of
+    the change smoothed by a Gaussian of POP_SIGMA px) exceeds the truth's change there by more than SEAM_TAU
+    levels: a seam sweeping by or a camera switching, beyond what the moving viewpoint shows (smoothing keeps
+    the truth's pixel aliasing from counting). uint8 (h, w, 3) frames; mask (h, w) bool (pixels seen in both)."""
+    def change(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        d = cv2.GaussianBlur(b.astype(np.float32) - a.astype(np.float32), (0, 0), POP_SIGMA)
+        return np.sqrt(np.mean(d.astype(np.float64) ** 2, axis=2))
+
+    if not mask.any():
+        return 0.0
+    return float(((change(prev, cur) - change(prev_t, cur_t)) > SEAM_TAU)[mask].mean())
+
+
+def moving_camera(scene, renderer: SweepRenderer, cams: list[Camera]) -> dict:
+    """The views of ``cams`` (consecutive frames of a moving virtual camera), every method on each frame's
+    one sweep, against the analytic truth: per method the largest and mean frame-to-frame change
+    (:func:`frame_jump`, mean |change| over the pixels seen in both frames, levels), the largest change
+    beyond the truth's own in the same frame pair, pops (:func:`pop_share`: the frame pairs where more than
+    POP_FRAME of the pixels pop, and the largest share), blur (Laplacian energy over the truth's) and PSNR."""
     prev: dict[str, np.ndarray] = {}
     prev_gt = prev_mask = None
-    stats = {m: {"jumps": [], "excess": [], "hf": [], "psnr": []} for m in METHODS}
+    stats = {m: {"jumps": [], "excess": [], "hf": [], "psnr": [], "pop_share": []} for m in METHODS}
     gt_jumps = []
-    for k, ang in enumerate(path):
-        cam = arc_camera(float(ang), width=size[0], height=size[1], name=f"f{k}")
+    for cam in cams:
         gt = render(scene, cam, with_background=False)
         first = renderer.render(cam, planes=64, near=NEAR, far=FAR)
         mask = gt.silhouette & np.isfinite(first.depth)
@@ -116,14 +276,187 @@ def temporal(scene, renderer: SweepRenderer, size, quick: bool) -> dict:
                 j = frame_jump(prev[name], res.image, both)
                 stats[name]["jumps"].append(j)
                 stats[name]["excess"].append(j - gj)
+                stats[name]["pop_share"].append(pop_share(prev[name], res.image, prev_gt, gt.image, both))
             prev[name] = res.image
         prev_gt, prev_mask = gt.image, mask
     out = {m: {"max_jump": float(np.max(v["jumps"])), "max_excess_jump": float(np.max(v["excess"])),
-               "mean_jump": float(np.mean(v["jumps"])), "blur_hf_ratio": float(np.mean(v["hf"])),
+               "mean_jump": float(np.mean(v["jumps"])), "pop_frames": int(np.sum(np.array(v["pop_share"]) > POP_FRAME)),
+               "max_pop_share_pct": 100.0 * float(np.max(v["pop_share"])), "blur_hf_ratio": float(np.mean(v["hf"])),
                "psnr_db": float(np.mean(v["psnr"]))} for m, v in stats.items()}
-    out["truth"] = {"max_jump": float(np.max(gt_jumps)), "mean_jump": float(np.mean(gt_jumps)), "frames": len(path),
-                    "step_deg": step}
+    out["truth"] = {"max_jump": float(np.max(gt_jumps)), "mean_jump": float(np.mean(gt_jumps)), "frames": len(cams)}
     return out
+
+
+# --- a two-dimensional rig: triple points (issue 22) ------------------------------------------------
+DOME_SPACING = 10.0  # degrees between neighbouring cameras, seen from the target
+DOME_ROWS, DOME_PER_ROW, DOME_EL0, DOME_RADIUS = 3, 5, 20.0, 2.5
+DOME_SIZE = (320, 240)
+PICTURE = "sweep_triple_junction.png"
+
+
+def dome_capture(size: tuple[int, int]):
+    """The procedural studio seen by 14 cameras on a triangular lattice over a dome (3 rows, 10 deg apart,
+    20-37 deg elevation, 2.5 m from the target), per-camera colour gains within +-GAIN_SPREAD. Returns
+    (scene, renderer, lattice (N, 2) azimuth/elevation degrees)."""
+    scene = default_scene()
+    lattice = sphere_lattice(DOME_SPACING, DOME_ROWS, DOME_PER_ROW, DOME_EL0)
+    cams = [sphere_camera(a, e, radius=DOME_RADIUS, target=np.array(DEFAULT_TARGET), size=size, name=f"dome{i:02d}")
+            for i, (a, e) in enumerate(lattice)]
+    views = render_views(scene, cams, gains=camera_gains(len(cams), GAIN_SPREAD))
+    renderer = SweepRenderer(Rig(tuple(cams)), [v.image for v in views], backgrounds=[v.background for v in views])
+    return scene, renderer, lattice
+
+
+def dome_triangles(lattice: np.ndarray) -> list[tuple[int, int, int]]:
+    """Every three mutually neighbouring cameras of the lattice (neighbours: less than 1.2 spacings apart on the
+    sphere), ordered by the centre's elevation, then azimuth."""
+    az, el = np.radians(lattice).T
+    d = np.stack([np.cos(el) * np.sin(az), -np.cos(el) * np.cos(az), np.sin(el)], axis=1)
+    near = np.degrees(np.arccos(np.clip(d @ d.T, -1, 1))) < 1.2 * DOME_SPACING
+    n = len(lattice)
+    tri = [(i, j, k) for i in range(n) for j in range(i + 1, n) for k in range(j + 1, n)
+           if near[i, j] and near[j, k] and near[i, k]]
+    return sorted(tri, key=lambda t: (round(float(lattice[list(t), 1].mean()), 6), float(lattice[list(t), 0].mean())))
+
+
+def dome_camera(az_el: np.ndarray, size: tuple[int, int], name: str) -> Camera:
+    return sphere_camera(float(az_el[0]), float(az_el[1]), radius=DOME_RADIUS, target=np.array(DEFAULT_TARGET),
+                         size=size, name=name)
+
+
+def dome_quality(scene, renderer: SweepRenderer, lattice: np.ndarray, quick: bool) -> tuple[dict, dict]:
+    """Views inside every triangle of cameras: its centre (the triple point) and 0.25 and 0.5 of the way to one
+    vertex (a different one per triangle); every method scored against the truth inside the object (PSNR,
+    SSIM, seams). Returns (per-method means, the view for the picture: of the triangle centres, triple points of
+    the rig where the one-camera regions of three cameras meet, the one where kojima has the most seams)."""
+    picture: dict = {}
+    tris = dome_triangles(lattice)[:4] if quick else dome_triangles(lattice)
+    per: dict[str, list[dict]] = {m: [] for m in METHODS}
+    for t, tri in enumerate(tris):
+        centre = lattice[list(tri)].mean(axis=0)
+        vertex = lattice[tri[t % 3]]
+        for s in (0.0, 0.25, 0.5):
+            cam = dome_camera(centre + s * (vertex - centre), DOME_SIZE, f"tri{t}_{s}")
+            gt = render(scene, cam, with_background=False)
+            first = renderer.render(cam, planes=64, near=NEAR, far=FAR)
+            mask = gt.silhouette & np.isfinite(first.depth)
+            weights, samples = all_weights(renderer, first), camera_samples(renderer, first)
+            for name, res in all_methods(renderer, first).items():
+                per[name].append(weighting_scores(res, gt.image, weights[name], samples, mask))
+            if s == 0.0 and per["kojima"][-1]["seams"] > picture.get("seams", -1):
+                picture = {"seams": per["kojima"][-1]["seams"], "camera": cam, "first": first, "truth": gt.image,
+                           "mask": mask, "triangle": tri}
+    return {m: mean_scores(v) for m, v in per.items()}, picture
+
+
+def dome_path(lattice: np.ndarray, step_deg: float, quick: bool) -> list[Camera]:
+    """A moving virtual camera through the centres of the triangles between rows 0 and 1 (triple points), in
+    straight (azimuth, elevation) segments, ``step_deg`` apart along the way."""
+    tris = [t for t in dome_triangles(lattice) if lattice[list(t), 1].max() < DOME_EL0 + DOME_SPACING]
+    centres = sorted((lattice[list(t)].mean(axis=0) for t in tris), key=lambda c: c[0])
+    centres = centres[:4] if quick else centres
+    points = []
+    for a, b in zip(centres, centres[1:]):
+        n = max(int(np.ceil(np.linalg.norm(b - a) / step_deg)), 1)
+        points += [a + (b - a) * k / n for k in range(n)]
+    points.append(centres[-1])
+    return [dome_camera(p, DOME_SIZE, f"path{k:03d}") for k, p in enumerate(points)]
+
+
+def triple_junction_picture(renderer: SweepRenderer, worst: dict, path: Path) -> dict:
+    """The picture of issue 22: the view from a triple point of the dome rig (the centre of a triangle of
+    cameras a, b, c, where their three one-camera regions meet: all three within D_bnd of each other; see
+    :func:`dome_quality`), cropped (a fifth of its width and height) around kojima's strongest seams, enlarged
+    6x. Row 1: truth, kojima, kojima_k, ulr3. Row 2: the weights of cameras a, b, c as the R, G, B of a colour
+    (kojima, kojima_k; a jump of colour is a jump of weights), kojima's and kojima_k's regions (1 camera: its
+    colour, 2: black, 3+: red). Row 3: kojima's and kojima_k's seam maps (the pairs where the blended set
+    changes, coloured by the seam step s of :func:`seam_measure`: green 0, yellow SEAM_TAU, red 3 SEAM_TAU and
+    more; the image in grey elsewhere), |kojima - kojima_k| x 8, and the whole view (kojima_k) with the crop
+    framed. Returns where the crop is and the figures inside it."""
+    first, truth, mask = worst["first"], worst["truth"], worst["mask"]
+    res = {m: renderer.reshade(first, **METHODS[m]) for m in ("kojima", "kojima_k", "ulr3")}
+    samples = camera_samples(renderer, first)
+    w2 = renderer.blend_weights(first, **METHODS["kojima"])
+    seams = {"kojima": seam_measure(w2, *samples, first.depth, mask),
+             "kojima_k": seam_measure(renderer.blend_weights(first, **METHODS["kojima_k"]), *samples, first.depth, mask)}
+    h, w = mask.shape
+    ch, cw = h // 5, w // 5
+    # the crop with the largest sum of kojima's seam steps
+    score = cv2.boxFilter(np.nan_to_num(seams["kojima"][1], nan=0.0), -1, (cw, ch), normalize=False,
+                          borderType=cv2.BORDER_CONSTANT)
+    cy, cx = np.unravel_index(int(np.argmax(score)), score.shape)
+    y0 = int(np.clip(cy - ch // 2, 0, h - ch))
+    x0 = int(np.clip(cx - cw // 2, 0, w - cw))
+    crop = (slice(y0, y0 + ch), slice(x0, x0 + cw))
+    scale = 6
+    pw, ph = cw * scale, ch * scale
+
+    def big(img: np.ndarray) -> np.ndarray:
+        return cv2.resize(np.ascontiguousarray(img[crop]), (pw, ph), interpolation=cv2.INTER_NEAREST)
+
+    def whole(img: np.ndarray) -> np.ndarray:
+        return cv2.resize(img, (pw, ph), interpolation=cv2.INTER_AREA)
+
+    def seam_picture(image: np.ndarray, em: np.ndarray) -> np.ndarray:
+        grey = cv2.cvtColor(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), cv2.COLOR_GRAY2BGR) // 2
+        on = np.isfinite(em)
+        t = np.clip(np.nan_to_num(em, nan=0.0) / (3 * SEAM_TAU), 0.0, 1.0)
+        col = np.stack([np.zeros_like(t), np.where(t < 1 / 3, 1.0, 1.0 - (t - 1 / 3) * 1.5),
+                        np.minimum(3 * t, 1.0)], axis=2) * 255  # BGR: green -> yellow -> red
+        grey[on] = col[on].astype(np.uint8)
+        return grey
+
+    def label(img: np.ndarray, text: str) -> np.ndarray:
+        img = img.copy()
+        cv2.rectangle(img, (0, 0), (img.shape[1], 22), (0, 0, 0), -1)
+        cv2.putText(img, text, (5, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+        return img
+
+    tri = list(worst["triangle"])
+    wk = renderer.blend_weights(first, **METHODS["kojima_k"])
+    rgb = {m: np.clip(255 * ww[:, :, tri[::-1]], 0, 255).astype(np.uint8) for m, ww in (("kojima", w2), ("kojima_k", wk))}
+    reg = {m: regions_image(res[m].regions, res[m].primary) for m in ("kojima", "kojima_k")}
+    framed = res["kojima_k"].image.copy()
+    cv2.rectangle(framed, (x0, y0), (x0 + cw - 1, y0 + ch - 1), (0, 255, 255), 1)
+    diff = np.clip(8.0 * np.abs(res["kojima"].image.astype(np.float64) - res["kojima_k"].image), 0, 255).astype(np.uint8)
+    n_k = {m: int((seams[m][1][crop] > SEAM_TAU).sum()) for m in seams}
+    rows = [
+        [label(big(truth), "truth"), label(big(res["kojima"].image), "kojima (2 cameras)"),
+         label(big(res["kojima_k"].image), "kojima_k (k cameras)"), label(big(res["ulr3"].image), "ulr3")],
+        [label(big(rgb["kojima"]), f"kojima: weights of cameras {tri} as RGB"),
+         label(big(rgb["kojima_k"]), f"kojima_k: weights of {tri} as RGB"), label(big(reg["kojima"]), "kojima: 1 / 2 (black)"),
+         label(big(reg["kojima_k"]), "kojima_k: 1 / 2 (black) / 3+ (red)")],
+        [label(big(seam_picture(res["kojima"].image, seams["kojima"][1])), f"kojima seams: {n_k['kojima']} > tau"),
+         label(big(seam_picture(res["kojima_k"].image, seams["kojima_k"][1])),
+               f"kojima_k seams: {n_k['kojima_k']} > tau"),
+         label(big(diff), "|kojima - kojima_k| x 8"), label(whole(framed), "whole view (kojima_k), crop framed")],
+    ]
+    sheet = np.vstack([np.hstack(r) for r in rows])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), sheet)
+    d = worst["camera"].center - np.array(DEFAULT_TARGET)
+    return {"file": f"benchmarks/results/{path.name}", "triangle": tri,
+            "azimuth_elevation_deg": [float(np.degrees(np.arctan2(d[0], -d[1]))),
+                                      float(np.degrees(np.arcsin(d[2] / np.linalg.norm(d))))],
+            "crop_xywh": [x0, y0, cw, ch], "seams_in_crop": n_k,
+            "max_step_in_crop": {m: float(np.nanmax(np.nan_to_num(seams[m][1][crop], nan=0.0))) for m in seams},
+            "psnr_in_crop": {m: psnr(res[m].image[crop], truth[crop], mask[crop]) for m in res}}
+
+
+def dome(quick: bool) -> dict:
+    """The two-dimensional rig section: quality and seams around triple points, the moving camera through
+    them, and the picture."""
+    t0 = time.perf_counter()
+    scene, renderer, lattice = dome_capture(DOME_SIZE)
+    quality, view = dome_quality(scene, renderer, lattice, quick)
+    print(f"  dome quality done ({time.perf_counter() - t0:.0f} s)", flush=True)
+    step = 0.5 if quick else 0.25
+    moving = moving_camera(scene, renderer, dome_path(lattice, step, quick))
+    moving["truth"]["step_deg"] = step
+    print(f"  dome moving camera done ({time.perf_counter() - t0:.0f} s)", flush=True)
+    picture = triple_junction_picture(renderer, view, Path(__file__).resolve().parent / "results" / PICTURE)
+    return {"quality": quality, "temporal": moving, "picture": picture, "cameras": len(lattice),
+            "triangles": len(dome_triangles(lattice)), "d_bnd": view["first"].d_bnd}
 
 
 # --- Middlebury rectified sets ------------------------------------------------------------------
@@ -156,8 +489,8 @@ def rectified_quality(folder: Path, prefix: str, target: int, sets: dict[str, li
         first = renderer.render(virtual, planes=planes, near=near, far=far)
         mask = np.isfinite(first.depth)
         res = all_methods(renderer, first)
-        out[set_name] = {m: {"psnr_db": psnr(r.image, target_img, mask), "ssim": ssim(r.image, target_img, mask)}
-                         for m, r in res.items()}
+        weights, samples = all_weights(renderer, first), camera_samples(renderer, first)
+        out[set_name] = {m: weighting_scores(r, target_img, weights[m], samples, mask) for m, r in res.items()}
         out[set_name]["coverage"] = float(mask.mean())
     return out
 
@@ -176,7 +509,6 @@ def temple_quality(folder: Path, quick: bool, planes: int) -> dict:
     out: dict = {}
     for n_nb in (2, 4):
         per: dict[str, list] = {m: [] for m in METHODS}
-        per_ssim: dict[str, list] = {m: [] for m in METHODS}
         for t in targets:
             twin = np.linalg.norm(rig.centers() - rig.centers()[t], axis=1) < 1e-6
             ang = np.arccos(np.clip(dirs @ dirs[t], -1, 1))
@@ -191,11 +523,10 @@ def temple_quality(folder: Path, quick: bool, planes: int) -> dict:
             first = renderer.render(virtual, planes=planes, near=near, far=far)
             target_sil = silhouette_from_background(images[t], np.zeros_like(images[t]), 70.0)
             mask = target_sil & np.isfinite(first.depth)
+            weights, samples = all_weights(renderer, first), camera_samples(renderer, first)
             for name, res in all_methods(renderer, first).items():
-                per[name].append(psnr(res.image, images[t], mask))
-                per_ssim[name].append(ssim(res.image, images[t], mask))
-        out[f"ring{n_nb}"] = {m: {"psnr_db": float(np.mean(per[m])), "ssim": float(np.mean(per_ssim[m]))}
-                              for m in METHODS}
+                per[name].append(weighting_scores(res, images[t], weights[name], samples, mask))
+        out[f"ring{n_nb}"] = {m: mean_scores(per[m]) for m in METHODS}
         out[f"ring{n_nb}"]["targets"] = len(list(targets))
     return out
 
@@ -350,6 +681,8 @@ def all_cameras_see(cams, virtual, depths: np.ndarray, best: np.ndarray) -> np.n
 
 # --- depth choice against a classic stereo pipeline (issue 20) --------------------------------------
 AGGREGATIONS = ("none", "window", "sgm")
+VISIBILITY_AGGREGATIONS = ("window", "sgm")  # also rendered with visibility-aware colouring (RenderOptions.visibility)
+VISIBILITY_TOLERANCES = (0.01, 0.03, 0.1, 0.3)  # the relative depth margins of the visibility ablation
 STEREO_CASES = {  # name -> folder, prefix, target, GT disparity files (view -> file, divisor), input sets
     "teddy": ("teddy", "im", 4, {2: "disp2.pgm", 6: "disp6.pgm"}, 4.0, {"two": [2, 6], "all": [0, 1, 2, 3, 5, 6, 7, 8]}),
     "art": ("art", "view", 3, {1: "disp1.png", 5: "disp5.png"}, 2.0, {"two": [1, 5], "all": [0, 1, 2, 4, 5, 6]}),
@@ -397,7 +730,10 @@ def stereo_case(name: str, planes: int) -> dict:
     """Hold out the case's target view; synthesise it from two views and from all others by the sweep with each
     aggregation and by SGBM + DIBR, in the same run; PSNR on the pixels where every sweep found a depth (the
     DIBR images are complete, holes filled), bad-1px of the depth against the GT disparity warped to the target,
-    wall ms. Diagnostics: GT disparity + DIBR, and the GT depth coloured by the sweep's own shading (kojima)."""
+    wall ms. Diagnostics: GT disparity + DIBR, and the GT depth coloured by the sweep's own shading (kojima), with and
+    without visibility; the window and sgm sweeps also with visibility-aware colouring (timed as whole renders);
+    for the two-view sets, PSNR and bad-1px split into the pixels both source views see and the half-occluded ones
+    (seen by one only, by the GT disparities of exactly those two views); PSNR against the visibility tolerance."""
     from workers.depth.dibr import fill_depth_holes, synthesize_rectified, warp_disparity
 
     sub, prefix, target, gt_files, div, sets = STEREO_CASES[name]
@@ -420,11 +756,12 @@ def stereo_case(name: str, planes: int) -> dict:
         inputs, virtual = leave_one_out(files, sources, target, w, h)
         renderer = SweepRenderer(inputs, [images[k] for k in sources])
         renders, ms = {}, {}
-        for agg in AGGREGATIONS:
-            renderer.render(virtual, planes=8, near=near, far=far, aggregation=agg)  # compiled code loaded
+        runs = [(agg, agg, False) for agg in AGGREGATIONS] + [(f"{a}_vis", a, True) for a in VISIBILITY_AGGREGATIONS]
+        for key, agg, vis in runs:
+            renderer.render(virtual, planes=8, near=near, far=far, aggregation=agg, visibility=vis)  # compiled code loaded
             t0 = time.perf_counter()
-            renders[agg] = renderer.render(virtual, planes=planes, near=near, far=far, aggregation=agg)
-            ms[agg] = (time.perf_counter() - t0) * 1e3
+            renders[key] = renderer.render(virtual, planes=planes, near=near, far=far, aggregation=agg, visibility=vis)
+            ms[key] = (time.perf_counter() - t0) * 1e3
         t0 = time.perf_counter()
         sgbm_img, sgbm_disp = sgbm_dibr(images, sources, target, hi * REF_SPACINGS)
         ms["sgbm_dibr"] = (time.perf_counter() - t0) * 1e3
@@ -444,14 +781,53 @@ def stereo_case(name: str, planes: int) -> dict:
         # the sweep's colouring at the true depth: what a perfect depth would give this renderer
         Q, B, G = renderer._geometry(virtual)
         s_true = fill_depth_holes(gt_target).astype(np.float64) / (REF_SPACINGS * w)
-        oracle, _, _ = renderer._shade(virtual, Q, B, G, s_true, False, RenderOptions(), renderers_d_bnd(renderer, virtual, s_true))
-        row["gt_depth_sweep_shading"] = {"psnr_db": psnr(oracle, truth, mask), "ssim": ssim(oracle, truth, mask),
-                                         "bad1": 0.0, "ms": float("nan")}
+        oracles = {}
+        for suffix, vis in (("", False), ("_vis", True)):
+            oracle, _, _ = renderer._shade(virtual, Q, B, G, s_true, False, RenderOptions(visibility=vis),
+                                           renderers_d_bnd(renderer, virtual, s_true))
+            oracles[suffix] = oracle
+            row[f"gt_depth_sweep_shading{suffix}"] = {"psnr_db": psnr(oracle, truth, mask),
+                                                      "ssim": ssim(oracle, truth, mask), "bad1": 0.0, "ms": float("nan")}
+        # visibility tolerance ablation: the sgm depth and the GT depth re-coloured at each relative margin
+        row["tolerance_psnr"] = {}
+        for tol in VISIBILITY_TOLERANCES:
+            img = renderer.reshade(renders["sgm"], visibility=True, visibility_tolerance=tol).image
+            orc, _, _ = renderer._shade(virtual, Q, B, G, s_true, False,
+                                        RenderOptions(visibility=True, visibility_tolerance=tol),
+                                        renderers_d_bnd(renderer, virtual, s_true))
+            row["tolerance_psnr"][str(tol)] = {"sweep_sgm_vis": psnr(img, truth, mask),
+                                               "gt_depth_sweep_shading_vis": psnr(orc, truth, mask)}
+        if sorted(sources) == sorted(gt):  # the two GT views are the sources: split by what each sees
+            seen = [np.isfinite(warp_disparity(d, shifts[k])) for k, d in gt.items()]
+            both = mask & np.isfinite(gt_target) & seen[0] & seen[1]
+            half = mask & np.isfinite(gt_target) & (seen[0] ^ seen[1])
+            # what a right depth in the half-occluded part alone would give: the sgm depth with the GT's there,
+            # coloured with visibility (a diagnostic of where the remaining error lies, not a pipeline)
+            sgm = renders["sgm"]
+            s_mix = np.where(half, s_true, pixel_inverse_depth(1.0 / sgm.planes, sgm.plane_index, sgm.plane_offset))
+            mixed, _, _ = renderer._shade(virtual, Q, B, G, s_mix, False, RenderOptions(visibility=True),
+                                          renderers_d_bnd(renderer, virtual, s_mix))
+            mix_disp = s_mix * (REF_SPACINGS * w)
+            row["sweep_sgm_gt_half_vis"] = {"psnr_db": psnr(mixed, truth, mask), "ssim": ssim(mixed, truth, mask),
+                                            "bad1": float(np.mean(np.abs(mix_disp[scored] - gt_target[scored]) > 1.0)),
+                                            "ms": float("nan")}
+            images_by = {f"sweep_{k}": r.image for k, r in renders.items() if k in ("sgm", "sgm_vis")}
+            images_by.update({"sgbm_dibr": sgbm_img, "gt_dibr": gt_dibr, "gt_depth_sweep_shading": oracles[""],
+                              "gt_depth_sweep_shading_vis": oracles["_vis"], "sweep_sgm_gt_half_vis": mixed})
+            depth_disp = {"sweep_sgm": REF_SPACINGS * w / renders["sgm"].depth, "sgbm_dibr": sgbm_disp}
+            split = {"both_share": float(both.sum() / mask.sum()), "half_share": float(half.sum() / mask.sum())}
+            for k, img in images_by.items():
+                split[k] = {"psnr_both_db": psnr(img, truth, both), "psnr_half_db": psnr(img, truth, half)}
+                dd = depth_disp.get(k.removesuffix("_vis"))
+                if dd is not None:
+                    split[k]["bad1_both"] = float(np.mean(np.abs(dd[both] - gt_target[both]) > 1.0))
+                    split[k]["bad1_half"] = float(np.mean(np.abs(dd[half] - gt_target[half]) > 1.0))
+            row["occlusion_split"] = split
         row["scored_pixels"] = float(mask.mean())
         row["inputs"] = [files[k] for k in sources]
         out[f"{name}_{set_name}"] = row
         print(f"  stereo {name} {set_name}: " + ", ".join(f"{k} {v['psnr_db']:.2f}" for k, v in row.items()
-                                                          if isinstance(v, dict)), flush=True)
+                                                          if isinstance(v, dict) and "psnr_db" in v), flush=True)
     return out
 
 
@@ -463,8 +839,9 @@ def renderers_d_bnd(renderer: SweepRenderer, virtual, s_pix: np.ndarray) -> floa
 
 def live_aggregation(quick: bool) -> dict:
     """The live configuration (320x240, 48 planes, 10 cameras at 640x480, the procedural scene with silhouettes)
-    with each aggregation, with and without coarse-to-fine, interleaved; fps from the median wall time, CPU ms,
-    the depth error against the analytic truth and the PSNR inside the object."""
+    with each aggregation, with and without coarse-to-fine, each with and without visibility-aware colouring
+    (suffix _vis), interleaved; fps from the median wall time, CPU ms, the depth error against the analytic truth
+    and the PSNR inside the object."""
     scene = default_scene()
     cams = default_arc_rig(10, width=640, height=480)
     views = render_views(scene, cams)
@@ -472,9 +849,9 @@ def live_aggregation(quick: bool) -> dict:
     angles = arc_angles(10, 90.0)
     cam = arc_camera(float((angles[3] + angles[4]) / 2), width=320, height=240, name="live")
     gt = render(scene, cam, with_background=False)
-    configs = {f"{agg}{'_c2f' if c2f else ''}": RenderOptions(planes=48, near=NEAR, far=FAR, aggregation=agg,
-                                                             coarse_to_fine=c2f)
-               for c2f in (True, False) for agg in AGGREGATIONS}
+    configs = {f"{agg}{'_c2f' if c2f else ''}{'_vis' if vis else ''}":
+               RenderOptions(planes=48, near=NEAR, far=FAR, aggregation=agg, coarse_to_fine=c2f, visibility=vis)
+               for c2f in (True, False) for agg in AGGREGATIONS for vis in (False, True)}
     reps = 7 if quick else 21
     m = interleaved({k: (lambda o=o: hull.render(cam, o)) for k, o in configs.items()}, {k: reps for k in configs},
                     warm=tuple(configs))
@@ -504,12 +881,23 @@ def stereo(quick: bool) -> dict:
 
 
 def stereo_markdown(st: dict) -> str:
-    rows = []
+    rows, split_rows, tol_rows = [], [], []
     for case, row in st["cases"].items():
         for k, v in row.items():
-            if isinstance(v, dict):
+            if isinstance(v, dict) and "psnr_db" in v:
                 rows.append([case, k, round(v["psnr_db"], 2), round(v["ssim"], 3), round(100 * v["bad1"], 1),
                              "" if v["ms"] != v["ms"] else round(v["ms"])])
+        split = row.get("occlusion_split")
+        for k, v in (split or {}).items():
+            if isinstance(v, dict):
+                pct = lambda key: "" if key not in v else round(100 * v[key], 1)  # noqa: E731
+                split_rows.append([case, k, round(v["psnr_both_db"], 2), round(v["psnr_half_db"], 2), pct("bad1_both"),
+                                   pct("bad1_half")])
+        if split:
+            split_rows.append([case, "(share of scored pixels)", round(split["both_share"], 3),
+                               round(split["half_share"], 3), "", ""])
+        for tol, v in row.get("tolerance_psnr", {}).items():
+            tol_rows.append([case, tol, round(v["sweep_sgm_vis"], 2), round(v["gt_depth_sweep_shading_vis"], 2)])
     live_rows = [[k, round(v["fps"], 1), round(v["ms"], 1), round(v["cpu_ms"], 1), round(v["depth_median_abs_err_mm"], 1),
                   round(v["psnr_db_object"], 2), round(v["object_coverage"], 3), round(v["load_average"], 1)]
                  for k, v in st["live"].items()]
@@ -522,11 +910,25 @@ def stereo_markdown(st: dict) -> str:
             "semi-global aggregation; all with sub-plane parabola refinement except none. sgbm_dibr: "
             "cv2.StereoSGBM (MODE_HH) per source view + workers/depth/dibr.py; gt_dibr: GT disparity + DIBR; "
             "gt_depth_sweep_shading: the GT depth coloured by the sweep's kojima shading (what a perfect depth gives "
-            "this renderer).\n\n"
+            "this renderer). _vis: the same depth coloured with visibility (RenderOptions.visibility: a camera takes no "
+            "part where the view's own surface, z-buffered in that camera, is more than 3% nearer at the point's "
+            "colour taps; workers/sweep/visibility.py); its ms is the whole render with visibility. "
+            "sweep_sgm_gt_half_vis (two views; a diagnostic): the sgm depth with the GT depth pasted into the "
+            "half-occluded pixels (next table), coloured with visibility: what fixing the depth there alone gives.\n\n"
             + md_table(["case", "pipeline", "PSNR", "SSIM", "bad-1px %", "ms"], rows)
+            + ("\n\n### Two views: pixels both sources see against half-occluded ones\n\n"
+               "The two-view rows split by the GT disparities of the two source views (forward-warped to the target): "
+               "'both' where both see the target's surface, 'half' where only one does (disocclusions next to depth "
+               "edges). PSNR and bad-1px within each part.\n\n"
+               + md_table(["case", "pipeline", "PSNR both", "PSNR half", "bad-1px both %", "bad-1px half %"], split_rows)
+               if split_rows else "")
+            + ("\n\n### Visibility tolerance (relative depth margin)\n\n"
+               "PSNR of the sgm depth and of the GT depth coloured with visibility at each margin (same pixels as "
+               "above).\n\n" + md_table(["case", "tolerance", "sweep_sgm_vis", "gt_depth_sweep_shading_vis"], tol_rows)
+               if tol_rows else "")
             + "\n\n### Live configuration by aggregation (320x240, 48 planes, 10 cameras, hull)\n\n"
               "Interleaved repeats, medians. _c2f: the aggregation at half resolution, then the pruned search "
-              "within +-2 planes at full resolution.\n\n"
+              "within +-2 planes at full resolution. _vis: with visibility-aware colouring.\n\n"
             + md_table(["config", "fps", "ms", "CPU ms", "depth median err (mm)", "PSNR object", "covered", "load avg"],
                        live_rows)
             + ("\n\n" + "\n".join(f"- {n}" for n in st["notes"]) if st["notes"] else ""))
@@ -535,20 +937,64 @@ def stereo_markdown(st: dict) -> str:
 def markdown(results: dict, notes: list[str]) -> str:
     parts = []
     q = results["quality"]
+    d = results.get("dome")
     rows = []
-    for scene_name, per in q.items():
+    cases = dict(q)
+    if d:
+        cases["dome (2D rig)"] = d["quality"]
+    for scene_name, per in cases.items():
         for m in METHODS:
             if m in per:
-                rows.append([scene_name, m, round(per[m]["psnr_db"], 2), round(per[m]["ssim"], 3)])
-    parts.append("### Quality (PSNR dB / SSIM, higher is better)\n\n" + md_table(["scene", "method", "PSNR", "SSIM"], rows))
+                v = per[m]
+                rows.append([scene_name, m, round(v["psnr_db"], 2), round(v["ssim"], 3)]
+                            + ([round(v["blur_hf_ratio"], 3), round(100 * v["share_3plus"], 1),
+                                round(v["seams_per_10k_px"], 1), round(v["seam_strength"], 2), round(v["max_step"], 1)]
+                               if "seams_per_10k_px" in v else ["", "", "", "", ""]))
+    parts.append(
+        "### Quality and seams (PSNR dB / SSIM higher is better; seams lower)\n\n"
+        "Every method colours the same depth (one sweep per view). 3+ cams: share of the scored pixels where the "
+        "method blends three or more cameras; blur: Laplacian energy over the truth's (1 = as sharp). Seam measure (`seam_measure` in benchmarks/sweep.py): on the curves "
+        "where a method's blended camera set changes (4-neighbour pixel pairs on one surface, depths within "
+        f"{SAME_SURFACE:.0%}, whose sets of cameras with non-zero weight differ), the seam step "
+        "s = RMS over B, G, R of sum_i (w_i(q) - w_i(p)) C_i (colour levels; C_i: camera i's colour at the pair's "
+        "surface point): the colour step the change of weights makes with the scene held fixed, so the texture's "
+        "own step does not count. A weighting continuous across the curve (a camera entering with weight 0) "
+        "makes s ~ 0; a jump between cameras that see different colours (exposure, shading, parallax from depth "
+        f"errors) makes s large. seams /10k px: pairs with s > {SEAM_TAU:g} levels (seams) per 10^4 scored pixels; "
+        "seam strength: mean s of those seams; max step: the largest s. global has curves only where its "
+        "camera cannot see. Teddy, Art and temple rows are leave-one-out (truth: the held-out photo); procedural "
+        "and dome rows are against the analytic truth.\n\n"
+        + md_table(["scene", "method", "PSNR", "SSIM", "blur", "3+ cams %", "seams /10k px", "seam strength",
+                    "max step"], rows))
     t = results.get("temporal")
     if t:
-        rows = [[m, round(t[m]["max_jump"], 2), round(t[m]["max_excess_jump"], 2), round(t[m]["blur_hf_ratio"], 3),
-                 round(t[m]["psnr_db"], 2)] for m in METHODS]
         parts.append(
-            f"### Moving virtual camera ({t['truth']['frames']} frames, {t['truth']['step_deg']} deg steps across 4 "
-            f"camera switches; the truth's own largest frame-to-frame change is {t['truth']['max_jump']:.2f})\n\n"
-            + md_table(["method", "max jump", "max jump beyond truth", "blur (HF energy / truth)", "PSNR"], rows))
+            f"### Moving virtual camera, arc rig ({t['truth']['frames']} frames, {t['truth']['step_deg']} deg steps "
+            f"across 4 camera switches; the truth's own largest frame-to-frame change is {t['truth']['max_jump']:.2f})"
+            "\n\n" + temporal_table(t))
+    if d:
+        dt = d["temporal"]
+        pic = d["picture"]
+        parts.append(
+            f"### Moving virtual camera, dome rig ({dt['truth']['frames']} frames, {dt['truth']['step_deg']} deg steps "
+            f"through the centres of the triangles of cameras between rows 0 and 1: triple points; the truth's own "
+            f"largest frame-to-frame change is {dt['truth']['max_jump']:.2f})\n\n" + temporal_table(dt)
+            + f"\n\nDome rig: {d['cameras']} cameras on a triangular lattice {DOME_SPACING:g} deg apart "
+              f"({DOME_ROWS} rows from {DOME_EL0:g} deg elevation, {DOME_RADIUS} m from the target), "
+              f"{DOME_SIZE[0]}x{DOME_SIZE[1]} views, 64 planes, D_bnd {d['d_bnd']:.4g} (the renderer's default for both "
+              f"kojima and kojima_k); quality views: the centre of each of its {d['triangles']} triangles and 0.25 and "
+              "0.5 of the way to one vertex.\n\n"
+              f"Picture: `{pic['file']}`: the view from the triple point of cameras {pic['triangle']} (azimuth "
+              f"{pic['azimuth_elevation_deg'][0]:.2f} deg, elevation {pic['azimuth_elevation_deg'][1]:.2f} deg: the "
+              "centre of their triangle, where their three one-camera regions meet), the triangle centre where kojima "
+              f"has the most seams; crop {pic['crop_xywh']} (x, y, w, h) around its strongest seams. Pairs with seam "
+              f"step s > {SEAM_TAU:g} in the crop: kojima {pic['seams_in_crop']['kojima']}, kojima_k "
+              f"{pic['seams_in_crop']['kojima_k']}; largest s: kojima {pic['max_step_in_crop']['kojima']:.1f}, kojima_k "
+              f"{pic['max_step_in_crop']['kojima_k']:.1f} levels; PSNR in the crop: "
+              + ", ".join(f"{m} {v:.2f} dB" for m, v in pic["psnr_in_crop"].items()) + ".")
+    if "seams_per_10k_px" in next(iter(q.values())).get("kojima", {}):
+        parts.append("### Issue 22 goal (kojima_k against kojima, ulr3, ulr4)\n\n" + "\n".join(
+            f"- {line}" for line in goal_lines(results)))
     s = results.get("speed")
     if s:
         rows = [[k, round(v["fps"], 2), round(v["msamples_per_s"], 1), round(v["reference_msamples_per_s"], 1),
@@ -590,11 +1036,87 @@ def markdown(results: dict, notes: list[str]) -> str:
     return "\n\n".join(parts)
 
 
+def temporal_table(t: dict) -> str:
+    rows = [[m, round(t[m]["max_jump"], 2), round(t[m]["max_excess_jump"], 2),
+             t[m]["pop_frames"] if "pop_frames" in t[m] else "",
+             round(t[m]["max_pop_share_pct"], 2) if "max_pop_share_pct" in t[m] else "",
+             round(t[m]["blur_hf_ratio"], 3), round(t[m]["psnr_db"], 2)] for m in METHODS if m in t]
+    return ("max jump: the largest mean |change| between consecutive frames (levels); beyond truth: minus the "
+            "truth's change in the same frame pair; a pixel pops when its frame-to-frame change (RMS over B, G, R, "
+            f"smoothed over {POP_SIGMA:g} px) exceeds the truth's there by more than {SEAM_TAU:g} levels; pop frames: "
+            f"frame pairs where over {POP_FRAME:.0%} of the pixels pop; max pop %: the largest share of one frame; "
+            "blur: Laplacian energy over the truth's (1 = as sharp).\n\n"
+            + md_table(["method", "max jump", "max jump beyond truth", "pop frames", "max pop %",
+                        "blur (HF energy / truth)", "PSNR"], rows))
+
+
+def goal_lines(results: dict) -> list[str]:
+    """Issue 22's goal, criterion by criterion, from the measured figures: fewer and weaker seams and temporal
+    pops than kojima, less blur than ulr3/ulr4, PSNR at least kojima's on every case (compared at the table's
+    0.01 dB)."""
+    cases = dict(results["quality"])
+    if results.get("dome"):
+        cases["dome (2D rig)"] = results["dome"]["quality"]
+    moving = {"arc": results.get("temporal"), "dome": (results.get("dome") or {}).get("temporal")}
+    moving = {k: v for k, v in moving.items() if v}
+    lines = []
+
+    def verdict(ok: bool) -> str:
+        return "met" if ok else "NOT met"
+
+    psnr_low = [c for c, v in cases.items() if round(v["kojima_k"]["psnr_db"], 2) < round(v["kojima"]["psnr_db"], 2)]
+    lines.append(f"PSNR >= kojima's on every case: {verdict(not psnr_low)}"
+                 + (f" (below on {', '.join(psnr_low)})" if psnr_low else "")
+                 + "; largest gain " + max((f"{v['kojima_k']['psnr_db'] - v['kojima']['psnr_db']:+.2f} dB ({c})"
+                                            for c, v in cases.items()),
+                                           key=lambda t: float(t.split()[0])) + ".")
+    same = [c for c, v in cases.items() if all(v["kojima_k"][k] == v["kojima"][k] for k in v["kojima"])]
+    differ = {c: v for c, v in cases.items() if c not in same}
+    lines.append(f"Identical to kojima (no third camera within D_bnd anywhere: 1D rigs): {', '.join(same) or 'none'}.")
+    more = [c for c, v in differ.items() if v["kojima_k"]["seams_per_10k_px"] > v["kojima"]["seams_per_10k_px"]]
+    stronger = [c for c, v in differ.items() if v["kojima_k"]["seam_strength"] > v["kojima"]["seam_strength"]
+                or v["kojima_k"]["max_step"] > v["kojima"]["max_step"]]
+    lines.append(f"Where they differ ({', '.join(differ) or 'nowhere'}): fewer seams than kojima (seams /10k px): "
+                 + verdict(not more) + (f" (more on {', '.join(more)})" if more else "") + "; "
+                 + "; ".join(f"{c} {v['kojima_k']['seams_per_10k_px']:.1f} vs {v['kojima']['seams_per_10k_px']:.1f}"
+                             for c, v in differ.items())
+                 + ". Weaker (seam strength and max step no larger): " + verdict(not stronger)
+                 + (f" (stronger on {', '.join(stronger)})" if stronger else "") + "; "
+                 + "; ".join(f"{c} {v['kojima_k']['seam_strength']:.2f} / {v['kojima_k']['max_step']:.1f} vs "
+                             f"{v['kojima']['seam_strength']:.2f} / {v['kojima']['max_step']:.1f}" for c, v in differ.items())
+                 + ".")
+    synthetic = {c: v for c, v in cases.items() if c in ("procedural", "dome (2D rig)")}
+    blurrier = [c for c, v in synthetic.items()
+                if v["kojima_k"]["blur_hf_ratio"] <= max(v["ulr3"]["blur_hf_ratio"], v["ulr4"]["blur_hf_ratio"])]
+    lines.append("Less blur than ulr3/ulr4 on the views with an exact truth (HF energy / truth): "
+                 + verdict(not blurrier) + "; " + "; ".join(
+                     f"{c} {v['kojima_k']['blur_hf_ratio']:.3f} vs {v['ulr3']['blur_hf_ratio']:.3f} / "
+                     f"{v['ulr4']['blur_hf_ratio']:.3f} (kojima {v['kojima']['blur_hf_ratio']:.3f})"
+                     for c, v in synthetic.items()) + ".")
+    for name, t in moving.items():
+        k, q = t["kojima_k"], t["kojima"]
+        if k == q:
+            lines.append(f"{name} moving camera: identical to kojima (no third camera within D_bnd on the path); blur "
+                         f"{k['blur_hf_ratio']:.3f} vs ulr3 {t['ulr3']['blur_hf_ratio']:.3f}, ulr4 "
+                         f"{t['ulr4']['blur_hf_ratio']:.3f}: less blur than ulr3/ulr4 "
+                         + verdict(k["blur_hf_ratio"] > max(t["ulr3"]["blur_hf_ratio"], t["ulr4"]["blur_hf_ratio"])) + ".")
+            continue
+        lines.append(f"{name} moving camera, temporal pops: max jump beyond truth {k['max_excess_jump']:.2f} vs kojima "
+                     f"{q['max_excess_jump']:.2f}, pop frames {k['pop_frames']} vs {q['pop_frames']}, largest pop "
+                     f"{k['max_pop_share_pct']:.2f}% vs {q['max_pop_share_pct']:.2f}% of a frame, fewer and weaker: "
+                     + verdict(k["max_excess_jump"] <= q["max_excess_jump"] and k["pop_frames"] <= q["pop_frames"]
+                               and k["max_pop_share_pct"] <= q["max_pop_share_pct"])
+                     + f"; blur {k['blur_hf_ratio']:.3f} vs ulr3 {t['ulr3']['blur_hf_ratio']:.3f}, ulr4 "
+                     f"{t['ulr4']['blur_hf_ratio']:.3f} (kojima {q['blur_hf_ratio']:.3f}): less blur than ulr3/ulr4 "
+                     + verdict(k["blur_hf_ratio"] > max(t["ulr3"]["blur_hf_ratio"], t["ulr4"]["blur_hf_ratio"])) + ".")
+    return lines
+
+
 def quality_notes() -> list[str]:
     return [f"Procedural rig: 10 cameras on a 90 deg arc, per-camera colour gains within +-{GAIN_SPREAD:.0%} "
             "(real cameras differ in exposure/white balance); truth rendered with gain 1; scored inside the object.",
-            "kojima uses the renderer's default D_bnd: suggest_d_bnd(camera spacing seen from the surface, 0.5); "
-            "ulrK blends K cameras.",
+            "kojima and kojima_k use the renderer's default D_bnd: suggest_d_bnd(camera spacing seen from the surface, "
+            "0.5); ulrK blends K cameras.",
             "The depth (one sweep) is shared by all methods of a row; only the colour weighting differs."]
 
 
@@ -617,23 +1139,45 @@ def main() -> int:
                     help="run only the comparison with SGBM + DIBR; keep the other sections of the previous run (marked)")
     ap.add_argument("--speed-only", action="store_true",
                     help="measure speed only; keep the quality and temporal results of the previous run (marked)")
+    ap.add_argument("--weighting-only", action="store_true",
+                    help="run only the colour-weighting sections (quality and seams of every method on the "
+                         "procedural, Middlebury and temple cases, the moving cameras, the dome rig and its picture: "
+                         "issue 22); keep the speed and SGBM sections of the previous run (marked)")
     args = ap.parse_args()
     if args.stereo_only:
         return stereo_only(args.quick)
     if args.speed_only:
         return speed_only(args.quick)
+    if args.weighting_only:
+        return weighting_only(args.quick, args.skip_data)
     load0 = os.getloadavg()[0]
     results: dict = {"quality": {}, "temporal": {}, "speed": {}}
     notes = quality_notes()
-    size = (320, 240) if args.quick else (640, 480)
     t0 = time.perf_counter()
+    weighting_sections(results, notes, args.quick, args.skip_data, t0)
+    if not args.skip_stereo:
+        results["stereo"] = stereo(args.quick)
+        print(f"stereo done ({time.perf_counter() - t0:.0f} s)", flush=True)
+    if not args.skip_speed:
+        results["speed"] = speed(args.quick)
+        print(f"speed done ({time.perf_counter() - t0:.0f} s)", flush=True)
+    load1 = os.getloadavg()[0]
+    results["load_average"] = {"start": load0, "end": load1}
+    notes.append(load_note(load0, load1))
+    publish("sweep", results, markdown(results, notes))
+    return 0
+
+
+def weighting_sections(results: dict, notes: list[str], quick: bool, skip_data: bool, t0: float) -> None:
+    """The colour-weighting sections, into ``results`` ("quality", "temporal", "dome") and ``notes``."""
+    size = (320, 240) if quick else (640, 480)
     scene, renderer = procedural_capture(size)
-    results["quality"]["procedural"] = procedural_quality(scene, renderer, size, args.quick)
+    results["quality"]["procedural"] = procedural_quality(scene, renderer, size, quick)
     print(f"procedural quality done ({time.perf_counter() - t0:.0f} s)", flush=True)
-    results["temporal"] = temporal(scene, renderer, (320, 240), args.quick)
+    results["temporal"] = temporal(scene, renderer, (320, 240), quick)
     print(f"temporal done ({time.perf_counter() - t0:.0f} s)", flush=True)
-    planes = 64 if args.quick else 128
-    if not args.skip_data:
+    planes = 64 if quick else 128
+    if not skip_data:
         teddy = dataset("multiview", "teddy")
         if teddy is None:
             notes.append("Middlebury Teddy not found under $SWEEPCAST_DATA: skipped.")
@@ -654,19 +1198,31 @@ def main() -> int:
         if temple is None:
             notes.append("templeSparseRing not found under $SWEEPCAST_DATA: skipped.")
         else:
-            for k, v in temple_quality(temple, args.quick, planes).items():
+            for k, v in temple_quality(temple, quick, planes).items():
                 results["quality"][f"temple_{k}"] = v
             print(f"temple done ({time.perf_counter() - t0:.0f} s)", flush=True)
         notes += MIDDLEBURY_NOTES
-    if not args.skip_stereo:
-        results["stereo"] = stereo(args.quick)
-        print(f"stereo done ({time.perf_counter() - t0:.0f} s)", flush=True)
-    if not args.skip_speed:
-        results["speed"] = speed(args.quick)
-        print(f"speed done ({time.perf_counter() - t0:.0f} s)", flush=True)
+    results["dome"] = dome(quick)
+    print(f"dome done ({time.perf_counter() - t0:.0f} s)", flush=True)
+
+
+def weighting_only(quick: bool, skip_data: bool) -> int:
+    """Run the colour-weighting sections (:func:`weighting_sections`); the speed and SGBM sections come from the
+    previous results file, whose date is said in the notes."""
+    previous = json.loads((Path(__file__).resolve().parent / "results" / "sweep.json").read_text())
+    origin = previous.get("speed_and_stereo_from_run", previous["meta"])
+    results: dict = {k: v for k, v in previous.items()
+                     if k not in ("meta", "quality", "temporal", "dome", "quality_from_run", "load_average")}
+    results.update({"quality": {}, "temporal": {}, "speed_and_stereo_from_run": origin})
+    notes = quality_notes()
+    load0 = os.getloadavg()[0]
+    weighting_sections(results, notes, quick, skip_data, time.perf_counter())
     load1 = os.getloadavg()[0]
     results["load_average"] = {"start": load0, "end": load1}
-    notes.append(load_note(load0, load1))
+    notes += [f"The weighting sections (quality, seams, moving cameras, dome) were measured in this run; the speed and "
+              f"SGBM + DIBR tables are from the run of {origin['date']} (`{origin['command']}`), kept unchanged.",
+              f"1-minute load average {load0:.1f} at the start and {load1:.1f} at the end of this run on "
+              f"{os.cpu_count()} cores (quality figures do not depend on it)."]
     publish("sweep", results, markdown(results, notes))
     return 0
 
@@ -693,6 +1249,8 @@ def speed_only(quick: bool) -> int:
     load0 = os.getloadavg()[0]
     results = {"quality": previous["quality"], "temporal": previous["temporal"], "quality_from_run": origin,
                "speed": speed(quick)}
+    if previous.get("dome"):  # the weighting sections' dome rig, kept with the other quality tables
+        results["dome"] = previous["dome"]
     load1 = os.getloadavg()[0]
     results["load_average"] = {"start": load0, "end": load1}
     notes = quality_notes() + MIDDLEBURY_NOTES + [

@@ -109,16 +109,19 @@ async def delete_recording_data(svc: Services, rig_id: str, recording: dict[str,
 @dataclass(frozen=True)
 class Source:
     """What a socket shows: a rig and ``source`` ("live" or a recording id), with what a client
-    needs to start (the rig's cameras and orbit frame, the recording's frames and rate)."""
+    needs to start (the rig's cameras and orbit frame, the recording's frames and rate, the view size
+    to start at)."""
 
     rig_id: str
     source: str
     rig: Rig
     recording: dict[str, Any] | None
+    view_size: tuple[int, int] = (640, 480)
+    """The view size (width, height) px a viewer starts at (the ``viewer_size`` setting)."""
 
     def hello(self) -> dict[str, Any]:
         return {
-            "type": "hello", "rig_id": self.rig_id, "source": self.source,
+            "type": "hello", "rig_id": self.rig_id, "source": self.source, "view_size": list(self.view_size),
             "frames": self.recording["frames"] if self.recording else None,
             "fps": self.recording["fps"] if self.recording else None,
             "cameras": [{"name": c.name, "width": c.width, "height": c.height} for c in self.rig.cameras],
@@ -131,16 +134,17 @@ async def resolve_source(svc: Services, rig_id: str, source: str | None) -> Sour
     ApiError (404 unknown rig or recording, 409 recording not ready) otherwise."""
     await rig_meta_or_404(svc, rig_id)
     rig = await load_rig(svc, rig_id)
+    size = svc.settings.viewer_size_px
     if source == LIVE:
-        return Source(rig_id, LIVE, rig, None)
+        return Source(rig_id, LIVE, rig, None, size)
     if source is None:
         ready = [r for r in await recording_views(svc, rig_id) if r["state"] == "ready"]
         if not ready:
-            return Source(rig_id, LIVE, rig, None)
-        return Source(rig_id, ready[-1]["id"], rig, ready[-1])
+            return Source(rig_id, LIVE, rig, None, size)
+        return Source(rig_id, ready[-1]["id"], rig, ready[-1], size)
     recording = await recording_or_404(svc, rig_id, source)
     require_ready(recording)
-    return Source(rig_id, source, rig, recording)
+    return Source(rig_id, source, rig, recording, size)
 
 
 def session_config(svc: Services, rig_id: str, source: str) -> SessionConfig:

@@ -33,13 +33,19 @@ from workers.streaming.recording import (RecordingError, check_image_sizes, chec
 from workers.streaming.video import VideoError, probe_video
 from workers.streaming.viewpoint import orbit_frame
 from workers.sweep.rig import Rig, RigError
-from workers.sweep.rig_io import load_middlebury_par, load_rig as load_rig_file, rig_to_dict
+from workers.sweep.rig_io import (CAMERA_LIST, load_middlebury_par, load_rig as load_rig_file, metres_per_unit,
+                                  rig_format, rig_to_dict)
 
 router = APIRouter(prefix="/v1/rigs", tags=["rigs"], dependencies=[Depends(require_key)])
 sessions_router = APIRouter(prefix="/v1/sessions", tags=["rigs"], dependencies=[Depends(require_key)])
 
-CALIBRATION_HELP = ("calibration file(s): our rig JSON (.json), OpenCV FileStorage (.yml/.yaml/.xml), "
-                    "a Middlebury *_par.txt (give width and height), or COLMAP text (cameras.txt + images.txt)")
+CALIBRATION_HELP = ("calibration file(s): our rig JSON (.json), a plain camera list (.json: {\"cameras\": [{name, K, "
+                    "distCoef, R, t, resolution}]}, as CMU Panoptic's calibration_*.json), OpenCV FileStorage "
+                    "(.yml/.yaml/.xml), a Middlebury *_par.txt (give width and height), or COLMAP text (cameras.txt + "
+                    "images.txt)")
+UNITS_HELP = ("the unit of the calibration's translations t: m, cm, mm, or a positive number of metres per unit "
+              "(e.g. 0.0254 for inches); default: cm for a plain camera list (CMU Panoptic's), m for every other "
+              "format. The stored rig is in metres.")
 
 
 class RigSummary(BaseModel):
@@ -109,13 +115,21 @@ async def create_rig(
     name: str | None = Form(None, max_length=200, description="a name to show (default: the file name)"),
     width: int | None = Form(None, ge=1, le=65535, description="image width (Middlebury *_par.txt only)"),
     height: int | None = Form(None, ge=1, le=65535, description="image height (Middlebury *_par.txt only)"),
+    units: str | None = Form(None, max_length=32, description=UNITS_HELP),
+    camera_type: str | None = Form(None, max_length=64, description="plain camera list only: keep the cameras "
+                                                                    "of this type (e.g. hd of CMU Panoptic's "
+                                                                    "vga, hd and kinect-color)"),
     svc: Services = Depends(services),
 ) -> JSONResponse:
     for f in files:
         check_size(f, svc.settings.max_upload_bytes)
+    try:
+        metres_per_unit(units, CAMERA_LIST)
+    except RigError as exc:
+        raise ApiError(422, f"units: {str(exc).split(': ', 2)[-1]}", "invalid_parameters") from None
     contents = [(safe_name(f.filename or "rig.json", "rig.json"), await f.read()) for f in files]
     try:
-        rig, fmt = await run_in_threadpool(_parse_calibration, contents, width, height)
+        rig, fmt = await run_in_threadpool(_parse_calibration, contents, width, height, units, camera_type)
     except (RigError, CameraError, ValueError) as exc:
         raise ApiError(422, f"unusable calibration: {exc}", "invalid_rig") from None
     _check_rig(rig, svc)
@@ -126,12 +140,14 @@ async def create_rig(
     return JSONResponse(body, 201, headers={"Location": f"/v1/rigs/{rig_id}"})
 
 
-def _parse_calibration(contents: list[tuple[str, bytes]], width: int | None, height: int | None) -> tuple[Rig, str]:
-    """The rig of uploaded calibration files and the format's name. The readers name the files they
-    read by path: an error shows the client's file name, never this temporary folder."""
+def _parse_calibration(contents: list[tuple[str, bytes]], width: int | None, height: int | None,
+                       units: str | None = None, camera_type: str | None = None) -> tuple[Rig, str]:
+    """The rig of uploaded calibration files (in metres: ``units`` as :func:`metres_per_unit`) and the
+    format's name. The readers name the files they read by path: an error shows the client's file
+    name, never this temporary folder."""
     with tempfile.TemporaryDirectory(prefix="sweepcast-rig-") as tmp:
         try:
-            return _read_calibration(Path(tmp), contents, width, height)
+            return _read_calibration(Path(tmp), contents, width, height, units, camera_type)
         except (RigError, CameraError, ValueError) as exc:
             raise ValueError(_without_folder(str(exc), Path(tmp))) from None
 
@@ -144,7 +160,8 @@ def _without_folder(message: str, folder: Path) -> str:
 
 
 def _read_calibration(folder: Path, contents: list[tuple[str, bytes]], width: int | None,
-                      height: int | None) -> tuple[Rig, str]:
+                      height: int | None, units: str | None = None,
+                      camera_type: str | None = None) -> tuple[Rig, str]:
     """Write the files into ``folder`` and read them with the reader their names call for."""
     names = sorted(n for n, _ in contents)
     for filename, data in contents:
@@ -153,16 +170,18 @@ def _read_calibration(folder: Path, contents: list[tuple[str, bytes]], width: in
         if names != ["cameras.txt", "images.txt"]:
             raise ValueError(f"several files are only understood as COLMAP text (cameras.txt + images.txt); "
                              f"got {', '.join(names)}")
-        return load_rig_file(folder), "colmap"
+        return load_rig_file(folder, units, camera_type), "colmap"
     path = folder / names[0]
     if path.name.endswith("_par.txt"):
         if width is None or height is None:
             raise ValueError("a Middlebury *_par.txt has no image size: give the form fields width and height")
-        return load_middlebury_par(path, width, height), "middlebury"
+        if camera_type is not None:
+            raise ValueError("camera_type: only a plain camera list has camera types")
+        return load_middlebury_par(path, width, height).rescaled(metres_per_unit(units, "middlebury")), "middlebury"
     if path.name in ("cameras.txt", "images.txt"):
         raise ValueError("COLMAP text needs both cameras.txt and images.txt")
-    fmt = {".json": "json", ".yml": "opencv", ".yaml": "opencv", ".xml": "opencv"}.get(path.suffix.lower())
-    return load_rig_file(path), fmt or "unknown"
+    fmt = rig_format(path)
+    return load_rig_file(path, units, camera_type), fmt
 
 
 def _check_rig(rig: Rig, svc: Services) -> None:

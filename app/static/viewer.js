@@ -14,7 +14,7 @@
     orbit: null, azimuth: 0, elevation: 0, distance: 1,
     frame: 0, frames: 0, fps: 0, player: null,
     nextId: 1, inFlight: null, inFlightAt: 0, dirty: false, sentAt: new Map(),
-    received: 0, arrivals: [], latencies: [], lastHeader: null, errors: [],
+    received: 0, arrivals: [], latencies: [], lastHeader: null, errors: [], sizeChosen: false,
   };
   window.viewerState = state; // read by the browser tests and handy in the console
 
@@ -117,6 +117,7 @@
       state.orbit = message.orbit;
       state.frames = message.frames || 0;
       state.fps = message.fps || 0;
+      if (message.view_size && !state.sizeChosen) startSize(message.view_size);
       goHome();
       $("timeline").hidden = !state.frames;
       $("frame").max = Math.max(state.frames - 1, 0);
@@ -188,6 +189,16 @@
     if (state.dirty) requestView();
   }
 
+  function startSize([width, height]) {  // the server's default view size, until the user picks one
+    const value = `${width}x${height}`;
+    if (![...$("size").options].some((o) => o.value === value)) {
+      const option = new Option(`${width}×${height}`, value);
+      const after = [...$("size").options].find((o) => Number(o.value.split("x")[0]) > width);
+      $("size").add(option, after || null);
+    }
+    $("size").value = value;
+  }
+
   function goHome() {
     state.azimuth = 0;
     state.elevation = state.orbit ? state.orbit.elevation : 15;
@@ -225,6 +236,7 @@
 
   // --- controls ---------------------------------------------------------------------------------
   for (const id of ["method", "overlay", "size", "planes", "aggregation"]) $(id).addEventListener("change", requestView);
+  $("size").addEventListener("change", () => { state.sizeChosen = true; });
   $("dbnd").addEventListener("input", () => {
     $("dbnd-auto").checked = false;
     $("dbnd-value").value = dBnd();

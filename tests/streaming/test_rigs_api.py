@@ -8,6 +8,7 @@ import pytest
 from tests.streaming.capture import png, rig_json, write_videos, zip_bytes
 from tests.streaming.conftest import add_recording, add_rig, wait_recording, wait_until
 from workers.camera import rotation_to_quat
+from workers.streaming.demo import DEMO_SIZE
 from workers.streaming.video import probe_video
 
 
@@ -184,7 +185,7 @@ def test_first_start_creates_the_demo_rig_and_starts_its_recording(client_factor
     rig = client.get("/v1/rigs").json()["rigs"][0]
     assert rig["demo"] and rig["cameras"] == 10
     detail = client.get(f"/v1/rigs/{rig['id']}").json()
-    assert detail["calibration"]["cameras"][0]["width"] == 320
+    assert (detail["calibration"]["cameras"][0]["width"], detail["calibration"]["cameras"][0]["height"]) == DEMO_SIZE
     (rec,) = detail["recordings"]
     assert rec["kind"] == "demo" and rec["state"] in ("processing", "ready")
     job = client.get(f"/v1/jobs/{rec['job_id']}").json()

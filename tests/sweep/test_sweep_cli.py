@@ -58,6 +58,29 @@ def test_render_lookat_pose_with_size(capture_dir):
     assert cv2.imread(str(d / "v.png")).shape == (60, 80, 3) and cv2.imread(str(d / "d.png")) is not None
 
 
+def test_render_with_k_camera_blending_matches_the_library(capture_dir, capture):
+    """``--method kojima_k`` renders what SweepRenderer renders with that method (D_bnd derived and given)."""
+    from workers.sweep.renderer import SweepRenderer
+    from workers.sweep.rig_io import load_images, load_rig
+    from workers.sweep.virtual import parse_pose
+
+    d = capture_dir
+    for extra in ([], ["--d-bnd", "0.1"]):
+        args = _parser().parse_args([
+            "render", "--rig", str(d / "rig.json"), "--images", str(d / "img"), "--backgrounds", str(d / "bg"),
+            "--pose", "cam02:cam03:0.4", "--method", "kojima_k", "--planes", "16", "--near", str(NEAR), "--far",
+            str(FAR), "--out", str(d / "k.png"), "--regions-out", str(d / "k_reg.png"), *extra])
+        assert args.func(args) == 0
+        rig = load_rig(str(d / "rig.json"))
+        r = SweepRenderer(rig, load_images(rig, str(d / "img")), backgrounds=load_images(rig, str(d / "bg")))
+        want = r.render(parse_pose("cam02:cam03:0.4", rig), method="kojima_k", planes=16, near=NEAR, far=FAR,
+                        d_bnd=float(extra[1]) if extra else None)
+        np.testing.assert_array_equal(cv2.imread(str(d / "k.png")), want.image)
+        if extra:  # D_bnd 0.1 is wide for 15-degree spacing: three or more cameras somewhere, drawn red
+            assert (want.regions >= 3).any()
+            assert (cv2.imread(str(d / "k_reg.png"))[want.regions >= 3] == (0, 0, 230)).all()
+
+
 @pytest.mark.parametrize("change,needle", [
     (["--pose", "nosuchcam"], "camera 'nosuchcam': field 'name'"),
     (["--pose", "cam01:cam02:abc"], "not a number"),

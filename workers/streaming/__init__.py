@@ -16,12 +16,14 @@ Modules (import from them; arrays follow workers.camera conventions, images uint
   (``import_videos``, ``import_image_zip``), ``temporal_median``.
 - ``background``: ``BackgroundModel``, the per-camera empty-scene model of a live stream.
 - ``session``: ``RecordingSession`` / ``LiveSession`` (render a ``Viewpoint`` to a header and a JPEG),
-  ``SessionLimits``, ``ViewError``.
+  ``SessionLimits``, ``ViewError``; a recording is rendered from frames shrunk to about the viewer's size
+  (``source_factor``, ``shrunk_rig``, ``shrunk_images``).
 - ``actor``: the Ray ``SessionActor`` (one per rig and source; idle end; restarts reload from the
   blob store), ``SessionConfig``, ``SessionClient`` (async, API side), ``list_sessions``,
   ``session_info``, ``end_sessions``.
 - ``store``: rigs, recordings and live frames in the blob store.
 - ``batch``: camera paths and ``render_path`` (H.264 MP4 + zip of depth PNGs).
-- ``demo``: ``demo_rig``, ``demo_scene``, ``build_demo_recording``.
+- ``demo``: ``demo_rig`` (10 cameras, 640x480), ``demo_scene`` (the photographic studio of
+  ``workers.synth.studio_scene``), ``build_demo_recording``.
 - ``job``: job entry points ``run_recording_import``, ``run_batch_render``, ``run_demo_recording``.
 """

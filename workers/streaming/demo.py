@@ -1,5 +1,6 @@
-"""The first-run demo: the procedural studio (workers.synth) seen by a 10-camera arc rig, with a
-short recording of a small sphere circling the object group."""
+"""The first-run demo: the photographic studio (:func:`workers.synth.studio_scene`: a lit plank stage in
+a green-screen studio, objects wrapped in photographs, soft shadows) seen by a 10-camera 640x480 arc rig, with a
+short recording of a small ball circling the object group."""
 from __future__ import annotations
 
 import dataclasses
@@ -8,14 +9,14 @@ from typing import Callable
 
 import numpy as np
 
-from workers.synth import Scene, Sphere, default_arc_rig, default_scene, render_views
+from workers.synth import Scene, Sphere, default_arc_rig, render_moved, render_views, studio_scene
 from workers.sweep.rig import Rig
 
 from .recording import ArchiveWriter, RecordingInfo
 
-DEMO_NAME = "Demo: procedural studio"
+DEMO_NAME = "Demo: photographic studio"
 DEMO_CAMERAS = 10
-DEMO_SIZE = (320, 240)
+DEMO_SIZE = (640, 480)
 ORBIT_RADIUS = 0.5
 
 
@@ -25,10 +26,10 @@ def demo_rig(cameras: int = DEMO_CAMERAS, size: tuple[int, int] = DEMO_SIZE) -> 
 
 
 def demo_scene(phase: float) -> Scene:
-    """The studio with its small sphere at ``phase`` (0..1) of a circle around the object group."""
-    scene = default_scene()
+    """The studio with its small ball at ``phase`` (0..1) of a circle around the object group."""
+    scene = studio_scene()
     objects = list(scene.objects)
-    k, ball = next((i, o) for i, o in enumerate(objects) if isinstance(o, Sphere) and o.radius < 0.2)
+    k, ball = _ball(scene)
     a0 = np.arctan2(ball.center[1], ball.center[0])
     a = a0 + 2 * np.pi * phase
     objects[k] = dataclasses.replace(ball, center=(ORBIT_RADIUS * float(np.cos(a)), ORBIT_RADIUS * float(np.sin(a)),
@@ -36,19 +37,30 @@ def demo_scene(phase: float) -> Scene:
     return dataclasses.replace(scene, objects=tuple(objects))
 
 
+def _ball(scene: Scene) -> tuple[int, Sphere]:
+    """Index and object of the studio's small (moving) ball."""
+    return next((i, o) for i, o in enumerate(scene.objects) if isinstance(o, Sphere) and o.radius < 0.2)
+
+
 def build_demo_recording(rig: Rig, out: str | Path, frames: int, fps: float,
                          progress: Callable[[float, str], None] | None = None) -> RecordingInfo:
     """Render ``frames`` frames of :func:`demo_scene` with every rig camera into a recording archive
-    at ``out``; the backgrounds are the exact empty-studio views."""
+    at ``out``; the backgrounds are the exact empty-studio views. Each camera's view of the studio
+    without the ball is cast once; each frame then casts again only the rays the ball can change (it
+    or its shadow: :func:`workers.synth.render_moved`, the same pixels as a full render)."""
     writer = ArchiveWriter(out, rig, fps)
     cams = list(rig.cameras)
     try:
+        first = demo_scene(0.0)
+        k, _ = _ball(first)
+        stills = render_views(dataclasses.replace(first, objects=first.objects[:k] + first.objects[k + 1:]), cams)
+        for c, still in enumerate(stills):
+            writer.set_background(c, still.background)
         for f in range(frames):
-            views = render_views(demo_scene(f / frames), cams, with_background=(f == 0))
-            for c, view in enumerate(views):
-                writer.add(c, view.image)
-                if f == 0:
-                    writer.set_background(c, view.background)
+            scene = demo_scene(f / frames)
+            ball = _ball(scene)[1]
+            for c, still in enumerate(stills):
+                writer.add(c, render_moved(scene, still, ball))
             if progress is not None:
                 progress((f + 1) / frames, f"rendering demo frame {f + 1}/{frames}")
         return writer.finish("given")

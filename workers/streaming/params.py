@@ -18,7 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from workers.sweep.renderer import MAX_PLANES
 
 Vec3 = tuple[float, float, float]
-Method = Literal["kojima", "nearest", "ulr", "global"]
+Method = Literal["kojima", "kojima_k", "nearest", "ulr", "global"]
 STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
@@ -90,6 +90,10 @@ class SweepSettings(BaseModel):
                               "'window' on the cameras' variance over a 5x5 px window, 'sgm' the windowed cost "
                               "with semi-global smoothing (best on real scenes, slowest); see "
                               "workers.sweep.costs")
+    visibility: bool = Field(
+        False, description="colour each pixel only from the cameras its surface point is not hidden from by a "
+                           "nearer surface of the view (per-camera z-buffers of the rendered depth); see "
+                           "workers.sweep.visibility")
 
     @model_validator(mode="after")
     def _near_far(self) -> "SweepSettings":
@@ -100,13 +104,13 @@ class SweepSettings(BaseModel):
     def render_fields(self) -> dict:
         """The fields :class:`RenderOptions` takes."""
         return self.model_dump(include={"method", "d_bnd", "k", "planes", "near", "far", "visual_hull", "coarse_to_fine",
-                                             "aggregation"})
+                                             "aggregation", "visibility"})
 
 
 class Viewpoint(ViewPose, SweepSettings):
     """One viewer message: pose, output ``width`` x ``height``, renderer settings, which frame
-    (a recording frame index, or ``"live"``), an ``overlay`` (one-/two-camera ``regions`` or
-    ``depth``) and the JPEG ``quality``. ``id`` is echoed in the answer's header."""
+    (a recording frame index, or ``"live"``), an ``overlay`` (``regions``: by the number of cameras
+    blended, 1 / 2 / 3+; or ``depth``) and the JPEG ``quality``. ``id`` is echoed in the answer's header."""
 
     model_config = STRICT
     type: Literal["view"] = "view"

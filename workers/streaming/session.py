@@ -4,13 +4,19 @@ JPEG views for any number of viewers. Plain Python (no Ray): :mod:`workers.strea
 :meth:`Session.render` answers one :class:`Viewpoint` with ``(header, jpeg)``; the header is::
 
     {"type": "frame", "id": <the viewpoint's id>, "frame": <index> | "live", "seq": <live set> | null,
-     "width", "height", "method", "d_bnd", "planes", "overlay",
+     "width", "height", "method", "d_bnd", "planes", "overlay", "source_factor": <int, see below>,
      "depth_range": [near, far]  (metres, the swept range), "depth_found": [min, max] | null,
      "coverage": share of pixels with a surface, "render_ms", "encode_ms", "reshaded": bool,
      "timings": {stage: ms}}
 
 A viewer whose new viewpoint differs from its previous one only in the colour weighting (method,
 D_bnd, k) is answered by re-shading the previous depth, without a new sweep.
+
+A recording session renders from frames at about the viewer's size: for a view w x h it shrinks the
+rig's images by the integer factor :func:`source_factor` (the largest that keeps them at least w x h;
+1920x1080 cameras and a 640x360 view: 3), once per frame set and factor (area averaging, then the
+renderer's undistortion at the small size), and keeps a renderer per factor in use (at most
+``MAX_LEVELS``). The header then also says ``"source_factor"`` (1: the recorded size).
 """
 from __future__ import annotations
 
@@ -19,10 +25,11 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any, Sequence
 
+import cv2
 import numpy as np
 from pydantic import ValidationError
 
-from workers.camera import CameraError
+from workers.camera import Camera, CameraError
 from workers.sweep.overlays import depth_image, regions_image
 from workers.sweep.renderer import RenderOptions, RenderResult, SweepRenderer
 from workers.sweep.rig import Rig, RigError
@@ -35,6 +42,44 @@ from .viewpoint import OrbitFrame, orbit_frame, virtual_camera
 
 MiB = 1 << 20
 OVERLAY_WEIGHT = 0.55
+MAX_SOURCE_FACTOR = 8
+MAX_LEVELS = 3
+
+
+def source_factor(rig: Rig, width: int, height: int) -> int:
+    """The factor (1..MAX_SOURCE_FACTOR) a recording session shrinks ``rig``'s images by for views of
+    ``width`` x ``height`` px: the largest integer that keeps every camera's image at least that size
+    (a view never samples images coarser than itself)."""
+    k = int(min(min(c.width for c in rig.cameras) / width, min(c.height for c in rig.cameras) / height))
+    return max(1, min(k, MAX_SOURCE_FACTOR))
+
+
+def shrunk_camera(cam: Camera, factor: int) -> Camera:
+    """``cam`` for its image resized to round(W / factor) x round(H / factor) px: K scaled per axis by
+    the exact size ratios (pixel centres kept: u' = (u + 0.5) W'/W - 0.5), distortion unchanged (it acts
+    on normalised coordinates)."""
+    w, h = max(1, round(cam.width / factor)), max(1, round(cam.height / factor))
+    sx, sy = w / cam.width, h / cam.height
+    K = cam.K.copy()
+    K[0] *= sx
+    K[1] *= sy
+    K[0, 2] = (cam.K[0, 2] + 0.5) * sx - 0.5
+    K[1, 2] = (cam.K[1, 2] + 0.5) * sy - 0.5
+    return Camera(cam.name, K, cam.R, cam.t, w, h, cam.dist)
+
+
+def shrunk_rig(rig: Rig, factor: int) -> Rig:
+    """``rig`` with every camera :func:`shrunk_camera` by ``factor`` (``rig`` itself for 1)."""
+    if factor == 1:
+        return rig
+    return Rig(tuple(shrunk_camera(c, factor) for c in rig.cameras), rig.image_files, rig.depth_range)
+
+
+def shrunk_images(images: Sequence[np.ndarray], rig: Rig) -> list[np.ndarray]:
+    """``images`` (H, W, 3) uint8 each, area-averaged to the sizes of ``rig``'s cameras (unchanged when equal)."""
+    return [img if img.shape[:2] == (c.height, c.width)
+            else cv2.resize(img, (c.width, c.height), interpolation=cv2.INTER_AREA)
+            for img, c in zip(images, rig.cameras)]
 
 
 class ViewError(ValueError):
@@ -72,6 +117,7 @@ class Session:
         self.orbit: OrbitFrame = orbit_frame(rig)
         self.renderer: SweepRenderer | None = None
         self.frame_key: Any = None
+        self.source_factor = 1
         self._previous: OrderedDict[str, tuple[tuple, RenderResult]] = OrderedDict()
         self.renders = 0
 
@@ -95,7 +141,8 @@ class Session:
             previous = self._previous.get(viewer)
             reshaded = previous is not None and previous[0] == key
             if reshaded:
-                result = self.renderer.reshade(previous[1], method=vp.method, d_bnd=vp.d_bnd, k=vp.k)
+                result = self.renderer.reshade(previous[1], method=vp.method, d_bnd=vp.d_bnd, k=vp.k,
+                                                 visibility=vp.visibility)
             else:
                 result = self.renderer.render(cam, options)
         except (RigError, CameraError, ValidationError) as exc:
@@ -109,7 +156,7 @@ class Session:
         header = {
             "type": "frame", "id": vp.id, "frame": frame_label, "seq": self.seq,
             "width": vp.width, "height": vp.height, "method": vp.method, "d_bnd": result.d_bnd, "planes": vp.planes,
-            "overlay": vp.overlay,
+            "overlay": vp.overlay, "source_factor": self.source_factor,
             "depth_range": [float(result.planes.min()), float(result.planes.max())],
             "depth_found": [float(result.depth[found].min()), float(result.depth[found].max())] if found.any() else None,
             "coverage": float(found.mean()),
@@ -146,9 +193,20 @@ class Session:
             self._previous.popitem(last=False)
 
 
+@dataclass
+class _Level:
+    """The rig shrunk by ``factor``, its renderer and the frame index the renderer holds (None: unknown)."""
+
+    factor: int
+    rig: Rig
+    renderer: SweepRenderer
+    frame: int | None
+
+
 class RecordingSession(Session):
-    """Views of a stored recording; viewers pick the frame index. Decoded frame sets are cached
-    (least recently used first out) up to ``limits.cache_bytes``."""
+    """Views of a stored recording; viewers pick the frame index. Frames are shrunk to about the
+    viewer's size (:func:`source_factor`, module docstring); shrunk frame sets are cached (least
+    recently used first out) up to ``limits.cache_bytes``."""
 
     kind = "recording"
 
@@ -160,9 +218,10 @@ class RecordingSession(Session):
         self.archive = archive
         self.frames = info.frames
         self.fps = info.fps
-        self._cache: OrderedDict[int, list[np.ndarray]] = OrderedDict()
-        self.renderer = SweepRenderer(rig, self._frame_set(0), backgrounds=archive.backgrounds())
-        self.frame_key = 0
+        self._cache: OrderedDict[tuple[int, int], list[np.ndarray]] = OrderedDict()
+        self._levels: OrderedDict[int, _Level] = OrderedDict()
+        start = Viewpoint()  # the protocol's default view size
+        self._use(source_factor(rig, start.width, start.height), 0)
 
     def _prepare(self, vp: Viewpoint) -> int:
         if not isinstance(vp.frame, int):
@@ -170,24 +229,49 @@ class RecordingSession(Session):
         if not 0 <= vp.frame < self.frames:
             raise ViewError("bad_frame", f"frame {vp.frame} is out of range: the recording has {self.frames} "
                                          f"frames (0..{self.frames - 1})")
-        if vp.frame != self.frame_key:
-            self.renderer.set_frames(self._frame_set(vp.frame))
-            self.frame_key = vp.frame
+        self._use(source_factor(self.rig, vp.width, vp.height), vp.frame)
         return vp.frame
 
-    def _frame_set(self, index: int) -> list[np.ndarray]:
-        if index in self._cache:
-            self._cache.move_to_end(index)
-            return self._cache[index]
-        images = self.archive.frame_set(index)
-        self._cache[index] = images
-        per_set = sum(i.nbytes for i in images)
-        while len(self._cache) > 1 and len(self._cache) * per_set > self.limits.cache_bytes:
+    def _use(self, factor: int, index: int) -> None:
+        """Make the renderer of ``factor`` current, holding frame set ``index`` (built or loaded only
+        when it is not already so)."""
+        level = self._levels.get(factor)
+        if level is None:
+            small = shrunk_rig(self.rig, factor)
+            backgrounds = shrunk_images(self.archive.backgrounds(), small)
+            level = _Level(factor, small, SweepRenderer(small, self._frame_set(small, factor, index),
+                                                        backgrounds=backgrounds), index)
+            self._levels[factor] = level
+            while len(self._levels) > MAX_LEVELS:
+                self._levels.popitem(last=False)
+        elif level.frame != index:
+            level.renderer.set_frames(self._frame_set(level.rig, factor, index))
+            level.frame = index
+        self._levels.move_to_end(factor)
+        self.renderer = level.renderer
+        self.source_factor = factor
+        self.frame_key = (factor, index)
+
+    def _frame_set(self, small: Rig, factor: int, index: int) -> list[np.ndarray]:
+        """Frame set ``index`` shrunk to the cameras of ``small`` (the rig shrunk by ``factor``)."""
+        key = (factor, index)
+        if key in self._cache:
+            self._cache.move_to_end(key)
+            return self._cache[key]
+        images = shrunk_images(self.archive.frame_set(index), small)
+        self._cache[key] = images
+        while len(self._cache) > 1 and sum(i.nbytes for s in self._cache.values() for i in s) > self.limits.cache_bytes:
             self._cache.popitem(last=False)
         return images
 
+    def discard_after_failure(self, viewer: str | None) -> None:
+        super().discard_after_failure(viewer)
+        for level in self._levels.values():
+            level.frame = None
+
     def describe(self) -> dict[str, Any]:
-        return {**super().describe(), "frames": self.frames, "fps": self.fps, "cached_frames": len(self._cache)}
+        return {**super().describe(), "frames": self.frames, "fps": self.fps, "cached_frames": len(self._cache),
+                "source_factors": sorted(self._levels)}
 
 
 class LiveSession(Session):

@@ -32,10 +32,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--images", required=True, help="folder with one image per rig camera")
     p.add_argument("--pose", required=True,
                    help="NAME | A:B:S (between rig cameras) | lookat:EX,EY,EZ:TX,TY,TZ[:UX,UY,UZ] | camera.json")
-    p.add_argument("--method", default="kojima", choices=["kojima", "nearest", "ulr", "global"])
+    p.add_argument("--method", default="kojima", choices=["kojima", "kojima_k", "nearest", "ulr", "global"],
+                   help="colour weighting: kojima (two-camera boundary blending, the paper), kojima_k (every "
+                        "camera within D_bnd of the nearest one), nearest, ulr, global (default: kojima)")
     p.add_argument("--out", required=True, help="output image (PNG/JPEG)")
     p.add_argument("--depth-out", help="depth map: .npy (float32 metres, inf = none) or an image (colour picture)")
-    p.add_argument("--regions-out", help="region map picture (one-camera regions by camera, blends black)")
+    p.add_argument("--regions-out",
+                   help="region map picture (one-camera regions by camera, two cameras blended black, three or more red)")
     p.add_argument("--backgrounds", help="folder of empty-scene images (same names): silhouettes by background subtraction")
     p.add_argument("--silhouettes", help="folder of silhouette masks (same names, non-zero = object)")
     p.add_argument("--size", help="virtual image size WxH (default: the pose camera's, 640x480 for lookat)")
@@ -43,7 +46,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--planes", type=int, default=RenderOptions.model_fields["planes"].default)
     p.add_argument("--near", type=float, help="nearest plane depth (default: the rig's depth range or a guess)")
     p.add_argument("--far", type=float, help="farthest plane depth")
-    p.add_argument("--d-bnd", type=float, help="D_bnd (kojima; default: from the camera spacing)")
+    p.add_argument("--d-bnd", type=float, help="D_bnd (kojima, kojima_k; default: from the camera spacing)")
     p.add_argument("--k", type=int, default=RenderOptions.model_fields["k"].default, help="cameras blended (ulr)")
     p.add_argument("--no-hull", action="store_true", help="do not cull with the visual hull")
     p.add_argument("--coarse-to-fine", action="store_true", help="half-resolution full sweep, then a narrow window")
@@ -54,6 +57,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--window", type=int, default=RenderOptions.model_fields["window"].default,
                    help="aggregation window radius in pixels (the window is 2r+1 square)")
     p.add_argument("--truncated", type=float, metavar="T", help="truncated-variance cost with threshold T (0..255)")
+    p.add_argument("--visibility", action=argparse.BooleanOptionalAction,
+                   default=RenderOptions.model_fields["visibility"].default,
+                   help="colour each pixel only from the cameras its surface point is not hidden from by a nearer "
+                        "surface of the view (per-camera z-buffers of the rendered depth)")
+    p.add_argument("--visibility-tolerance", type=float,
+                   default=RenderOptions.model_fields["visibility_tolerance"].default,
+                   help="relative depth margin of the visibility test (0.03: hidden when something is 3%% nearer)")
     p.set_defaults(func=run_render)
 
 
@@ -73,6 +83,7 @@ def run_render(args: argparse.Namespace) -> int:
             consistency="truncated" if args.truncated is not None else "variance",
             truncation=args.truncated if args.truncated is not None else 30.0,
             aggregation="none" if args.truncated is not None else args.aggregation, window=args.window,
+            visibility=args.visibility, visibility_tolerance=args.visibility_tolerance,
         )
         result = renderer.render(virtual, options)
     except (RigError, CameraError, ValidationError, ValueError) as e:

@@ -38,9 +38,9 @@ from .layout import CAM_F, CAM_I, MAX_BITS, TILE_COLS  # noqa: F401 - MAX_BITS: 
 from .layout import FAST as _FAST
 from .layout import SAFE as _SAFE
 from .layout import Z_MIN as _Z_MIN
-from .weighting import kojima_weights, ulr_weights
+from .weighting import kojima_k_weights, kojima_weights, ulr_weights
 
-GLOBAL, NEAREST, ULR, KOJIMA = 0, 1, 2, 3
+GLOBAL, NEAREST, ULR, KOJIMA, KOJIMA_K = 0, 1, 2, 3, 4  # weighting.METHODS order
 _LANE = np.uint64(21)
 _LANE2 = np.uint64(42)
 _LANE_MASK = np.uint64((1 << 21) - 1)
@@ -294,22 +294,38 @@ def _lerp2(a, b, c, d, fx, fy):  # pragma: no cover - compiled
 
 @njit(cache=True, parallel=True, fastmath=_FAST, error_model="numpy")
 def shade(Q, B, s_pix, imgs, sizes, sils, use_hull, centers, vcenter, G, method, d_bnd, k, gcam, fill,
-          out_img, regions, primary):  # pragma: no cover - compiled
-    """Colour of each virtual pixel at its chosen depth, by one of the four weightings.
+          out_img, regions, primary, weights, zbuf, zbox, vis_tol):  # pragma: no cover - compiled
+    """Colour of each virtual pixel at its chosen depth, by one of the five weightings.
 
     Q (N, 3, 3), B (N, 3) in camera order; s_pix (h, w) float64: each pixel's inverse depth (1/m along
     the virtual axis; a plane's, or between planes after sub-plane refinement), <= 0 where none; imgs (N, Hm, Wm, 3) uint8; sizes (N, 2) int64 (W, H);
     sils (N, Hm, Wm) uint8; centers (N, 3), vcenter (3,), G (3, 3) float64 (virtual ray matrix); method: GLOBAL, NEAREST,
-    ULR or KOJIMA; d_bnd (kojima), k (ulr: cameras blended), gcam (global: camera index); fill (3,)
-    colour for pixels without depth. Writes out_img (h, w, 3) uint8, regions (h, w) uint8 (number of
-    cameras with non-zero weight, 0 without depth) and primary (h, w) int16 (nearest camera or -1).
+    ULR, KOJIMA or KOJIMA_K; d_bnd (kojima, kojima_k), k (ulr: cameras blended), gcam (global: camera
+    index); fill (3,) colour for pixels without depth. Writes out_img (h, w, 3) uint8, regions (h, w)
+    uint8 (number of cameras with non-zero weight, 0 without depth) and primary (h, w) int16 (nearest
+    camera or -1); and, when ``weights`` is (h, w, N) float32 rather than empty ((0, 0, 0)), each
+    camera's weight at each pixel (0 for cameras not blended and pixels without depth).
     Only the cameras that receive a weight are sampled.
+
+    Visibility (on when zbuf is (N, Hm, Wm) float32 rather than empty (0, 0, 0)): zbuf, zbox (N, 4) int64
+    are the z-buffers of the view's own surface in each camera (:mod:`workers.sweep.visibility`; depth in m
+    along the camera's axis, valid inside box u0, u1, v0, v1). A camera whose image contains the point
+    is dropped when the point's depth in it exceeds (1 + vis_tol) times the smallest buffered depth at
+    the four pixels its colour would be sampled from (a nearer surface of the view covers them): it
+    then takes no part, exactly as a camera whose image does not contain the point. When that drops
+    every camera that sees the point, all of them take part (no new holes).
     """
     N = Q.shape[0]
     h, w = s_pix.shape
-    # cameras ranked per pixel: the nearest for nearest/global, two for kojima, k + 1 for ulr (threshold)
+    want_w = weights.shape[0] > 0
+    # cameras ranked per pixel: the nearest for nearest/global/kojima_k, two for kojima, k + 1 for ulr (threshold)
     n_rank = 2 if method == KOJIMA else (min(k + 1, N) if method == ULR else 1)
+    use_vis = zbuf.shape[0] > 0 and zbuf.shape[0] >= N and zbox.shape[0] >= N and zbox.shape[1] >= 4
+    vis_scale = 1.0 + vis_tol
+    zh = zbuf.shape[1]
+    zw = zbuf.shape[2]
     for y in prange(h):
+        seen = np.empty(N, np.bool_)  # visibility: no nearer surface of the view in front of the point
         cosv = np.empty(N)
         us = np.empty(N)
         vs = np.empty(N)
@@ -344,13 +360,40 @@ def shade(Q, B, s_pix, imgs, sizes, sils, use_hull, centers, vcenter, G, method,
                     us[m] = u
                     vs[m] = v
                     cam[m] = i
+                    if use_vis:
+                        # the smallest buffered depth over the four colour taps (inside the camera's box)
+                        xa = np.int64(u)
+                        ya = np.int64(v)
+                        xb = xa + 1 if u < sizes[i, 0] - 1 else xa
+                        yb = ya + 1 if v < sizes[i, 1] - 1 else ya
+                        zmin = np.inf
+                        if (zbox[i, 0] <= xa and xb <= zbox[i, 1] and zbox[i, 2] <= ya and yb <= zbox[i, 3]
+                                and yb < zh and xb < zw):
+                            zmin = min(min(zbuf[i, ya, xa], zbuf[i, ya, xb]), min(zbuf[i, yb, xa], zbuf[i, yb, xb]))
+                        seen[m] = hz * z <= zmin * vis_scale  # the point's depth along camera i: hz / s
                     m += 1
+            if use_vis and m > 1:
+                # keep only the cameras nothing of the view hides the point from (in camera order, as if the
+                # others' images did not contain it); all of them when none is left
+                nv = 0
+                for a in range(m):
+                    if seen[a]:
+                        cosv[nv] = cosv[a]
+                        us[nv] = us[a]
+                        vs[nv] = vs[a]
+                        cam[nv] = cam[a]
+                        nv += 1
+                if nv > 0:
+                    m = nv
             if m == 0:
                 out_img[y, x, 0] = fill[0]
                 out_img[y, x, 1] = fill[1]
                 out_img[y, x, 2] = fill[2]
                 regions[y, x] = 0
                 primary[y, x] = -1
+                if want_w:
+                    for i in range(N):
+                        weights[y, x, i] = 0.0
                 continue
             # the n_rank visible cameras of largest cosine, in decreasing order (partial selection sort)
             for a in range(m):
@@ -377,6 +420,12 @@ def shade(Q, B, s_pix, imgs, sizes, sils, use_hull, centers, vcenter, G, method,
                 for a in range(r):
                     theta[a] = np.arccos(min(1.0, max(-1.0, cosv[order[a]])))
                 n = ulr_weights(theta, r, k, wts)
+            elif method == KOJIMA_K and m >= 2:
+                # eq. (6k): every visible camera within d_bnd of the primary's cosine, in visibility order
+                kojima_k_weights(cosv, m, d_bnd, wts)
+                for a in range(m):
+                    order[a] = a
+                n = m
             elif method == GLOBAL:
                 for a in range(m):
                     if cam[a] == gcam:  # the global camera first; the nearest one when it cannot see
@@ -385,12 +434,17 @@ def shade(Q, B, s_pix, imgs, sizes, sils, use_hull, centers, vcenter, G, method,
             r1 = 0.0
             r2 = 0.0
             nreg = 0
+            if want_w:
+                for i in range(N):
+                    weights[y, x, i] = 0.0
             for a in range(n):
                 wa = wts[a]
                 if wa <= 0:
                     continue
                 nreg += 1
                 o = order[a]
+                if want_w:
+                    weights[y, x, cam[o]] = wa
                 i = np.uint64(cam[o])
                 u = us[o]
                 v = vs[o]

@@ -10,16 +10,20 @@ _PALETTE = np.array([
     (230, 230, 100), (255, 120, 200), (160, 160, 255), (100, 200, 200), (200, 200, 200),
 ], np.uint8)
 EMPTY_COLOR = (255, 255, 255)
-BLEND_COLOR = (0, 0, 0)
+BLEND_COLOR = (0, 0, 0)  # two cameras blended
+BLEND3_COLOR = (0, 0, 230)  # three or more cameras blended (red; no camera colour is a saturated red)
 
 
 def regions_image(regions: np.ndarray, primary: np.ndarray) -> np.ndarray:
-    """(h, w, 3) uint8 BGR: one-camera regions in a colour per camera (its ``primary`` index),
-    regions blending several cameras in black, pixels without a surface in white.
+    """(h, w, 3) uint8 BGR coloured by the number of cameras blended: one-camera regions in a colour
+    per camera (its ``primary`` index), two-camera regions black, regions blending three or more
+    cameras (kojima_k near the junctions of three one-camera regions, ulr with k >= 3) red, pixels
+    without a surface white.
 
     regions (h, w) uint8 and primary (h, w) int16 as in :class:`RenderResult`."""
     out = _PALETTE[np.maximum(primary, 0) % len(_PALETTE)].copy()
-    out[regions >= 2] = BLEND_COLOR
+    out[regions == 2] = BLEND_COLOR
+    out[regions >= 3] = BLEND3_COLOR
     out[regions == 0] = EMPTY_COLOR
     return out
 

@@ -11,6 +11,7 @@ geometry and buffers are kept.
 from __future__ import annotations
 
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
 from typing import Literal, Sequence
 
@@ -25,6 +26,7 @@ from . import costs, kernels
 from .lanes import lane_cost_volume
 from .rig import Rig, RigError
 from .silhouette import dilate, silhouette_box, silhouette_from_background
+from .visibility import ZBufferStore, surface_zbuffers
 from .weighting import METHOD_CODES, global_camera, neighbour_angle, suggest_d_bnd
 
 MAX_PLANES = 1024
@@ -36,9 +38,12 @@ class RenderOptions(BaseModel):
     """Per-call rendering options (validated; the service validates requests with this model).
 
     method: colour weighting (see :mod:`workers.sweep.weighting`). d_bnd: the paper's D_bnd
-    (kojima); None derives it from the rig: blending over half the angle between neighbouring
-    cameras as seen from the rendered surface (:func:`suggest_d_bnd`). k: cameras blended by ulr. planes: depth planes, uniform in inverse depth between
-    near and far (metres along the virtual axis; None: the rig's range or a heuristic).
+    (kojima; kojima_k blends every camera whose cosine is within D_bnd of the primary's); None
+    derives it from the rig: blending over half the angle between neighbouring cameras as seen from
+    the rendered surface (:func:`suggest_d_bnd`). k: cameras blended by ulr. planes: depth planes,
+    uniform in inverse depth between near and far (metres along the virtual axis; None: the rig's
+    ``depth_range``, else the range of the rig's working volume from its geometry alone,
+    :meth:`workers.sweep.rig.Rig.auto_depth_range`).
     visual_hull: cull with the silhouettes (None: when the renderer has silhouettes).
     coarse_to_fine: sweep all planes at half resolution (choosing by ``aggregation``), then only a window
     of ``refine_margin`` planes around the coarse choice at full resolution (winner-take-all there). consistency: variance of the camera samples, or its
@@ -56,11 +61,20 @@ class RenderOptions(BaseModel):
     whole cost volume of the search window (no pruning) and place the depth between planes by a parabola
     through the aggregated costs (``subplane``). The truncated consistency needs aggregation "none" (its
     default then).
+
+    visibility: colour each pixel only from the cameras that its surface point is not hidden from by a
+    nearer surface of the rendered view (z-buffers of the view's own depth map splatted into every camera,
+    :mod:`workers.sweep.visibility`); a hidden camera is treated as one whose image does not contain the
+    point, and where every camera is hidden all take part. visibility_tolerance: relative depth margin of
+    that test (0.03: a point counts as hidden when something is more than 3% nearer along the camera's axis).
+    Off by default: it gains 1-6 dB with a true depth, but with the sweep's own depth (wrong in the
+    half-occluded strips and at the occluding edges, where the test matters) it loses 0.2-2 dB
+    (benchmarks/RESULTS.md, issue 20).
     """
 
     model_config = ConfigDict(extra="forbid")
 
-    method: Literal["global", "nearest", "ulr", "kojima"] = "kojima"
+    method: Literal["global", "nearest", "ulr", "kojima", "kojima_k"] = "kojima"
     d_bnd: float | None = Field(None, gt=0.0, le=2.0)
     k: int = Field(3, ge=2, le=8)
     planes: int = Field(48, ge=2, le=MAX_PLANES)
@@ -81,6 +95,8 @@ class RenderOptions(BaseModel):
     sgm_p2: float = Field(32.0, ge=0.0, le=1000.0)
     sgm_directions: Literal[4, 8] = 8
     subplane: bool = True
+    visibility: bool = False
+    visibility_tolerance: float = Field(0.03, ge=1e-4, le=1.0)
 
     @model_validator(mode="after")
     def _compatible(self) -> "RenderOptions":
@@ -101,13 +117,13 @@ class RenderResult:
 
     image (h, w, 3) uint8 BGR; depth (h, w) float32 metres along the virtual axis, inf where no
     surface was found; regions (h, w) uint8: cameras with non-zero weight (kojima: 1 one-camera
-    region, 2 two-camera region; 0 no surface); primary (h, w) int16: index of the nearest-angle
+    region, 2 two-camera region; kojima_k also 3 and more; 0 no surface); primary (h, w) int16: index of the nearest-angle
     camera (-1 none), which shows the one-camera regions of Fig. 4(a); cost (h, w) float32: the
     photo-consistency at the chosen plane (the variance without aggregation, else the aggregated cost);
     planes (P,) float64 plane depths; plane_index (h, w) int32 the chosen plane (-1 none); plane_offset
     (h, w) float32 the sub-plane position in planes (-0.5..0.5; the depth is at inverse depth
     s[plane_index] + plane_offset * (s[1] - s[0])); visual_hull: whether the hull culled; d_bnd: the D_bnd
-    used (kojima; None for the other methods); timings: ms per stage.
+    used (kojima, kojima_k; None for the other methods); timings: ms per stage.
     """
 
     camera: Camera
@@ -154,6 +170,7 @@ class SweepRenderer:
         self._imgs = np.zeros((n, hm, wm, 3), np.uint8)  # for the colour
         self._pix = np.zeros((n, hm + 1, wm + 1), np.uint64)  # for the depth search (kernels.pack_images)
         self._sils = np.ones((n, hm, wm), np.uint8)
+        self._zbuffers = ZBufferStore((n, hm, wm))  # visibility: the view's surface per camera (float32 m)
         self._sil_bounds = np.empty((n, 6))  # per camera: W-1, H-1, silhouette box (kernels.hull_windows)
         self._sizes = np.array([[c.width, c.height] for c in self.cameras], np.int64)
         self._P = np.stack([c.P for c in self.cameras])
@@ -247,7 +264,7 @@ class SweepRenderer:
 
     def reshade(self, previous: RenderResult, options: RenderOptions | None = None, **kwargs: object) -> RenderResult:
         """The view of ``previous`` (same camera, same depth) coloured with other weighting options
-        (``method``, ``d_bnd``, ``k``, ``fill``): no new sweep. The frames must be the same."""
+        (``method``, ``d_bnd``, ``k``, ``fill``, ``visibility``): no new sweep. The frames must be the same."""
         t0 = time.perf_counter()
         opt = RenderOptions(**kwargs) if options is None else RenderOptions(**{**options.model_dump(), **kwargs})
         virtual = previous.camera
@@ -260,6 +277,22 @@ class SweepRenderer:
         return replace(previous, image=image, regions=regions, primary=primary, d_bnd=d_bnd,
                        timings={"shade_ms": ms, "total_ms": ms})
 
+    def blend_weights(self, previous: RenderResult, options: RenderOptions | None = None,
+                      **kwargs: object) -> np.ndarray:
+        """Each camera's colour weight at each pixel of ``previous`` (same camera, same depth, same
+        frames) under the weighting options (``method``, ``d_bnd``, ``k``, ``visibility``), as :meth:`reshade` would
+        colour it: (h, w, N) float32, N the rig's cameras in rig order; a pixel's weights sum to 1
+        (all 0 where there is no surface). For diagnostics: where the blended set of cameras changes,
+        how far a weight moves from pixel to pixel."""
+        opt = RenderOptions(**kwargs) if options is None else RenderOptions(**{**options.model_dump(), **kwargs})
+        virtual = previous.camera
+        Q, B, G = self._geometry(virtual)
+        d_bnd = self._d_bnd(virtual, previous.depth, opt)
+        s_pix = pixel_inverse_depth(1.0 / previous.planes, previous.plane_index, previous.plane_offset)
+        weights = np.empty(s_pix.shape + (len(self.cameras),), np.float32)
+        self._shade(virtual, Q, B, G, s_pix, previous.visual_hull, opt, d_bnd, weights=weights)
+        return weights
+
     def auto_d_bnd(self, virtual: Camera, depth: np.ndarray) -> float:
         """D_bnd blending over half the angle between neighbouring cameras, seen from the surface
         point on ``virtual``'s central ray at the median of ``depth`` (h, w) (1 m without any). Cameras
@@ -271,7 +304,7 @@ class SweepRenderer:
         return suggest_d_bnd(spacing if spacing > 0 else FALLBACK_SPACING_RAD, 0.5)
 
     def _d_bnd(self, virtual: Camera, depth: np.ndarray, opt: RenderOptions) -> float | None:
-        if opt.method != "kojima":
+        if opt.method not in ("kojima", "kojima_k"):
             return None
         return opt.d_bnd if opt.d_bnd is not None else self.auto_d_bnd(virtual, depth)
 
@@ -299,18 +332,26 @@ class SweepRenderer:
         return Q, B, G
 
     def _shade(self, virtual: Camera, Q: np.ndarray, B: np.ndarray, G: np.ndarray, s_pix: np.ndarray,
-               use_hull: bool, opt: RenderOptions,
-               d_bnd: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               use_hull: bool, opt: RenderOptions, d_bnd: float | None,
+               weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Image (h, w, 3) uint8, regions (h, w) uint8 and primary (h, w) int16 at the inverse depths
-        s_pix (h, w) float64 (1/m; 0 where no surface)."""
+        s_pix (h, w) float64 (1/m; 0 where no surface); fills ``weights`` (h, w, N) float32 with every
+        camera's weight when given."""
         h, w = s_pix.shape
         image = np.empty((h, w, 3), np.uint8)
         regions = np.empty((h, w), np.uint8)
         primary = np.empty((h, w), np.int16)
         gcam = global_camera(self._axes, virtual.axis)
-        kernels.shade(Q, B, s_pix, self._imgs, self._sizes, self._sils, use_hull, self._centers,
-                      virtual.center, G, METHOD_CODES[opt.method], d_bnd or 1.0, opt.k, gcam,
-                      np.asarray(opt.fill, np.uint8), image, regions, primary)
+        with self._zbuffers.taken() if opt.visibility else nullcontext() as store:
+            if store is not None:
+                zbuf, zbox = surface_zbuffers(Q, B, s_pix, self._sizes, store.shape, out=store)
+            else:
+                zbuf, zbox = np.empty((0, 0, 0), np.float32), np.empty((0, 4), np.int64)
+            kernels.shade(Q, B, s_pix, self._imgs, self._sizes, self._sils, use_hull, self._centers,
+                          virtual.center, G, METHOD_CODES[opt.method], d_bnd or 1.0, opt.k, gcam,
+                          np.asarray(opt.fill, np.uint8), image, regions, primary,
+                          weights if weights is not None else np.empty((0, 0, 0), np.float32),
+                          zbuf, zbox, opt.visibility_tolerance)
         return image, regions, primary
 
     def _choose(self, Q: np.ndarray, B: np.ndarray, center: np.ndarray, s_planes: np.ndarray, use_hull: bool,

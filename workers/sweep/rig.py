@@ -79,7 +79,7 @@ class Rig:
         return np.stack([c.axis for c in self.cameras])
 
     def focus_point(self) -> np.ndarray:
-        """The point nearest (least squares) to all optical axes, (3,): what the rig looks at.
+        """The point nearest (least squares) to all optical axes, (3,) float64 world: what the rig looks at.
 
         Falls back to 2 m in front of the mean centre when the axes are (nearly) parallel.
         """
@@ -93,15 +93,57 @@ class Rig:
             return self.centers().mean(axis=0) + 2.0 * self.axes().mean(axis=0)
         return np.linalg.solve(A, b)
 
+    def radius(self) -> float:
+        """The rig's radius, metres: the median distance of the camera centres from :meth:`focus_point`."""
+        return float(np.median(np.linalg.norm(self.centers() - self.focus_point(), axis=1)))
+
     def auto_depth_range(self, virtual: Camera) -> tuple[float, float]:
-        """(near, far) for ``virtual``: ``depth_range`` when known, else 0.5x..2x the depth of
-        :meth:`focus_point` (a heuristic for object-centred rigs; pass near/far when you know better)."""
+        """(near, far) metres along ``virtual``'s axis: ``depth_range`` when the rig gives one, else the
+        range of the rig's working volume, from the rig geometry alone (no silhouettes needed).
+
+        The rule: cameras set up around a scene look at it, so the scene lies about their focus point
+        ``c`` (:meth:`focus_point`, the least-squares point nearest to all optical axes) and ends about
+        where the cameras stand, on the sphere of the rig radius ``R`` (:meth:`radius`) about ``c`` (a
+        studio dome's wall, the far side of a room with cameras on its walls). Content nearer to a
+        camera than half-way to ``c`` is seen by too few cameras to be matched. With ``z_c`` the depth
+        of ``c`` in ``virtual``::
+
+            far  = z_c + R                                   (the far side of that sphere)
+            near = max(z_c - R / 2, far / NEAR_FAR_RATIO)    (half-way in; a virtual camera standing
+                                                              inside the volume gets far / 20)
+
+        A virtual camera at the rig's home orbit (``z_c = R``) so sweeps R/2 .. 2R. RigError when the
+        whole volume is behind ``virtual`` (``far <= 0``): give near/far.
+        """
         if self.depth_range is not None:
             return self.depth_range
         z = float(virtual.to_camera(self.focus_point()[None])[0, 2])
-        if not z > 0:
-            raise RigError(virtual.name, "pose", "the rig's focus point is behind the virtual camera; give near/far")
-        return 0.5 * z, 2.0 * z
+        radius = self.radius()
+        if not radius > 0:
+            raise RigError(None, "cameras", "every camera stands at the focus point (no working volume); give near/far")
+        far = z + radius
+        if not far > 0:
+            raise RigError(virtual.name, "pose", "the rig's working volume is behind the virtual camera; give near/far")
+        return max(z - 0.5 * radius, far / NEAR_FAR_RATIO), far
+
+    def rescaled(self, metres_per_unit: float) -> "Rig":
+        """The same rig with world lengths given in another unit: every translation (so every camera
+        centre) and ``depth_range`` multiplied by ``metres_per_unit`` (e.g. 0.01 for a file in
+        centimetres); intrinsics, rotations and image names unchanged."""
+        f = float(metres_per_unit)
+        if not (np.isfinite(f) and f > 0):
+            raise RigError(None, "units", f"the scale must be a positive number of metres per unit, "
+                                          f"got {metres_per_unit!r}")
+        if f == 1.0:
+            return self
+        cams = tuple(Camera(c.name, c.K, c.R, c.t * f, c.width, c.height, c.dist) for c in self.cameras)
+        dr = None if self.depth_range is None else (self.depth_range[0] * f, self.depth_range[1] * f)
+        return Rig(cams, self.image_files, dr)
+
+
+NEAR_FAR_RATIO = 20.0
+"""Largest far/near of :meth:`Rig.auto_depth_range` (planes are uniform in inverse depth: a nearer near
+thins the planes at the subject)."""
 
 
 def depth_range_from_box(camera: Camera, lo: np.ndarray, hi: np.ndarray, margin: float = 0.05) -> tuple[float, float]:

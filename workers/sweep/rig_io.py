@@ -10,6 +10,17 @@ Our JSON::
                   "dist": [k1,k2,p1,p2,k3] (optional), "image": "cam00.png" (optional)}, ...],
      "depth_range": [near, far] (optional)}
 
+A plain camera list (the layout CMU Panoptic's ``calibration_*.json`` ships, and many studio domes,
+sports rigs and webcam arrays use)::
+
+    {"cameras": [{"name": "00_00", "type": "hd" (optional), "resolution": [1920, 1080],
+                  "K": [[fx,0,cx],[0,fy,cy],[0,0,1]], "distCoef": [k1,k2,p1,p2,k3] (optional),
+                  "R": [[...]x3] (world-to-camera), "t": [[tx],[ty],[tz]] (3x1 or 3)}, ...]}
+
+(or the bare list). Its ``t`` is in any unit: :func:`load_rig` takes the unit (``units``), by default
+centimetres (:data:`DEFAULT_UNITS`), Panoptic's. Pixel (0, 0) is taken as the centre of the top-left
+pixel, as in OpenCV (Panoptic's ``projectPoints`` is OpenCV's).
+
 OpenCV FileStorage (YAML/XML): a sequence ``cameras`` of maps with ``name``, ``K`` (or
 ``camera_matrix``), ``dist`` (or ``distortion_coefficients``, ``D``), ``R`` (3x3, or a 3-vector
 Rodrigues ``rvec``), ``t`` (or ``T``, ``tvec``), ``width``/``height`` (or ``image_width``/
@@ -65,18 +76,110 @@ def rig_to_dict(rig: Rig) -> dict[str, Any]:
 
 def load_rig_json(path: str | Path) -> Rig:
     """Read our JSON rig file."""
+    return rig_from_dict(_read_json(path))
+
+
+def _read_json(path: str | Path) -> Any:
     try:
-        d = json.loads(Path(path).read_text())
-    except json.JSONDecodeError as e:
+        return json.loads(Path(path).read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise RigError(None, "file", f"{Path(path).name} is not valid JSON ({e})") from None
     except RecursionError:  # "[[[[...]]]]": json's recursive parser runs out of stack
         raise RigError(None, "file", f"{Path(path).name} nests too deeply to be a rig") from None
-    return rig_from_dict(d)
 
 
 def save_rig_json(rig: Rig, path: str | Path) -> None:
     """Write ``rig`` as our JSON."""
     Path(path).write_text(json.dumps(rig_to_dict(rig), indent=1))
+
+
+# --- a plain camera list (CMU Panoptic) -------------------------------------------------------
+CAMERA_LIST = "camera_list"
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+"""Unit names :func:`metres_per_unit` understands, in metres."""
+DEFAULT_UNITS = {CAMERA_LIST: "cm"}
+"""The unit of ``t`` when the upload names none, per format; every other format is read in metres."""
+_LIST_KEYS = ("resolution", "distCoef")
+
+
+def is_camera_list(d: Any) -> bool:
+    """Whether parsed JSON ``d`` is a plain camera list (its cameras have ``resolution`` or ``distCoef``
+    and no ``width``) rather than our rig JSON."""
+    cams = d if isinstance(d, list) else d.get("cameras") if isinstance(d, dict) else None
+    if not isinstance(cams, list) or not cams:
+        return False
+    entries = [c for c in cams if isinstance(c, dict)]
+    return (any(k in c for c in entries for k in _LIST_KEYS) and not any("width" in c for c in entries))
+
+
+def rig_from_camera_list(d: Any, metres_per_unit: float = UNITS[DEFAULT_UNITS[CAMERA_LIST]],
+                         camera_type: str | None = None) -> Rig:
+    """A rig from a plain camera list (see the module docstring), ``t`` scaled to metres by
+    ``metres_per_unit``; ``camera_type`` keeps only the cameras of that ``type`` (Panoptic mixes "vga",
+    "hd" and "kinect-color" cameras in one file).
+
+    Validated strictly, naming the camera and field: ``resolution`` two positive integers, ``K`` 3x3
+    upper triangular with positive focal lengths, ``distCoef`` 4, 5, 8, 12 or 14 numbers, ``R`` a 3x3
+    rotation (orthonormal within 1e-5, det +1), ``t`` 3 numbers (3 or 3x1), all finite; names unique."""
+    cams_in = d if isinstance(d, list) else d.get("cameras") if isinstance(d, dict) else None
+    if not isinstance(cams_in, list):
+        raise RigError(None, "cameras", "missing or not a list")
+    cams = []
+    types = set()
+    for i, cd in enumerate(cams_in):
+        if not isinstance(cd, dict):
+            raise RigError(f"#{i}", "camera", "is not an object")
+        name = str(cd.get("name", f"#{i}"))
+        kind = cd.get("type")
+        types.add(str(kind))
+        if camera_type is not None and kind != camera_type:
+            continue
+        for key in ("K", "R", "t", "resolution"):
+            if key not in cd:
+                raise CameraError(name, key, "missing")
+        res = cd["resolution"]
+        if (not isinstance(res, list) or len(res) != 2
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 and v == int(v)
+                           for v in res)):
+            raise CameraError(name, "resolution", f"must be [width, height], two positive integers, got {res!r}")
+        t = _vector3(name, cd["t"]) * float(metres_per_unit)
+        cams.append(Camera(name, cd["K"], cd["R"], t, int(res[0]), int(res[1]), cd.get("distCoef")))
+    if camera_type is not None and not cams:
+        raise RigError(None, "camera_type", f"no camera of type {camera_type!r} (the file has: "
+                                            f"{', '.join(sorted(types))})")
+    return Rig(tuple(cams))
+
+
+def _vector3(name: str, t: Any) -> np.ndarray:
+    try:
+        v = np.array(t, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CameraError(name, "t", "is not numeric") from None
+    if v.shape not in ((3,), (3, 1), (1, 3)):
+        raise CameraError(name, "t", f"must be 3 numbers (3 or 3x1), got shape {v.shape}")
+    return v.reshape(3)
+
+
+def metres_per_unit(units: str | float | None, fmt: str) -> float:
+    """Metres per unit of a rig file's translations: ``units`` is a name of :data:`UNITS` ("m", "cm",
+    "mm"), a positive number of metres per unit (as a number or text, e.g. "0.0254" for inches), or
+    None for the format's default (:data:`DEFAULT_UNITS`; metres for formats not listed there).
+    RigError (field ``units``) for anything else."""
+    if units is None:
+        units = DEFAULT_UNITS.get(fmt, "m")
+    if isinstance(units, str):
+        key = units.strip().lower()
+        if key in UNITS:
+            return UNITS[key]
+        try:
+            units = float(key)
+        except ValueError:
+            raise RigError(None, "units", f"{units!r} is not a unit ({', '.join(UNITS)}) nor a number of metres "
+                                          f"per unit") from None
+    f = float(units)
+    if not (np.isfinite(f) and f > 0):
+        raise RigError(None, "units", f"must be a positive number of metres per unit, got {units!r}")
+    return f
 
 
 # --- COLMAP text ------------------------------------------------------------------------------
@@ -297,32 +400,59 @@ def load_middlebury_rectified(folder: str | Path, baseline: float = 1.0, focal: 
 
 
 # --- dispatch and images ----------------------------------------------------------------------
-def load_rig(path: str | Path) -> Rig:
-    """Read a rig in any supported format, chosen by what ``path`` is:
-
-    ``*.json`` our JSON; ``*.yml``/``*.yaml``/``*.xml`` OpenCV FileStorage; ``*_par.txt`` Middlebury;
-    a folder holding ``cameras.txt`` + ``images.txt`` (directly or in ``sparse/0``) COLMAP text, a
-    ``*_par.txt`` Middlebury, else ``im<k>``/``view<k>`` images a rectified Middlebury set.
-    """
+def rig_format(path: str | Path) -> str:
+    """The format :func:`load_rig` reads ``path`` as: "json" (ours), "camera_list" (a plain camera list),
+    "opencv", "middlebury" (``*_par.txt``), "colmap" or "middlebury_rectified" (folders); RigError
+    when none fits."""
     path = Path(path)
     if not path.exists():
         raise RigError(None, "file", f"{path} does not exist")
     if path.is_dir():
         for sub in (path, path / "sparse" / "0", path / "sparse"):
             if (sub / "cameras.txt").exists() and (sub / "images.txt").exists():
-                return load_colmap_text(sub)
-        pars = sorted(path.glob("*_par.txt"))
-        if pars:
-            return load_middlebury_par(pars[0])
-        return load_middlebury_rectified(path)
+                return "colmap"
+        return "middlebury" if any(path.glob("*_par.txt")) else "middlebury_rectified"
     suffix = path.suffix.lower()
     if suffix == ".json":
-        return load_rig_json(path)
+        return CAMERA_LIST if is_camera_list(_read_json(path)) else "json"
     if suffix in (".yml", ".yaml", ".xml"):
-        return load_opencv_yaml(path)
+        return "opencv"
     if path.name.endswith("_par.txt"):
-        return load_middlebury_par(path)
+        return "middlebury"
     raise RigError(None, "file", f"{path.name}: unknown rig format (json, yml/yaml/xml, *_par.txt or a folder)")
+
+
+def load_rig(path: str | Path, units: str | float | None = None, camera_type: str | None = None) -> Rig:
+    """Read a rig in any supported format, chosen by what ``path`` is (:func:`rig_format`):
+
+    ``*.json`` our JSON, or a plain camera list when its cameras have ``resolution``/``distCoef`` and
+    no ``width``; ``*.yml``/``*.yaml``/``*.xml`` OpenCV FileStorage; ``*_par.txt`` Middlebury; a folder
+    holding ``cameras.txt`` + ``images.txt`` (directly or in ``sparse/0``) COLMAP text, a ``*_par.txt``
+    Middlebury, else ``im<k>``/``view<k>`` images a rectified Middlebury set.
+
+    units: the unit of the file's translations (:func:`metres_per_unit`; default: centimetres for a
+    camera list, metres otherwise); the rig comes back in metres. camera_type: for a camera list, keep
+    only the cameras of that ``type`` (RigError for other formats).
+    """
+    path = Path(path)
+    fmt = rig_format(path)
+    scale = metres_per_unit(units, fmt)
+    if camera_type is not None and fmt != CAMERA_LIST:
+        raise RigError(None, "camera_type", "only a plain camera list has camera types")
+    if fmt == CAMERA_LIST:
+        return rig_from_camera_list(_read_json(path), scale, camera_type)
+    if fmt == "json":
+        rig = rig_from_dict(_read_json(path))
+    elif fmt == "opencv":
+        rig = load_opencv_yaml(path)
+    elif fmt == "colmap":
+        rig = next(load_colmap_text(sub) for sub in (path, path / "sparse" / "0", path / "sparse")
+                   if (sub / "cameras.txt").exists() and (sub / "images.txt").exists())
+    elif fmt == "middlebury":
+        rig = load_middlebury_par(path if path.is_file() else sorted(path.glob("*_par.txt"))[0])
+    else:
+        rig = load_middlebury_rectified(path)
+    return rig.rescaled(scale)
 
 
 def find_image(folder: Path, name: str) -> Path | None:

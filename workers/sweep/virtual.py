@@ -1,5 +1,6 @@
 """Virtual cameras: from a pose, from look-at + up + field of view, between two rig cameras,
-along a path through rig cameras, and from a command-line pose specification."""
+along a path through rig cameras, on a sphere around a target (and a triangular lattice of such
+viewpoints: a two-dimensional rig), and from a command-line pose specification."""
 from __future__ import annotations
 
 import json
@@ -51,6 +52,38 @@ def path(rig: Rig, names: list[str | int], steps_per_leg: int, *, size: tuple[in
             out.append(between(rig, names[k], names[k + 1], step / steps_per_leg, size=size, name=f"path{len(out):04d}"))
     out.append(between(rig, names[-2], names[-1], 1.0, size=size, name=f"path{len(out):04d}"))
     return out
+
+
+def sphere_camera(
+    azimuth_deg: float, elevation_deg: float, *, radius: float, target: np.ndarray, size: tuple[int, int] = (640, 480),
+    fov_deg: float = 50.0, name: str = "virtual",
+) -> Camera:
+    """A camera ``radius`` metres from ``target`` (3,), looking at it with z up in the image, at
+    ``azimuth_deg`` about the z axis (0 on the -y side, positive towards +x, as workers.synth's arc
+    cameras) and ``elevation_deg`` above the horizontal plane through ``target``; ``size`` = (width,
+    height), horizontal field of view ``fov_deg``. Virtual views anywhere over a dome of cameras."""
+    a, e = np.radians(azimuth_deg), np.radians(elevation_deg)
+    eye = np.asarray(target, np.float64) + radius * np.array([np.cos(e) * np.sin(a), -np.cos(e) * np.cos(a), np.sin(e)])
+    return look_at(eye, target, (0.0, 0.0, 1.0), fov_deg=fov_deg, size=size, name=name)
+
+
+def sphere_lattice(spacing_deg: float, rows: int, per_row: int, elevation0_deg: float) -> np.ndarray:
+    """(azimuth, elevation) in degrees, (rows * per_row - rows // 2, 2) float64, of a triangular lattice of
+    viewpoints on a sphere with neighbours ``spacing_deg`` apart (seen from the centre, to first order):
+    rows ``spacing_deg * sqrt(3) / 2`` apart in elevation from ``elevation0_deg`` up, ``per_row`` viewpoints
+    in even rows and one fewer, offset by half a step, in odd rows; azimuth steps widened by 1 / cos(elevation),
+    centred on azimuth 0. A two-dimensional camera rig: every three mutual neighbours make a triangle whose
+    centre is a triple point, where three one-camera regions meet (the case ``kojima_k`` is for)."""
+    if rows < 1 or per_row < 2 or not spacing_deg > 0:
+        raise RigError(None, "lattice", "needs rows >= 1, per_row >= 2 and a positive spacing")
+    out = []
+    for r in range(rows):
+        el = elevation0_deg + r * spacing_deg * np.sqrt(3) / 2
+        step = spacing_deg / np.cos(np.radians(el))
+        n = per_row - (r % 2)
+        for k in range(n):
+            out.append((float((k - (n - 1) / 2) * step), float(el)))
+    return np.array(out)
 
 
 def parse_pose(spec: str, rig: Rig, *, size: tuple[int, int] | None = None, fov_deg: float = 50.0) -> Camera:

@@ -92,3 +92,49 @@ def plane_hits(o, D, p, n, k, best_t, ids, normals):  # pragma: no cover - compi
         normals[i, 0] = n[0]
         normals[i, 1] = n[1]
         normals[i, 2] = n[2]
+
+
+# --- shadow rays: one direction, an origin per ray -------------------------------------------------
+@njit(cache=True, parallel=True)
+def sphere_blocks(O, d, c, r, blocked):  # pragma: no cover - compiled
+    """blocked[i] = 1 where the ray O[i] + t d (t > 0) meets the sphere (c, r); O (N, 3), d (3,) unit."""
+    for i in prange(O.shape[0]):
+        if blocked[i]:
+            continue
+        ox, oy, oz = O[i, 0] - c[0], O[i, 1] - c[1], O[i, 2] - c[2]
+        b = ox * d[0] + oy * d[1] + oz * d[2]
+        cc = ox * ox + oy * oy + oz * oz - r * r
+        disc = b * b - cc
+        if disc < 0:
+            continue
+        sq = np.sqrt(disc)
+        if -b + sq > _EPS:  # the far hit is ahead: the sphere is on the ray (or the origin is inside it)
+            blocked[i] = 1
+
+
+@njit(cache=True, parallel=True)
+def box_blocks(O, d, Rb, c, h, blocked):  # pragma: no cover - compiled
+    """blocked[i] = 1 where the ray O[i] + t d (t > 0) meets the oriented box (Rb world-to-box, centre c,
+    half sizes h), slab method as :func:`box_hits`."""
+    dl = Rb @ d
+    for i in prange(O.shape[0]):
+        if blocked[i]:
+            continue
+        tmin = -np.inf
+        tmax = np.inf
+        miss = False
+        for ax in range(3):
+            o = Rb[ax, 0] * (O[i, 0] - c[0]) + Rb[ax, 1] * (O[i, 1] - c[1]) + Rb[ax, 2] * (O[i, 2] - c[2])
+            if abs(dl[ax]) < 1e-15:
+                if o < -h[ax] or o > h[ax]:
+                    miss = True
+                    break
+                continue
+            t1 = (-h[ax] - o) / dl[ax]
+            t2 = (h[ax] - o) / dl[ax]
+            if t1 > t2:
+                t1, t2 = t2, t1
+            tmin = max(tmin, t1)
+            tmax = min(tmax, t2)
+        if not miss and tmax >= tmin and tmax > _EPS:
+            blocked[i] = 1

@@ -3,11 +3,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from workers.camera import Camera
 
-from .scene import Scene
+from .scene import Scene, Sphere
 
 
 @dataclass(frozen=True)
@@ -32,7 +33,8 @@ def render(
     scene: Scene, camera: Camera, *, supersample: int = 1, gain: tuple[float, float, float] | float = 1.0,
     with_background: bool = True,
 ) -> SynthView:
-    """Ray-cast ``scene`` as seen by ``camera`` (its distortion is ignored: ideal pinhole).
+    """Ray-cast ``scene`` as seen by ``camera``, through its lens distortion when it has one (each pixel's
+    ray is its undistorted direction, so the image is exactly what the distorted camera sees).
 
     supersample: s > 1 averages s x s rays per pixel for the images (anti-aliasing); depth,
     silhouette and ids always come from the pixel-centre ray. gain: per-channel (B, G, R) or scalar
@@ -65,6 +67,11 @@ def _ray_dirs(camera: Camera, s: int) -> np.ndarray:
     offs = (np.arange(s) + 0.5) / s - 0.5
     u = (np.arange(camera.width)[:, None] + offs[None, :]).ravel()
     v = (np.arange(camera.height)[:, None] + offs[None, :]).ravel()
+    if camera.has_distortion:  # invert the lens model per pixel (iterated well past OpenCV's default 5 steps)
+        uv = np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 1, 2)
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+        xn = cv2.undistortPointsIter(uv, camera.K, camera.dist, None, None, crit).reshape(-1, 2)
+        return np.hstack([xn, np.ones((len(xn), 1))]) @ camera.R
     M = camera.R.T @ np.linalg.inv(camera.K)
     D = np.empty((v.size, u.size, 3))
     D[:] = M[:, 2]
@@ -73,10 +80,15 @@ def _ray_dirs(camera: Camera, s: int) -> np.ndarray:
     return D.reshape(-1, 3)
 
 
-def _cast(scene: Scene, camera: Camera, s: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Depth (H*s, W*s), object ids and shaded colours (H*s, W*s, 3) float64 for s x s sub-rays."""
+def _cast(scene: Scene, camera: Camera, s: int,
+          rays: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Depth (H*s, W*s), object ids and shaded colours (H*s, W*s, 3) float64 for s x s sub-rays; with
+    ``rays`` (N,) flat indices of some of them: depth (N,), ids (N,) and colours (N, 3) of those alone
+    (each ray's result does not depend on the others)."""
     o = camera.center
     D = _ray_dirs(camera, s)
+    if rays is not None:
+        D = np.ascontiguousarray(D[rays])
     n = len(D)
     best_t = np.full(n, np.inf)
     ids = np.full(n, -1, np.int64)
@@ -94,13 +106,32 @@ def _cast(scene: Scene, camera: Camera, s: int) -> tuple[np.ndarray, np.ndarray,
         X = o + best_t[sel, None] * D[sel]
         nrm = normals[sel] / np.linalg.norm(normals[sel], axis=1, keepdims=True)
         tex = obj.material.texture.sample(obj.local(X)).astype(np.float64)
-        lam = np.abs(nrm @ light)
+        share = _lit_share(scene, X, nrm) if scene.shadows > 0 else 1.0
+        lam = np.maximum(nrm @ light, 0.0) * share if scene.shadows > 0 else np.abs(nrm @ light)
         c = tex * (scene.ambient + scene.diffuse * lam)[:, None]
         if obj.material.specular > 0:
-            c += 255.0 * obj.material.specular * _phong(nrm, light, D[sel], obj.material.shininess)[:, None]
+            c += 255.0 * obj.material.specular * (share * _phong(nrm, light, D[sel], obj.material.shininess))[:, None]
         color[sel] = c
+    if rays is not None:
+        return best_t, ids, color
     h, w = camera.height * s, camera.width * s
     return best_t.reshape(h, w), ids.reshape(h, w), color.reshape(h, w, 3)
+
+
+def _lit_share(scene: Scene, X: np.ndarray, nrm: np.ndarray) -> np.ndarray:
+    """Share (N,) of the light's shadow rays from points X (N, 3) with unit normals (N, 3) that no
+    sphere or box blocks (0 for points facing away from a ray)."""
+    occluders = [o for o in scene.objects if getattr(o, "casts_shadow", False)]
+    dirs = scene.shadow_directions()
+    facing = np.flatnonzero((nrm @ dirs.T).max(axis=1) > 0)  # the others are dark whatever stands in the way
+    O = np.ascontiguousarray(X[facing] + 1e-5 * nrm[facing])
+    lit = np.zeros(len(X))
+    for d in dirs:
+        blocked = (nrm[facing] @ d <= 0).astype(np.uint8)
+        for o in occluders:
+            o.blocks_into(O, np.ascontiguousarray(d), blocked)
+        lit[facing] += 1 - blocked
+    return lit / len(dirs)
 
 
 def _phong(nrm: np.ndarray, light: np.ndarray, D: np.ndarray, shininess: float) -> np.ndarray:
@@ -109,6 +140,38 @@ def _phong(nrm: np.ndarray, light: np.ndarray, D: np.ndarray, shininess: float) 
     nrm = np.where((nrm @ light)[:, None] < 0, -nrm, nrm)  # light the side facing the light
     refl = 2 * (nrm @ light)[:, None] * nrm - light
     return np.clip(np.einsum("ij,ij->i", refl, view), 0, 1) ** shininess
+
+
+def render_moved(scene: Scene, still: SynthView, sphere: Sphere, margin: float = 0.01) -> np.ndarray:
+    """``render(scene, camera).image`` (supersample 1, gain 1) from ``still``, the view (by :func:`render`,
+    same camera) of ``scene`` without ``sphere``, a sphere of ``scene``: only the pixels the sphere can
+    change are cast again: rays that pass within ``margin`` m of it, and (with shadows) surface points of
+    ``still`` whose ray towards the light's disc passes within ``margin`` m of it. Equal to the full
+    render pixel for pixel (each ray is cast alone); (H, W, 3) uint8 BGR."""
+    cam = still.camera
+    D = _ray_dirs(cam, 1)
+    c = np.asarray(sphere.center, np.float64) - cam.center
+    r = float(sphere.radius) + margin
+    t = (D @ c) / np.einsum("ij,ij->i", D, D)
+    hit = np.linalg.norm(c[None, :] - np.maximum(t, 0)[:, None] * D, axis=1) < r  # the ray passes within r
+    if scene.shadows > 0:
+        depth = still.depth.ravel().astype(np.float64)
+        ok = np.isfinite(depth)
+        X = cam.center + depth[ok, None] * D[ok]
+        light = np.asarray(scene.light_dir, np.float64)
+        light /= np.linalg.norm(light)
+        v = np.asarray(sphere.center, np.float64) - X
+        along = v @ light
+        perp = np.linalg.norm(v - along[:, None] * light, axis=1)
+        reach = np.linalg.norm(v, axis=1) * np.sin(min(1.01 * scene.light_spread, np.pi / 2))  # the disc's rays
+        shade = (along > -r) & (perp < r + reach)
+        hit[np.flatnonzero(ok)[shade]] = True
+    rays = np.flatnonzero(hit)
+    image = still.image.copy()
+    if rays.size:
+        _, _, color = _cast(scene, cam, 1, rays)
+        image.reshape(-1, 3)[rays] = _to_uint8(color, 1.0)
+    return image
 
 
 def render_views(

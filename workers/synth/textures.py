@@ -2,6 +2,9 @@
 
 Each texture maps points in the object's local frame, (N, 3) float64 metres, to colours
 (N, 3) float32 BGR in 0..255. Colours given to constructors are BGR tuples in 0..255.
+Procedural: Solid, Checker, Noise, ColorNoise. From photographs (bilinear, no mip-mapping: give them at
+about the resolution they are seen at): Picture (projected along an axis), BoxPicture (a box's faces),
+SpherePicture (wrapped in longitude/latitude), Planks (a plank floor whose grain is a photograph's).
 """
 from __future__ import annotations
 
@@ -87,7 +90,155 @@ class ColorNoise:
         return np.clip(self.mean + self.contrast * (n - 0.5), 0, 255).astype(np.float32)
 
 
-Texture = Solid | Checker | Noise | ColorNoise
+# --- photographs --------------------------------------------------------------------------------
+def sample_image(image: np.ndarray, u: np.ndarray, v: np.ndarray, wrap: bool = True) -> np.ndarray:
+    """Bilinear samples of ``image`` (H, W, 3) float32 BGR at texture coordinates ``u``, ``v`` (N,)
+    (0..1 across the width / down the height; pixel centres at (i + 0.5) / W): (N, 3) float32.
+    ``wrap`` repeats the image outside 0..1, else its edge pixels continue."""
+    h, w = image.shape[:2]
+    x = np.asarray(u, np.float64) * w - 0.5
+    y = np.asarray(v, np.float64) * h - 0.5
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx = (x - x0).astype(np.float32)[:, None]
+    fy = (y - y0).astype(np.float32)[:, None]
+    x0 = x0.astype(np.int64)
+    y0 = y0.astype(np.int64)
+    if wrap:
+        xa, xb, ya, yb = x0 % w, (x0 + 1) % w, y0 % h, (y0 + 1) % h
+    else:
+        xa, xb = np.clip(x0, 0, w - 1), np.clip(x0 + 1, 0, w - 1)
+        ya, yb = np.clip(y0, 0, h - 1), np.clip(y0 + 1, 0, h - 1)
+    top = image[ya, xa] * (1 - fx) + image[ya, xb] * fx
+    bottom = image[yb, xa] * (1 - fx) + image[yb, xb] * fx
+    return (top * (1 - fy) + bottom * fy).astype(np.float32)
+
+
+def _as_picture(image: np.ndarray) -> np.ndarray:
+    img = np.ascontiguousarray(image, np.float32)
+    if img.ndim != 3 or img.shape[2] != 3 or min(img.shape[:2]) < 2:
+        raise ValueError(f"a picture must be (H, W, 3) BGR with H, W >= 2, got shape {img.shape}")
+    return img
+
+
+@dataclass(frozen=True, eq=False)
+class Picture:
+    """A photograph (H, W, 3) BGR 0..255 projected along a local axis onto a surface: the picture spans
+    ``size`` = (width, height) metres centred on the local origin, its width along local axis ``u_axis``
+    and its height downwards along -``v_axis`` (so ``v_axis`` is up in the picture); repeated beyond.
+    Give the image at about the resolution it is seen at (a far finer one aliases: there is no mip-mapping)."""
+
+    image: np.ndarray
+    size: tuple[float, float] = (1.0, 1.0)
+    u_axis: int = 0
+    v_axis: int = 2
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "image", _as_picture(self.image))
+
+    def sample(self, P: np.ndarray) -> np.ndarray:
+        """(N, 3) local points -> (N, 3) float32 BGR."""
+        P = np.asarray(P, np.float64)
+        u = P[:, self.u_axis] / self.size[0] + 0.5
+        v = 0.5 - P[:, self.v_axis] / self.size[1]
+        return sample_image(self.image, u, v)
+
+
+@dataclass(frozen=True, eq=False)
+class BoxPicture:
+    """Photographs on the faces of a box of half edge lengths ``half`` (3,) m (a :class:`Box`'s size / 2,
+    in its local frame): each side face shows ``image`` upright across its full width and height, the
+    four sides each a quarter turn further along it (so neighbouring faces differ and meet), and the
+    top face ``top`` (default: the image's centre)."""
+
+    image: np.ndarray
+    half: tuple[float, float, float]
+    top: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "image", _as_picture(self.image))
+        if self.top is not None:
+            object.__setattr__(self, "top", _as_picture(self.top))
+
+    def sample(self, P: np.ndarray) -> np.ndarray:
+        """(N, 3) local points -> (N, 3) float32 BGR."""
+        P = np.asarray(P, np.float64)
+        h = np.asarray(self.half, np.float64)
+        face = np.argmax(np.abs(P) / h, axis=1)
+        out = np.empty((len(P), 3), np.float32)
+        side = face < 2
+        # around the sides: a perimeter coordinate s in [0, 4) (one unit per face), the picture's width
+        # stretched over two faces so that the four faces show it twice, shifted by half
+        x, y, z = P[side, 0] / h[0], P[side, 1] / h[1], P[side, 2] / h[2]
+        f = face[side]
+        s = np.where(f == 0, np.where(x > 0, 1.0 + (y + 1) / 2, 3.0 + (1 - y) / 2),
+                     np.where(y > 0, 2.0 + (1 - x) / 2, (x + 1) / 2))
+        out[side] = sample_image(self.image, s / 2.0, (1 - z) / 2)
+        top = ~side
+        img = self.top if self.top is not None else self.image
+        out[top] = sample_image(img, (P[top, 0] / h[0] + 1) / 2, (1 - P[top, 1] / h[1]) / 2, wrap=False)
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class SpherePicture:
+    """A photograph wrapped round a sphere (local frame at its centre) in longitude and latitude: the
+    width once round, the height from the top pole to the bottom one."""
+
+    image: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "image", _as_picture(self.image))
+
+    def sample(self, P: np.ndarray) -> np.ndarray:
+        """(N, 3) local points -> (N, 3) float32 BGR."""
+        P = np.asarray(P, np.float64)
+        r = np.maximum(np.linalg.norm(P, axis=1), 1e-12)
+        u = np.arctan2(P[:, 1], P[:, 0]) / (2 * np.pi) + 0.5
+        v = np.arccos(np.clip(P[:, 2] / r, -1, 1)) / np.pi
+        return sample_image(self.image, u, v)
+
+
+@dataclass(frozen=True, eq=False)
+class Planks:
+    """A plank floor in the local x-y plane: planks ``width`` m wide along y and ``length`` m long along
+    x, each row shifted by a different share of a length, whose grain is a photograph's brightness
+    (``grain``, (H, W) float32 0..1) stretched along the plank, each plank from another strip of it, in
+    ``tone`` (BGR) with a ``contrast`` around it; ``seam`` m dark joints."""
+
+    grain: np.ndarray
+    tone: Color = (70.0, 115.0, 165.0)
+    width: float = 0.14
+    length: float = 1.2
+    contrast: float = 0.9
+    seam: float = 0.004
+
+    def __post_init__(self) -> None:
+        g = np.ascontiguousarray(self.grain, np.float32)
+        if g.ndim != 2 or min(g.shape) < 2:
+            raise ValueError(f"grain must be (H, W) with H, W >= 2, got shape {g.shape}")
+        object.__setattr__(self, "grain", np.repeat(g[:, :, None], 3, axis=2))
+
+    def sample(self, P: np.ndarray) -> np.ndarray:
+        """(N, 3) local points -> (N, 3) float32 BGR."""
+        P = np.asarray(P, np.float64)
+        row = np.floor(P[:, 1] / self.width)
+        shift = ((row * 0.618034) % 1.0) * self.length
+        along = (P[:, 0] + shift) / self.length
+        plank = np.floor(along)
+        hsh = (row * 7.0 + plank * 13.0) % 23.0  # which strip of the photograph: differs per plank
+        u = along - plank
+        v = (hsh + (P[:, 1] / self.width - row)) / 23.0
+        g = sample_image(self.grain, u, v)[:, 0]
+        shade = 1.0 + self.contrast * (g - 0.5)
+        shade *= 1.0 + 0.08 * (((hsh * 5.0) % 7.0) / 3.0 - 1.0)  # planks differ a little in tone
+        across = np.minimum(P[:, 1] / self.width - row, row + 1 - P[:, 1] / self.width) * self.width
+        ends = np.minimum(u, 1 - u) * self.length
+        shade = np.where(np.minimum(across, ends) < self.seam / 2, 0.45 * shade, shade)
+        return (np.asarray(self.tone, np.float32)[None, :] * shade[:, None].astype(np.float32)).clip(0, 255)
+
+
+Texture = Solid | Checker | Noise | ColorNoise | Picture | BoxPicture | SpherePicture | Planks
 
 
 def fractal_noise(P: np.ndarray, scale: float, octaves: int, seed: int) -> np.ndarray:
