@@ -71,7 +71,20 @@ def cmd_worker(args: argparse.Namespace) -> int:
             return 2
         argv += ["--resources", args.resources]
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    from app.kernelcache import KernelWarmup
+    from app.settings import Settings
+
+    if Settings().warm_kernels:  # this node's kernels, compiled while it joins (the process outlives the exec)
+        KernelWarmup.start(Path(os.environ["NUMBA_CACHE_DIR"]), report=False)
     os.execv(ray_bin, argv)
+
+
+def cmd_warmup(args: argparse.Namespace) -> int:
+    """Compile the engines' kernels into the service's cache (``sweepcast warmup [ENGINE ...]``)."""
+    from workers import warmup
+
+    print(f"sweepcast: compiling into {os.environ['NUMBA_CACHE_DIR']}", file=sys.stderr)
+    return warmup.main(args.engines)
 
 
 def cmd_openapi(args: argparse.Namespace) -> int:
@@ -157,6 +170,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=float, default=30.0, help="network timeout in seconds (default 30)")
     p.set_defaults(func=cmd_models)
 
+    p = sub.add_parser("warmup", help="compile every engine's kernels into the kernel cache ahead of the first "
+                                      "request (the service also does it at start-up)")
+    p.add_argument("engines", nargs="*", help="sweep, demo, drone, dense, depth, faces (default: all)")
+    p.add_argument("--data-dir", type=Path, help="data folder whose cache/numba is used (default ./sweepcast-data; "
+                                                 "SWEEPCAST_NUMBA_CACHE_DIR or NUMBA_CACHE_DIR instead when set)")
+    p.set_defaults(func=cmd_warmup)
+
     import importlib
 
     for module in ENGINE_CLIS:
@@ -164,7 +184,28 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+SERVICE_COMMANDS = ("serve", "worker", "warmup")
+"""Commands that use the service's kernel cache (``Settings.resolved_numba_cache_dir``); the one-shot engine
+commands keep numba's default (beside the sources, or ``NUMBA_CACHE_DIR``)."""
+
+
+def _use_service_kernel_cache(argv: list[str]) -> None:
+    """Point numba at the service's cache before the parser imports the engines (and numba reads it)."""
+    command = next((a for a in argv if not a.startswith("-")), None)
+    if command not in SERVICE_COMMANDS:
+        return
+    from app.kernelcache import use_cache_dir
+    from app.settings import Settings
+
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--data-dir", type=Path)
+    data_dir = pre.parse_known_args(argv)[0].data_dir
+    use_cache_dir(Settings(**({"data_dir": data_dir} if data_dir is not None else {})).resolved_numba_cache_dir)
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    _use_service_kernel_cache(argv)
     args = build_parser().parse_args(argv)
     return int(args.func(args) or 0)
 

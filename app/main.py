@@ -13,13 +13,13 @@ from fastapi.staticfiles import StaticFiles
 from app import raycluster
 from app.auth import ApiKeyMiddleware
 from app.errors import install_error_handlers
+from app.kernelcache import KernelWarmup
 from app.limits import BodyLimitMiddleware, RouteBodyLimits
 from app.logredact import install_log_redaction
 from app.openapi_doc import install_contract
 from app.services import Services, build_services
 from app.settings import Settings
-from workers.common.models import MODELS, MODELS_DIR_ENV, ModelError, install, installed, models_dir
-from workers.common.safezip import ZIP_SETTINGS
+from workers.common.models import MODELS, ModelError, install, installed
 
 log = logging.getLogger("sweepcast")
 
@@ -44,15 +44,20 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         svc = await asyncio.to_thread(build_services, settings)
         app.state.services = svc
+        if settings.warm_kernels:
+            svc.warmup = KernelWarmup.start(settings.resolved_numba_cache_dir)
         starter = asyncio.create_task(_start_ray(svc))
         demo = asyncio.create_task(ensure_demo_rig(svc))
+        demo_session = asyncio.create_task(keep_demo_session_warm(svc))
         fetcher = asyncio.create_task(fetch_missing_models(settings))
         try:
             yield
         finally:
             starter.cancel()
             demo.cancel()
+            demo_session.cancel()
             fetcher.cancel()
+            svc.warmup.stop()
             await svc.dispatcher.shutdown()
             if svc.ray_owned:
                 import ray
@@ -78,6 +83,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(ApiKeyMiddleware, keys=settings.api_keys)  # added last: runs first, before any body is read
 
     from app.routers import depth, faces, jobs, photos, reconstructions, rig_sockets, rigs, system
+    from app.demo_session import keep_demo_session_warm
     from app.routers.rig_support import ensure_demo_rig
 
     app.include_router(system.router)
@@ -97,8 +103,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 async def _start_ray(svc: Services) -> None:
     """Connect Ray off the event loop (it takes seconds), then recover and start dispatching."""
     try:
-        svc.ray_owned = await asyncio.to_thread(
-            raycluster.connect, svc.settings.ray_address, svc.settings.ray_num_cpus, worker_env(svc.settings))
+        svc.ray_owned = await asyncio.to_thread(raycluster.connect_for, svc.settings)
     except Exception as exc:  # noqa: BLE001 - reported by /readyz and the log; the API still answers
         svc.ray_error = f"{type(exc).__name__}: {exc}"
         log.exception("could not start or reach Ray")
@@ -121,21 +126,6 @@ async def fetch_missing_models(settings: Settings) -> None:
         except ModelError as exc:
             log.warning("optional model %s not installed: %s; 'sweepcast models fetch %s --from FILE' installs "
                         "a copy you have", model.name, exc, model.name)
-
-
-def worker_env(settings: Settings) -> dict[str, str]:
-    """Settings the engines read on the workers, passed to every Ray worker of this service."""
-    env = {"SWEEPCAST_MAX_IMAGE_PIXELS": str(settings.max_image_pixels),
-           # OpenCV's own guard, read once when a fresh worker imports cv2: a second line behind the header check
-           "OPENCV_IO_MAX_IMAGE_PIXELS": str(settings.max_image_pixels),
-           "SWEEPCAST_MAX_VIDEO_FRAMES": str(settings.max_video_frames)}
-    env.update({f"SWEEPCAST_{name.upper()}": str(getattr(settings, name)) for name in ZIP_SETTINGS})
-    env[MODELS_DIR_ENV] = str(models_dir(settings.data_dir).resolve())  # models fetched later are found too
-    if settings.orientation_yunet_model is not None:
-        env["SWEEPCAST_ORIENTATION_YUNET_MODEL"] = str(settings.orientation_yunet_model.resolve())
-    env["SWEEPCAST_ORIENTATION_TEXT"] = "1" if settings.orientation_text else "0"
-    env["SWEEPCAST_ORIENTATION_TESSERACT"] = settings.orientation_tesseract
-    return env
 
 
 def _version() -> str:

@@ -6,6 +6,10 @@ import os
 import tempfile
 from typing import Any
 
+from app.settings import Settings
+from workers.common.models import MODELS_DIR_ENV, models_dir
+from workers.common.safezip import ZIP_SETTINGS
+
 log = logging.getLogger("sweepcast.ray")
 
 
@@ -33,6 +37,28 @@ def connect(address: str | None, num_cpus: int | None = None, env: dict[str, str
         ray.init(num_cpus=num_cpus, include_dashboard=False, _temp_dir=temp_dir, **kwargs)
     log.info("Ray ready: %s", ray.cluster_resources())
     return True
+
+
+def connect_for(settings: Settings) -> bool:
+    """:func:`connect` as ``settings`` say, with :func:`worker_env` for the workers. Blocking."""
+    return connect(settings.ray_address, settings.ray_num_cpus, worker_env(settings))
+
+
+def worker_env(settings: Settings) -> dict[str, str]:
+    """Settings the engines read on the workers, passed to every Ray worker of this service."""
+    env = {"SWEEPCAST_MAX_IMAGE_PIXELS": str(settings.max_image_pixels),
+           # OpenCV's own guard, read once when a fresh worker imports cv2: a second line behind the header check
+           "OPENCV_IO_MAX_IMAGE_PIXELS": str(settings.max_image_pixels),
+           "SWEEPCAST_MAX_VIDEO_FRAMES": str(settings.max_video_frames),
+           "SWEEPCAST_MAX_DENSE_VOLUME": str(settings.max_dense_volume)}
+    env.update({f"SWEEPCAST_{name.upper()}": str(getattr(settings, name)) for name in ZIP_SETTINGS})
+    env[MODELS_DIR_ENV] = str(models_dir(settings.data_dir).resolve())  # models fetched later are found too
+    if settings.orientation_yunet_model is not None:
+        env["SWEEPCAST_ORIENTATION_YUNET_MODEL"] = str(settings.orientation_yunet_model.resolve())
+    env["SWEEPCAST_ORIENTATION_TEXT"] = "1" if settings.orientation_text else "0"
+    env["SWEEPCAST_ORIENTATION_TESSERACT"] = settings.orientation_tesseract
+    env["NUMBA_CACHE_DIR"] = str(settings.resolved_numba_cache_dir)  # the kernels the warm-up compiled
+    return env
 
 
 def ready() -> tuple[bool, str]:

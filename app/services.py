@@ -16,6 +16,7 @@ from app.dispatcher import Dispatcher
 from app.errors import ApiError
 from app.events import EventHub
 from app.jobstore import Job, JobStore
+from app.kernelcache import KernelWarmup
 from app.settings import Settings
 from workers.registry import get_kind
 from workers.runtime import inputs_prefix, results_prefix
@@ -38,6 +39,8 @@ class Services:
     requests neither oversubscribes the CPU nor builds a detector per thread of a large pool."""
     ray_owned: bool = False
     ray_error: str | None = None
+    warmup: KernelWarmup = field(default_factory=KernelWarmup)
+    """The background compile of the engines' kernels started with the service (state "off" when not)."""
 
 
 def build_services(settings: Settings) -> Services:

@@ -1,6 +1,7 @@
 """Service settings, read from the environment (prefix ``SWEEPCAST_``) or a ``.env`` file."""
 from __future__ import annotations
 
+import os
 from functools import cached_property
 from pathlib import Path
 from typing import Annotated, Any
@@ -34,6 +35,7 @@ class Settings(BaseSettings):
     max_json_bytes: int = Field(1 * MiB, ge=1, description="Largest request body of routes that take JSON (or no body).")
     max_image_pixels: int = Field(50_000_000, ge=1, description="Largest image (width x height) decoded: a 50 MP photo (8160x6120) passes, a 7900x7900 bomb does not.")
     max_video_frames: int = Field(10_000, ge=1, description="Most frames of one uploaded depth sequence (raw YUV or H.264/HEVC video).")
+    max_dense_volume: int = Field(300_000_000, ge=1_000_000, description="Most cost-volume cells (depth-map pixels x planes) a dense reconstruction with SGM aggregation may hold at once (about 4 bytes each, twice).")
     max_batch_files: int = Field(500, ge=1, description="Most files in one batch upload.")
     max_zip_members: int = Field(200_000, ge=1, description="Most files in one uploaded zip archive.")
     max_zip_member_bytes: int = Field(512 * MiB, ge=1, description="Largest uncompressed file in an uploaded zip.")
@@ -49,6 +51,13 @@ class Settings(BaseSettings):
 
     fetch_models: bool = Field(True, description="At start-up, download the optional models that are missing (YuNet) "
                                                  "into <data_dir>/models, checked by SHA-256; offline, log it and go on.")
+    numba_cache_dir: Path | None = Field(
+        None, description="Where the compiled numba kernels are kept (the service and its workers): default "
+                          "NUMBA_CACHE_DIR when set, else <data_dir>/cache/numba. numba keys each entry by source "
+                          "file, argument types and CPU, so one directory serves every CPU kind that shares it.")
+    warm_kernels: bool = Field(True, description="At start-up, compile every engine's kernels into the cache in a "
+                                                 "background process (`sweepcast warmup`), so that no request waits "
+                                                 "for a compile; a warm cache makes it take seconds.")
     orientation_yunet_model: Path | None = Field(
         None, description="YuNet ONNX model for the stronger face detector; default: the one "
                           "installed in <data_dir>/models (fetch_models, 'sweepcast models fetch'), if any.")
@@ -98,6 +107,15 @@ class Settings(BaseSettings):
         if self.orientation_yunet_model is not None:
             return self.orientation_yunet_model
         return installed(YUNET, self.data_dir)
+
+    @property
+    def resolved_numba_cache_dir(self) -> Path:
+        """The kernel cache: the setting, else ``NUMBA_CACHE_DIR``, else ``<data_dir>/cache/numba``."""
+        if self.numba_cache_dir is not None:
+            return self.numba_cache_dir.resolve()
+        if os.environ.get("NUMBA_CACHE_DIR"):
+            return Path(os.environ["NUMBA_CACHE_DIR"]).resolve()
+        return (self.data_dir / "cache" / "numba").resolve()
 
     @cached_property
     def resolved_storage_url(self) -> str:

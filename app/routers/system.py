@@ -45,5 +45,6 @@ async def readyz(svc: Services = Depends(services)) -> JSONResponse:
         checks["ray"] = {"ok": ok and svc.dispatcher.ray_ready.is_set(), "detail": detail}
     # The orientation engine's optional parts (YuNet, tesseract): reported, never a reason to be unready.
     checks["orientation"] = await asyncio.to_thread(engine_status, orientation_config(svc.settings))
+    checks["kernels"] = svc.warmup.status()  # compiled ahead of the first request: reported, never unready
     ready = all(c["ok"] for c in checks.values())
     return JSONResponse({"status": "ready" if ready else "not ready", "checks": checks}, 200 if ready else 503)

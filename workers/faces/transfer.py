@@ -11,8 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from sklearn.covariance import ledoit_wolf_shrinkage
-from sklearn.svm import SVC
 
 
 def fisher_direction(scores: np.ndarray, labels: np.ndarray, shrinkage: float | None = None) -> np.ndarray:
@@ -30,6 +28,8 @@ def fisher_direction(scores: np.ndarray, labels: np.ndarray, shrinkage: float | 
         raise ValueError("the Fisher direction needs samples in the class and in the rest")
     centred = np.concatenate([pos - pos.mean(axis=0), neg - neg.mean(axis=0)])
     if shrinkage is None:
+        from sklearn.covariance import ledoit_wolf_shrinkage  # training only: keeps 1 s of imports off start-up
+
         shrinkage = float(ledoit_wolf_shrinkage(centred, assume_centered=True))
     k = scores.shape[1]
     within = centred.T @ centred
@@ -75,6 +75,8 @@ def fit_svm(scores: np.ndarray, labels: np.ndarray, c: float = 1.0, balanced: bo
     if labels.all() or not labels.any():
         raise ValueError("the SVM needs samples in the class and in the rest")
     scale = float(np.sqrt(np.mean(np.sum(scores**2, axis=1)))) or 1.0
+    from sklearn.svm import SVC  # training only: keeps 1 s of imports off start-up
+
     svc = SVC(kernel="linear", C=c, class_weight="balanced" if balanced else None)
     svc.fit(scores / scale, labels.astype(np.int64))
     return SvmTransfer(

@@ -1,0 +1,63 @@
+"""The kernel cache the service owns: where it is, the warm-up that fills it, and what readiness says."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from fastapi.testclient import TestClient
+
+from app.kernelcache import KernelWarmup
+from app.main import create_app
+from app.raycluster import worker_env
+from app.settings import Settings
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _index_files(cache: Path, module: str) -> list[Path]:
+    return [p for p in cache.rglob("*.nbi") if p.name.startswith(module)]
+
+
+def test_the_cache_is_the_setting_else_numba_cache_dir_else_inside_the_data_folder(tmp_path, monkeypatch):
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    assert Settings(data_dir=tmp_path).resolved_numba_cache_dir == (tmp_path / "cache" / "numba").resolve()
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba-env"))
+    assert Settings(data_dir=tmp_path).resolved_numba_cache_dir == (tmp_path / "numba-env").resolve()
+    chosen = Settings(data_dir=tmp_path, numba_cache_dir=tmp_path / "chosen")
+    assert chosen.resolved_numba_cache_dir == (tmp_path / "chosen").resolve()
+    assert worker_env(chosen)["NUMBA_CACHE_DIR"] == str((tmp_path / "chosen").resolve())  # its Ray workers too
+
+
+def test_sweepcast_warmup_compiles_into_the_data_folders_cache(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    done = subprocess.run([sys.executable, "-m", "app", "warmup", "faces", "--data-dir", str(tmp_path)], cwd=ROOT,
+                          env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert '"faces"' in done.stdout.splitlines()[-1]
+    assert _index_files(tmp_path / "cache" / "numba", "preview._rasterise")  # the face preview's kernel
+
+
+def test_an_unknown_engine_is_refused():
+    done = subprocess.run([sys.executable, "-m", "workers.warmup", "teleport"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 2 and "unknown engine(s) teleport" in done.stderr
+
+
+def test_the_background_warmup_reports_warming_then_its_seconds(tmp_path):
+    warm = KernelWarmup.start(tmp_path, engines=("faces",))
+    assert warm.status()["state"] == "warming"
+    deadline = time.monotonic() + 300
+    while warm.state == "warming" and time.monotonic() < deadline:
+        time.sleep(0.2)
+    status = warm.status()
+    assert status["ok"] and status["state"] == "done" and set(status["seconds"]) == {"faces"}
+    assert _index_files(tmp_path, "preview._rasterise")
+
+
+def test_readiness_reports_the_kernels_and_never_waits_for_them(settings_factory, ray_local):
+    with TestClient(create_app(settings_factory(warm_kernels=False))) as client:
+        kernels = client.get("/readyz").json()["checks"]["kernels"]
+    assert kernels == {"ok": True, "state": "off"}

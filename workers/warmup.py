@@ -1,0 +1,178 @@
+"""Compile every engine's numba kernels once per machine, ahead of the first request.
+
+The kernels are ``@njit(cache=True)``: the first process that calls one compiles it (seconds to tens
+of seconds each on two cores: 19 s for the bundle adjuster alone) and writes the machine code to
+numba's cache; every later process loads it in milliseconds. numba keys each cached entry by the
+function's source file (its modification time), the argument types and the CPU (name and features),
+so one cache directory serves every CPU kind that uses it and a changed source recompiles.
+
+:func:`warm` runs each engine's real entry points on tiny generated inputs, so that exactly the
+specialisations a request uses are compiled (the same dtypes, dimensions and array layouts), and
+returns how long each engine took. ``sweepcast serve`` runs it in a background process at start-up
+(``SWEEPCAST_WARM_KERNELS``); ``sweepcast warmup`` runs it by hand (e.g. when building an image).
+Where the cache lives: ``NUMBA_CACHE_DIR`` when set, which the service sets from
+``SWEEPCAST_NUMBA_CACHE_DIR`` (default ``<data_dir>/cache/numba``) for itself and its workers.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from typing import Callable
+
+import numpy as np
+
+
+def _sweep() -> None:
+    """The renderer in every configuration a viewer, a batch render or a live rig can ask for (the
+    compiled variants differ by visual hull, cost and aggregation); the demo recording's ray caster."""
+    from workers.sweep.renderer import RenderOptions, SweepRenderer
+    from workers.sweep.rig import Rig
+    from workers.synth import default_arc_rig, default_scene, render_views
+
+    cams = default_arc_rig(4, width=48, height=36)
+    views = render_views(default_scene(), cams, with_background=True)
+    images = [v.image for v in views]
+    virtual = cams[1]
+    with_hull = SweepRenderer(Rig(tuple(cams)), images, backgrounds=[v.background for v in views])
+    without_hull = SweepRenderer(Rig(tuple(cams)), images)
+    live = SweepRenderer(Rig(tuple(cams)), images, silhouettes=[np.ones((36, 48), bool)] * len(cams))
+    for renderer in (with_hull, without_hull, live):
+        for aggregation in ("none", "window", "sgm"):
+            for coarse in (False, True):
+                renderer.render(virtual, RenderOptions(planes=8, aggregation=aggregation, coarse_to_fine=coarse))
+        renderer.render(virtual, RenderOptions(planes=8, consistency="truncated"))
+    for method in RenderOptions.model_fields["method"].annotation.__args__:
+        with_hull.render(virtual, RenderOptions(planes=8, method=method))
+    for visibility in (True, False):
+        with_hull.render(virtual, RenderOptions(planes=8, visibility=visibility))
+
+
+def _demo() -> None:
+    """The first-run demo recording's renderer (the studio's ray caster, textures and soft shadows)."""
+    import tempfile
+    from pathlib import Path
+
+    from workers.streaming.demo import build_demo_recording, demo_rig
+
+    with tempfile.TemporaryDirectory(prefix="sweepcast-warmup-") as tmp:
+        build_demo_recording(demo_rig(2, (32, 24)), Path(tmp) / "demo.zip", frames=2, fps=1.0)
+
+
+def _bundle() -> None:
+    """The bundle adjuster with both camera models (the drone pipeline's pinhole, BAL's camera)."""
+    from workers.drone import bundle
+    from workers.drone.camera_models import BALModel, PinholeModel, pose_params
+
+    rng = np.random.default_rng(0)
+    n_cams, n_pts = 3, 30
+    X = np.column_stack([rng.uniform(-1, 1, n_pts), rng.uniform(-1, 1, n_pts), rng.uniform(4, 6, n_pts)])
+    R = np.repeat(np.eye(3)[None], n_cams, axis=0)
+    t = np.column_stack([-np.linspace(0, 1, n_cams), np.zeros(n_cams), np.zeros(n_cams)])
+    ci = np.repeat(np.arange(n_cams), n_pts)
+    pj = np.tile(np.arange(n_pts), n_cams)
+    P = np.einsum("nij,nj->ni", R[ci], X[pj]) + t[ci]
+    K = np.array([[300.0, 0, 160], [0, 300, 120], [0, 0, 1]])
+    obs = P[:, :2] / P[:, 2:] @ K[:2, :2].T + K[:2, 2]
+    params = pose_params(R, t)
+    fixed = np.zeros_like(params, bool)
+    fixed[0] = True
+    for loss in ("trivial", "huber", "cauchy"):
+        bundle.solve(PinholeModel(K, n_cams), params, X, ci, pj, obs, fixed,
+                     bundle.BAOptions(max_iterations=2, loss=loss))
+    bal = np.column_stack([params, np.full(n_cams, 300.0), np.zeros((n_cams, 2))])
+    fixed = np.zeros_like(bal, bool)
+    fixed[0] = True
+    bundle.solve(BALModel(), bal, X, ci, pj, obs - K[:2, 2], fixed, bundle.BAOptions(max_iterations=2))
+
+
+def _dense() -> None:
+    """The dense pass (ZNCC sweep, coarse-to-fine and SGM, fusion) on four tiny views of a textured wall."""
+    from workers.drone import dense
+    from workers.drone.params import ReconstructionParams
+
+    rng = np.random.default_rng(0)
+    K = np.array([[40.0, 0, 23.5], [0, 40.0, 17.5], [0, 0, 1]])
+    wall = rng.integers(0, 256, (36, 48, 3), np.uint8)
+    views = [dense.View(f"v{i}", np.roll(wall, -2 * i, axis=1), K, np.eye(3), np.array([-0.1 * i, 0, 0]))
+             for i in range(4)]
+    points = np.column_stack([rng.uniform(-0.5, 0.5, 50), rng.uniform(-0.4, 0.4, 50), np.full(50, 2.0)])
+    seen = [np.arange(50)] * 4
+    for aggregation, coarse in (("window", True), ("window", False), ("sgm", False)):
+        params = ReconstructionParams(fx=40.0, fy=40.0, cx=23.5, cy=17.5, dense=True, dense_planes=16,
+                                      dense_aggregation=aggregation, dense_coarse_to_fine=coarse)
+        dense.densify_views(views, points, seen, params)
+
+
+def _depth() -> None:
+    """Every depth post-filter at 8 and 16 bits, and view synthesis for both geometries."""
+    from workers.depth import io
+    from workers.depth.methods import METHODS, GUIDED_METHODS
+    from workers.depth.service import filter_depth_bytes, synthesize_bytes
+
+    rng = np.random.default_rng(0)
+    texture = io.encode_png(rng.integers(0, 256, (24, 32, 3), np.uint8))
+    for depth in (rng.integers(1, 255, (12, 16), np.uint8), rng.integers(1, 65535, (12, 16), np.uint16)):
+        blob = io.encode_depth(depth)
+        for method in METHODS:
+            guide = texture if method in GUIDED_METHODS else None
+            filter_depth_bytes(blob, {"method": method, "scale": 2}, guide)
+    levels = io.encode_png(rng.integers(1, 255, (24, 32), np.uint8))
+    views = [(texture, levels), (texture, levels)]
+    common = {"z_near": 1.0, "z_far": 10.0}
+    synthesize_bytes(views, {**common, "focal_px": 40.0, "positions": [0.0, 0.2], "target_position": 0.1})
+    K = [[40.0, 0, 15.5], [0, 40.0, 11.5], [0, 0, 1]]
+    synthesize_bytes(views, {**common, "geometry": "general", "cameras": [{"K": K, "t": [0.0, 0, 0]},
+                                                                          {"K": K, "t": [-0.2, 0, 0]}],
+                             "target_camera": {"K": K, "t": [-0.1, 0, 0]}})
+
+
+def _faces() -> None:
+    """The face preview's rasteriser (the face jobs' only compiled kernel)."""
+    from workers.faces.preview import preview_png
+
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.2]])
+    tris = np.array([[0, 1, 2], [1, 3, 2]])
+    preview_png(v, v + 0.1, tris)
+
+
+ENGINES: dict[str, Callable[[], None]] = {"sweep": _sweep, "demo": _demo, "drone": _bundle, "dense": _dense,
+                                          "depth": _depth, "faces": _faces}
+"""Engine name -> its warm-up, in the order users meet them (the demo viewer first)."""
+
+
+def warm(engines: list[str] | None = None, log: Callable[[str], None] | None = None) -> dict[str, float]:
+    """Compile (or load from numba's cache) the kernels of ``engines`` (default: all, in
+    :data:`ENGINES` order); returns seconds per engine. An engine that fails is logged and skipped:
+    warming is an optimisation, never a reason to stop."""
+    seconds: dict[str, float] = {}
+    for name in engines or list(ENGINES):
+        t0 = time.perf_counter()
+        try:
+            ENGINES[name]()
+        except Exception as exc:  # noqa: BLE001 - a request will compile what this could not
+            if log is not None:
+                log(f"warming {name} failed: {type(exc).__name__}: {exc}")
+            continue
+        seconds[name] = round(time.perf_counter() - t0, 3)
+        if log is not None:
+            log(f"warmed {name} in {seconds[name]:.1f} s")
+    return seconds
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="sweepcast warmup", description="compile every engine's kernels into "
+                                 "numba's cache (NUMBA_CACHE_DIR) ahead of the first request")
+    ap.add_argument("engines", nargs="*", metavar="ENGINE", help=f"any of {', '.join(ENGINES)} (default: all)")
+    args = ap.parse_args(argv)
+    unknown = sorted(set(args.engines) - set(ENGINES))
+    if unknown:
+        ap.error(f"unknown engine(s) {', '.join(unknown)}; expected any of {', '.join(ENGINES)}")
+    result = warm(args.engines or None, log=lambda m: print(m, file=sys.stderr, flush=True))
+    print(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
