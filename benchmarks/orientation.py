@@ -21,13 +21,14 @@ upright as stored; ``noup/``, textures and aerial views with no clear up), and t
 Every image is turned by the four rotations (JPEG q95) and analysed by: ``paper`` (faces only),
 ``combined_prev`` (YuNet + parts without the paper's detector: the combined detector before it
 used both detectors' evidence), ``combined`` (faces only) and ``engine`` (combined, then Tesseract
-OSD when the faces decide nothing: the service's default). Per set and cue: decided (right),
-rejected, wrong. A text/ or noup/ trial decided by faces is counted under ``faces``. The text cue's
-thresholds are calibrated here: every engine trial in which OSD ran records its four views, and the
-table "text cue calibration" re-applies the text rule to those records over a grid of
-(least mean confidence, least views that ran, all agreeing), per set: the chosen constants (``TEXT_MIN_CONFIDENCE``,
-``TEXT_MIN_AGREE`` in workers/orientation/text.py) are the loosest with no wrong turn and every
-noup/ trial rejected. Trials run on two threads (OSD is a subprocess per view).
+OSD verified by OCR when the faces decide nothing: the service's default). Per set and cue: decided
+(right), rejected, wrong. A text/ or noup/ trial decided by faces is counted under ``faces``. The text
+cue's thresholds are calibrated here: every engine trial in which the text cue ran records its four OSD
+views and its OCR word counts (the engine reads every OCR variant here; its decisions are the service's),
+and the text rule is re-applied to those records over a grid of (OSD-alone least mean confidence, OCR
+least words, OCR ratio): in sample, and held out (thresholds selected on the other images, applied to
+the held-out image; and by source repository). Trials run on two threads. The text cue's speed is then
+measured apart in the service's configuration (one thread, each text photo once).
 
 Speed. ~12-megapixel JPEGs are made by upscaling dev photos. Engine only: ``analyze`` in-process
 on one thread and on two threads (OpenCV releases the GIL), with decoding alone timed in the
@@ -45,6 +46,7 @@ bytes changed (differing bytes when the length is kept, else the changed span be
 median milliseconds per file. A writer of ours is kept only where it wins on bytes or time.
 
 Run: ``python benchmarks/orientation.py [--quick] [--no-http] [--no-speed] [--no-sets]`` from the repository root;
+``python benchmarks/orientation.py --text-section`` for the faces-then-text sets alone (section orientation_text);
 ``python benchmarks/orientation.py --writers`` for the writers section alone.
 """
 from __future__ import annotations
@@ -73,7 +75,9 @@ from workers.orientation.detect import (Decision, DetectorConfig, OrientationDet
 from workers.orientation.geometry import ROTATIONS, rotate_view  # noqa: E402
 from workers.orientation.parts import PartSpec  # noqa: E402
 from workers.orientation.service import analyze, combine_cues  # noqa: E402
-from workers.orientation.text import (TEXT_MIN_AGREE, TEXT_MIN_CONFIDENCE, OsdView, TextResult,  # noqa: E402
+from workers.orientation.detect import Engine  # noqa: E402
+from workers.orientation.text import (TEXT_MIN_AGREE, TEXT_MIN_CONFIDENCE, TEXT_VERIFY_MIN_WORDS,  # noqa: E402
+                                      TEXT_VERIFY_RATIO, OsdView, TesseractOsd, TextResult, WordCount,
                                       text_decision)
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp")
@@ -139,8 +143,24 @@ def set_detectors(yunet: Path | None) -> dict[str, OrientationDetector]:
     if yunet is not None:
         out["combined_prev"] = YuNetDetector(yunet, PartSpec.opencv(), name="combined_prev")
         out["combined"] = get_detector(DetectorConfig(method="combined", yunet_model=yunet, text=False))
-    out["engine"] = get_detector(DetectorConfig(yunet_model=yunet, text=True))
+    engine = get_detector(DetectorConfig(yunet_model=yunet, text=True))
+    if engine.text is not None:  # every OCR variant read (same decisions), each result kept for the calibration
+        engine = Engine(engine.faces, RecordingText(engine.text.path), engine.text_info)
+    out["engine"] = engine
     return out
+
+
+class RecordingText(TesseractOsd):
+    """The text cue reading every OCR variant (``exhaustive``: the decision is the same, the calibration needs
+    them all), keeping its last result per thread."""
+
+    def __init__(self, binary: str) -> None:
+        super().__init__(binary, exhaustive=True)
+        self.last = __import__("threading").local()
+
+    def upright(self, gray: np.ndarray) -> TextResult:
+        self.last.result = result = super().upright(gray)
+        return result
 
 
 def run_sets(sets: dict[str, list[Path]], detectors: dict[str, OrientationDetector], threads: int = 2) -> list[dict]:
@@ -152,9 +172,13 @@ def run_sets(sets: dict[str, list[Path]], detectors: dict[str, OrientationDetect
         out = []
         for r, data in rotated_inputs(path).items():
             for name, detector in detectors.items():
+                if isinstance(detector, Engine) and isinstance(detector.text, RecordingText):
+                    detector.text.last.result = None
                 report = analyze(data, detector)
                 views = [[v.view_degrees, v.ran, v.rotation_degrees, v.confidence] for v in report.text.views]
-                out.append({"set": set_name, "image": path.name, "turn": r, "config": name,
+                recorded = getattr(getattr(getattr(detector, "text", None), "last", None), "result", None)
+                words = [[w.variant, w.rotation, w.words] for w in recorded.words] if recorded else []
+                out.append({"text_words": words, "text_how": recorded.how if recorded else None,"set": set_name, "image": path.name, "turn": r, "config": name,
                             "rotation": report.rotation_degrees, "cue": report.cue, "reason": report.reject_reason,
                             "accepted": report.accepted_rotations, "text_views": views,
                             "text_status": report.text.status, "ms": report.elapsed_ms})
@@ -212,30 +236,119 @@ def paper_vs(trials: list[dict], config: str) -> dict:
     return out
 
 
-CALIBRATION_CONFIDENCES = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 6.0)
-CALIBRATION_AGREE = (1, 2, 3, 4)
+CALIBRATION_CONFIDENCES = (1.5, 2.0, 2.5, 3.0, 4.0, 6.0, 99.0)
+"""OSD-alone thresholds tried (99: never decide by OSD alone)."""
+CALIBRATION_WORDS = (3, 5, 8, 10, 15, 20, 30)
+CALIBRATION_RATIOS = (1.5, 2.0, 3.0, 4.0, 6.0)
 
 
-def text_calibration(trials: list[dict]) -> list[dict]:
-    """The text rule re-applied to the engine trials in which OSD ran, over a grid of thresholds:
-    decided / wrong per set as the engine would decide (faces' accepted views included)."""
+def _final(t: dict, conf: float, words: int, ratio: float) -> int | None:
+    views = tuple(OsdView(v, ok, rot, c) for v, ok, rot, c in t["text_views"])
+    counts = tuple(WordCount(var, rot, n) for var, rot, n in t.get("text_words", []))
+    rotation, reason, how = text_decision(views, counts, conf, TEXT_MIN_AGREE, words, ratio)
+    faces = Decision(tuple(t["accepted"]), None)  # the faces decided nothing: only their views matter
+    final, _, _ = combine_cues(faces, TextResult(rotation, reason, views, counts, how))
+    return final
+
+
+def _score(trials: list[dict], conf: float, words: int, ratio: float) -> dict:
+    out: dict = {}
+    for t in trials:
+        cell = out.setdefault(t["set"], {"trials": 0, "decided": 0, "wrong": 0})
+        cell["trials"] += 1
+        final = _final(t, conf, words, ratio)
+        if final is not None:
+            cell["decided" if t["set"] != "noup" and final == t["turn"] else "wrong"] += 1
+    return out
+
+
+def _grid() -> list[tuple[float, int, float]]:
+    return [(c, w, r) for c in CALIBRATION_CONFIDENCES for w in CALIBRATION_WORDS for r in CALIBRATION_RATIOS]
+
+
+def _outcomes(trials: list[dict]) -> dict[tuple[float, int, float], list[str | None]]:
+    """Per grid point, each trial's outcome: "d" (decided right), "w" (wrong; any decision on noup/), None."""
+    out = {}
+    for point in _grid():
+        row = []
+        for t in trials:
+            final = _final(t, *point)
+            row.append(None if final is None else "d" if t["set"] != "noup" and final == t["turn"] else "w")
+        out[point] = row
+    return out
+
+
+def select_thresholds(outcomes: dict, idx: list[int]) -> tuple[float, int, float]:
+    """The calibration rule, as a held-out fold applies it to the trials ``idx``: among the grid points with
+    no wrong turn (no-up decisions count as wrong), the one deciding the most; ties go to the strictest; then
+    the OSD-alone confidence one grid step stricter (a margin: the loosest safe value sits next to a wrong
+    turn)."""
+    best = None
+    for point, row in outcomes.items():
+        got = [row[i] for i in idx]
+        if "w" in got:
+            continue
+        key = (got.count("d"), *point)
+        best = key if best is None or key > best else best
+    if best is None:
+        return CALIBRATION_CONFIDENCES[-1], CALIBRATION_WORDS[-1], CALIBRATION_RATIOS[-1]
+    i = CALIBRATION_CONFIDENCES.index(best[1])
+    return CALIBRATION_CONFIDENCES[min(i + 1, len(CALIBRATION_CONFIDENCES) - 1)], best[2], best[3]
+
+
+def held_out(trials: list[dict], outcomes: dict, key) -> dict:
+    """Thresholds selected without a group (all 4 turns of an image, or every image of a source), applied to
+    it; decided / wrong per set over all groups, and the thresholds the folds chose."""
+    groups: dict = {}
+    for i, t in enumerate(trials):
+        groups.setdefault(key(t), []).append(i)
+    totals: dict = {}
+    picks: dict = {}
+    for g, test in groups.items():
+        chosen = select_thresholds(outcomes, [i for k, v in groups.items() if k != g for i in v])
+        picks[str(chosen)] = picks.get(str(chosen), 0) + 1
+        for i in test:
+            t = trials[i]
+            tot = totals.setdefault(t["set"], {"trials": 0, "decided": 0, "wrong": 0, "wrong_cases": []})
+            tot["trials"] += 1
+            got = outcomes[chosen][i]
+            tot["decided"] += got == "d"
+            tot["wrong"] += got == "w"
+            if got == "w":
+                tot["wrong_cases"].append(f"{t['image']} turned {t['turn']} with {chosen}")
+    return {"folds": len(groups), "totals": totals, "picks": picks}
+
+
+def text_calibration(trials: list[dict]) -> dict:
+    """The text rule re-applied to the engine trials in which the text cue ran: the grid in-sample (decided /
+    wrong per set as the engine would decide, faces' accepted views included) and held out by image and by
+    source (the part of the file name before ``__``)."""
     ran = [t for t in trials if t["config"] == "engine" and t["text_status"] == "ran"]
     rows = []
-    for agree in CALIBRATION_AGREE:
-        for conf in CALIBRATION_CONFIDENCES:
-            row: dict = {"min_agree": agree, "min_confidence": conf}
-            for t in ran:
-                views = tuple(OsdView(v, ok, rot, c) for v, ok, rot, c in t["text_views"])
-                rotation, reason = text_decision(views, conf, agree)
-                faces = Decision(tuple(t["accepted"]), None)  # the faces decided nothing: only their views matter
-                final, _, _ = combine_cues(faces, TextResult(rotation, reason, views))
-                cell = row.setdefault(t["set"], {"trials": 0, "decided": 0, "wrong": 0})
-                cell["trials"] += 1
-                if final is not None:
-                    ok = t["set"] != "noup" and final == t["turn"]
-                    cell["decided" if ok else "wrong"] += 1
-            rows.append(row)
-    return rows
+    for conf, words, ratio in _grid():
+        if ratio != TEXT_VERIFY_RATIO and words != TEXT_VERIFY_MIN_WORDS:
+            continue  # the table shows the grid's two slices through the chosen point
+        rows.append({"min_confidence": conf, "min_words": words, "ratio": ratio, **_score(ran, conf, words, ratio)})
+    sample = [t for t in ran if t["set"] in ("text", "noup")]
+    outcomes = _outcomes(sample)
+    return {"grid": rows, "in_sample_selection": select_thresholds(outcomes, list(range(len(sample)))),
+            "leave_one_image_out": held_out(sample, outcomes, lambda t: (t["set"], t["image"])),
+            "leave_one_source_out": held_out(sample, outcomes, lambda t: t["image"].split("__")[0])}
+
+
+def text_speed(paths: list[Path], yunet: Path | None) -> dict:
+    """The service's default engine (OCR stops at the first verifying variant), one thread, one turn per text
+    photo (turn = index mod 4): median and 90th percentile ms of ``analyze``, and the text cue's backend."""
+    engine = get_detector(DetectorConfig(yunet_model=yunet, text=True))
+    ms = []
+    for i, path in enumerate(paths):
+        data = rotated_inputs(path)[ROTATIONS[i % 4]]
+        start = time.perf_counter()
+        analyze(data, engine)
+        ms.append(1000 * (time.perf_counter() - start))
+    ms.sort()
+    return {"photos": len(ms), "median_ms": statistics.median(ms), "p90_ms": ms[int(0.9 * (len(ms) - 1))],
+            "backend": engine.text_info.get("backend")}
 
 
 def load_photo(path: Path, megapixels: float | None = None) -> np.ndarray:
@@ -480,9 +593,15 @@ def run_orientation_sets(face_photos: list[Path], yunet: Path | None, quick: boo
             print(f"{set_name:5s} {name:13s} decided {c['decided']}/{c['trials']} rejected {c['rejected']} "
                   f"wrong {c['wrong']} by cue {c['by_cue']}", flush=True)
     compare = {name: paper_vs(trials, name) for name in detectors if name != "paper"}
+    calibration = text_calibration(trials)
+    print(f"text calibration: in-sample {calibration['in_sample_selection']}; "
+          f"by image {calibration['leave_one_image_out']}; by source {calibration['leave_one_source_out']}", flush=True)
+    speed = text_speed(sets["text"], yunet) if "text" in sets and text_info.get("available") else None
+    print(f"text speed: {speed}", flush=True)
     return {"images": {k: len(v) for k, v in sets.items()}, "text_cue": text_info, "tallies": tallies,
-            "paper_vs": compare, "calibration": text_calibration(trials),
-            "chosen": {"min_confidence": TEXT_MIN_CONFIDENCE, "min_agree": TEXT_MIN_AGREE}, "trials": trials}
+            "paper_vs": compare, "calibration": calibration, "text_speed": speed,
+            "chosen": {"min_confidence": TEXT_MIN_CONFIDENCE, "min_agree": TEXT_MIN_AGREE,
+                       "min_words": TEXT_VERIFY_MIN_WORDS, "ratio": TEXT_VERIFY_RATIO}, "trials": trials}
 
 
 def sets_markdown(sets: dict | None) -> list[str]:
@@ -512,17 +631,41 @@ def sets_markdown(sets: dict | None) -> list[str]:
         out += ["", "Faces against the paper's detector alone: trials the paper decided (right) and the config did "
                     "not, and the reverse", "",
                 md_table(["set", "config", "paper only", "config only", "paper-only cases"], rows)]
-    cal = sets.get("calibration") or []
+    cal = sets.get("calibration") or {}
     if cal:
-        names = [n for n in ("text", "noup", "faces") if any(n in r for r in cal)]
+        names = [n for n in ("text", "noup", "faces") if any(n in r for r in cal["grid"])]
         rows = []
-        for r in cal:
+        for r in cal["grid"]:
             cells = [f"{r[n]['decided']}/{r[n]['wrong']} of {r[n]['trials']}" if n in r else "-" for n in names]
-            chosen = r["min_agree"] == TEXT_MIN_AGREE and r["min_confidence"] == TEXT_MIN_CONFIDENCE
-            rows.append([r["min_agree"], r["min_confidence"], *cells, "chosen" if chosen else ""])
-        out += ["", "Text cue calibration: the text rule re-applied to the engine trials where OSD ran "
-                    "(decided right / wrong of the trials that reached the text cue), per set", "",
-                md_table(["min views (all agreeing)", "min mean confidence", *names, ""], rows)]
+            chosen = (r["min_confidence"], r["min_words"], r["ratio"]) == (
+                TEXT_MIN_CONFIDENCE, TEXT_VERIFY_MIN_WORDS, TEXT_VERIFY_RATIO)
+            rows.append([r["min_confidence"], r["min_words"], r["ratio"], *cells, "chosen" if chosen else ""])
+        out += ["", "Text cue calibration (in sample): the text rule re-applied to the engine trials where the text "
+                    "cue ran (decided right / wrong of those trials), per set, along the grid's two slices through "
+                    "the chosen point (OSD-alone confidence 99: never decided by OSD alone). The four turns of one "
+                    "image are nearly the same trial (the views are the same pictures up to JPEG noise): "
+                    "there are 50 + 13 independent images, not 252 trials.", "",
+                md_table(["OSD-alone min mean confidence", "OCR min words", "OCR ratio", *names, ""], rows)]
+        rows = []
+        for label, key in (("leave one image out", "leave_one_image_out"), ("leave one source out", "leave_one_source_out")):
+            h = cal[key]
+            for set_name, tot in h["totals"].items():
+                rows.append([label, h["folds"], set_name, tot["trials"], tot["decided"],
+                             f"{100 * tot['decided'] / max(tot['trials'], 1):.1f}%", tot["wrong"],
+                             "; ".join(tot["wrong_cases"][:4]) or "-"])
+        picks = "; ".join(f"{k}: {v} folds" for k, v in cal["leave_one_image_out"]["picks"].items())
+        out += ["", "Held-out calibration: for each fold the thresholds (OSD-alone confidence, OCR words, OCR ratio) "
+                    "are selected on the other images only (most decided with no wrong turn and every no-up trial "
+                    "rejected, ties to the strictest, then the OSD-alone confidence one grid step stricter) and applied "
+                    f"to the held-out image(s). In-sample selection: {tuple(cal['in_sample_selection'])}; "
+                    f"leave-one-image-out picks: {picks}.", "",
+                md_table(["held out", "folds", "set", "trials", "decided", "decided %", "wrong", "wrong cases"], rows)]
+    sp = sets.get("text_speed")
+    if sp:
+        out += ["", f"Text cue speed: the service's default engine (faces, then text; tesseract through "
+                    f"{sp['backend']}), one thread, each text/ photo once (turned by index mod 4): median "
+                    f"{sp['median_ms']:.0f} ms, 90th percentile {sp['p90_ms']:.0f} ms per photo over {sp['photos']} "
+                    "photos."]
     return out
 
 
@@ -667,6 +810,9 @@ def main() -> int:
     parser.add_argument("--sets-only", metavar="JSON", type=Path,
                         help="only the faces-then-text sets, written to JSON and printed (nothing published): "
                              "for calibrating the text cue")
+    parser.add_argument("--text-section", action="store_true",
+                        help="only the faces-then-text sets (text, noup, faces; --set narrows), published as the "
+                             "section orientation_text (a few minutes)")
     args = parser.parse_args()
 
     if args.writers:
@@ -690,6 +836,12 @@ def main() -> int:
         photos = [p for i, p in enumerate(photos) if i % 3 == 0 or p.name in NEGATIVES]
     sets_result = None if args.no_sets and not args.sets_only else run_orientation_sets(photos, yunet, args.quick,
                                                                                             args.set)
+    if args.text_section:
+        if sets_result is None:
+            return 0
+        publish("orientation_text", {k: v for k, v in sets_result.items() if k != "trials"},
+                "\n".join(sets_markdown(sets_result)).strip())
+        return 0
     if args.sets_only:
         args.sets_only.write_text(json.dumps(sets_result, indent=1))
         print("\n".join(sets_markdown(sets_result)))

@@ -10,8 +10,9 @@ from tests.orientation.builders import FakeDetector, asymmetric_image, encode, j
 from workers.orientation.detect import Decision, DetectorConfig, Engine, Face, decide, fuse_paper, get_detector
 from workers.orientation.geometry import ROTATIONS, rotate_view
 from workers.orientation.service import analyze, combine_cues
-from workers.orientation.text import (OsdView, TesseractOsd, TextResult, TextUnavailable, get_text_detector,
-                                      parse_osd, prepare, text_decision, text_status)
+from workers.orientation.text import (OsdView, TesseractOsd, TextResult, TextUnavailable, WordCount, count_words,
+                                      get_text_detector, ocr_pages, osd_candidate, parse_osd, parse_tsv_words, prepare,
+                                      text_decision, text_status, tesserocr)
 
 TESSERACT = get_text_detector()
 
@@ -75,22 +76,75 @@ def test_parse_osd_too_few_characters_casts_no_vote():
     assert not parse_osd(0, "", "").ran
 
 
+def _rule(views, words=(), conf=2.0, agree=3):
+    rotation, reason, _ = text_decision(views, words, conf, agree, 8, 3.0)
+    return rotation, reason
+
+
+def _words(candidate: int, here: int, there: int, variant: str = "gray") -> tuple[WordCount, ...]:
+    return (WordCount(variant, candidate, here), WordCount(variant, (candidate + 180) % 360, there))
+
+
 def test_text_rule_needs_agreeing_confident_views():
-    assert text_decision([_view(r, 90) for r in ROTATIONS], 2.0, 3) == (90, None)
-    assert text_decision([_view(0, 90), _view(90, 90), _view(180, 90), _view(270, None)], 2.0, 3) == (90, None)
-    assert text_decision([_view(0, 90), _view(90, 90), _view(180, None), _view(270, None)], 2.0, 3) == (None, "no_cue")
-    assert text_decision([_view(0, 90), _view(90, None), _view(180, 90), _view(270, None)], 2.0, 2) == (90, None)
-    assert text_decision([_view(0, 90), _view(90, None), _view(180, None), _view(270, None)], 2.0, 2) == (
-        None, "no_cue")
-    assert text_decision([_view(r, None) for r in ROTATIONS], 2.0, 3) == (None, "no_cue")
+    assert _rule([_view(r, 90) for r in ROTATIONS]) == (90, None)
+    assert _rule([_view(0, 90), _view(90, 90), _view(180, 90), _view(270, None)]) == (90, None)
+    assert _rule([_view(0, 90), _view(90, 90), _view(180, None), _view(270, None)]) == (None, "no_cue")
+    assert _rule([_view(0, 90), _view(90, None), _view(180, 90), _view(270, None)], agree=2) == (90, None)
+    assert _rule([_view(0, 90), _view(90, None), _view(180, None), _view(270, None)], agree=2) == (None, "no_cue")
+    assert _rule([_view(r, None) for r in ROTATIONS]) == (None, "no_cue")
     # the 180-degree confusion: one view reads the page upside down, however weakly
-    assert text_decision([_view(0, 0), _view(90, 0), _view(180, 180, 0.3), _view(270, 0)], 2.0, 2) == (
+    assert _rule([_view(0, 0), _view(90, 0), _view(180, 180, 0.3), _view(270, 0)], agree=2) == (
         None, "conflicting_rotations")
     # agreeing but weak on average
-    assert text_decision([_view(0, 0, 3.0), _view(90, 0, 0.5), _view(180, 0, 1.0), _view(270, 0, 0.5)], 2.0, 2) == (
+    assert _rule([_view(0, 0, 3.0), _view(90, 0, 0.5), _view(180, 0, 1.0), _view(270, 0, 0.5)], agree=2) == (
         None, "low_confidence")
-    assert text_decision([_view(0, 0, 3.0), _view(90, 0, 1.5), _view(180, 0, 2.0), _view(270, 0, 2.0)], 2.0, 2) == (
-        0, None)
+    assert _rule([_view(0, 0, 3.0), _view(90, 0, 1.5), _view(180, 0, 2.0), _view(270, 0, 2.0)], agree=2) == (0, None)
+
+
+def test_votes_on_both_axes_are_a_texture_whatever_ocr_says():
+    scattered = [_view(0, 0, 3.0), _view(90, 90, 2.0), _view(180, 0, 3.0), _view(270, None)]
+    assert osd_candidate(scattered, 2) == (None, "conflicting_rotations")
+    assert _rule(scattered, _words(0, 50, 0), agree=2) == (None, "conflicting_rotations")
+
+
+def test_ocr_settles_opposite_votes_and_weak_agreement():
+    split = [_view(0, 0, 1.3), _view(90, 180, 1.2), _view(180, 0, 1.6), _view(270, 180, 0.7)]
+    assert osd_candidate(split, 2) == (0, None)
+    assert text_decision(split, _words(0, 40, 1), 2.5, 2, 8, 3.0) == (0, None, "ocr")
+    assert _rule(split, _words(0, 40, 20), agree=2) == (None, "conflicting_rotations")  # not 3x the other way
+    assert _rule(split, _words(0, 5, 0), agree=2) == (None, "conflicting_rotations")  # too few words
+    weak = [_view(r, 90, 1.0) for r in ROTATIONS]
+    assert _rule(weak, _words(90, 30, 2), agree=2) == (90, None)
+    assert _rule(weak, (), agree=2) == (None, "low_confidence")
+    # the grey page says nothing, the binarised one verifies
+    assert _rule(weak, _words(90, 0, 0) + _words(90, 30, 2, "binary"), agree=2) == (90, None)
+
+
+def test_ocr_reading_the_other_way_up_turns_the_candidate_round_or_vetoes_it():
+    confident = [_view(r, 0, 9.0) for r in ROTATIONS]
+    assert text_decision(confident, _words(0, 3, 2), 2.5, 2, 8, 3.0) == (0, None, "osd")  # OCR unclear
+    # OSD's 180-degree confusion: the page reads clearly the other way up
+    assert text_decision(confident, _words(0, 2, 30), 2.5, 2, 8, 3.0) == (180, None, "ocr")
+    # the other way up reads more, but not clearly: neither OCR nor OSD may decide
+    assert _rule(confident, _words(0, 10, 20), agree=2) == (None, "conflicting_rotations")
+
+
+def test_words_count_only_confident_letters():
+    assert count_words([("Receipt", 95.0), ("TOTAL", 81.0), ("12.50", 96.0), ("ab", 99.0), ("Tax", 40.0),
+                        ("x1y2z3", 90.0), ("mm-", 85.0), ("Steuer:", 88.0)]) == 3
+    tsv = ("level\tpage_num\tblock_num\tpar_num\tline_num\tword_num\tleft\ttop\twidth\theight\tconf\ttext\n"
+           "1\t1\t0\t0\t0\t0\t0\t0\t100\t50\t-1\t\n"
+           "5\t1\t1\t1\t1\t1\t3\t4\t20\t10\t91.5\tHello\n"
+           "5\t1\t1\t1\t1\t2\t30\t4\t20\t10\t12\t\n")
+    assert parse_tsv_words(tsv) == [("Hello", 91.5)]
+
+
+def test_ocr_reads_a_window_where_the_ink_is():
+    page = np.full((3000, 1000), 255, np.uint8)
+    page[2400:2700, 100:900] = 0  # the only ink, near the bottom
+    pages = ocr_pages(page, window=400)
+    assert pages["gray"].shape == (400, 400) and pages["binary"].shape == (400, 400)
+    assert (pages["gray"] < 128).mean() > 0.3  # the window holds the ink
 
 
 def test_small_images_are_upscaled_and_large_ones_reduced_for_osd():
@@ -154,6 +208,33 @@ def test_engine_decides_a_text_photo_by_text_when_no_face_decides(rotation):
     assert not report.needs_review and report.reject_reason is None
     assert report.text.status == "ran" and report.text.rotation_degrees == rotation
     assert sum(v.ran for v in report.text.views) >= 2
+
+
+BACKENDS = ["cli"] + (["tesserocr"] if tesserocr is not None else [])
+
+
+@needs_tesseract
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("rotation", ROTATIONS)
+def test_each_backend_decides_rendered_text_and_ocr_confirms_it(backend, rotation):
+    detector = TesseractOsd(use_api=backend == "tesserocr")
+    assert detector.backend == backend
+    result = detector.upright(cv2.cvtColor(turned(text_page(), rotation), cv2.COLOR_BGR2GRAY))
+    assert result.rotation == rotation and result.reason is None, result
+    if detector.ocr:  # English OCR reads the page the right way up, hardly at all upside down
+        right = [w.words for w in result.words if w.rotation == rotation]
+        wrong = [w.words for w in result.words if w.rotation == (rotation + 180) % 360]
+        assert result.how == "ocr" and right[0] >= 20 and wrong[0] * 3 <= right[0], result.words
+
+
+@needs_tesseract
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_texture_is_rejected_by_each_backend(backend):
+    rng = np.random.default_rng(7)
+    texture = cv2.GaussianBlur(rng.integers(0, 256, (900, 1200), dtype=np.uint8), (0, 0), 2.0)
+    texture = cv2.adaptiveThreshold(texture, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY, 15, 0)  # blobs
+    result = TesseractOsd(use_api=backend == "tesserocr").upright(texture)
+    assert result.rotation is None and result.reason is not None
 
 
 @needs_tesseract

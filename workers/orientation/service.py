@@ -142,11 +142,12 @@ def analyze(image_bytes: bytes, detector: OrientationDetector, max_pixels: int =
     decision = decide(faces)
     rotation, cue, reason = decision.rotation, ("faces" if decision.rotation is not None else "none"), decision.reason
     text = _text_report_unused(detector)
+    text_result: TextResult | None = None
     engine = detector if isinstance(detector, Engine) else None
     if rotation is None and engine is not None and engine.text is not None:
-        result = engine.text.upright(decode_gray(image_bytes, max_pixels, TEXT_MAX_SIDE, filename=filename).gray)
-        text = _text_report(result)
-        rotation, cue, reason = combine_cues(decision, result)
+        text_result = engine.text.upright(decode_gray(image_bytes, max_pixels, TEXT_MAX_SIDE, filename=filename).gray)
+        text = _text_report(text_result)
+        rotation, cue, reason = combine_cues(decision, text_result)
     header = decoded.header
     insp = inspect(image_bytes, header, sidecars)
     exif = insp.exif
@@ -182,7 +183,7 @@ def analyze(image_bytes: bytes, detector: OrientationDetector, max_pixels: int =
         written=False,
         written_orientation=None,
         file_orientation=shown if header.format in ("heif", "avif") else tag,
-        message=_describe(decision, faces, text, rotation, cue, reason),
+        message=_describe(decision, faces, text, rotation, cue, reason, text_result),
         elapsed_ms=_ms_since(start),
     )
     _, _, plan = plan_write(report, insp, mode, force, naming, filename)
@@ -413,10 +414,13 @@ def _face_report(face: Face, sx: float, sy: float) -> FaceReport:
 
 
 def _describe(decision: Decision, faces: list[Face], text: TextReport, rotation: int | None, cue: Cue,
-              reason: RejectReason | None) -> str:
+              reason: RejectReason | None, text_result: TextResult | None = None) -> str:
     if cue == "text" and rotation is not None:
-        agreeing = sum(v.ran and v.rotation_degrees == rotation for v in text.views)
-        what = f"text read upright by Tesseract OSD in {agreeing} of 4 views (no decisive face)"
+        if text_result is not None:
+            what = f"text read upright by Tesseract: {text_result.summary()} (no decisive face)"
+        else:
+            agreeing = sum(v.ran and v.rotation_degrees == rotation for v in text.views)
+            what = f"text read upright by Tesseract OSD in {agreeing} of 4 views (no decisive face)"
         if rotation == 0:
             return f"upright as stored: {what}"
         return (f"rotated: turn {rotation} deg clockwise to show it upright "
@@ -426,7 +430,7 @@ def _describe(decision: Decision, faces: list[Face], text: TextReport, rotation:
         if text.rotation_degrees is not None:
             return (f"{faces_part}; the text points to {text.rotation_degrees} deg, which conflicts with the faces "
                     "(needs review)")
-        why = {"no_cue": "no readable text", "conflicting_rotations": "the text's views disagree",
+        why = {"no_cue": "no readable text", "conflicting_rotations": "the text's views (or OSD and OCR) disagree",
                "low_confidence": "the text's orientation is not clear enough"}[text.reject_reason or "no_cue"]
         return f"{faces_part}; {why} (needs review)"
     if decision.rotation is None:

@@ -1,12 +1,18 @@
-"""The second cue: which way is up from text, by Tesseract's orientation and script detection (OSD).
+"""The second cue: which way is up from text, by Tesseract's orientation and script detection (OSD),
+verified by reading the text (OCR) the way OSD says is up and upside down.
 
 Faces come first (the paper); when they decide nothing, the photo's text may. Tesseract's OSD
-(``tesseract IMAGE stdout --psm 0``, Debian packages ``tesseract-ocr`` and ``tesseract-ocr-osd``)
-classifies up to a few hundred character blobs in each of the four orientations and reports the
-clockwise turn that makes the page upright, with a confidence. It is optional: without the binary
-or its ``osd`` data the engine works on faces alone and says so (:func:`text_status`).
+(Debian packages ``tesseract-ocr`` and ``tesseract-ocr-osd``) classifies up to a few hundred
+character blobs in each of the four orientations and reports the clockwise turn that makes the page
+upright, with a confidence. Tesseract's English OCR (``tesseract-ocr-eng``, a dependency of
+``tesseract-ocr``) then reads the page turned that way and turned the other way up: real text read
+right gives many confident words, read upside down (or a texture read at all) gives few. It is
+optional: without the binary or its ``osd`` data the engine works on faces alone and says so
+(:func:`text_status`); without ``eng`` data it decides by OSD alone. Tesseract is called through the
+``tesserocr`` binding when it is installed (one API object per thread, about twice as fast: no process
+and no model load per call), else through its command line.
 
-The rule stays the paper's: a wrong turn is far worse than no answer. OSD's known failure modes,
+The rule stays the paper's: a wrong turn is far worse than no answer. The known failure modes,
 and what guards each:
 
 - *too few characters*: OSD refuses pages with fewer than ``min_characters_to_try`` blobs
@@ -14,17 +20,24 @@ and what guards each:
 - *small images*: OSD needs characters of a readable size; an image whose long side is under
   ``TEXT_MIN_SIDE`` is upscaled (bicubic, at most ``TEXT_MAX_UPSCALE`` times) before OSD sees it;
   a large one is reduced to ``TEXT_MAX_SIDE`` (OSD time grows with the page);
-- *textures read as script, 180-degree confusions*: OSD runs on all four views of the photo
-  (turned 0, 90, 180, 270 degrees clockwise). Each view that ran votes for the turn of the
-  *stored* image it implies; the photo is decided only when at least ``TEXT_MIN_AGREE`` views
-  ran, every view that ran votes for the same turn, and their mean confidence is at least
-  ``TEXT_MIN_CONFIDENCE``. A texture gives scattered or weak votes; a page read upside down in
-  one view and right in another gives disagreeing votes: both are rejected;
-- *uneven light, faint print*: the view is binarised with a local threshold before OSD (Tesseract's
-  own global threshold lost thermal receipts, which OSD then read upside down in every view).
+- *textures read as script*: OSD runs on all four views of the photo (turned 0, 90, 180, 270 degrees
+  clockwise); each view that ran votes for the turn of the *stored* image it implies. At least
+  ``TEXT_MIN_AGREE`` views must run and every vote must lie on one axis (the candidate turn or its
+  opposite): lines of text give that, a texture scatters its votes over both axes and is rejected
+  before any OCR. A texture that slips through is not read as words by OCR either;
+- *180-degree confusions*: OSD confuses a page with its upside-down self; OCR does not: OCR reads the
+  page turned the candidate way and the opposite way, and the turn that reads at least
+  ``TEXT_VERIFY_MIN_WORDS`` confident words and ``TEXT_VERIFY_RATIO`` times as many as the other is
+  accepted (so a candidate OSD got upside down is turned round by reading); else the candidate on OSD
+  alone only when every vote agrees with a mean confidence of at least ``TEXT_MIN_CONFIDENCE`` and
+  OCR does not read the other way up clearly better (non-Latin scripts, which the English OCR cannot
+  read, are decided this way);
+- *uneven light, faint print*: OSD sees the view binarised with a local threshold (Tesseract's own
+  global threshold lost thermal receipts, which OSD then read upside down in every view); OCR reads
+  the grey page first and, when that does not verify, the binarised one.
 
 The thresholds were calibrated on real text photos and textures (``benchmarks/orientation.py``,
-``$SWEEPCAST_DATA/orientation``): see their docstrings.
+``$SWEEPCAST_DATA/orientation``, with held-out figures by image and by source): see their docstrings.
 """
 from __future__ import annotations
 
@@ -32,16 +45,24 @@ import os
 import re
 import shutil
 import subprocess
-from dataclasses import dataclass
+import threading
+from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import Literal, Sequence
+from typing import Iterable, Literal, Sequence
 
 import cv2
 import numpy as np
 
 from workers.orientation.geometry import ROTATIONS, rotate_view
 
+try:  # the optional in-process binding (pip install tesserocr); the command line otherwise
+    import tesserocr
+except ImportError:  # pragma: no cover - depends on the environment
+    tesserocr = None
+
 RejectReason = Literal["no_cue", "conflicting_rotations", "low_confidence"]
+Variant = Literal["gray", "binary"]
+Backend = Literal["tesserocr", "cli"]
 
 TESSERACT_ENV = "SWEEPCAST_ORIENTATION_TESSERACT"
 """Environment variable naming the tesseract binary (a name on PATH or a path) for the workers."""
@@ -50,30 +71,55 @@ TEXT_ENV = "SWEEPCAST_ORIENTATION_TEXT"
 DEFAULT_TESSERACT = "tesseract"
 
 TEXT_MIN_CONFIDENCE = 2.5
-"""Least mean OSD orientation confidence of the agreeing votes. Calibrated on the text/ and noup/ photos at
-4 rotations (``benchmarks/orientation.py``): with two agreeing views, the first wrong turn appears at a mean
-of 1.5 and every no-up trial is rejected from 0.5 on; 2.0 decided 149/200 text trials, 2.5 (kept, one
-step of margin) 134/200, 3.0 116/200, none wrong."""
+"""Least mean OSD orientation confidence for a decision by OSD alone (every vote agreeing, OCR not
+verifying). Calibrated on the text/ and noup/ photos at 4 rotations (``benchmarks/orientation.py``): a
+wrong turn (an ICDAR scene frame whose four views all voted for 90 degrees) appears at a mean of 1.6;
+2.0 is the loosest with no wrong turn, 2.5 keeps one grid step of margin. Held out by image and by source
+the selection (loosest safe value plus one step) chose 2.5 in all folds but one or two (2.0) and made no
+wrong turn (RESULTS.md, orientation_text)."""
 TEXT_MIN_AGREE = 2
-"""Least number of views (of 4) in which OSD ran; every view that ran must vote for the same turn. Long
-receipts are read only in their two upright-or-upside-down views (OSD finds too few characters when their
-lines run vertically), so 3 rejected many of them (120/200 at a minimum of 1.5 per vote) and gained no
-safety on the calibration photos."""
+"""Least number of views (of 4) in which OSD ran. Long receipts are read only in their two
+upright-or-upside-down views (OSD finds too few characters when their lines run vertically), so 3
+rejected many of them and gained no safety on the calibration photos."""
+TEXT_VERIFY_MIN_WORDS = 8
+"""Least confident words (:func:`count_words`) OCR must read on the page turned the candidate way for
+an OCR-verified decision. On the calibration photos a real page reads 8 to 630 of them upright and at
+most 12 upside down or sideways; no texture read more than 1. On the benchmark grid (RESULTS.md,
+orientation_text) every value from 3 to 30 made no wrong turn and 5 to 15 decided the most; 8 is inside
+that plateau (the held-out selection, ties to the strictest, picked 15)."""
+TEXT_VERIFY_RATIO = 3.0
+"""The candidate must read this many times as many confident words as the page turned the other way
+up (at least 1 counted there). Calibrated like ``TEXT_VERIFY_MIN_WORDS``: verified pages read 4x to
+100x more words upright; every ratio from 1.5 to 6 was safe and decided the same on the photos, 3 is kept."""
+TEXT_WORD_MIN_CONFIDENCE = 80.0
+"""A word counts when Tesseract's word confidence (0-100) reaches this (chosen a priori: Tesseract's
+own "good word" region; not tuned)."""
+TEXT_WORD_MIN_LETTERS = 3
+"""... and it has at least this many letters, which make up at least ``TEXT_WORD_LETTER_SHARE`` of it
+(a priori: numbers and punctuation read from noise are not words)."""
+TEXT_WORD_LETTER_SHARE = 0.6
 TEXT_MIN_CHARACTERS = 50
 """OSD's ``min_characters_to_try``: a view with fewer character blobs does not run (Tesseract's default)."""
 TEXT_MIN_SIDE = 1600
-"""Long side (px) a smaller image is upscaled to before OSD (characters of ~10 px become readable)."""
+"""Long side (px) a smaller image is upscaled to before OSD and OCR (characters of ~10 px become readable)."""
 TEXT_MAX_UPSCALE = 3.0
 """Largest upscaling factor (a thumbnail is not made into a page)."""
 TEXT_MAX_SIDE = 2400
 """Long side (px) a larger image is reduced to before OSD."""
+TEXT_OCR_MAX_SIDE = 1600
+"""Long side (px) of the page OCR reads (OCR time grows with the page; receipts still read 20+ words)."""
+TEXT_OCR_WINDOW = 800
+"""Side (px) of the square OCR reads, placed where the page has the most ink: a dense page took 10 s to
+read whole (twice); a window still holds 15+ lines of a receipt at ``TEXT_OCR_MAX_SIDE``."""
 TEXT_BINARIZE_BLOCK = 31
 """Neighbourhood (px) of the local threshold applied before OSD (odd; about two text lines at 1600 px)."""
 TEXT_BINARIZE_C = 15
 """A pixel is ink when it is this much darker than its neighbourhood's Gaussian mean."""
 OSD_TIMEOUT_S = 60.0
-"""A single OSD call that takes longer is abandoned (the view casts no vote)."""
-
+"""A single OSD or OCR call through the command line that takes longer is abandoned (no vote, no words)."""
+OCR_VARIANTS: tuple[Variant, ...] = ("gray", "binary")
+"""The pages OCR reads, in order, until one verifies: the grey page (posters, photos: white-on-colour text
+that a local threshold breaks), then the binarised one (faint thermal receipts)."""
 
 class TextUnavailable(RuntimeError):
     """Tesseract or its ``osd`` data is not installed (the engine then works on faces alone)."""
@@ -98,29 +144,130 @@ class OsdView:
 
 
 @dataclass(frozen=True)
+class WordCount:
+    """OCR of the page turned one way: how many confident words it read."""
+
+    variant: Variant
+    """Which page was read: the grey one or the binarised one."""
+    rotation: int
+    """Clockwise degrees the stored image was turned before reading (the turn this reading tests)."""
+    words: int
+    """Confident, letter-made words read (:func:`count_words`)."""
+
+
+@dataclass(frozen=True)
 class TextResult:
-    """The text cue's decision over the four views."""
+    """The text cue's decision."""
 
     rotation: int | None
     """Clockwise degrees that make the stored image upright; None when rejected."""
     reason: RejectReason | None
     """Why it was rejected: no_cue (OSD ran in too few views: no readable text), conflicting_rotations
-    (views voted for different turns), low_confidence (agreeing votes below the threshold)."""
+    (views voted for both axes or for opposite turns not settled by OCR, or OCR reads the page better the
+    other way up), low_confidence (neither OCR nor OSD clear enough)."""
     views: tuple[OsdView, ...]
+    words: tuple[WordCount, ...] = ()
+    """OCR readings of the candidate turn and its opposite (empty when OCR did not run)."""
+    how: Literal["ocr", "osd"] | None = None
+    """What decided: OCR verified the candidate, or OSD alone (every vote agreeing, confident)."""
+
+    def summary(self) -> str:
+        """A few words for people on how the text decided."""
+        agreeing = sum(v.ran and v.rotation == self.rotation for v in self.views)
+        osd = f"OSD in {agreeing} of {len(self.views)} views"
+        if self.how != "ocr":
+            return f"{osd} (OSD alone)"
+        var = next((v for v in OCR_VARIANTS if ocr_turn(self.rotation, self.words, v) == self.rotation), None)
+        c, o = _pair(self.words, self.rotation, var)
+        return f"{osd}, confirmed by OCR ({c} confident words read this way up, {o} the other way up)"
 
 
-def text_decision(views: Sequence[OsdView], min_confidence: float = TEXT_MIN_CONFIDENCE,
-                  min_agree: int = TEXT_MIN_AGREE) -> tuple[int | None, RejectReason | None]:
-    """(turn, None) when at least ``min_agree`` views ran, all voting for one turn, with a mean confidence
-    >= ``min_confidence``; else (None, why)."""
+def count_words(words: Iterable[tuple[str, float]], min_confidence: float = TEXT_WORD_MIN_CONFIDENCE,
+                min_letters: int = TEXT_WORD_MIN_LETTERS, letter_share: float = TEXT_WORD_LETTER_SHARE) -> int:
+    """How many (text, confidence 0-100) OCR words are confident and made of letters."""
+    n = 0
+    for text, conf in words:
+        letters = sum(ch.isalpha() for ch in text)
+        n += conf >= min_confidence and letters >= min_letters and letters >= letter_share * len(text)
+    return n
+
+
+def osd_candidate(views: Sequence[OsdView], min_agree: int = TEXT_MIN_AGREE) -> tuple[int | None, RejectReason | None]:
+    """(the candidate turn, None) from the OSD votes, or (None, why): no_cue when fewer than ``min_agree``
+    views ran, conflicting_rotations when the votes lie on both axes (a texture; lines of text give votes
+    for one turn or its opposite). The candidate is the turn with the largest summed confidence."""
     ran = [v for v in views if v.ran and v.rotation is not None]
     if len(ran) < min_agree:
         return None, "no_cue"
-    if len({v.rotation for v in ran}) > 1:
+    totals: dict[int, float] = {}
+    for v in ran:
+        totals[v.rotation] = totals.get(v.rotation, 0.0) + v.confidence
+    candidate = max(sorted(totals), key=lambda r: totals[r])
+    if any(v.rotation not in (candidate, (candidate + 180) % 360) for v in ran):
         return None, "conflicting_rotations"
+    return candidate, None
+
+
+def _pair(words: Sequence[WordCount], rotation: int | None, variant: Variant | None = None) -> tuple[int, int]:
+    """(words read at ``rotation``, at its opposite) of the first variant (or ``variant``) read at both."""
+    if rotation is None:
+        return 0, 0
+    for var in ([variant] if variant else OCR_VARIANTS):
+        got = {w.rotation: w.words for w in words if w.variant == var}
+        if rotation in got and (rotation + 180) % 360 in got:
+            return got[rotation], got[(rotation + 180) % 360]
+    return 0, 0
+
+
+def ocr_verdict(candidate: int, words: Sequence[WordCount], variant: Variant, min_words: int = TEXT_VERIFY_MIN_WORDS,
+                ratio: float = TEXT_VERIFY_RATIO) -> Literal["for", "against", "unclear"]:
+    """What the OCR of ``variant`` says about ``candidate``: for (enough words, ``ratio`` times the other way up),
+    against (the other way up reads at least ``min_words`` and more words than the candidate), else unclear."""
+    c, o = _pair(words, candidate, variant)
+    if c >= min_words and c >= ratio * max(o, 1):
+        return "for"
+    if o >= min_words and o > c:
+        return "against"
+    return "unclear"
+
+
+def ocr_turn(candidate: int, words: Sequence[WordCount], variant: Variant, min_words: int = TEXT_VERIFY_MIN_WORDS,
+             ratio: float = TEXT_VERIFY_RATIO) -> int | None:
+    """The turn on the candidate's axis that the OCR of ``variant`` verifies: the candidate or its opposite
+    (OSD's 180-degree confusion, settled by reading), or None when neither reads clearly better."""
+    opposite = (candidate + 180) % 360
+    if ocr_verdict(candidate, words, variant, min_words, ratio) == "for":
+        return candidate
+    if ocr_verdict(opposite, words, variant, min_words, ratio) == "for":
+        return opposite
+    return None
+
+
+def text_decision(views: Sequence[OsdView], words: Sequence[WordCount] = (),
+                  min_confidence: float = TEXT_MIN_CONFIDENCE, min_agree: int = TEXT_MIN_AGREE,
+                  min_words: int = TEXT_VERIFY_MIN_WORDS, ratio: float = TEXT_VERIFY_RATIO,
+                  ) -> tuple[int | None, RejectReason | None, Literal["ocr", "osd"] | None]:
+    """(turn, None, how) or (None, why, None) for the OSD ``views`` and the OCR ``words`` of the candidate.
+
+    The first OCR variant (``OCR_VARIANTS`` order; a variant not read is skipped) that verifies a turn on the
+    candidate's axis (:func:`ocr_turn`: the candidate, or its opposite when OSD confused the page with its
+    upside-down self) decides it. Otherwise OSD decides alone when every vote agrees with a mean confidence
+    of at least ``min_confidence`` and no OCR variant says "against" the candidate."""
+    candidate, why = osd_candidate(views, min_agree)
+    if candidate is None:
+        return None, why, None
+    read = [var for var in OCR_VARIANTS if any(w.variant == var for w in words)]
+    for var in read:
+        turn = ocr_turn(candidate, words, var, min_words, ratio)
+        if turn is not None:
+            return turn, None, "ocr"
+    ran = [v for v in views if v.ran and v.rotation is not None]
+    if any(ocr_verdict(candidate, words, var, min_words, ratio) == "against" for var in read) or any(
+            v.rotation != candidate for v in ran):
+        return None, "conflicting_rotations", None
     if sum(v.confidence for v in ran) / len(ran) < min_confidence:
-        return None, "low_confidence"
-    return ran[0].rotation, None
+        return None, "low_confidence", None
+    return candidate, None, "osd"
 
 
 _ROTATE = re.compile(r"^Rotate:\s*(\d+)", re.M)
@@ -144,6 +291,37 @@ def parse_osd(view: int, stdout: str, stderr: str = "") -> OsdView:
                    script.group(1) if script else None, float(script_conf.group(1)) if script_conf else 0.0)
 
 
+def parse_tsv_words(tsv: str) -> list[tuple[str, float]]:
+    """(text, confidence) of the words (level 5 rows) in Tesseract's ``tsv`` output."""
+    out = []
+    for line in tsv.splitlines()[1:]:
+        cols = line.split("\t")
+        if len(cols) >= 12 and cols[0] == "5" and cols[11].strip():
+            try:
+                out.append((cols[11].strip(), float(cols[10])))
+            except ValueError:
+                continue
+    return out
+
+
+def _resize_long_side(gray: np.ndarray, min_side: int, max_side: int, max_upscale: float) -> np.ndarray:
+    long_side = max(gray.shape[:2])
+    if long_side < min_side:
+        s, interp = min(max_upscale, min_side / long_side), cv2.INTER_CUBIC
+    elif long_side > max_side:
+        s, interp = max_side / long_side, cv2.INTER_AREA
+    else:
+        return gray
+    size = (max(1, round(gray.shape[1] * s)), max(1, round(gray.shape[0] * s)))
+    return cv2.resize(gray, size, interpolation=interp)
+
+
+def binarize_page(gray: np.ndarray) -> np.ndarray:
+    """A local (adaptive Gaussian) threshold: ink is ``TEXT_BINARIZE_C`` darker than its neighbourhood."""
+    return cv2.adaptiveThreshold(gray, 255, cv2.ADAPTIVE_THRESH_GAUSSIAN_C, cv2.THRESH_BINARY,
+                                 TEXT_BINARIZE_BLOCK, TEXT_BINARIZE_C)
+
+
 def prepare(gray: np.ndarray, min_side: int = TEXT_MIN_SIDE, max_side: int = TEXT_MAX_SIDE,
             max_upscale: float = TEXT_MAX_UPSCALE, binarize: bool = True) -> np.ndarray:
     """``gray`` made ready for OSD: small images upscaled (bicubic) towards ``min_side``, large ones reduced
@@ -152,75 +330,172 @@ def prepare(gray: np.ndarray, min_side: int = TEXT_MIN_SIDE, max_side: int = TEX
     Tesseract binarises with one global (Otsu) threshold, which loses faint thermal print and unevenly lit
     photographed pages; on the calibration photos the local threshold turned receipts that OSD read upside
     down in every view into agreeing, confident votes (``TEXT_BINARIZE_BLOCK``)."""
-    long_side = max(gray.shape[:2])
-    if long_side < min_side:
-        s: float | None = min(max_upscale, min_side / long_side)
-        interp = cv2.INTER_CUBIC
-    elif long_side > max_side:
-        s, interp = max_side / long_side, cv2.INTER_AREA
-    else:
-        s = None
-    if s is not None:
-        size = (max(1, round(gray.shape[1] * s)), max(1, round(gray.shape[0] * s)))
-        gray = cv2.resize(gray, size, interpolation=interp)
-    if not binarize:
-        return gray
-    return cv2.adaptiveThreshold(gray, 255, cv2.ADAPTIVE_THRESH_GAUSSIAN_C, cv2.THRESH_BINARY,
-                                 TEXT_BINARIZE_BLOCK, TEXT_BINARIZE_C)
+    gray = _resize_long_side(gray, min_side, max_side, max_upscale)
+    return binarize_page(gray) if binarize else gray
+
+
+def ocr_pages(gray: np.ndarray, window: int | None = None) -> dict[Variant, np.ndarray]:
+    """The pages OCR reads (``OCR_VARIANTS``): ``gray`` sized like for OSD but at most ``TEXT_OCR_MAX_SIDE``
+    long, cut to the ``TEXT_OCR_WINDOW`` square with the most ink (the local threshold's dark pixels, searched
+    on a grid), and that window binarised."""
+    window = TEXT_OCR_WINDOW if window is None else window
+    page = _resize_long_side(gray, TEXT_MIN_SIDE, TEXT_OCR_MAX_SIDE, TEXT_MAX_UPSCALE)
+    binary = binarize_page(page)
+    h, w = page.shape
+    wh, ww = min(h, window), min(w, window)
+    if (wh, ww) != (h, w):
+        ink = cv2.integral((binary < 128).astype(np.uint8))
+        step = max(16, window // 8)
+        best, y0, x0 = -1, 0, 0
+        for y in sorted({*range(0, h - wh + 1, step), h - wh}):
+            for x in sorted({*range(0, w - ww + 1, step), w - ww}):
+                n = int(ink[y + wh, x + ww] - ink[y, x + ww] - ink[y + wh, x] + ink[y, x])
+                if n > best:
+                    best, y0, x0 = n, y, x
+        page, binary = page[y0:y0 + wh, x0:x0 + ww], binary[y0:y0 + wh, x0:x0 + ww]
+    return {"gray": np.ascontiguousarray(page), "binary": np.ascontiguousarray(binary)}
 
 
 class TesseractOsd:
-    """Tesseract's OSD through its command line (one short-lived process per view; thread-safe)."""
+    """Tesseract's OSD and OCR, through ``tesserocr`` (one API object per thread) when it is installed and
+    ``use_api`` allows, else through the command line (one short-lived process per call). Thread-safe."""
 
     name = "tesseract"
 
     def __init__(self, binary: str = DEFAULT_TESSERACT, min_confidence: float = TEXT_MIN_CONFIDENCE,
                  min_agree: int = TEXT_MIN_AGREE, min_characters: int = TEXT_MIN_CHARACTERS,
-                 timeout_s: float = OSD_TIMEOUT_S) -> None:
+                 timeout_s: float = OSD_TIMEOUT_S, use_api: bool | None = None, exhaustive: bool = False) -> None:
         path = shutil.which(binary)
         if path is None:
             raise TextUnavailable(f"the tesseract binary {binary!r} was not found (install the Debian packages "
                                   "tesseract-ocr and tesseract-ocr-osd)")
         self.path = path
-        self.version, langs = _probe(path)
+        self.version, langs, self.tessdata = _probe(path)
         if "osd" not in langs:
             raise TextUnavailable(f"{path} has no 'osd' data (install the Debian package tesseract-ocr-osd)")
+        self.ocr = "eng" in langs
+        """Whether OCR verification is available (the ``eng`` data); without it OSD decides alone."""
         self.min_confidence = min_confidence
         self.min_agree = min_agree
         self.min_characters = min_characters
         self.timeout_s = timeout_s
+        self.exhaustive = exhaustive
+        """Read every OCR variant even after one verified (benchmarks: the calibration needs them all; the
+        decision is the same)."""
+        want_api = (use_api is None or use_api) and tesserocr is not None and self.tessdata is not None
+        if use_api and not want_api:
+            raise TextUnavailable("the tesserocr binding is not installed (pip install tesserocr)")
+        self.backend: Backend = "tesserocr" if want_api else "cli"
+        self._local = threading.local()
+
+    # ---- the two backends --------------------------------------------------------------------------------------
+
+    def _api(self, lang: str):
+        apis = self._local.__dict__.setdefault("apis", {})
+        if lang not in apis:
+            if lang == "osd":
+                api = tesserocr.PyTessBaseAPI(path=self.tessdata, lang="osd", psm=tesserocr.PSM.OSD_ONLY)
+                api.SetVariable("min_characters_to_try", str(self.min_characters))
+            else:
+                api = tesserocr.PyTessBaseAPI(path=self.tessdata, lang=lang, psm=tesserocr.PSM.SINGLE_BLOCK)
+            apis[lang] = api
+        return apis[lang]
+
+    def _run(self, image: np.ndarray, args: list[str]) -> tuple[str, str] | str:
+        """(stdout, stderr) of the tesseract command line on ``image``, or why it did not run."""
+        ok, png = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        if not ok:
+            return "could not encode the view"
+        env = {**os.environ, "OMP_THREAD_LIMIT": "1"}  # one core per call; the callers run in parallel
+        try:
+            proc = subprocess.run([self.path, "stdin", "stdout", "--dpi", "300", *args], input=png.tobytes(),
+                                  capture_output=True, timeout=self.timeout_s, env=env, check=False)
+        except subprocess.TimeoutExpired:
+            return f"tesseract took longer than {self.timeout_s:.0f} s"
+        except OSError as exc:
+            return f"could not run tesseract: {exc}"
+        return proc.stdout.decode(errors="replace"), proc.stderr.decode(errors="replace")
 
     def osd(self, view_image: np.ndarray, view: int) -> OsdView:
         """OSD on one view ((H, W) uint8 grey, already prepared)."""
-        ok, png = cv2.imencode(".png", view_image, [cv2.IMWRITE_PNG_COMPRESSION, 1])
-        if not ok:
-            return OsdView(view, False, detail="could not encode the view")
-        cmd = [self.path, "stdin", "stdout", "--psm", "0", "--dpi", "300",
-               "-c", f"min_characters_to_try={self.min_characters}"]
-        env = {**os.environ, "OMP_THREAD_LIMIT": "1"}  # one core per call; the callers run in parallel
-        try:
-            proc = subprocess.run(cmd, input=png.tobytes(), capture_output=True, timeout=self.timeout_s, env=env,
-                                  check=False)
-        except subprocess.TimeoutExpired:
-            return OsdView(view, False, detail=f"OSD took longer than {self.timeout_s:.0f} s")
-        except OSError as exc:
-            return OsdView(view, False, detail=f"could not run tesseract: {exc}")
-        return parse_osd(view, proc.stdout.decode(errors="replace"), proc.stderr.decode(errors="replace"))
+        if self.backend == "tesserocr":
+            from PIL import Image
+
+            api = self._api("osd")
+            api.SetImage(Image.fromarray(view_image))
+            api.SetSourceResolution(300)
+            found = api.DetectOrientationScript()
+            if not found:
+                return OsdView(view, False, detail="too few characters")
+            # orient_deg is the page's counter-clockwise orientation: the clockwise turn undoing it
+            rotate = (360 - int(found["orient_deg"])) % 360
+            return OsdView(view, True, (view + rotate) % 360, float(found["orient_conf"]), found.get("script_name"),
+                           float(found.get("script_conf") or 0.0))
+        out = self._run(view_image, ["--psm", "0", "-c", f"min_characters_to_try={self.min_characters}"])
+        if isinstance(out, str):
+            return OsdView(view, False, detail=out)
+        return parse_osd(view, *out)
+
+    def words(self, page: np.ndarray) -> list[tuple[str, float]]:
+        """(text, confidence 0-100) of every word English OCR reads on ``page`` ((H, W) uint8, one block)."""
+        if self.backend == "tesserocr":
+            from PIL import Image
+
+            api = self._api("eng")
+            api.SetImage(Image.fromarray(page))
+            api.SetSourceResolution(300)
+            api.Recognize()
+            level, out = tesserocr.RIL.WORD, []
+            iterator = api.GetIterator()
+            if iterator is None:
+                return out
+            for word in tesserocr.iterate_level(iterator, level):
+                try:
+                    text = word.GetUTF8Text(level)
+                    out.append((text, float(word.Confidence(level))))
+                except RuntimeError:  # an empty word
+                    continue
+            return out
+        got = self._run(page, ["--psm", "6", "-l", "eng", "tsv"])
+        return [] if isinstance(got, str) else parse_tsv_words(got[0])
+
+    # ---- the cue ----------------------------------------------------------------------------------------------
 
     def views(self, gray: np.ndarray) -> tuple[OsdView, ...]:
         """OSD on the four views of ``gray`` ((H, W) uint8, stored orientation, full resolution)."""
         prepared = prepare(gray)
         return tuple(self.osd(rotate_view(prepared, r), r) for r in ROTATIONS)
 
+    def verify(self, gray: np.ndarray, candidate: int) -> tuple[WordCount, ...]:
+        """OCR of ``gray`` turned ``candidate`` and the opposite way, page variant by variant (``OCR_VARIANTS``)
+        until one verifies either turn (all of them when ``exhaustive``)."""
+        if not self.ocr:
+            return ()
+        out: list[WordCount] = []
+        for variant, page in ocr_pages(gray).items():
+            for r in (candidate, (candidate + 180) % 360):
+                out.append(WordCount(variant, r, count_words(self.words(rotate_view(page, r)))))
+            if not self.exhaustive and ocr_turn(candidate, out, variant) is not None:
+                break
+        return tuple(out)
+
     def upright(self, gray: np.ndarray) -> TextResult:
         """The turn that shows ``gray``'s text upright, or a rejection with its reason."""
         views = self.views(gray)
-        rotation, reason = text_decision(views, self.min_confidence, self.min_agree)
-        return TextResult(rotation, reason, views)
+        candidate, why = osd_candidate(views, self.min_agree)
+        if candidate is None:
+            return TextResult(None, why, views)
+        words = self.verify(gray, candidate)
+        rotation, reason, how = text_decision(views, words, self.min_confidence, self.min_agree)
+        return TextResult(rotation, reason, views, words, how)
 
 
-def _probe(path: str) -> tuple[str, set[str]]:
-    """(version line, installed languages) of the tesseract at ``path``; TextUnavailable when it does not run."""
+_TESSDATA = re.compile(r'List of available languages in "([^"]+)"')
+
+
+def _probe(path: str) -> tuple[str, set[str], str | None]:
+    """(version line, installed languages, tessdata folder) of the tesseract at ``path``; TextUnavailable when
+    it does not run."""
     try:
         version = subprocess.run([path, "--version"], capture_output=True, timeout=20, check=False)
         langs = subprocess.run([path, "--list-langs"], capture_output=True, timeout=20, check=False)
@@ -229,8 +504,11 @@ def _probe(path: str) -> tuple[str, set[str]]:
     out = (version.stdout + version.stderr).decode(errors="replace").strip().splitlines()
     if version.returncode != 0 or not out:
         raise TextUnavailable(f"{path} --version failed (exit {version.returncode})")
-    listed = (langs.stdout + langs.stderr).decode(errors="replace").splitlines()
-    return out[0].strip(), {line.strip() for line in listed if line.strip() and " " not in line.strip()}
+    text = (langs.stdout + langs.stderr).decode(errors="replace")
+    folder = _TESSDATA.search(text)
+    tessdata = folder.group(1) if folder and os.path.isdir(folder.group(1)) else None
+    listed = text.splitlines()
+    return out[0].strip(), {line.strip() for line in listed if line.strip() and " " not in line.strip()}, tessdata
 
 
 @lru_cache(maxsize=8)
@@ -255,6 +533,7 @@ def text_status(binary: str = DEFAULT_TESSERACT, enabled: bool = True) -> dict[s
     if isinstance(found, str):
         return {"available": False, "enabled": True, "detail": f"{found}; faces only"}
     return {"available": True, "enabled": True, "path": found.path, "version": found.version,
+            "backend": found.backend, "ocr_verification": found.ocr,
             "min_confidence": found.min_confidence, "min_agree": found.min_agree}
 
 
