@@ -32,7 +32,7 @@ import websockets
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._report import md_table, publish  # noqa: E402
-from benchmarks.streaming import demo_recording, view_message  # noqa: E402
+from benchmarks.streaming import demo_recording, view_message, wait_for  # noqa: E402
 from tests.servers import serve_app  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -109,19 +109,6 @@ def make_flight(tmp: Path) -> tuple[Path, dict]:
 
 
 # --- 3: the service -------------------------------------------------------------------------------------
-def _until(check, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            value = check()
-            if value:
-                return value
-        except httpx.TransportError:
-            pass
-        time.sleep(0.1)
-    raise SystemExit(f"timed out waiting for {what}")
-
-
 async def _first_frame(url: str) -> None:
     async with websockets.connect(url, max_size=None) as ws:
         await ws.send(json.dumps(view_message(1, 0.0, (320, 240))))
@@ -148,7 +135,7 @@ def service_start(data_dir: Path, log: Path, photo: bytes, flight: tuple[Path, d
         ready = time.monotonic() - t0
         out = {"ready_s": ready}
         with httpx.Client(base_url=app.base, timeout=120) as http:
-            rig_id, recording = _until(lambda: demo_recording(http), 900, "the demo recording")
+            rig_id, recording = wait_for(lambda: demo_recording(http), 900, "the demo recording", app.proc, log)
             out["demo_ready_s"] = time.monotonic() - t0
             t = time.monotonic()
             asyncio.run(_first_frame(f"{app.base.replace('http', 'ws')}/v1/rigs/{rig_id}/view?source={recording['id']}"))
@@ -161,10 +148,10 @@ def service_start(data_dir: Path, log: Path, photo: bytes, flight: tuple[Path, d
             t = time.monotonic()
             job = http.post("/v1/reconstructions", files={"media": ("flight.mp4", flight[0].read_bytes(), "video/mp4")},
                             data={"params": json.dumps({**flight[1], "max_features": 1000})}).json()
-            _until(lambda: _job_done(http, job["id"]), 600, "the reconstruction")
+            wait_for(lambda: _job_done(http, job["id"]), 600, "the reconstruction", app.proc, log)
             out["first_reconstruction_s"] = time.monotonic() - t
-            kernels = _until(lambda: (k := http.get("/readyz").json()["checks"]["kernels"])["state"] != "warming" and k,
-                             900, "the kernel warm-up")
+            kernels = wait_for(lambda: (k := http.get("/readyz").json()["checks"]["kernels"])["state"] != "warming"
+                               and k, 900, "the kernel warm-up", app.proc, log)
             out["kernels_warm_s"] = time.monotonic() - t0
             out["kernels"] = kernels
     return out
