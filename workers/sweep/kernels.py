@@ -85,6 +85,18 @@ def _position(ax, ay, az, bx, by, bz, s, scale):  # pragma: no cover - compiled
     return X, Y, u, v
 
 
+@njit(cache=True, inline="always", fastmath=_FAST, error_model="numpy")
+def plane_point(Q, B, i, x, y, s):  # pragma: no cover - compiled
+    """Where camera ``i`` sees the virtual pixel (x, y) at inverse depth ``s`` (Q (N, 3, 3), B (N, 3) the
+    sweep's per-camera homography and offset): (hz, u, v), hz the point's depth in camera i over the
+    virtual one's, (u, v) its pixel; (u, v) mean nothing unless hz > Z_MIN (in front of the camera)."""
+    hz = Q[i, 2, 0] * x + Q[i, 2, 1] * y + Q[i, 2, 2] + s * B[i, 2]
+    inv = 1.0 / hz
+    u = (Q[i, 0, 0] * x + Q[i, 0, 1] * y + Q[i, 0, 2] + s * B[i, 0]) * inv
+    v = (Q[i, 1, 0] * x + Q[i, 1, 1] * y + Q[i, 1, 2] + s * B[i, 1]) * inv
+    return hz, u, v
+
+
 @njit(cache=True, inline="always")
 def _bilinear(p00, p01, p10, p11, fx, fy, ub):  # pragma: no cover - compiled
     """Bilinear blend of four packed pixels with fixed-point weights fx, fy in [0, 2**ub): the three
@@ -343,12 +355,9 @@ def shade(Q, B, s_pix, imgs, sizes, sils, use_hull, centers, vcenter, G, method,
                 rz = z * (G[2, 0] * x + G[2, 1] * y + G[2, 2])
                 inv_rn = 1.0 / np.sqrt(rx * rx + ry * ry + rz * rz)
                 for i in range(N):
-                    hz = Q[i, 2, 0] * x + Q[i, 2, 1] * y + Q[i, 2, 2] + s * B[i, 2]
+                    hz, u, v = plane_point(Q, B, i, x, y, s)
                     if hz <= _Z_MIN:
                         continue
-                    inv = 1.0 / hz
-                    u = (Q[i, 0, 0] * x + Q[i, 0, 1] * y + Q[i, 0, 2] + s * B[i, 0]) * inv
-                    v = (Q[i, 1, 0] * x + Q[i, 1, 1] * y + Q[i, 1, 2] + s * B[i, 1]) * inv
                     if not (0.0 <= u <= sizes[i, 0] - 1 and 0.0 <= v <= sizes[i, 1] - 1):
                         continue
                     if use_hull and sils[i, np.uint64(_lrint(v)), np.uint64(_lrint(u))] == 0:

@@ -35,6 +35,7 @@ from typing import Iterator
 import numpy as np
 from numba import njit, prange
 
+from .kernels import plane_point
 from .layout import FAST as _FAST
 from .layout import Z_MIN as _Z_MIN
 
@@ -122,12 +123,9 @@ def splat_depths(Q, B, s_pix, sizes, zbuf, zbox):  # pragma: no cover - compiled
                 s = s_pix[y, x]
                 if not s > 0:
                     continue
-                hz = Q[i, 2, 0] * x + Q[i, 2, 1] * y + Q[i, 2, 2] + s * B[i, 2]
+                hz, u, v = plane_point(Q, B, i, x, y, s)
                 if hz <= _Z_MIN:
                     continue
-                inv = 1.0 / hz
-                u = (Q[i, 0, 0] * x + Q[i, 0, 1] * y + Q[i, 0, 2] + s * B[i, 0]) * inv
-                v = (Q[i, 1, 0] * x + Q[i, 1, 1] * y + Q[i, 1, 2] + s * B[i, 1]) * inv
                 if not (0.0 <= u <= W - 1 and 0.0 <= v <= H - 1):
                     continue
                 xa = np.int64(u)  # floor: u >= 0
