@@ -72,7 +72,7 @@ class Settings(BaseSettings):
     max_view_pixels: int = Field(1920 * 1080, ge=256, description="Largest virtual view (width x height) a viewer or batch render may ask for.")
     max_view_planes: int = Field(256, ge=2, description="Most depth planes a viewer or batch render may ask for.")
     session_idle_seconds: float = Field(60.0, gt=0, description="A virtual-view session nobody has used for this long ends.")
-    session_resources: dict[str, float] = Field(default_factory=dict, description="Custom Ray resources every session actor requires (JSON).")
+    session_resources: dict[str, float] = Field(default_factory=dict, description="Ray resources every session actor requires (JSON), e.g. {\"GPU\": 0.25} for a quarter of a GPU (the renderer then searches depth there) or a custom resource such as {\"renderer\": 1}.")
     demo_rig: bool = Field(True, description="At start-up, build the procedural demo rig and its recording when there is none.")
     viewer_size: str = Field(DEFAULT_VIEWER_SIZE, pattern=r"^[1-9][0-9]{1,4}x[1-9][0-9]{1,4}$",
                              description="The view size (WIDTHxHEIGHT px) the browser viewer starts at (sent in the "

@@ -231,10 +231,14 @@ class _Busy:
 def get_or_create(config: SessionConfig, resources: dict[str, float] | None = None,
                   actor_class: Any = SessionActor) -> Any:
     """The handle of the session actor for ``config`` (created from ``actor_class`` when there is
-    none). Blocking."""
+    none). Blocking. ``resources``: what the actor needs of a node; a "GPU" entry (a fraction of one, say
+    0.25: four sessions share a card) is Ray's own GPU resource, which also makes the GPU visible to the
+    actor (Ray hides every GPU from an actor that asks for none), so that its renderer searches depth there."""
+    resources = dict(resources or {})
+    gpus = float(resources.pop("GPU", 0.0))
     return actor_class.options(
         name=config.name, namespace=NAMESPACE, lifetime="detached", get_if_exists=True,
-        max_restarts=MAX_RESTARTS, max_concurrency=64, num_cpus=0, resources=resources or {},
+        max_restarts=MAX_RESTARTS, max_concurrency=64, num_cpus=0, num_gpus=gpus, resources=resources,
     ).remote(config)
 
 

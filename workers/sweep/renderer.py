@@ -10,6 +10,8 @@ geometry and buffers are kept.
 """
 from __future__ import annotations
 
+import logging
+import os
 import time
 from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
@@ -28,6 +30,8 @@ from .rig import Rig, RigError
 from .silhouette import dilate, silhouette_box, silhouette_from_background
 from .visibility import ZBufferStore, surface_zbuffers
 from .weighting import METHOD_CODES, global_camera, neighbour_angle, suggest_d_bnd
+
+log = logging.getLogger(__name__)
 
 MAX_PLANES = 1024
 MAX_VIEW_PIXELS = 4096 * 4096
@@ -149,12 +153,18 @@ class SweepRenderer:
     neither, there is no visual hull. hull_dilate: pixels added around each silhouette so that small
     silhouette or calibration errors do not carve the object. Distorted cameras are undistorted once
     here (same K).
+
+    device: where the depth search runs: "cpu", "cuda" (an NVIDIA GPU through numba's CUDA target,
+    :mod:`workers.sweep.gpu`; an error when there is none) or "auto" (the GPU when one is present);
+    None reads ``SWEEPCAST_SWEEP_DEVICE`` (default "auto"). The colour pass runs on the CPU either way.
+    A GPU that fails at its first use (a driver without the CUDA compiler, say) is logged and left for
+    the CPU. ``self.device`` says which one runs.
     """
 
     def __init__(
         self, rig: Rig | Sequence[Camera], images: Sequence[np.ndarray], *,
         silhouettes: Sequence[np.ndarray] | None = None, backgrounds: Sequence[np.ndarray] | None = None,
-        bg_threshold: float = 20.0, hull_dilate: int = 2,
+        bg_threshold: float = 20.0, hull_dilate: int = 2, device: Literal["auto", "cpu", "cuda"] | None = None,
     ) -> None:
         self.rig = rig if isinstance(rig, Rig) else Rig(tuple(rig))
         self.cameras = [Camera(c.name, c.K, c.R, c.t, c.width, c.height) for c in self.rig.cameras]
@@ -177,7 +187,18 @@ class SweepRenderer:
         self._centers = np.stack([c.center for c in self.cameras])
         self._axes = np.stack([c.axis for c in self.cameras])
         self.has_silhouettes = False
+        self._gpu = None
         self.set_frames(images, silhouettes)
+        self.device = "cpu"
+        if _wants_gpu(device):
+            from .gpu import GpuSweep
+            try:
+                self._gpu = GpuSweep(self._imgs, self._sils, self._sizes)
+                self.device = "cuda"
+            except Exception:  # noqa: BLE001 - "auto" never fails for want of a working GPU
+                if (device or os.environ.get("SWEEPCAST_SWEEP_DEVICE", "auto")) == "cuda":
+                    raise
+                log.exception("the GPU could not take the frames; this renderer uses the CPU")
 
     # --- frames -------------------------------------------------------------------------------
     def set_frames(self, images: Sequence[np.ndarray], silhouettes: Sequence[np.ndarray] | None = None) -> None:
@@ -202,6 +223,8 @@ class SweepRenderer:
         for i, c in enumerate(self.cameras):
             self._sil_bounds[i] = (c.width - 1, c.height - 1) + silhouette_box(self._sils[i, :c.height, :c.width])
         self.has_silhouettes = sils is not None or self.backgrounds is not None
+        if self._gpu is not None:
+            self._gpu.set_frames(self._imgs, self._sils)
 
     def silhouettes(self) -> list[np.ndarray]:
         """The (dilated) silhouettes in use, (H, W) bool per camera (all True without a hull)."""
@@ -358,7 +381,17 @@ class SweepRenderer:
                 opt: RenderOptions, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Best plane (h, w) int32 (-1 none), its cost (h, w) float32 and the sub-plane offset (h, w) float32
         (planes) in windows lo..hi, by ``opt.aggregation``: the pruned winner-take-all search, or the
-        aggregated cost volume (:mod:`workers.sweep.costs`)."""
+        aggregated cost volume (:mod:`workers.sweep.costs`); on the GPU when the renderer has one."""
+        if self._gpu is not None and opt.consistency == "variance":
+            try:
+                bits = opt.subpixel_bits if 0 < opt.subpixel_bits <= kernels.MAX_BITS else kernels.MAX_BITS
+                return self._gpu.choose(Q, B, s_planes, use_hull, opt.min_views, bits, lo, hi, opt.aggregation,
+                                        opt.window, opt.subplane, opt.cost_cap, opt.sgm_p1, opt.sgm_p2,
+                                        opt.sgm_directions)
+            except Exception:  # noqa: BLE001 - e.g. a driver without NVVM: the CPU still renders
+                log.exception("the GPU depth search failed; this renderer goes on with the CPU")
+                self._gpu = None
+                self.device = "cpu"
         if opt.aggregation == "none":
             best, cost = self._sweep(Q, B, center, s_planes, use_hull, opt, lo, hi)
             return best, cost, np.zeros(best.shape, np.float32)
@@ -457,6 +490,24 @@ class SweepRenderer:
             return img
         interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
         return cv2.remap(img, maps[0], maps[1], interp, borderMode=cv2.BORDER_CONSTANT)
+
+
+def _wants_gpu(device: str | None) -> bool:
+    """Whether a renderer asked for ``device`` (see :class:`SweepRenderer`) runs its search on the GPU."""
+    device = device or os.environ.get("SWEEPCAST_SWEEP_DEVICE", "auto")
+    if device == "cpu":
+        return False
+    if device not in ("auto", "cuda"):
+        raise ValueError(f"device must be auto, cpu or cuda, got {device!r}")
+    # no driver device node: no GPU, and no import of numba's CUDA target (half a second of start-up)
+    if device == "auto" and not any(os.path.exists(p) for p in ("/dev/nvidiactl", "/dev/nvidia0")):
+        return False
+    from . import gpu
+    if device == "auto":
+        return gpu.available()
+    if not gpu.cuda.is_available():
+        raise ValueError("device 'cuda' asked for, but numba finds no CUDA GPU")
+    return True
 
 
 FALLBACK_SPACING_RAD = float(np.radians(10.0))

@@ -1,0 +1,25 @@
+"""Session actors on GPU nodes: the operator's share of a GPU reaches Ray as the actor's num_gpus."""
+from types import SimpleNamespace
+
+from workers.streaming import actor
+
+
+def test_a_gpu_share_in_the_session_resources_reaches_ray_as_num_gpus():
+    """Ray hides every GPU from an actor that asks for none: the operator's {"GPU": x} must become num_gpus."""
+    seen = {}
+
+    class Recorder:
+        @classmethod
+        def options(cls, **kw):
+            seen.update(kw)
+            return cls
+
+        @classmethod
+        def remote(cls, config):
+            return config
+
+    config = SimpleNamespace(name="rig-1/live")
+    assert actor.get_or_create(config, {"GPU": 0.25, "renderer": 1.0}, Recorder) is config
+    assert seen["num_gpus"] == 0.25 and seen["resources"] == {"renderer": 1.0}
+    actor.get_or_create(config, None, Recorder)
+    assert seen["num_gpus"] == 0.0 and seen["resources"] == {}
