@@ -18,6 +18,7 @@ from app.events import EventHub
 from app.jobstore import Job, JobStore
 from app.kernelcache import KernelWarmup
 from app.settings import Settings
+from workers.common.validation import describe_errors
 from workers.registry import get_kind
 from workers.runtime import inputs_prefix, results_prefix
 from workers.storage import BlobStore, open_store
@@ -78,8 +79,7 @@ class Upload:
 
 
 def _invalid(exc: ValidationError) -> ApiError:
-    problems = "; ".join(f"{'.'.join(str(p) for p in e['loc']) or 'params'}: {e['msg']}" for e in exc.errors())
-    return ApiError(422, f"invalid parameters: {problems}", "invalid_parameters")
+    return ApiError(422, f"invalid parameters: {describe_errors(exc)}", "invalid_parameters")
 
 
 def validate_params(kind: str, params: dict[str, Any]) -> dict[str, Any]:

@@ -46,6 +46,7 @@ from app.auth import websocket_key_ok
 from app.errors import ApiError
 from app.routers.rig_support import Source, resolve_source, session_config
 from app.services import Services
+from workers.common.validation import describe_errors
 from workers.streaming.actor import LIVE, SessionClient, SessionInterrupted
 from workers.streaming.framing import FramingError, pack_message, unpack_frame_set
 from workers.streaming.params import Viewpoint
@@ -267,8 +268,7 @@ async def _viewpoint(channel: Channel, text: str, svc: Services) -> Viewpoint | 
     try:
         vp = Viewpoint.model_validate(data)
     except ValidationError as exc:
-        problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'viewpoint'}: {e['msg']}" for e in exc.errors())
-        await channel.error("bad_viewpoint", problems, id=msg_id)
+        await channel.error("bad_viewpoint", describe_errors(exc, "viewpoint"), id=msg_id)
         return None
     if vp.width * vp.height > svc.settings.max_view_pixels:
         await channel.error("too_large", f"output {vp.width}x{vp.height} is over the limit of "

@@ -21,6 +21,7 @@ from pydantic import ValidationError
 
 from workers.common import images
 from workers.common.jobctx import JobContext, JobInputError
+from workers.common.validation import describe_errors
 
 from . import io
 from .errors import DepthInputError
@@ -47,7 +48,7 @@ def run_depth_video(ctx: JobContext) -> dict[str, Any]:
     try:
         p = DepthVideoParams.model_validate(ctx.params)
     except ValidationError as exc:
-        raise JobInputError(f"invalid parameters: {exc}") from None
+        raise JobInputError(f"invalid parameters: {describe_errors(exc)}") from None
     depth_path = ctx.input_path("depth")
     max_frames, max_pixels = max_video_frames_from_env(), images.max_pixels_from_env()
     if p.input_format == "video":

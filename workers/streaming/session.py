@@ -30,6 +30,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from workers.camera import Camera, CameraError
+from workers.common.validation import describe_errors
 from workers.sweep.overlays import depth_image, regions_image
 from workers.sweep.renderer import RenderOptions, RenderResult, SweepRenderer
 from workers.sweep.rig import Rig, RigError
@@ -346,5 +347,5 @@ def _composed(result: RenderResult, overlay: str) -> np.ndarray:
 
 def _one_line(exc: Exception) -> str:
     if isinstance(exc, ValidationError):
-        return "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+        return describe_errors(exc)
     return str(exc).splitlines()[0]
