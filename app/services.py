@@ -36,7 +36,7 @@ class Services:
     hub: EventHub
     dispatcher: Dispatcher
     compute: ThreadPoolExecutor
-    """Runs per-request image work in this process (photos, depth, faces): one thread per core, so that a burst of
+    """Runs every route's CPU work in this process (:func:`run_compute`): one thread per core, so that a burst of
     requests neither oversubscribes the CPU nor builds a detector per thread of a large pool."""
     ray_owned: bool = False
     ray_error: str | None = None
@@ -53,9 +53,12 @@ def build_services(settings: Settings) -> Services:
     return Services(settings, jobs, store, hub, Dispatcher(settings, jobs, hub, store.url), compute)
 
 
-async def run_compute(svc: Services, fn: Callable[[], R]) -> R:
-    """``fn()`` on the service's compute threads, awaited without blocking the event loop."""
-    return await asyncio.get_running_loop().run_in_executor(svc.compute, fn)
+async def run_compute(svc: Services, fn: Callable[..., R], *args: Any) -> R:
+    """``fn(*args)`` on the service's compute threads (:attr:`Services.compute`), awaited without blocking
+    the event loop: every route's CPU work (decoding, OpenCV, numba, parsing uploads) goes through here,
+    never through Starlette's 40-thread pool; waiting on I/O (the job table, the blob store) uses
+    ``asyncio.to_thread``."""
+    return await asyncio.get_running_loop().run_in_executor(svc.compute, fn, *args)
 
 
 async def delete_job_and_files(svc: Services, job_id: str) -> None:
