@@ -17,7 +17,7 @@ from app.auth import require_key
 from app.errors import ApiError
 from app.routers.jobs import JobOut, job_accepted
 from app.routers.rig_support import (delete_recording_data, load_rig, recording_or_404,
-                                     recording_views, require_ready, rig_json_bytes, rig_meta_or_404)
+                                     recording_views, require_ready, rig_json_bytes, rig_meta_or_404, view_limits)
 from app.services import Services, Upload, create_job, parse_params, run_compute, services
 from app.uploads import check_size
 from workers.camera import CameraError
@@ -29,6 +29,7 @@ from workers.streaming.images import image_size
 from workers.streaming.params import BatchRenderParams, RecordingImportParams, RecordingRequest
 from workers.streaming.recording import (RecordingError, check_image_sizes, check_videos, match_cameras,
                                          scan_image_zip)
+from workers.streaming.session import ViewError
 from workers.streaming.video import VideoError, probe_video
 from workers.streaming.viewpoint import orbit_frame
 from workers.sweep.rig import Rig, RigError
@@ -351,12 +352,10 @@ async def create_render(rig_id: str, params: BatchRenderParams, svc: Services = 
     if params.frame_start >= frames or end >= frames:
         raise ApiError(422, f"frames {params.frame_start}..{end} are out of range: recording {recording['id']} has "
                             f"{frames} frames (0..{frames - 1})", "invalid_parameters")
-    if params.width * params.height > svc.settings.max_view_pixels:
-        raise ApiError(422, f"{params.width}x{params.height} is over the limit of {svc.settings.max_view_pixels:,} "
-                            f"pixels", "invalid_parameters")
-    if params.planes > svc.settings.max_view_planes:
-        raise ApiError(422, f"{params.planes} planes is over the limit of {svc.settings.max_view_planes}",
-                       "invalid_parameters")
+    try:
+        view_limits(svc.settings).check(params.width, params.height, params.planes)
+    except ViewError as exc:
+        raise ApiError(422, exc.detail, "invalid_parameters") from None
     rig = await load_rig(svc, rig_id)
     job = await create_job(svc, "streaming.render", params.model_dump(mode="json"),
                            [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})],
