@@ -4,11 +4,12 @@ from __future__ import annotations
 import logging
 import os
 import tempfile
+from pathlib import Path
 from typing import Any
 
 from app.settings import Settings
-from workers.common.models import MODELS_DIR_ENV, models_dir
-from workers.common.safezip import ZIP_SETTINGS
+from workers.common.models import models_dir
+from workers.settings import WorkerSettings
 
 log = logging.getLogger("sweepcast.ray")
 
@@ -46,19 +47,20 @@ def connect_for(settings: Settings) -> bool:
 
 def worker_env(settings: Settings) -> dict[str, str]:
     """Settings the engines read on the workers, passed to every Ray worker of this service."""
-    env = {"SWEEPCAST_MAX_IMAGE_PIXELS": str(settings.max_image_pixels),
-           # OpenCV's own guard, read once when a fresh worker imports cv2: a second line behind the header check
-           "OPENCV_IO_MAX_IMAGE_PIXELS": str(settings.max_image_pixels),
-           "SWEEPCAST_MAX_VIDEO_FRAMES": str(settings.max_video_frames),
-           "SWEEPCAST_MAX_DENSE_VOLUME": str(settings.max_dense_volume)}
-    env.update({f"SWEEPCAST_{name.upper()}": str(getattr(settings, name)) for name in ZIP_SETTINGS})
-    env[MODELS_DIR_ENV] = str(models_dir(settings.data_dir).resolve())  # models fetched later are found too
-    if settings.orientation_yunet_model is not None:
-        env["SWEEPCAST_ORIENTATION_YUNET_MODEL"] = str(settings.orientation_yunet_model.resolve())
-    env["SWEEPCAST_ORIENTATION_TEXT"] = "1" if settings.orientation_text else "0"
-    env["SWEEPCAST_ORIENTATION_TESSERACT"] = settings.orientation_tesseract
+    values = settings.model_dump(include=set(WorkerSettings.model_fields))
+    values["models_dir"] = models_dir(settings.data_dir)  # models fetched later are found too
+    env = {f"SWEEPCAST_{name.upper()}": _env_value(value) for name, value in values.items() if value is not None}
+    # OpenCV's own guard, read once when a fresh worker imports cv2: a second line behind the header check
+    env["OPENCV_IO_MAX_IMAGE_PIXELS"] = str(settings.max_image_pixels)
     env["NUMBA_CACHE_DIR"] = str(settings.resolved_numba_cache_dir)  # the kernels the warm-up compiled
     return env
+
+
+def _env_value(value: object) -> str:
+    """A setting as its environment variable spells it (paths absolute: workers run elsewhere)."""
+    if isinstance(value, bool):
+        return "1" if value else "0"
+    return str(value.resolve()) if isinstance(value, Path) else str(value)
 
 
 def ready() -> tuple[bool, str]:

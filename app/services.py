@@ -18,6 +18,7 @@ from app.events import EventHub
 from app.jobstore import Job, JobStore
 from app.kernelcache import KernelWarmup
 from app.settings import Settings
+from workers.common.validation import describe_errors
 from workers.registry import get_kind
 from workers.runtime import inputs_prefix, results_prefix
 from workers.storage import BlobStore, open_store
@@ -35,7 +36,7 @@ class Services:
     hub: EventHub
     dispatcher: Dispatcher
     compute: ThreadPoolExecutor
-    """Runs per-request image work in this process (photos, depth, faces): one thread per core, so that a burst of
+    """Runs every route's CPU work in this process (:func:`run_compute`): one thread per core, so that a burst of
     requests neither oversubscribes the CPU nor builds a detector per thread of a large pool."""
     ray_owned: bool = False
     ray_error: str | None = None
@@ -52,9 +53,12 @@ def build_services(settings: Settings) -> Services:
     return Services(settings, jobs, store, hub, Dispatcher(settings, jobs, hub, store.url), compute)
 
 
-async def run_compute(svc: Services, fn: Callable[[], R]) -> R:
-    """``fn()`` on the service's compute threads, awaited without blocking the event loop."""
-    return await asyncio.get_running_loop().run_in_executor(svc.compute, fn)
+async def run_compute(svc: Services, fn: Callable[..., R], *args: Any) -> R:
+    """``fn(*args)`` on the service's compute threads (:attr:`Services.compute`), awaited without blocking
+    the event loop: every route's CPU work (decoding, OpenCV, numba, parsing uploads) goes through here,
+    never through Starlette's 40-thread pool; waiting on I/O (the job table, the blob store) uses
+    ``asyncio.to_thread``."""
+    return await asyncio.get_running_loop().run_in_executor(svc.compute, fn, *args)
 
 
 async def delete_job_and_files(svc: Services, job_id: str) -> None:
@@ -78,8 +82,7 @@ class Upload:
 
 
 def _invalid(exc: ValidationError) -> ApiError:
-    problems = "; ".join(f"{'.'.join(str(p) for p in e['loc']) or 'params'}: {e['msg']}" for e in exc.errors())
-    return ApiError(422, f"invalid parameters: {problems}", "invalid_parameters")
+    return ApiError(422, f"invalid parameters: {describe_errors(exc)}", "invalid_parameters")
 
 
 def validate_params(kind: str, params: dict[str, Any]) -> dict[str, Any]:

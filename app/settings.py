@@ -7,10 +7,11 @@ from pathlib import Path
 from typing import Annotated, Any
 
 from pydantic import Field, field_validator
-from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+from pydantic_settings import NoDecode, SettingsConfigDict
 
-from workers.common.models import YUNET, installed
+from workers.common.models import models_dir
 from workers.common.safezip import ZipLimits
+from workers.settings import WorkerSettings
 
 MiB = 1 << 20
 DEFAULT_VIEWER_SIZE = "400x300"
@@ -18,7 +19,10 @@ DEFAULT_VIEWER_SIZE = "400x300"
 rig at 20 fps or more on 2 cores)."""
 
 
-class Settings(BaseSettings):
+class Settings(WorkerSettings):
+    """The service's settings: its own and every worker setting (:class:`workers.settings.WorkerSettings`:
+    image, video, zip and dense limits, the orientation engine's tools and models), passed on to its workers."""
+
     model_config = SettingsConfigDict(env_prefix="SWEEPCAST_", env_file=".env", extra="ignore")
 
     data_dir: Path = Field(Path("./sweepcast-data"), description="Blob store, SQLite file and Ray temp files.")
@@ -33,15 +37,7 @@ class Settings(BaseSettings):
     max_upload_bytes: int = Field(64 * MiB, ge=1, description="Largest request body of single-file endpoints.")
     max_batch_bytes: int = Field(1024 * MiB, ge=1, description="Largest request body of batch uploads.")
     max_json_bytes: int = Field(1 * MiB, ge=1, description="Largest request body of routes that take JSON (or no body).")
-    max_image_pixels: int = Field(50_000_000, ge=1, description="Largest image (width x height) decoded: a 50 MP photo (8160x6120) passes, a 7900x7900 bomb does not.")
-    max_video_frames: int = Field(10_000, ge=1, description="Most frames of one uploaded depth sequence (raw YUV or H.264/HEVC video).")
-    max_dense_volume: int = Field(300_000_000, ge=1_000_000, description="Most cost-volume cells (depth-map pixels x planes) a dense reconstruction with SGM aggregation may hold at once (about 4 bytes each, twice).")
     max_batch_files: int = Field(500, ge=1, description="Most files in one batch upload.")
-    max_zip_members: int = Field(200_000, ge=1, description="Most files in one uploaded zip archive.")
-    max_zip_member_bytes: int = Field(512 * MiB, ge=1, description="Largest uncompressed file in an uploaded zip.")
-    max_zip_total_bytes: int = Field(4096 * MiB, ge=1, description="Largest uncompressed size of an uploaded zip.")
-    max_zip_ratio: float = Field(200.0, ge=1, allow_inf_nan=False,
-                                 description="Largest compression ratio of a zip member (of 1 MiB or more).")
     request_threads: int | None = Field(None, ge=1, description="Threads for per-request image work in the API process (default: one per core).")
 
     job_max_attempts: int = Field(3, ge=1, le=10, description="Attempts per job when a worker is lost.")
@@ -58,14 +54,6 @@ class Settings(BaseSettings):
     warm_kernels: bool = Field(True, description="At start-up, compile every engine's kernels into the cache in a "
                                                  "background process (`sweepcast warmup`), so that no request waits "
                                                  "for a compile; a warm cache makes it take seconds.")
-    orientation_yunet_model: Path | None = Field(
-        None, description="YuNet ONNX model for the stronger face detector; default: the one "
-                          "installed in <data_dir>/models (fetch_models, 'sweepcast models fetch'), if any.")
-    orientation_text: bool = Field(True, description="Orientation: when the faces decide nothing, read the text's "
-                                                     "orientation with Tesseract OSD (needs the tesseract-ocr and "
-                                                     "tesseract-ocr-osd packages; without them: faces only).")
-    orientation_tesseract: str = Field("tesseract", description="The tesseract binary for the orientation text cue: "
-                                                                "a name on PATH or a path.")
 
     max_rig_cameras: int = Field(64, ge=2, description="Most cameras in one rig.")
     max_recording_frames: int = Field(3000, ge=1, description="Most frames per camera in one recording.")
@@ -95,7 +83,7 @@ class Settings(BaseSettings):
     @property
     def zip_limits(self) -> ZipLimits:
         """The limits of every zip archive the service reads (its workers get them as environment)."""
-        return ZipLimits(self.max_zip_members, self.max_zip_member_bytes, self.max_zip_total_bytes, self.max_zip_ratio)
+        return ZipLimits.from_settings(self)
 
     @cached_property
     def resolved_database_url(self) -> str:
@@ -104,9 +92,7 @@ class Settings(BaseSettings):
     @property
     def resolved_yunet_model(self) -> Path | None:
         """The YuNet model the orientation engine uses: the setting, else an installed copy, else None."""
-        if self.orientation_yunet_model is not None:
-            return self.orientation_yunet_model
-        return installed(YUNET, self.data_dir)
+        return self.yunet_model(models_dir(self.data_dir))
 
     @property
     def resolved_numba_cache_dir(self) -> Path:

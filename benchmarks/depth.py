@@ -45,6 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks._report import RESULTS_DIR, md_table, publish  # noqa: E402
 from benchmarks.bd import bd_pair  # noqa: E402
 from workers.common.datasets import dataset  # noqa: E402
+from workers.common.imagemetrics import psnr  # noqa: E402
 from workers.depth import dibr, metrics  # noqa: E402
 from workers.depth.levels import disparity_to_levels, levels_to_disparity  # noqa: E402
 from workers.depth.methods import FilterOptions, apply_method, postprocess  # noqa: E402
@@ -200,8 +201,8 @@ def rd_point(scene: SceneData, coded: CodedViews, levels: dict[int, np.ndarray])
         real = luma(scene.images[pair[2]])
         syn = luma(synthesise(scene, coded, disp, pair))
         band = edge_band_of(scene.depth[pair[2]])
-        pairs["{}+{}->{}".format(*pair)] = {"y_psnr_db": metrics.psnr(syn, real),
-                                            "edge_y_psnr_db": metrics.psnr(syn, real, band)}
+        pairs["{}+{}->{}".format(*pair)] = {"y_psnr_db": psnr(syn, real),
+                                            "edge_y_psnr_db": psnr(syn, real, band)}
     errors = [metrics.depth_errors(disp[k], np.nan_to_num(t), np.isfinite(t), BAD_PX)
               for k, t in scene.gt.items() if k in disp]
     return {
@@ -302,14 +303,14 @@ def edge_band_figure(scene: SceneData, codec: str, qp: int, factor: int, upsampl
     for m in FIGURE_METHODS:
         top.append(_panel(views[m][crop], m, zoom))
         e = cv2.cvtColor(np.clip(err[m][crop] * 4, 0, 255).astype(np.uint8), cv2.COLOR_GRAY2BGR)
-        psnr = metrics.psnr(luma(views[m]), luma(real), band)
+        psnr = psnr(luma(views[m]), luma(real), band)
         bottom.append(_panel(e, f"|Y err| x4, band {psnr:.2f} dB", zoom, outline))
     path.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(path), np.vstack([np.hstack(top), np.hstack(bottom)]))
     return {"file": str(path.relative_to(Path(__file__).resolve().parents[1])), "sequence": scene.seq.name,
             "pair": "{}+{}->{}".format(*pair), "codec": codec, "qp": qp, "upsampler": upsampler,
             "crop_xywh": [x0, y0, w, h],
-            "edge_y_psnr_db": {m: metrics.psnr(luma(v), luma(real), band) for m, v in views.items()}}
+            "edge_y_psnr_db": {m: psnr(luma(v), luma(real), band) for m, v in views.items()}}
 
 
 def _outline(mask: np.ndarray, zoom: int) -> np.ndarray:

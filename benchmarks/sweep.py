@@ -48,7 +48,8 @@ from benchmarks._report import md_table, publish  # noqa: E402
 from workers.camera import Camera  # noqa: E402
 from workers.common.datasets import dataset  # noqa: E402
 from workers.synth import arc_angles, arc_camera, camera_gains, default_arc_rig, default_scene, render, render_views  # noqa: E402
-from workers.sweep.metrics import frame_jump, highfreq_ratio, psnr, ssim  # noqa: E402
+from workers.common.imagemetrics import psnr, ssim  # noqa: E402
+from workers.sweep.metrics import frame_jump, highfreq_ratio  # noqa: E402
 from workers.sweep.reference import reference_sweep  # noqa: E402
 from workers.sweep.renderer import RenderOptions, RenderResult, SweepRenderer, pixel_inverse_depth  # noqa: E402
 from workers.sweep.rig import Rig, depth_range_from_box  # noqa: E402

@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._report import md_table, publish  # noqa: E402
 from workers.synth import arc_angles, arc_camera, default_arc_rig, default_scene, render, render_views  # noqa: E402
-from workers.sweep.metrics import psnr  # noqa: E402
+from workers.common.imagemetrics import psnr  # noqa: E402
 from workers.sweep.renderer import RenderOptions, SweepRenderer, _wants_gpu  # noqa: E402
 from workers.sweep.rig import Rig  # noqa: E402
 

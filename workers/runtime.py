@@ -29,6 +29,7 @@ from typing import Any, Callable, Iterator
 from pydantic import ValidationError
 
 from workers.common.jobctx import JobInputError
+from workers.common.validation import describe_errors
 from workers.registry import get_kind
 from workers.storage import BlobStore, check_key, open_store
 
@@ -151,7 +152,8 @@ def execute_job(spec: JobSpec) -> Iterator[dict[str, Any]]:
         except JobInputError as exc:
             outcome["event"] = {"type": "failed", "error": str(exc), "user_error": True}
         except ValidationError as exc:
-            outcome["event"] = {"type": "failed", "error": f"invalid parameters: {exc}", "user_error": True}
+            outcome["event"] = {"type": "failed", "error": f"invalid parameters: {describe_errors(exc)}",
+                                "user_error": True}
         except Exception as exc:  # noqa: BLE001 - reported as the job's error, not raised into Ray
             traceback.print_exc()
             outcome["event"] = {

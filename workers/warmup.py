@@ -107,18 +107,19 @@ def _dense() -> None:
 
 def _depth() -> None:
     """Every depth post-filter at 8 and 16 bits, and view synthesis for both geometries."""
+    from workers.common.images import encode_png
     from workers.depth import io
     from workers.depth.methods import METHODS, GUIDED_METHODS
     from workers.depth.service import filter_depth_bytes, synthesize_bytes
 
     rng = np.random.default_rng(0)
-    texture = io.encode_png(rng.integers(0, 256, (24, 32, 3), np.uint8))
+    texture = encode_png(rng.integers(0, 256, (24, 32, 3), np.uint8))
     for depth in (rng.integers(1, 255, (12, 16), np.uint8), rng.integers(1, 65535, (12, 16), np.uint16)):
         blob = io.encode_depth(depth)
         for method in METHODS:
             guide = texture if method in GUIDED_METHODS else None
             filter_depth_bytes(blob, {"method": method, "scale": 2}, guide)
-    levels = io.encode_png(rng.integers(1, 255, (24, 32), np.uint8))
+    levels = encode_png(rng.integers(1, 255, (24, 32), np.uint8))
     views = [(texture, levels), (texture, levels)]
     common = {"z_near": 1.0, "z_far": 10.0}
     synthesize_bytes(views, {**common, "focal_px": 40.0, "positions": [0.0, 0.2], "target_position": 0.1})

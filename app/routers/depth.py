@@ -6,7 +6,6 @@ import base64
 import cv2
 
 from fastapi import APIRouter, Depends, File, Form, UploadFile
-from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 
@@ -118,7 +117,7 @@ async def filter_video(
         check_size(texture, svc.settings.max_batch_bytes)
         uploads.append(Upload("texture", texture.file, {"filename": texture.filename}))
     if p.input_format == "video":
-        await run_in_threadpool(_check_video, depth, p, svc)
+        await run_compute(svc, _check_video, depth, p, svc)
     else:
         _check_yuv(depth, p, svc.settings.max_video_frames)
     return job_accepted(await create_job(svc, "depth.video", p.model_dump(mode="json"), uploads))

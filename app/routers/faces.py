@@ -11,7 +11,6 @@ from typing import Any
 from fastapi import APIRouter, Depends, File, Form, UploadFile
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
-from starlette.concurrency import run_in_threadpool
 
 from app.auth import require_key
 from app.errors import ApiError
@@ -72,7 +71,7 @@ async def _model(model_id: str, svc: Services) -> FaceModel:
                             + (f" ({job.error})" if job.error else ""), "model_not_ready")
     try:
         path = await asyncio.to_thread(svc.store.local_path, f"{results_prefix(model_id)}/{MODEL_RESULT}")
-        return await run_in_threadpool(load_model, path)
+        return await run_compute(svc, load_model, path)
     except (BlobNotFound, FaceInputError):  # its message names a server path: not for the client
         raise ApiError(410, f"the files of face model {model_id} are gone or unreadable", "model_gone") from None
 

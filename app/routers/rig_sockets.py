@@ -44,11 +44,13 @@ from starlette.websockets import WebSocketDisconnect
 
 from app.auth import websocket_key_ok
 from app.errors import ApiError
-from app.routers.rig_support import Source, resolve_source, session_config
+from app.routers.rig_support import Source, resolve_source, session_config, view_limits
 from app.services import Services
+from workers.common.validation import describe_errors
 from workers.streaming.actor import LIVE, SessionClient, SessionInterrupted
 from workers.streaming.framing import FramingError, pack_message, unpack_frame_set
 from workers.streaming.params import Viewpoint
+from workers.streaming.session import ViewError
 
 log = logging.getLogger("sweepcast.rigs")
 ws_router = APIRouter(prefix="/v1/rigs", tags=["rigs"])
@@ -267,16 +269,12 @@ async def _viewpoint(channel: Channel, text: str, svc: Services) -> Viewpoint | 
     try:
         vp = Viewpoint.model_validate(data)
     except ValidationError as exc:
-        problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'viewpoint'}: {e['msg']}" for e in exc.errors())
-        await channel.error("bad_viewpoint", problems, id=msg_id)
+        await channel.error("bad_viewpoint", describe_errors(exc, "viewpoint"), id=msg_id)
         return None
-    if vp.width * vp.height > svc.settings.max_view_pixels:
-        await channel.error("too_large", f"output {vp.width}x{vp.height} is over the limit of "
-                                         f"{svc.settings.max_view_pixels:,} pixels", id=vp.id)
-        return None
-    if vp.planes > svc.settings.max_view_planes:
-        await channel.error("too_many_planes", f"{vp.planes} planes is over the limit of "
-                                               f"{svc.settings.max_view_planes}", id=vp.id)
+    try:
+        view_limits(svc.settings).check(vp.width, vp.height, vp.planes)
+    except ViewError as exc:
+        await channel.error(exc.code, exc.detail, id=vp.id)
         return None
     return vp
 

@@ -11,6 +11,7 @@ from typing import Any
 from app.errors import ApiError
 from app.jobstore import Job, JobState
 from app.services import Services, Upload, create_job, delete_job_and_files
+from app.settings import Settings
 from workers.streaming import store as rigstore
 from workers.streaming.actor import LIVE, SessionConfig
 from workers.streaming.demo import DEMO_NAME, demo_rig
@@ -147,10 +148,14 @@ async def resolve_source(svc: Services, rig_id: str, source: str | None) -> Sour
     return Source(rig_id, source, rig, recording, size)
 
 
+def view_limits(settings: Settings) -> SessionLimits:
+    """The service's view limits (``max_view_pixels``, ``max_view_planes``); their ``check`` is the one rule."""
+    return SessionLimits(max_pixels=settings.max_view_pixels, max_planes=settings.max_view_planes)
+
+
 def session_config(svc: Services, rig_id: str, source: str) -> SessionConfig:
-    s = svc.settings
-    return SessionConfig(svc.store.url, rig_id, source, idle_seconds=s.session_idle_seconds,
-                         limits=SessionLimits(max_pixels=s.max_view_pixels, max_planes=s.max_view_planes))
+    return SessionConfig(svc.store.url, rig_id, source, idle_seconds=svc.settings.session_idle_seconds,
+                         limits=view_limits(svc.settings))
 
 
 # --- jobs over stored blobs -----------------------------------------------------------------------

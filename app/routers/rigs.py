@@ -12,14 +12,13 @@ from typing import Any, Literal
 from fastapi import APIRouter, Depends, File, Form, UploadFile
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
-from starlette.concurrency import run_in_threadpool
 
 from app.auth import require_key
 from app.errors import ApiError
 from app.routers.jobs import JobOut, job_accepted
 from app.routers.rig_support import (delete_recording_data, load_rig, recording_or_404,
-                                     recording_views, require_ready, rig_json_bytes, rig_meta_or_404)
-from app.services import Services, Upload, create_job, parse_params, services
+                                     recording_views, require_ready, rig_json_bytes, rig_meta_or_404, view_limits)
+from app.services import Services, Upload, create_job, parse_params, run_compute, services
 from app.uploads import check_size
 from workers.camera import CameraError
 from workers.common.safezip import SafeZip, ZipLimits
@@ -30,6 +29,7 @@ from workers.streaming.images import image_size
 from workers.streaming.params import BatchRenderParams, RecordingImportParams, RecordingRequest
 from workers.streaming.recording import (RecordingError, check_image_sizes, check_videos, match_cameras,
                                          scan_image_zip)
+from workers.streaming.session import ViewError
 from workers.streaming.video import VideoError, probe_video
 from workers.streaming.viewpoint import orbit_frame
 from workers.sweep.rig import Rig, RigError
@@ -129,7 +129,7 @@ async def create_rig(
         raise ApiError(422, f"units: {str(exc).split(': ', 2)[-1]}", "invalid_parameters") from None
     contents = [(safe_name(f.filename or "rig.json", "rig.json"), await f.read()) for f in files]
     try:
-        rig, fmt = await run_in_threadpool(_parse_calibration, contents, width, height, units, camera_type)
+        rig, fmt = await run_compute(svc, _parse_calibration, contents, width, height, units, camera_type)
     except (RigError, CameraError, ValueError) as exc:
         raise ApiError(422, f"unusable calibration: {exc}", "invalid_rig") from None
     _check_rig(rig, svc)
@@ -195,7 +195,7 @@ def _check_rig(rig: Rig, svc: Services) -> None:
 
 async def _rig_out(svc: Services, meta: dict[str, Any], rig: Rig) -> dict[str, Any]:
     return {**_summary(meta), "calibration": rig_to_dict(rig),
-            "orbit": await run_in_threadpool(lambda: orbit_frame(rig).to_dict()),
+            "orbit": await run_compute(svc, lambda: orbit_frame(rig).to_dict()),
             "recordings": await recording_views(svc, meta["id"])}
 
 
@@ -251,14 +251,14 @@ async def create_recording(
     try:
         if videos is not None:
             cameras = match_cameras([v.filename or "" for v in videos], rig)
-            await run_in_threadpool(_probe_videos, videos, cameras, rig, svc.settings.max_recording_frames)
+            await run_compute(svc, _probe_videos, videos, cameras, rig, svc.settings.max_recording_frames)
         else:
             cameras = []
-            await run_in_threadpool(_probe_archive, archive, rig, svc.settings.max_recording_frames,
+            await run_compute(svc, _probe_archive, archive, rig, svc.settings.max_recording_frames,
                                     svc.settings.zip_limits)
         bg_cameras = match_cameras([b.filename or "" for b in backgrounds], rig, "backgrounds") if backgrounds else []
         if backgrounds:
-            await run_in_threadpool(_check_backgrounds, backgrounds, bg_cameras, rig)
+            await run_compute(svc, _check_backgrounds, backgrounds, bg_cameras, rig)
     except RecordingError as exc:
         raise ApiError(422, str(exc), "invalid_recording") from None
     job_params = RecordingImportParams(
@@ -352,12 +352,10 @@ async def create_render(rig_id: str, params: BatchRenderParams, svc: Services = 
     if params.frame_start >= frames or end >= frames:
         raise ApiError(422, f"frames {params.frame_start}..{end} are out of range: recording {recording['id']} has "
                             f"{frames} frames (0..{frames - 1})", "invalid_parameters")
-    if params.width * params.height > svc.settings.max_view_pixels:
-        raise ApiError(422, f"{params.width}x{params.height} is over the limit of {svc.settings.max_view_pixels:,} "
-                            f"pixels", "invalid_parameters")
-    if params.planes > svc.settings.max_view_planes:
-        raise ApiError(422, f"{params.planes} planes is over the limit of {svc.settings.max_view_planes}",
-                       "invalid_parameters")
+    try:
+        view_limits(svc.settings).check(params.width, params.height, params.planes)
+    except ViewError as exc:
+        raise ApiError(422, exc.detail, "invalid_parameters") from None
     rig = await load_rig(svc, rig_id)
     job = await create_job(svc, "streaming.render", params.model_dump(mode="json"),
                            [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})],

@@ -114,3 +114,16 @@ def test_drone_stills_over_the_limit_are_skipped_with_a_reason(tmp_path, monkeyp
     assert [name for _, _, name, _ in source] == ["001.png"]
     assert any("002.png" in e and "7900x7900" in e for e in source.errors)
     assert any("003.png" in e and "empty" in e for e in source.errors)
+
+
+def test_encode_png_is_lossless_for_8_and_16_bit_and_refuses_floats():
+    from workers.common.images import encode_png
+
+    rng = np.random.default_rng(0)
+    for img in (rng.integers(0, 256, (5, 7, 3), np.uint8), rng.integers(0, 65536, (5, 7), np.uint16)):
+        data = encode_png(img)
+        assert data[:8] == b"\x89PNG\r\n\x1a\n"
+        np.testing.assert_array_equal(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED), img)
+    for bad in (np.zeros((4, 4, 7), np.uint8), np.zeros((4, 4), np.float64)):
+        with pytest.raises(ValueError, match="as PNG"):
+            encode_png(bad)

@@ -4,6 +4,7 @@ import pytest
 from pydantic import ValidationError
 
 from tests.depth.scene import Scene
+from workers.common.images import encode_png
 from workers.depth import io
 from workers.depth.errors import DepthInputError
 from workers.depth.levels import disparity_to_levels
@@ -13,7 +14,7 @@ from workers.depth.service import filter_depth_bytes, synthesize_bytes
 
 
 def png(img):
-    return io.encode_png(img)
+    return encode_png(img)
 
 
 def test_filter_bytes_matches_the_library():

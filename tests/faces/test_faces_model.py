@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from workers.faces.errors import FaceInputError
-from workers.faces.model import MorphableModel, load_face_model
+from workers.faces.model import load_face_model
+from workers.faces.morphable import MorphableModel
 from workers.faces.neutral import estimate_neutral
 from workers.faces.pca import fit_pca
 from workers.faces.synthetic import EXPRESSIONS, expression_face, random_person, template

@@ -145,3 +145,14 @@ def test_background_model_follows_light_but_not_the_subject():
     assert sil[7:13, 7:13].all() and not sil[:3].any()
     bg = model.images()[0]
     assert abs(int(bg[0, 0, 0]) - 110) <= 1 and abs(int(bg[10, 10, 0]) - 100) <= 1
+
+
+def test_session_limits_check_is_the_one_view_rule():
+    limits = SessionLimits(max_pixels=100 * 100, max_planes=64)
+    limits.check(100, 100, 64)  # at the limits: allowed
+    with pytest.raises(ViewError, match="output 101x100 is over the limit of 10,000 pixels") as e:
+        limits.check(101, 100, 8)
+    assert e.value.code == "too_large"
+    with pytest.raises(ViewError, match="65 planes is over the limit of 64") as e:
+        limits.check(10, 10, 65)
+    assert e.value.code == "too_many_planes"

@@ -15,7 +15,7 @@ import json
 import numpy as np
 
 from workers.synth import arc_angles, arc_camera, default_arc_rig, default_scene, render_views
-from workers.sweep.metrics import psnr
+from workers.common.imagemetrics import psnr
 from workers.sweep.renderer import RenderOptions, SweepRenderer
 from workers.sweep.rig import Rig
 

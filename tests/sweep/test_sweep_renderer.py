@@ -6,7 +6,7 @@ import pytest
 from pydantic import ValidationError
 
 from workers.synth import arc_angles, arc_camera, render
-from workers.sweep.metrics import psnr
+from workers.common.imagemetrics import psnr
 from workers.sweep.reference import reference_sweep
 from workers.sweep.renderer import RenderOptions, SweepRenderer
 from workers.sweep.rig import RigError

@@ -19,7 +19,6 @@ them in their own input-error type; ``code`` is a short stable identifier for JS
 from __future__ import annotations
 
 import io
-import os
 from dataclasses import dataclass
 
 import cv2
@@ -27,10 +26,11 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from workers.common.jobctx import JobInputError
+from workers.settings import WorkerSettings, worker_settings
 
 MAX_PIXELS_ENV = "SWEEPCAST_MAX_IMAGE_PIXELS"
-DEFAULT_MAX_PIXELS = 50_000_000
-"""Pixel limit (width x height) when neither the caller nor the environment gives one."""
+DEFAULT_MAX_PIXELS: int = WorkerSettings.model_fields["max_image_pixels"].default
+"""Pixel limit (width x height) when neither the caller nor the environment gives one (the setting's default)."""
 SUPPORTED = "JPEG, PNG, WebP, BMP, TIFF or PGM/PPM"
 _SUPPORTED_FORMATS = frozenset({"JPEG", "PNG", "WEBP", "BMP", "TIFF", "PPM"})  # Pillow's names
 # The limit is ours (checked below with the header's size); Pillow's own bomb check would refuse or warn
@@ -80,8 +80,7 @@ class ImageSize:
 def max_pixels_from_env() -> int:
     """The pixel limit of this process: ``$SWEEPCAST_MAX_IMAGE_PIXELS`` (set for the service's Ray
     workers from the setting ``max_image_pixels``), else :data:`DEFAULT_MAX_PIXELS`."""
-    value = os.environ.get(MAX_PIXELS_ENV, "").strip()
-    return int(value) if value.isdigit() and int(value) > 0 else DEFAULT_MAX_PIXELS
+    return worker_settings().max_image_pixels
 
 
 def check_pixels(width: int, height: int, max_pixels: int | None = None, what: str = "the image") -> None:
@@ -111,6 +110,19 @@ def read_image_size(data: bytes) -> ImageSize:
     if width <= 0 or height <= 0:
         raise UnreadableImage(f"the {fmt} header gives an empty size {width}x{height}")
     return ImageSize(fmt, int(width), int(height))
+
+
+def encode_png(image: np.ndarray, level: int = 1) -> bytes:
+    """Lossless PNG bytes of an (H, W) or (H, W, C) uint8 or uint16 image (C: 3 BGR or 4 BGRA);
+    ``level``: zlib effort 0..9 (1: fast, the files are a few per cent larger than at 9).
+    Raises ValueError for an image PNG cannot hold (float pixels, ...)."""
+    channels = image.shape[2] if image.ndim == 3 else 1
+    if image.dtype not in (np.uint8, np.uint16) or image.ndim not in (2, 3) or channels not in (1, 3, 4):
+        raise ValueError(f"cannot encode an image of {image.dtype} {image.shape} as PNG")  # OpenCV would cast
+    ok, buf = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, int(level)])
+    if not ok:  # pragma: no cover - a checked array encodes
+        raise ValueError(f"OpenCV failed to encode an image of {image.dtype} {image.shape} as PNG")
+    return buf.tobytes()
 
 
 def decode_image(data: bytes, flags: int, max_pixels: int | None = None) -> np.ndarray:

@@ -63,12 +63,6 @@ def installed(model: ModelFile, data_dir: Path) -> Path | None:
     return installed_in(model, models_dir(data_dir))
 
 
-def env_models_dir() -> Path | None:
-    """The models folder named by ``$SWEEPCAST_MODELS_DIR`` (set by the service for its workers), or None."""
-    folder = os.environ.get(MODELS_DIR_ENV)
-    return Path(folder) if folder else None
-
-
 def _copy_checked(model: ModelFile, source: BinaryIO, out: BinaryIO) -> None:
     digest = hashlib.sha256()
     total = 0

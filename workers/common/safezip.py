@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import BinaryIO, Callable
 
 from workers.common.jobctx import JobInputError
+from workers.settings import WorkerSettings, worker_settings
 
 MiB = 1 << 20
 _CHUNK = MiB
@@ -60,18 +61,14 @@ class ZipLimits:
     """Uncompressed / compressed size of one member (members from 1 MiB on)."""
 
     @classmethod
+    def from_settings(cls, settings: WorkerSettings) -> "ZipLimits":
+        """The ``max_zip_*`` fields of ``settings`` (the service's settings include them)."""
+        return cls(*(getattr(settings, f.name) for f in fields(cls)))
+
+    @classmethod
     def from_env(cls) -> "ZipLimits":
-        """The limits of this process: ``$SWEEPCAST_MAX_ZIP_MEMBERS`` etc., else the defaults."""
-        values = {}
-        for f in fields(cls):
-            raw = os.environ.get(f"SWEEPCAST_{f.name.upper()}", "").strip()
-            if raw:
-                values[f.name] = float(raw) if f.type in ("float", float) else int(raw)
-        return cls(**values)
-
-
-ZIP_SETTINGS = tuple(f.name for f in fields(ZipLimits))
-"""The settings (and ``SWEEPCAST_*`` environment variables) that configure :class:`ZipLimits`."""
+        """The limits of this process: ``$SWEEPCAST_MAX_ZIP_MEMBERS`` etc. (:mod:`workers.settings`), else the defaults."""
+        return cls.from_settings(worker_settings())
 
 
 class SafeZip:

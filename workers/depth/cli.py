@@ -18,6 +18,7 @@ from pydantic import ValidationError
 
 from workers.common.cliutil import ProgressBar
 from workers.common.jobctx import JobInputError
+from workers.common.validation import describe_errors
 
 from . import io
 from .errors import DepthInputError
@@ -165,15 +166,9 @@ def _parse_size(text: str) -> tuple[int, int]:
 
 
 def _fail(exc: Exception) -> int:
-    message = str(exc).splitlines()[0] if not isinstance(exc, ValidationError) else _pydantic_message(exc)
+    message = describe_errors(exc, "parameters") if isinstance(exc, ValidationError) else str(exc).splitlines()[0]
     print(f"error: {message}", file=sys.stderr)
     return 2
-
-
-def _pydantic_message(exc: ValidationError) -> str:
-    err = exc.errors()[0]
-    where = ".".join(str(x) for x in err["loc"]) or "parameters"
-    return f"{where}: {err['msg']}"
 
 
 @dataclass

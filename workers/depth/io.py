@@ -82,14 +82,6 @@ def decode_texture(data: bytes, max_pixels: int | None = None) -> np.ndarray:
     return decode_image_checked(data, cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION, "texture", max_pixels)
 
 
-def encode_png(image: np.ndarray) -> bytes:
-    """(H, W) or (H, W, 3) uint8/uint16 -> PNG bytes."""
-    ok, buf = cv2.imencode(".png", image)
-    if not ok:
-        raise DepthInputError(f"cannot encode an image of {image.dtype} {image.shape} as PNG")
-    return buf.tobytes()
-
-
 def read_depth(path: str | Path, bits: int | None = None) -> tuple[np.ndarray, int]:
     """Read a PNG/PGM depth file; see :func:`decode_depth`."""
     return decode_depth(Path(path).read_bytes(), bits)

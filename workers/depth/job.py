@@ -10,7 +10,6 @@ the ``chroma`` format) and ``report.json``. Progress is reported once per frame.
 from __future__ import annotations
 
 import json
-import os
 import time
 from contextlib import ExitStack
 from typing import Any, Iterator
@@ -21,6 +20,8 @@ from pydantic import ValidationError
 
 from workers.common import images
 from workers.common.jobctx import JobContext, JobInputError
+from workers.common.validation import describe_errors
+from workers.settings import worker_settings
 
 from . import io
 from .errors import DepthInputError
@@ -32,14 +33,12 @@ from .upsample import target_size
 from .video import DepthVideoInfo, decode_depth_video, probe_depth_video
 
 MAX_VIDEO_FRAMES_ENV = "SWEEPCAST_MAX_VIDEO_FRAMES"
-DEFAULT_MAX_VIDEO_FRAMES = 10_000
 
 
 def max_video_frames_from_env() -> int:
     """Most frames of one depth sequence: ``$SWEEPCAST_MAX_VIDEO_FRAMES`` (the service's
     ``max_video_frames`` setting), else 10 000."""
-    value = os.environ.get(MAX_VIDEO_FRAMES_ENV, "").strip()
-    return int(value) if value.isdigit() and int(value) > 0 else DEFAULT_MAX_VIDEO_FRAMES
+    return worker_settings().max_video_frames
 
 
 def run_depth_video(ctx: JobContext) -> dict[str, Any]:
@@ -47,7 +46,7 @@ def run_depth_video(ctx: JobContext) -> dict[str, Any]:
     try:
         p = DepthVideoParams.model_validate(ctx.params)
     except ValidationError as exc:
-        raise JobInputError(f"invalid parameters: {exc}") from None
+        raise JobInputError(f"invalid parameters: {describe_errors(exc)}") from None
     depth_path = ctx.input_path("depth")
     max_frames, max_pixels = max_video_frames_from_env(), images.max_pixels_from_env()
     if p.input_format == "video":

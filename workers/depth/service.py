@@ -67,7 +67,7 @@ def synthesize_bytes(
         textures.append(tex)
         depths.append((levels, bits))
     result = synthesize_levels(textures, depths, p)
-    return io.encode_png(result.image), io.encode_png(result.holes.astype(np.uint8) * 255)
+    return images.encode_png(result.image), images.encode_png(result.holes.astype(np.uint8) * 255)
 
 
 def _check_target_size(p: SynthesizeParams, max_pixels: int) -> None:

@@ -15,6 +15,7 @@ from pydantic import ValidationError
 
 from workers.common.cliutil import ProgressBar, format_table
 from workers.common.jobctx import JobInputError
+from workers.common.validation import describe_errors
 
 from .job import dense_pass, resolve_intrinsics, write_outputs
 from .params import ReconstructionParams
@@ -81,7 +82,7 @@ def _reconstruct(args: argparse.Namespace) -> int:
     except (JobInputError, ValidationError, json.JSONDecodeError, OSError) as exc:
         if bar is not None:
             bar.close()
-        message = exc.errors()[0]["msg"] if isinstance(exc, ValidationError) else str(exc)
+        message = describe_errors(exc) if isinstance(exc, ValidationError) else str(exc)
         print(f"sweepcast reconstruct: {message}", file=sys.stderr)
         return 2
     bar(0.98, "export")

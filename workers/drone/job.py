@@ -16,6 +16,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from workers.common.jobctx import JobContext, JobInputError
+from workers.common.validation import describe_errors
 
 from .calibration import Intrinsics, from_values, parse_calibration
 from .dense import DenseResult, dense_ply_bytes, densify, depth_zip, reference_frames
@@ -101,7 +102,7 @@ def run_reconstruction(ctx: JobContext) -> dict[str, Any]:
     try:
         params = ReconstructionParams.model_validate(ctx.params)
     except ValidationError as exc:
-        raise JobInputError(f"invalid parameters: {exc.errors()[0].get('msg', exc)}") from None
+        raise JobInputError(f"invalid parameters: {describe_errors(exc)}") from None
     if "media" not in ctx.inputs:
         raise JobInputError("missing input 'media' (a video or a zip of ordered images)")
     calib = ctx.read_input("calibration") if "calibration" in ctx.inputs else None

@@ -5,23 +5,22 @@ the media (intrinsics against the image size, enough frames) happen in the job.
 """
 from __future__ import annotations
 
-import os
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from workers.settings import worker_settings
+
 _DIST_LENGTHS = (4, 5, 8, 12, 14)
 
 MAX_DENSE_VOLUME_ENV = "SWEEPCAST_MAX_DENSE_VOLUME"
-DEFAULT_MAX_DENSE_VOLUME = 300_000_000
 
 
 def max_dense_volume_from_env() -> int:
     """Most cost-volume cells (depth-map pixels x planes) a dense pass with ``dense_aggregation: "sgm"``
     may hold at once: ``$SWEEPCAST_MAX_DENSE_VOLUME``, else 300,000,000 (about 1.2 GB of float32, twice
     that while aggregating). The streamed ``window`` aggregation holds no volume and has no such limit."""
-    value = os.environ.get(MAX_DENSE_VOLUME_ENV, "").strip()
-    return int(value) if value.isdigit() and int(value) > 0 else DEFAULT_MAX_DENSE_VOLUME
+    return worker_settings().max_dense_volume
 
 
 class ReconstructionParams(BaseModel):

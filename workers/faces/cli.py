@@ -19,6 +19,7 @@ from pathlib import Path
 from pydantic import ValidationError
 
 from workers.common.cliutil import ProgressBar, format_table
+from workers.common.validation import describe_errors
 from workers.faces.dataset import load_dataset_zip, write_dataset_zip
 from workers.faces.errors import FaceInputError
 from workers.faces.job import (FaceTrainParams, FaceTransformParams, ensure_default_model, load_model,
@@ -83,7 +84,7 @@ def _fail(message: str) -> int:
 
 
 def _validation_message(exc: ValidationError) -> str:
-    return "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+    return describe_errors(exc)
 
 
 def _train(args: argparse.Namespace) -> int:

@@ -13,14 +13,11 @@ and keep ``X_mean + B a`` (the MAP estimate) as the neutral face.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from workers.faces.morphable import MorphableModel
 from workers.faces.pca import fit_pca
-
-if TYPE_CHECKING:
-    from workers.faces.model import MorphableModel
 
 
 @dataclass(frozen=True, eq=False)

@@ -9,7 +9,8 @@ import numpy as np
 
 from workers.faces.blas import single_threaded
 from workers.faces.dataset import NEUTRAL, FaceDataset
-from workers.faces.model import FaceModel, MorphableModel
+from workers.faces.model import FaceModel
+from workers.faces.morphable import MorphableModel
 from workers.faces.neutral import identity_model
 from workers.faces.pca import fit_pca
 from workers.faces.transfer import SvmTransfer, fisher_direction, fit_svm, fit_svm_auto

@@ -23,6 +23,8 @@ import weakref
 from dataclasses import dataclass
 from functools import lru_cache
 
+from workers.settings import worker_settings
+
 EXIFTOOL_ENV = "SWEEPCAST_EXIFTOOL"
 """Environment variable naming the exiftool binary (a name on PATH or a path); default ``exiftool``."""
 COMMAND_TIMEOUT_S = 60.0
@@ -47,7 +49,7 @@ class Result:
 
 def exiftool_binary() -> str:
     """The exiftool the environment names (``$SWEEPCAST_EXIFTOOL``), else ``exiftool``."""
-    return os.environ.get(EXIFTOOL_ENV, "").strip() or "exiftool"
+    return worker_settings().exiftool.strip() or "exiftool"
 
 
 @lru_cache(maxsize=4)

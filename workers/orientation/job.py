@@ -18,7 +18,6 @@ the request.
 from __future__ import annotations
 
 import json
-import os
 import re
 from pathlib import Path
 from typing import Any
@@ -27,13 +26,13 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from workers.common.images import max_pixels_from_env
 from workers.common.jobctx import JobContext, JobInputError
-from workers.common.models import YUNET, env_models_dir, installed_in
 from workers.orientation.detect import DetectorConfig, Method, OrientationDetector, get_detector
 from workers.orientation.errors import OrientationInputError
 from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
 from workers.orientation.headers import sniff_format
 from workers.orientation.service import analyze, orient_file
 from workers.orientation.text import text_settings_from_env
+from workers.settings import worker_settings
 
 YUNET_MODEL_ENV = "SWEEPCAST_ORIENTATION_YUNET_MODEL"
 
@@ -53,8 +52,7 @@ class OrientationBatchParams(BaseModel):
 def configured_yunet(models_folder: Path | None) -> Path | None:
     """The YuNet model ``$SWEEPCAST_ORIENTATION_YUNET_MODEL`` names, else the one installed in
     ``models_folder``, else None."""
-    model = os.environ.get(YUNET_MODEL_ENV)
-    return Path(model) if model else installed_in(YUNET, models_folder)
+    return worker_settings().yunet_model(models_folder)
 
 
 def detector_config_from_env(method: Method = "auto") -> DetectorConfig:
@@ -62,7 +60,7 @@ def detector_config_from_env(method: Method = "auto") -> DetectorConfig:
     else the one installed in ``$SWEEPCAST_MODELS_DIR``, if any; the text cue as the service set it
     (``$SWEEPCAST_ORIENTATION_TEXT``, ``$SWEEPCAST_ORIENTATION_TESSERACT``; default on, ``tesseract`` on PATH)."""
     text, tesseract = text_settings_from_env()
-    return DetectorConfig(method=method, yunet_model=configured_yunet(env_models_dir()), text=text,
+    return DetectorConfig(method=method, yunet_model=configured_yunet(worker_settings().models_dir), text=text,
                           tesseract=tesseract)
 
 

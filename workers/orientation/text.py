@@ -54,6 +54,7 @@ import cv2
 import numpy as np
 
 from workers.orientation.geometry import ROTATIONS, rotate_view
+from workers.settings import worker_settings
 
 try:  # the optional in-process binding (pip install tesserocr); the command line otherwise
     import tesserocr
@@ -539,5 +540,5 @@ def text_status(binary: str = DEFAULT_TESSERACT, enabled: bool = True) -> dict[s
 
 def text_settings_from_env() -> tuple[bool, str]:
     """(text cue on, tesseract binary) as the service passes them to its workers."""
-    enabled = os.environ.get(TEXT_ENV, "1").strip().lower() not in ("0", "false", "no", "off")
-    return enabled, os.environ.get(TESSERACT_ENV) or DEFAULT_TESSERACT
+    settings = worker_settings()
+    return settings.orientation_text, settings.orientation_tesseract or DEFAULT_TESSERACT

@@ -31,6 +31,7 @@ import ray
 import ray.exceptions
 from pydantic import ValidationError
 
+from workers.common.validation import describe_errors
 from workers.storage import open_store
 
 from .images import decode_image
@@ -116,7 +117,7 @@ class SessionHost:
             vp = Viewpoint.model_validate(viewpoint)
             self.session.check(vp)
         except ValidationError as exc:
-            return {"ok": False, "error": "bad_viewpoint", "detail": str(exc).splitlines()[0]}
+            return {"ok": False, "error": "bad_viewpoint", "detail": describe_errors(exc, "viewpoint")}
         except ViewError as exc:
             return {"ok": False, "error": exc.code, "detail": exc.detail}
         t0 = time.perf_counter()

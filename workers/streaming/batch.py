@@ -10,10 +10,10 @@ from typing import Callable
 import numpy as np
 
 from workers.camera import Camera
+from workers.common.images import encode_png
 from workers.sweep.renderer import RenderOptions, SweepRenderer
 from workers.sweep.rig import Rig
 
-from .images import encode_png
 from .params import BatchRenderParams, Keyframe, Orbit
 from .recording import RecordingArchive, RecordingError
 from .video import H264Writer

@@ -43,11 +43,3 @@ def encode_jpeg(image: np.ndarray, quality: int = 85) -> bytes:
     if not ok:
         raise ImageError("JPEG encoding failed")
     return buf.tobytes()
-
-
-def encode_png(image: np.ndarray, level: int = 1) -> bytes:
-    """PNG bytes (lossless) of an (H, W[, C]) uint8 or uint16 image; ``level`` 0..9 (1: fast)."""
-    ok, buf = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, int(level)])
-    if not ok:
-        raise ImageError("PNG encoding failed")
-    return buf.tobytes()

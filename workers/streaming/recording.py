@@ -27,11 +27,12 @@ from typing import BinaryIO, Callable, Iterable, Literal, Sequence
 
 import numpy as np
 
+from workers.common.images import encode_png
 from workers.common.safezip import SafeZip
 from workers.sweep.rig import Rig
 from workers.sweep.rig_io import IMAGE_EXTENSIONS
 
-from .images import ImageError, decode_image, encode_png, image_size
+from .images import ImageError, decode_image, image_size
 from .video import VideoError, VideoInfo, decode_frames
 
 ARCHIVE_VERSION = 1

@@ -30,6 +30,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from workers.camera import Camera, CameraError
+from workers.common.validation import describe_errors
 from workers.sweep.overlays import depth_image, regions_image
 from workers.sweep.renderer import RenderOptions, RenderResult, SweepRenderer
 from workers.sweep.rig import Rig, RigError
@@ -102,6 +103,14 @@ class SessionLimits:
     cache_bytes: int = 256 * MiB
     viewers_kept: int = 32
 
+    def check(self, width: int, height: int, planes: int) -> None:
+        """ViewError when a view of ``width`` x ``height`` pixels and ``planes`` depth planes is over the
+        limits: the one rule for viewer sockets, sessions and batch renders."""
+        if width * height > self.max_pixels:
+            raise ViewError("too_large", f"output {width}x{height} is over the limit of {self.max_pixels:,} pixels")
+        if planes > self.max_planes:
+            raise ViewError("too_many_planes", f"{planes} planes is over the limit of {self.max_planes}")
+
 
 class Session:
     """Renders views of ``rig`` from the frames loaded by a subclass (not thread-safe: the actor
@@ -123,11 +132,7 @@ class Session:
 
     def check(self, vp: Viewpoint) -> None:
         """ViewError when ``vp`` asks for more than the limits allow."""
-        if vp.width * vp.height > self.limits.max_pixels:
-            raise ViewError("too_large", f"output {vp.width}x{vp.height} is over the limit of "
-                                         f"{self.limits.max_pixels:,} pixels")
-        if vp.planes > self.limits.max_planes:
-            raise ViewError("too_many_planes", f"{vp.planes} planes is over the limit of {self.limits.max_planes}")
+        self.limits.check(vp.width, vp.height, vp.planes)
 
     def render(self, viewer: str, vp: Viewpoint) -> tuple[dict[str, Any], bytes]:
         """Render ``vp`` for ``viewer`` (any id; it keys the previous render for re-shading)."""
@@ -346,5 +351,5 @@ def _composed(result: RenderResult, overlay: str) -> np.ndarray:
 
 def _one_line(exc: Exception) -> str:
     if isinstance(exc, ValidationError):
-        return "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+        return describe_errors(exc)
     return str(exc).splitlines()[0]

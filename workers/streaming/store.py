@@ -20,12 +20,12 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from workers.common.images import encode_png
 from workers.runtime import results_prefix
 from workers.storage import BlobNotFound, BlobStore
 from workers.sweep.rig import Rig
 from workers.sweep.rig_io import rig_from_dict, rig_to_dict
 
-from .images import encode_png
 
 RIGS = "rigs"
 ARCHIVE_NAME = "frames.zip"

@@ -11,6 +11,7 @@ from pydantic import ValidationError
 
 from workers.camera import CameraError
 from workers.common.cliutil import format_table
+from workers.common.validation import describe_errors
 
 from .overlays import depth_image, regions_image
 from .renderer import RenderOptions, SweepRenderer
@@ -132,5 +133,5 @@ def _load_masks(rig: Rig, folder: str) -> list[np.ndarray]:
 
 def _one_line(e: Exception) -> str:
     if isinstance(e, ValidationError):
-        return "; ".join(f"{'.'.join(map(str, err['loc']))}: {err['msg']}" for err in e.errors())
+        return describe_errors(e)
     return str(e).splitlines()[0]

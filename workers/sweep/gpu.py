@@ -15,7 +15,7 @@ position within rounding of a half step may round the other way.
 
 Volumes live on the GPU plane-major, (P, h, w), so that neighbouring threads read neighbouring pixels.
 The frames (images and silhouettes) are uploaded once per frame set (:meth:`GpuSweep.set_frames`).
-The kernels compile on first use (about a second; numba caches nothing for CUDA across processes).
+The kernels compile on first use in each process (the renderer's first GPU view pays for it).
 
 Tests run these kernels on the CPU through numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``).
 """
@@ -234,7 +234,11 @@ class GpuSweep:
         P = len(s_planes)
         key = (P, h, w)
         if key not in self._volumes:
-            self._volumes = {key: tuple(cuda.device_array(key, np.float32) for _ in range(5))}
+            # a few shapes are in use at once (coarse-to-fine: two levels): allocating on the GPU per view
+            # costs more than the search, so each shape's buffers are kept, the oldest dropped after four
+            if len(self._volumes) >= 4:
+                self._volumes.pop(next(iter(self._volumes)))
+            self._volumes[key] = tuple(cuda.device_array(key, np.float32) for _ in range(5))
         ssd, votes, tmp_s, tmp_v, var = self._volumes[key]
         grid, block = _grid3(h, w, P)
         _volume_kernel[grid, block](
