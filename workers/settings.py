@@ -9,6 +9,7 @@ an error that names it, never silently the default.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -41,6 +42,10 @@ class WorkerSettings(BaseSettings):
                                                                 "a name on PATH or a path.")
     exiftool: str = Field("exiftool", description="The exiftool binary the orientation engine uses for PNG eXIf, "
                                                   "XMP sidecars and RAW previews: a name on PATH or a path.")
+
+    sweep_device: Literal["auto", "cpu", "cuda"] = Field(
+        "auto", description="Where the sweep renderer searches depth: cpu, cuda (an NVIDIA GPU through numba's CUDA "
+                            "target; the gpu extra), or auto (the GPU when the process can see one).")
 
     def yunet_model(self, models_folder: Path | None) -> Path | None:
         """The YuNet model the orientation engine uses: ``orientation_yunet_model``, else the one installed in

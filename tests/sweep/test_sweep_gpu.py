@@ -63,7 +63,7 @@ def test_unknown_device_is_refused(capture, monkeypatch):
     with pytest.raises(ValueError, match="device must be"):
         SweepRenderer(rig, [v.image for v in views], device="tpu")
     monkeypatch.setenv("SWEEPCAST_SWEEP_DEVICE", "opencl")
-    with pytest.raises(ValueError, match="device must be"):
+    with pytest.raises(ValueError, match="sweep_device"):
         SweepRenderer(rig, [v.image for v in views])
 
 

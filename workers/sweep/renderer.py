@@ -23,6 +23,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from workers.camera import Camera
+from workers.settings import worker_settings
 
 from . import costs, kernels
 from .lanes import lane_cost_volume
@@ -156,7 +157,7 @@ class SweepRenderer:
 
     device: where the depth search runs: "cpu", "cuda" (an NVIDIA GPU through numba's CUDA target,
     :mod:`workers.sweep.gpu`; an error when there is none) or "auto" (the GPU when one is present);
-    None reads ``SWEEPCAST_SWEEP_DEVICE`` (default "auto"). The colour pass runs on the CPU either way.
+    None: the worker setting ``sweep_device`` (``SWEEPCAST_SWEEP_DEVICE``, default "auto"). The colour pass runs on the CPU either way.
     A GPU that fails at its first use (a driver without the CUDA compiler, say) is logged and left for
     the CPU. ``self.device`` says which one runs.
     """
@@ -196,7 +197,7 @@ class SweepRenderer:
                 self._gpu = GpuSweep(self._imgs, self._sils, self._sizes)
                 self.device = "cuda"
             except Exception:  # noqa: BLE001 - "auto" never fails for want of a working GPU
-                if (device or os.environ.get("SWEEPCAST_SWEEP_DEVICE", "auto")) == "cuda":
+                if (device or worker_settings().sweep_device) == "cuda":
                     raise
                 log.exception("the GPU could not take the frames; this renderer uses the CPU")
 
@@ -494,7 +495,7 @@ class SweepRenderer:
 
 def _wants_gpu(device: str | None) -> bool:
     """Whether a renderer asked for ``device`` (see :class:`SweepRenderer`) runs its search on the GPU."""
-    device = device or os.environ.get("SWEEPCAST_SWEEP_DEVICE", "auto")
+    device = device or worker_settings().sweep_device
     if device == "cpu":
         return False
     if device not in ("auto", "cuda"):
