@@ -34,6 +34,8 @@ CONFIGS = {
     "live 320x240, 48 planes, hull": (320, 240, dict(planes=48, visual_hull=True)),
     "live 320x240, 48 planes, hull, coarse-to-fine": (320, 240, dict(planes=48, visual_hull=True, coarse_to_fine=True)),
     "viewer 640x480, 64 planes": (640, 480, dict(planes=64, visual_hull=False)),
+    "viewer 640x480, 64 planes, coarse-to-fine (the viewer's default)": (640, 480, dict(planes=64, visual_hull=False,
+                                                                                       coarse_to_fine=True)),
     "viewer 640x480, 64 planes, sgm": (640, 480, dict(planes=64, visual_hull=False, aggregation="sgm")),
     "1280x960, 128 planes": (1280, 960, dict(planes=128, visual_hull=False)),
 }
