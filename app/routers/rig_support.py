@@ -15,6 +15,7 @@ from app.settings import Settings
 from workers.streaming import store as rigstore
 from workers.streaming.actor import LIVE, SessionConfig
 from workers.streaming.demo import DEMO_NAME, demo_rig
+from workers.streaming.job import DEMO_JOB, RECORDING_JOB
 from workers.streaming.params import DemoParams
 from workers.streaming.session import SessionLimits
 from workers.streaming.viewpoint import orbit_frame
@@ -40,7 +41,7 @@ def rig_json_bytes(rig: Rig) -> bytes:
 
 
 # --- recordings -----------------------------------------------------------------------------------
-RECORDING_JOB_KINDS = ("streaming.recording", "streaming.demo")
+RECORDING_JOB_KINDS = (RECORDING_JOB.name, DEMO_JOB.name)
 
 
 def rig_of_recording_job(store: Any, job: Job) -> str | None:
@@ -178,7 +179,7 @@ async def ensure_demo_rig(svc: Services) -> None:
             rig_id = rigstore.new_rig_id()
             await asyncio.to_thread(rigstore.save_rig, svc.store, rig_id, rig,
                                     {"name": DEMO_NAME, "format": "json", "demo": True})
-        job = await create_job(svc, "streaming.demo", DemoParams().model_dump(),
+        job = await create_job(svc, DEMO_JOB, DemoParams(),
                                [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})])
         await asyncio.to_thread(rigstore.save_recording_meta, svc.store, rig_id, job.id,
                                 {"name": "demo recording", "kind": "demo"})

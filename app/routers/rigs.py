@@ -26,6 +26,7 @@ from workers.storage import safe_name
 from workers.streaming import actor
 from workers.streaming import store as rigstore
 from workers.streaming.images import image_size
+from workers.streaming.job import RECORDING_JOB, RENDER_JOB
 from workers.streaming.params import BatchRenderParams, RecordingImportParams, RecordingRequest
 from workers.streaming.recording import (RecordingError, check_image_sizes, check_videos, match_cameras,
                                          scan_image_zip)
@@ -270,7 +271,7 @@ async def create_recording(
     else:
         uploads.append(Upload("archive", archive.file, {"filename": archive.filename}))
     uploads += [Upload(f"background-{i:03d}", b.file, {"filename": b.filename}) for i, b in enumerate(backgrounds or [])]
-    job = await create_job(svc, "streaming.recording", job_params.model_dump(mode="json"), uploads)
+    job = await create_job(svc, RECORDING_JOB, job_params, uploads)
     meta = await asyncio.to_thread(rigstore.save_recording_meta, svc.store, rig_id, job.id,
                                    {"name": req.name or media[0].filename, "kind": "upload"})
     body = RecordingOut.model_validate(await recording_or_404(svc, rig_id, meta["id"])).model_dump(mode="json")
@@ -357,7 +358,7 @@ async def create_render(rig_id: str, params: BatchRenderParams, svc: Services = 
     except ViewError as exc:
         raise ApiError(422, exc.detail, "invalid_parameters") from None
     rig = await load_rig(svc, rig_id)
-    job = await create_job(svc, "streaming.render", params.model_dump(mode="json"),
+    job = await create_job(svc, RENDER_JOB, params,
                            [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})],
                            {"recording": rigstore.archive_key(recording["id"])})
     return job_accepted(job)
