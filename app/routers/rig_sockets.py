@@ -44,7 +44,7 @@ from starlette.websockets import WebSocketDisconnect
 
 from app.auth import websocket_key_ok
 from app.errors import ApiError
-from app.routers.rig_support import Source, resolve_source, session_config, view_limits
+from app.rig_access import Source, resolve_source, session_config, view_limits
 from app.services import Services
 from workers.common.validation import describe_errors
 from workers.streaming.actor import LIVE, SessionClient, SessionInterrupted

@@ -1,5 +1,6 @@
-"""What the rig routes and sockets share: loading rigs and recordings (with their import job's
-state), session configuration, jobs whose inputs are stored blobs, and the first-run demo rig."""
+"""What the rig, recording and session routes, the sockets and the demo session share (not a router): rigs
+and recordings read from the blob store with their import job's state, the view limits and session
+configuration, and the first-run demo rig."""
 from __future__ import annotations
 
 import asyncio
