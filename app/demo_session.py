@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import logging
 
-from app.routers.rig_support import recording_views, session_config
+from app.rig_access import recording_views, session_config
 from app.services import Services
 from workers.streaming import store as rigstore
 from workers.streaming.actor import SessionClient
@@ -50,14 +50,14 @@ async def keep_demo_session_warm(svc: Services) -> None:
         while (found := await demo_recording(svc)) is None:
             await asyncio.sleep(POLL_SECONDS)
         client = SessionClient(session_config(svc, *found), svc.settings.session_resources)
-        await client.call("info")
-        reply = await client.call("render", PRESTART_VIEWER, first_view(svc).model_dump(mode="json"))
-        await client.notify("leave", PRESTART_VIEWER)
+        await client.info()
+        reply = await client.render(PRESTART_VIEWER, first_view(svc).model_dump(mode="json"))
+        await client.leave(PRESTART_VIEWER)
         log.info("demo session %s/%s warm (first render %s)", *found,
                  f"{reply['header']['render_ms']:.0f} ms" if reply.get("ok") else reply.get("error"))
         while True:
             await asyncio.sleep(max(svc.settings.session_idle_seconds / 3, 0.2))
-            await client.call("touch", None)
+            await client.touch()
     except asyncio.CancelledError:
         raise
     except Exception:  # noqa: BLE001 - the first viewer starts the session instead

@@ -82,9 +82,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(BodyLimitMiddleware, limit_for=RouteBodyLimits(limits, BATCH_UPLOAD_ROUTES))
     app.add_middleware(ApiKeyMiddleware, keys=settings.api_keys)  # added last: runs first, before any body is read
 
-    from app.routers import depth, faces, jobs, photos, reconstructions, rig_sockets, rigs, system
+    from app.routers import (depth, faces, jobs, photos, reconstructions, recordings, rig_sockets, rigs, sessions,
+                             system)
     from app.demo_session import keep_demo_session_warm
-    from app.routers.rig_support import ensure_demo_rig
+    from app.rig_access import ensure_demo_rig
 
     app.include_router(system.router)
     app.include_router(jobs.router)
@@ -94,7 +95,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(faces.router)
     app.include_router(reconstructions.router)
     app.include_router(rigs.router)
-    app.include_router(rigs.sessions_router)
+    app.include_router(recordings.router)
+    app.include_router(sessions.router)
     app.include_router(rig_sockets.ws_router)
     app.mount("/viewer", StaticFiles(directory=Path(__file__).parent / "static", html=True), name="viewer")
     return app

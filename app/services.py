@@ -19,7 +19,7 @@ from app.jobstore import Job, JobStore
 from app.kernelcache import KernelWarmup
 from app.settings import Settings
 from workers.common.validation import describe_errors
-from workers.registry import get_kind
+from workers.registry import JobKind
 from workers.runtime import inputs_prefix, results_prefix
 from workers.storage import BlobStore, open_store
 
@@ -85,14 +85,6 @@ def _invalid(exc: ValidationError) -> ApiError:
     return ApiError(422, f"invalid parameters: {describe_errors(exc)}", "invalid_parameters")
 
 
-def validate_params(kind: str, params: dict[str, Any]) -> dict[str, Any]:
-    """The kind's parameters with defaults filled in; 422 that names the bad fields otherwise."""
-    try:
-        return get_kind(kind).validate(params)
-    except ValidationError as exc:
-        raise _invalid(exc) from None
-
-
 def parse_params(model: type[M], text: str | None) -> M:
     """A request's ``params`` form field (a JSON object) as ``model``; 422 naming the problem otherwise."""
     try:
@@ -105,14 +97,17 @@ def parse_params(model: type[M], text: str | None) -> M:
         raise _invalid(exc) from None
 
 
-async def create_job(svc: Services, kind: str, params: dict[str, Any], uploads: list[Upload],
+async def create_job(svc: Services, kind: JobKind, params: BaseModel, uploads: list[Upload],
                      stored: dict[str, str] | None = None) -> Job:
     """Store the inputs, commit the row, then submit: the row exists before Ray hears of the job.
 
-    ``stored`` (input name -> key) names inputs already in the blob store (a recording's archive),
-    which the job reads in place instead of a copy.
+    ``kind``: the engine's job constant (``workers/<engine>/job.py``); ``params``: the request already
+    parsed into the kind's model (stored as JSON; the worker validates the row once more, as it may
+    outlive this version). ``stored`` (input name -> key) names inputs already in the blob store (a
+    recording's archive), which the job reads in place instead of a copy.
     """
-    params = validate_params(kind, params)
+    if not isinstance(params, kind.params):
+        raise TypeError(f"{kind.name} takes {kind.params.__name__}, not {type(params).__name__}")
     job_id = str(uuid.uuid4())
     prefix = inputs_prefix(job_id)
     inputs: dict[str, str] = dict(stored or {})
@@ -124,7 +119,7 @@ async def create_job(svc: Services, kind: str, params: dict[str, Any], uploads: 
             inputs[up.name] = key
             meta[up.name] = {**up.meta, "size": size}
         job = await asyncio.to_thread(
-            svc.jobs.create, kind, params, inputs, meta, svc.dispatcher.owner,
+            svc.jobs.create, kind.name, params.model_dump(mode="json"), inputs, meta, svc.dispatcher.owner,
             svc.settings.job_lease_seconds, job_id,
         )
     except BaseException:

@@ -1,8 +1,14 @@
-"""The job kinds the workers run: kind name -> entry point and parameter model.
+"""The job kinds the workers run.
 
-The web layer validates a job's parameters with the kind's pydantic model before it commits
-the row, and the worker runtime validates them again before running (a row may come from an
-older version). Entries are imported lazily so that a worker only loads the engine it runs.
+Every engine exposes the same small surface in ``workers/<engine>/job.py``: its entry functions
+``run_*(ctx)``, their pydantic parameter models, and one :class:`JobKind` constant per kind named
+``<engine>.<verb>`` (e.g. ``depth.video``), listed in that module's ``JOBS``. A route passes the
+constant to ``app.services.create_job``, so a reader goes from a route to its engine function in one
+step; a worker finds a stored row's kind by its engine's name, importing only that engine.
+
+Parameters are validated once at each end: the route parses the request into the kind's model, and
+the worker runtime validates the stored row (it may come from an older version) and hands the model
+to the job as ``ctx.params``.
 """
 from __future__ import annotations
 
@@ -12,53 +18,35 @@ from typing import Any, Callable
 
 from pydantic import BaseModel
 
+ENGINES = ("orientation", "depth", "streaming", "faces", "drone")
+"""The engines with job kinds: ``workers/<engine>/job.py`` defines ``JOBS``."""
+
 
 @dataclass(frozen=True)
 class JobKind:
     name: str
-    entry: str
-    """``module:function`` taking a JobContext and returning a JSON-able summary."""
-    params: str
-    """``module:Class``, the pydantic model of the parameters."""
+    """``<engine>.<verb>``: the engine's folder name, then what the job does."""
+    entry: Callable[[Any], dict]
+    """Takes a JobContext whose ``params`` is an instance of ``params``; returns a JSON-able summary."""
+    params: type[BaseModel]
     num_cpus: float = 1.0
 
-    def load_entry(self) -> Callable[[Any], dict]:
-        return _load(self.entry)
-
-    def load_params(self) -> type[BaseModel]:
-        return _load(self.params)
-
-    def validate(self, params: dict[str, Any]) -> dict[str, Any]:
-        """The parameters with defaults filled in; raises pydantic.ValidationError."""
-        return self.load_params().model_validate(params).model_dump(mode="json")
-
-
-def _load(path: str) -> Any:
-    module, _, attr = path.partition(":")
-    return getattr(importlib.import_module(module), attr)
-
-
-JOB_KINDS: dict[str, JobKind] = {
-    kind.name: kind
-    for kind in [
-        JobKind(
-            "orientation.batch",
-            "workers.orientation.job:run_orientation_batch",
-            "workers.orientation.job:OrientationBatchParams",
-        ),
-        JobKind("depth.video", "workers.depth.job:run_depth_video", "workers.depth.params:DepthVideoParams"),
-        JobKind("streaming.recording", "workers.streaming.job:run_recording_import",
-                "workers.streaming.params:RecordingImportParams"),
-        JobKind("streaming.render", "workers.streaming.job:run_batch_render", "workers.streaming.params:BatchRenderParams"),
-        JobKind("streaming.demo", "workers.streaming.job:run_demo_recording", "workers.streaming.params:DemoParams"),
-        JobKind("faces.train", "workers.faces.job:run_face_training", "workers.faces.job:FaceTrainParams"),
-        JobKind("drone.reconstruct", "workers.drone.job:run_reconstruction", "workers.drone.params:ReconstructionParams"),
-    ]
-}
+    def validate(self, params: dict[str, Any] | BaseModel) -> BaseModel:
+        """``params`` as the kind's model (an instance of it is returned as is); raises pydantic.ValidationError."""
+        return self.params.model_validate(params)
 
 
 def get_kind(name: str) -> JobKind:
-    try:
-        return JOB_KINDS[name]
-    except KeyError:
-        raise KeyError(f"unknown job kind {name!r}; known: {', '.join(sorted(JOB_KINDS))}") from None
+    """The kind called ``name`` (its engine's job module is imported on first use); KeyError naming the known
+    engines otherwise."""
+    engine = name.partition(".")[0]
+    if engine in ENGINES:
+        for kind in importlib.import_module(f"workers.{engine}.job").JOBS:
+            if kind.name == name:
+                return kind
+    raise KeyError(f"unknown job kind {name!r}; the engines with jobs: {', '.join(ENGINES)}")
+
+
+def all_kinds() -> list[JobKind]:
+    """Every job kind of every engine (imports them all)."""
+    return [kind for engine in ENGINES for kind in importlib.import_module(f"workers.{engine}.job").JOBS]

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from workers.common.jobctx import JobInputError
 from workers.common.validation import describe_errors
@@ -60,10 +60,11 @@ def inputs_prefix(job_id: str) -> str:
 class StoreJobContext:
     """A :class:`workers.common.jobctx.JobContext` over a blob store and a staging folder."""
 
-    def __init__(self, spec: JobSpec, store: BlobStore, staging: Path, emit: Callable[[dict], None]):
+    def __init__(self, spec: JobSpec, params: BaseModel, store: BlobStore, staging: Path,
+                 emit: Callable[[dict], None]):
         self.job_id = spec.job_id
         self.kind = spec.kind
-        self.params = spec.params
+        self.params = params  # the kind's model, validated once here
         self.inputs = dict(spec.inputs)
         self.input_meta = dict(spec.input_meta)
         self._store = store
@@ -141,11 +142,9 @@ def execute_job(spec: JobSpec) -> Iterator[dict[str, Any]]:
     def work() -> None:
         try:
             kind = get_kind(spec.kind)
-            params = kind.load_params().model_validate(spec.params).model_dump(mode="json")
-            spec_ok = JobSpec(**{**spec.__dict__, "params": params})
             store = open_store(spec.store_url)
-            ctx = StoreJobContext(spec_ok, store, staging, events.put)
-            summary = kind.load_entry()(ctx) or {}
+            ctx = StoreJobContext(spec, kind.validate(spec.params), store, staging, events.put)
+            summary = kind.entry(ctx) or {}
             manifest = _manifest(staging, summary)
             _publish(store, spec.job_id, staging)
             outcome["event"] = {"type": "succeeded", "manifest": manifest}

@@ -17,7 +17,7 @@ from app.uploads import check_size, read_upload
 from workers.common.images import ImageInputError, decode_image
 from workers.depth.errors import DepthInputError
 from workers.depth.io import YuvFormat, yuv_frame_count
-from workers.depth.job import check_video_input
+from workers.depth.job import VIDEO_JOB, check_video_input
 from workers.depth.params import DepthFilterParams, DepthVideoParams, SynthesizeParams
 from workers.depth.service import filter_depth_bytes, synthesize_bytes
 from workers.depth.upsample import target_size
@@ -120,7 +120,7 @@ async def filter_video(
         await run_compute(svc, _check_video, depth, p, svc)
     else:
         _check_yuv(depth, p, svc.settings.max_video_frames)
-    return job_accepted(await create_job(svc, "depth.video", p.model_dump(mode="json"), uploads))
+    return job_accepted(await create_job(svc, VIDEO_JOB, p, uploads))
 
 
 def _check_yuv(depth: UploadFile, p: DepthVideoParams, max_frames: int) -> None:

@@ -21,7 +21,7 @@ from app.uploads import read_upload
 from workers.common.safezip import SafeZip, ZipInputError, ZipLimits
 from workers.faces.errors import FaceInputError
 from workers.faces.model import FaceModel
-from workers.faces.job import (MODEL_RESULT, FaceTrainParams, FaceTransformParams, ensure_default_model,
+from workers.faces.job import (MODEL_RESULT, TRAIN_JOB, FaceTrainParams, FaceTransformParams, ensure_default_model,
                                load_model, transform_mesh_bytes)
 from workers.runtime import results_prefix
 from workers.storage import BlobNotFound
@@ -29,7 +29,6 @@ from workers.storage import BlobNotFound
 router = APIRouter(prefix="/v1/face-models", tags=["faces"], dependencies=[Depends(require_key)])
 
 DEFAULT_ID = "default"
-KIND = "faces.train"
 _default_lock = threading.Lock()
 
 
@@ -63,7 +62,7 @@ async def _model(model_id: str, svc: Services) -> FaceModel:
     if model_id == DEFAULT_ID:
         return await run_compute(svc, lambda: _default_model(svc))  # trains on first use: CPU work
     job = await asyncio.to_thread(svc.jobs.get, model_id)
-    if job is None or job.kind != KIND:
+    if job is None or job.kind != TRAIN_JOB.name:
         raise ApiError(404, f"no face model {model_id!r}: use 'default' or the id of a faces training job",
                        "model_not_found")
     if job.state != JobState.succeeded.value:
@@ -91,7 +90,7 @@ async def train_model(
     if dataset is not None:
         await asyncio.to_thread(_check_dataset_zip, dataset, svc.settings.zip_limits)
     uploads = [Upload("dataset", dataset.file, {"filename": dataset.filename})] if dataset is not None else []
-    return job_accepted(await create_job(svc, KIND, p.model_dump(mode="json"), uploads))
+    return job_accepted(await create_job(svc, TRAIN_JOB, p, uploads))
 
 
 def _check_dataset_zip(dataset: UploadFile, limits: ZipLimits) -> None:
@@ -108,7 +107,7 @@ def _check_dataset_zip(dataset: UploadFile, limits: ZipLimits) -> None:
 
 @router.get("", response_model=FaceModelList, summary="The face models: the default and every trained one")
 async def list_models(svc: Services = Depends(services)) -> FaceModelList:
-    jobs = await asyncio.to_thread(svc.jobs.list, JobState.succeeded.value, KIND, 500, 0)
+    jobs = await asyncio.to_thread(svc.jobs.list, JobState.succeeded.value, TRAIN_JOB.name, 500, 0)
     models = [FaceModelOut(id=DEFAULT_ID, created_at=None,
                            summary={"source": "synthetic", "trained": _default_path(svc).exists()})]
     models += [FaceModelOut(id=j.id, created_at=as_utc(j.finished_at), summary=(j.result or {}).get("summary", {}))

@@ -12,7 +12,7 @@ from pydantic import BaseModel, Field
 from app.auth import require_key, websocket_key_ok
 from app.errors import ApiError
 from app.jobstore import JobState, job_public
-from app.routers.rig_support import rig_of_recording_job
+from app.rig_access import rig_of_recording_job
 from app.services import Services, delete_job_and_files, services
 from workers.runtime import results_prefix
 from workers.storage import BlobNotFound

@@ -15,6 +15,7 @@ from app.settings import Settings
 from app.uploads import check_size, read_upload
 from workers.orientation import errors
 from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
+from workers.orientation.job import BATCH_JOB, OrientationBatchParams
 from workers.orientation.service import DetectorConfig, OrientationReport, analyze, get_detector, orient_file
 
 _MEDIA = {"jpeg": "image/jpeg", "webp": "image/webp", "tiff": "image/tiff", "png": "image/png"}
@@ -151,4 +152,4 @@ async def create_batch(files: list[UploadFile] = File(..., description="the phot
         Upload(f"photo-{i:04d}", f.file, {"filename": f.filename or f"photo-{i:04d}", "content_type": f.content_type})
         for i, f in enumerate(files)
     ]
-    return job_accepted(await create_job(svc, "orientation.batch", {"force": force, "sidecar": sidecar}, uploads))
+    return job_accepted(await create_job(svc, BATCH_JOB, OrientationBatchParams(force=force, sidecar=sidecar), uploads))

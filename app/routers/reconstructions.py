@@ -9,6 +9,7 @@ from app.errors import ApiError
 from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, parse_params, services
 from app.uploads import check_size
+from workers.drone.job import RECONSTRUCT_JOB
 from workers.drone.params import ReconstructionParams
 
 router = APIRouter(prefix="/v1/reconstructions", tags=["reconstructions"], dependencies=[Depends(require_key)])
@@ -39,4 +40,4 @@ async def create_reconstruction(
     if calibration is not None:
         check_size(calibration, svc.settings.max_upload_bytes)
         uploads.append(Upload("calibration", calibration.file, {"filename": calibration.filename}))
-    return job_accepted(await create_job(svc, "drone.reconstruct", p.model_dump(mode="json"), uploads))
+    return job_accepted(await create_job(svc, RECONSTRUCT_JOB, p, uploads))

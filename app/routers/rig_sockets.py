@@ -44,7 +44,7 @@ from starlette.websockets import WebSocketDisconnect
 
 from app.auth import websocket_key_ok
 from app.errors import ApiError
-from app.routers.rig_support import Source, resolve_source, session_config, view_limits
+from app.rig_access import Source, resolve_source, session_config, view_limits
 from app.services import Services
 from workers.common.validation import describe_errors
 from workers.streaming.actor import LIVE, SessionClient, SessionInterrupted
@@ -163,7 +163,7 @@ async def _serve(websocket: WebSocket, channel: Channel, client: SessionClient, 
         while True:
             await asyncio.sleep(interval)
             try:
-                await client.call("touch", viewer)
+                await client.touch(viewer)
             except ray.exceptions.RayError as exc:
                 log.warning("session heartbeat failed: %s", exc)
 
@@ -193,7 +193,7 @@ async def _serve(websocket: WebSocket, channel: Channel, client: SessionClient, 
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
         if viewer is not None:
-            await client.notify("leave", viewer)
+            await client.leave(viewer)
 
 
 # --- viewers --------------------------------------------------------------------------------------
@@ -225,7 +225,7 @@ async def view_socket(websocket: WebSocket, rig_id: str, source: str | None = No
 
     async def render() -> None:
         try:
-            info = await client.call("info")
+            info = await client.info()
         except ray.exceptions.RayError as exc:
             await channel.error("session_failed", f"the session could not start: {_cause(exc)}")
             await channel.close(INTERNAL_ERROR, "the session could not start")
@@ -235,7 +235,7 @@ async def view_socket(websocket: WebSocket, rig_id: str, source: str | None = No
             vp: Viewpoint = await mailbox.take()
             t0 = time.perf_counter()
             try:
-                reply = await client.call("render", viewer, vp.model_dump(mode="json"), resend=False)
+                reply = await client.render(viewer, vp.model_dump(mode="json"))
             except SessionInterrupted as exc:
                 await channel.error("session_restarting", str(exc), id=vp.id)
                 continue
@@ -314,7 +314,7 @@ async def live_socket(websocket: WebSocket, rig_id: str) -> None:
         while True:
             frame_set = await mailbox.take()
             try:
-                reply = await client.call("push", frame_set.jpegs, frame_set.background, resend=False)
+                reply = await client.push(frame_set.jpegs, frame_set.background)
             except SessionInterrupted as exc:
                 await channel.error("session_restarting", str(exc), seq=frame_set.seq)
                 continue

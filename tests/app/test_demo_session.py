@@ -15,14 +15,21 @@ class FakeClient:
     def __init__(self, config, resources):
         self.config = config
 
-    async def call(self, method, *args, resend=True):
-        FakeClient.calls.append((method, args))
-        if method == "touch" and sum(m == "touch" for m, _ in FakeClient.calls) >= 2:
-            raise asyncio.CancelledError  # the service stops
-        return {"ok": True, "header": {"render_ms": 5.0}} if method == "render" else {}
+    async def info(self):
+        FakeClient.calls.append(("info", ()))
+        return {}
 
-    async def notify(self, method, *args, timeout_s=5.0):
-        FakeClient.calls.append((method, args))
+    async def render(self, viewer, viewpoint):
+        FakeClient.calls.append(("render", (viewer, viewpoint)))
+        return {"ok": True, "header": {"render_ms": 5.0}}
+
+    async def leave(self, viewer):
+        FakeClient.calls.append(("leave", (viewer,)))
+
+    async def touch(self, viewer=None):
+        FakeClient.calls.append(("touch", (viewer,)))
+        if sum(m == "touch" for m, _ in FakeClient.calls) >= 2:
+            raise asyncio.CancelledError  # the service stops
 
 
 def test_the_demo_session_is_started_rendered_and_kept_warm(tmp_path, monkeypatch):

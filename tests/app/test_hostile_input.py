@@ -300,9 +300,9 @@ def test_nan_and_infinity_are_refused_in_every_schema(client):
 def test_request_models_refuse_non_finite_floats():
     from workers.depth.params import CameraModel, DepthFilterParams, DepthVideoParams, SynthesizeParams
     from workers.faces.job import FaceTrainParams, FaceTransformParams
-    from workers.registry import JOB_KINDS
+    from workers.registry import all_kinds
 
-    models = {k.load_params() for k in JOB_KINDS.values()} | {DepthFilterParams, SynthesizeParams, CameraModel,
+    models = {k.params for k in all_kinds()} | {DepthFilterParams, SynthesizeParams, CameraModel,
                                                           FaceTransformParams, FaceTrainParams, DepthVideoParams}
     lenient = [m.__name__ for m in models if m.model_config.get("allow_inf_nan", True)]
     assert not lenient

@@ -10,7 +10,7 @@ from workers.camera import Camera, CameraError, quat_to_rotation, rotation_to_qu
 from workers.sweep.renderer import SweepRenderer
 from workers.sweep.rig import Rig, RigError, depth_range_from_box
 from workers.sweep.rig_io import (load_colmap_text, load_images, load_middlebury_par, load_middlebury_rectified,
-                                  load_opencv_yaml, load_rig, rig_to_dict, save_rig_json)
+                                  load_opencv_yaml, load_rig, load_uploaded_rig, rig_to_dict, save_rig_json)
 
 
 def _cam(name, q=(0.9, 0.1, -0.2, 0.3), t=(0.1, -0.2, 2.0), dist=None):
@@ -173,3 +173,28 @@ def test_depth_range_from_box_and_focus_point():
     np.testing.assert_allclose(rig.focus_point(), [0, 0, 0], atol=1e-9)
     q = rotation_to_quat(rig["a"].R)
     assert q[0] >= 0
+
+
+def test_uploaded_calibration_files_are_read_by_the_one_entry_point():
+    c = _cam("x")
+    vals = " ".join(f"{v:.17g}" for v in np.concatenate([c.K.ravel(), c.R.ravel(), c.t]))
+    par = f"2\nv1.png {vals}\nv2.png {vals}\n".encode()
+    rig, fmt = load_uploaded_rig([("take_par.txt", par)], 64, 48, units="cm")
+    assert fmt == "middlebury" and (rig["v1.png"].width, rig["v1.png"].height) == (64, 48)
+    np.testing.assert_allclose(rig["v2.png"].center, c.center * 0.01)  # the rig comes back in metres
+    ours = json.dumps(rig_to_dict(Rig((c, _cam("y", t=(0.5, 0, 2))))))
+    rig, fmt = load_uploaded_rig([("rig.json", ours.encode())])
+    assert fmt == "json" and rig.names == ["x", "y"]
+    for files, size, message in [
+        ([("take_par.txt", par)], (None, None), "give the form fields width and height"),
+        ([("images.txt", b"")], (None, None), "needs both cameras.txt and images.txt"),
+        ([("a.json", b"{}"), ("b.json", b"{}")], (None, None), "only understood as COLMAP text"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            load_uploaded_rig(files, *size)
+
+
+def test_uploaded_calibration_errors_name_the_file_never_the_temporary_folder():
+    with pytest.raises(ValueError) as info:
+        load_uploaded_rig([("mine.json", b"{not json")])
+    assert "mine.json" in str(info.value) and "sweepcast-rig-" not in str(info.value) and "/tmp" not in str(info.value)

@@ -1,7 +1,10 @@
 """The contract between the job system and an engine's job entry point.
 
-An engine's job function has the signature ``run(ctx: JobContext) -> dict``. It reads its
-inputs and parameters from ``ctx``, reports progress with ``ctx.progress``, writes each
+An engine's job function has the signature ``run(ctx: JobContext) -> dict`` and is declared with
+its parameter model as a :class:`workers.registry.JobKind` in ``workers/<engine>/job.py``. It reads
+its inputs and parameters from ``ctx`` (``ctx.params`` is the kind's pydantic model, validated once by
+the runtime; ``Model.model_validate`` returns such an instance as it is, and validates the dicts that
+tests and command-line contexts pass), reports progress with ``ctx.progress``, writes each
 result file with ``ctx.write_result`` (or into ``ctx.result_path``), and returns a small
 JSON-able summary that becomes part of the job's result manifest.
 
@@ -29,7 +32,8 @@ class JobContext(Protocol):
 
     job_id: str
     kind: str
-    params: dict[str, Any]
+    params: Any
+    """The kind's parameter model (an instance of ``JobKind.params``)."""
     inputs: dict[str, str]
     """Input name -> blob key. Names are chosen by the API route (e.g. ``photo-0003``)."""
     input_meta: dict[str, dict[str, Any]]

@@ -21,6 +21,7 @@ from pydantic import ValidationError
 from workers.common import images
 from workers.common.jobctx import JobContext, JobInputError
 from workers.common.validation import describe_errors
+from workers.registry import JobKind
 from workers.settings import worker_settings
 
 from . import io
@@ -138,3 +139,7 @@ def _frame_stats(up: np.ndarray, out: np.ndarray, p: DepthVideoParams) -> dict[s
                             p.larger_is_nearer)
         stats["nearest_m"], stats["farthest_m"] = sorted(round(float(v), 4) for v in z)
     return stats
+
+
+VIDEO_JOB = JobKind("depth.video", run_depth_video, DepthVideoParams)
+JOBS = (VIDEO_JOB,)

@@ -17,6 +17,7 @@ from pydantic import ValidationError
 
 from workers.common.jobctx import JobContext, JobInputError
 from workers.common.validation import describe_errors
+from workers.registry import JobKind
 
 from .calibration import Intrinsics, from_values, parse_calibration
 from .dense import DenseResult, dense_ply_bytes, densify, depth_zip, reference_frames
@@ -137,3 +138,7 @@ def run_reconstruction(ctx: JobContext) -> dict[str, Any]:
     if dense is not None:
         out["dense_points"] = dense.report["points"]
     return out
+
+
+RECONSTRUCT_JOB = JobKind("drone.reconstruct", run_reconstruction, ReconstructionParams)
+JOBS = (RECONSTRUCT_JOB,)

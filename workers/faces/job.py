@@ -26,6 +26,7 @@ from workers.faces.preview import preview_png
 from workers.faces.synthetic import generate_dataset
 from workers.faces.train import TrainSettings, train_face_model
 from workers.faces.transform import MAX_NEIGHBOURS, Q_LIMIT, transform_mesh
+from workers.registry import JobKind
 
 DATASET_INPUT = "dataset"
 MODEL_RESULT = "model.npz"
@@ -174,3 +175,7 @@ def ensure_default_model(path: str | Path, progress: Callable[[float, str], None
     path.parent.mkdir(parents=True, exist_ok=True)
     model.save(path)
     return model
+
+
+TRAIN_JOB = JobKind("faces.train", run_face_training, FaceTrainParams)
+JOBS = (TRAIN_JOB,)

@@ -32,6 +32,7 @@ from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
 from workers.orientation.headers import sniff_format
 from workers.orientation.service import analyze, orient_file
 from workers.orientation.text import text_settings_from_env
+from workers.registry import JobKind
 from workers.settings import worker_settings
 
 YUNET_MODEL_ENV = "SWEEPCAST_ORIENTATION_YUNET_MODEL"
@@ -150,3 +151,7 @@ def _summary(entries: list[dict[str, Any]]) -> dict[str, Any]:
         "errors": sum(e["error"] is not None for e in entries),
         "written": sum(e["fixed_file"] is not None for e in entries),
     }
+
+
+BATCH_JOB = JobKind("orientation.batch", run_orientation_batch, OrientationBatchParams)
+JOBS = (BATCH_JOB,)

@@ -25,7 +25,7 @@ import threading
 import time
 import warnings
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import ray
 import ray.exceptions
@@ -259,9 +259,33 @@ class SessionClient:
         self._handle: Any = None
         self._interrupted = False
 
-    async def call(self, method: str, *args: Any, resend: bool = True) -> Any:
+    # --- the session actor's calls, one method each (see :class:`SessionHost`) ------------------
+    async def info(self) -> dict[str, Any]:
+        return await self._call(lambda actor: actor.info.remote())
+
+    async def render(self, viewer: str, viewpoint: dict[str, Any]) -> dict[str, Any]:
+        """Not sent again when the actor is lost during it (it may be what crashed it)."""
+        return await self._call(lambda actor: actor.render.remote(viewer, viewpoint), resend=False)
+
+    async def push(self, jpegs: list[bytes], background: bool = False) -> dict[str, Any]:
+        """Not sent again when the actor is lost during it (it may be what crashed it)."""
+        return await self._call(lambda actor: actor.push.remote(jpegs, background), resend=False)
+
+    async def touch(self, viewer: str | None = None) -> None:
+        await self._call(lambda actor: actor.touch.remote(viewer))
+
+    async def leave(self, viewer: str, timeout_s: float = 5.0) -> None:
+        """Tell the actor ``viewer`` left, if this client has reached it; never creates one, never raises."""
+        if self._handle is None:
+            return
+        try:
+            await asyncio.wait_for(self._handle.leave.remote(viewer), timeout_s)
+        except (ray.exceptions.RayError, asyncio.TimeoutError):
+            pass
+
+    async def _call(self, invoke: Callable[[Any], Any], resend: bool = True) -> Any:
         if not resend and self._interrupted:
-            await self.call("touch", None)  # harmless to repeat: waits out the restart or makes a new actor
+            await self.touch()  # harmless to repeat: waits out the restart or makes a new actor
             self._interrupted = False
         deadline = time.monotonic() + self.restart_wait_s
         recreated = 0
@@ -269,7 +293,7 @@ class SessionClient:
             if self._handle is None:
                 self._handle = await asyncio.to_thread(get_or_create, self.config, self.resources)
             try:
-                return await getattr(self._handle, method).remote(*args)
+                return await invoke(self._handle)
             except ray.exceptions.ActorUnavailableError as exc:
                 if not resend:
                     raise self._interruption(exc) from exc
@@ -289,15 +313,6 @@ class SessionClient:
         log.warning("session %s lost its process during a call: %s", self.config.name, type(exc).__name__)
         return SessionInterrupted("the session's process was lost while handling this request; it restarts "
                                   "and reloads its frames, and the next request is served then")
-
-    async def notify(self, method: str, *args: Any, timeout_s: float = 5.0) -> None:
-        """Call ``method`` if this client has reached the actor; never creates one, never raises."""
-        if self._handle is None:
-            return
-        try:
-            await asyncio.wait_for(getattr(self._handle, method).remote(*args), timeout_s)
-        except (ray.exceptions.RayError, asyncio.TimeoutError):
-            pass
 
 
 def list_sessions() -> list[dict[str, str]]:

@@ -16,6 +16,7 @@ import numpy as np
 
 from workers.camera import CameraError
 from workers.common.jobctx import JobContext, JobInputError
+from workers.registry import JobKind
 from workers.sweep.rig import Rig, RigError
 from workers.sweep.rig_io import rig_from_dict
 
@@ -102,3 +103,9 @@ def run_demo_recording(ctx: JobContext) -> dict[str, Any]:
     rig = _rig(ctx)
     info = build_demo_recording(rig, ctx.result_path(ARCHIVE_NAME), p.frames, p.fps, ctx.progress)
     return {"frames": info.frames, "fps": info.fps, "cameras": len(rig), "background": info.background}
+
+
+RECORDING_JOB = JobKind("streaming.recording", run_recording_import, RecordingImportParams)
+RENDER_JOB = JobKind("streaming.render", run_batch_render, BatchRenderParams)
+DEMO_JOB = JobKind("streaming.demo", run_demo_recording, DemoParams)
+JOBS = (RECORDING_JOB, RENDER_JOB, DEMO_JOB)

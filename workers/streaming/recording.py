@@ -28,12 +28,12 @@ from typing import BinaryIO, Callable, Iterable, Literal, Sequence
 import numpy as np
 
 from workers.common.images import encode_png
-from workers.common.safezip import SafeZip
+from workers.common.safezip import SafeZip, ZipLimits
 from workers.sweep.rig import Rig
 from workers.sweep.rig_io import IMAGE_EXTENSIONS
 
 from .images import ImageError, decode_image, image_size
-from .video import VideoError, VideoInfo, decode_frames
+from .video import VideoError, VideoInfo, decode_frames, probe_video
 
 ARCHIVE_VERSION = 1
 INFO_MEMBER = "recording.json"
@@ -371,3 +371,44 @@ def _sized(image: np.ndarray, rig: Rig, cam: int, label: str) -> np.ndarray:
         raise RecordingError(f"{label}: a frame is {image.shape[1]}x{image.shape[0]}; "
                              f"camera {c.name} is calibrated at {c.width}x{c.height}")
     return image
+
+
+# --- uploads, checked before a job is made of them --------------------------------------------------
+def check_video_uploads(videos: Sequence[tuple[str, BinaryIO]], cameras: Sequence[int], rig: Rig,
+                        max_frames: int) -> None:
+    """Probe each uploaded (name, file) video and check them against ``rig`` (:func:`check_videos`);
+    RecordingError naming the file. Each file is left at its start."""
+    infos = []
+    for name, file in videos:
+        try:
+            infos.append((name, probe_video(file)))
+        except VideoError as exc:
+            raise RecordingError(f"{name} {exc}") from None
+        finally:
+            file.seek(0)
+    check_videos(infos, cameras, rig, max_frames)
+
+
+def check_archive_upload(archive: BinaryIO, name: str, rig: Rig, max_frames: int, limits: ZipLimits) -> None:
+    """Check an uploaded zip's structure (SafeZip: member count, sizes, ratio, names) and its layout and
+    image sizes against ``rig``; RecordingError. The file is left at its start."""
+    try:
+        with SafeZip(archive, limits, name, RecordingError) as zf:
+            check_image_sizes(zf.zipfile, scan_image_zip(zf.zipfile, rig, max_frames), rig)
+    finally:
+        archive.seek(0)
+
+
+def check_background_uploads(backgrounds: Sequence[tuple[str, BinaryIO]], cameras: Sequence[int], rig: Rig) -> None:
+    """One background image per camera of ``rig`` (``cameras[i]`` for upload ``i``), each of its camera's size
+    (read from the header); RecordingError otherwise. Each file is left at its start."""
+    if sorted(cameras) != list(range(len(rig))):
+        raise RecordingError(f"give one background image per camera ({len(rig)}) or none")
+    for (name, file), c in zip(backgrounds, cameras):
+        size = image_size(file.read(1 << 16))
+        file.seek(0)
+        cam = rig[c]
+        if size != (cam.width, cam.height):
+            found = "not a JPEG or PNG" if size is None else f"{size[0]}x{size[1]}"
+            raise RecordingError(f"background {name} (camera {cam.name}) is {found}; "
+                                 f"the calibration says {cam.width}x{cam.height}")

@@ -30,8 +30,9 @@ from __future__ import annotations
 
 import json
 import re
+import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import cv2
 import numpy as np
@@ -453,6 +454,48 @@ def load_rig(path: str | Path, units: str | float | None = None, camera_type: st
     else:
         rig = load_middlebury_rectified(path)
     return rig.rescaled(scale)
+
+
+def load_uploaded_rig(files: Sequence[tuple[str, bytes]], width: int | None = None, height: int | None = None,
+                      units: str | float | None = None, camera_type: str | None = None) -> tuple[Rig, str]:
+    """The rig (in metres) and its format's name from uploaded calibration files: (file name, bytes) pairs,
+    names already safe (no folders). One file is read as :func:`load_rig` reads it (a Middlebury
+    ``*_par.txt`` needs ``width``/``height``: an upload has no images beside it); several files only as
+    COLMAP text (``cameras.txt`` + ``images.txt``). Errors (RigError, CameraError, ValueError) name the
+    uploaded files, never the temporary folder they were read from.
+    """
+    names = sorted(name for name, _ in files)
+    with tempfile.TemporaryDirectory(prefix="sweepcast-rig-") as tmp:
+        folder = Path(tmp)
+        try:
+            for name, data in files:
+                (folder / name).write_bytes(data)
+            if len(names) > 1:
+                if names != ["cameras.txt", "images.txt"]:
+                    raise ValueError(f"several files are only understood as COLMAP text (cameras.txt + images.txt); "
+                                     f"got {', '.join(names)}")
+                return load_rig(folder, units, camera_type), "colmap"
+            path = folder / names[0]
+            if path.name in ("cameras.txt", "images.txt"):
+                raise ValueError("COLMAP text needs both cameras.txt and images.txt")
+            fmt = rig_format(path)
+            if fmt == "middlebury":
+                if width is None or height is None:
+                    raise ValueError("a Middlebury *_par.txt has no image size: give the form fields width and "
+                                     "height")
+                if camera_type is not None:
+                    raise ValueError("camera_type: only a plain camera list has camera types")
+                return load_middlebury_par(path, width, height).rescaled(metres_per_unit(units, fmt)), fmt
+            return load_rig(path, units, camera_type), fmt
+        except (RigError, CameraError, ValueError) as exc:
+            raise ValueError(_without_folder(str(exc), folder)) from None
+
+
+def _without_folder(message: str, folder: Path) -> str:
+    """``message`` with every path inside ``folder`` shortened to the file's own name."""
+    for form in {str(folder), str(folder.resolve())}:
+        message = message.replace(form + "/", "").replace(form, "the upload")
+    return message
 
 
 def find_image(folder: Path, name: str) -> Path | None:

@@ -1,5 +1,6 @@
-"""What the rig routes and sockets share: loading rigs and recordings (with their import job's
-state), session configuration, jobs whose inputs are stored blobs, and the first-run demo rig."""
+"""What the rig, recording and session routes, the sockets and the demo session share (not a router): rigs
+and recordings read from the blob store with their import job's state, the view limits and session
+configuration, and the first-run demo rig."""
 from __future__ import annotations
 
 import asyncio
@@ -15,6 +16,7 @@ from app.settings import Settings
 from workers.streaming import store as rigstore
 from workers.streaming.actor import LIVE, SessionConfig
 from workers.streaming.demo import DEMO_NAME, demo_rig
+from workers.streaming.job import DEMO_JOB, RECORDING_JOB
 from workers.streaming.params import DemoParams
 from workers.streaming.session import SessionLimits
 from workers.streaming.viewpoint import orbit_frame
@@ -40,7 +42,7 @@ def rig_json_bytes(rig: Rig) -> bytes:
 
 
 # --- recordings -----------------------------------------------------------------------------------
-RECORDING_JOB_KINDS = ("streaming.recording", "streaming.demo")
+RECORDING_JOB_KINDS = (RECORDING_JOB.name, DEMO_JOB.name)
 
 
 def rig_of_recording_job(store: Any, job: Job) -> str | None:
@@ -178,7 +180,7 @@ async def ensure_demo_rig(svc: Services) -> None:
             rig_id = rigstore.new_rig_id()
             await asyncio.to_thread(rigstore.save_rig, svc.store, rig_id, rig,
                                     {"name": DEMO_NAME, "format": "json", "demo": True})
-        job = await create_job(svc, "streaming.demo", DemoParams().model_dump(),
+        job = await create_job(svc, DEMO_JOB, DemoParams(),
                                [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})])
         await asyncio.to_thread(rigstore.save_recording_meta, svc.store, rig_id, job.id,
                                 {"name": "demo recording", "kind": "demo"})

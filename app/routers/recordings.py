@@ -1,0 +1,160 @@
+"""Recordings of a rig (uploaded videos or image folders, imported by a job) and batch renders over them.
+
+A thin adapter: uploads are checked by the recording code (:mod:`workers.streaming.recording`), the
+import and the render are the streaming engine's jobs (:mod:`workers.streaming.job`).
+"""
+from __future__ import annotations
+
+import asyncio
+from typing import Any, Literal
+
+from fastapi import APIRouter, Depends, File, Form, UploadFile
+from fastapi.responses import JSONResponse, Response
+from pydantic import BaseModel, Field
+
+from app.auth import require_key
+from app.errors import ApiError
+from app.rig_access import (delete_recording_data, load_rig, recording_or_404, recording_views, require_ready,
+                            rig_json_bytes, rig_meta_or_404, view_limits)
+from app.routers.jobs import JobOut, job_accepted
+from app.services import Services, Upload, create_job, parse_params, run_compute, services
+from workers.streaming import actor
+from workers.streaming import store as rigstore
+from workers.streaming.job import RECORDING_JOB, RENDER_JOB
+from workers.streaming.params import BatchRenderParams, RecordingImportParams, RecordingRequest
+from workers.streaming.recording import (RecordingError, check_archive_upload, check_background_uploads,
+                                         check_video_uploads, match_cameras)
+from workers.streaming.session import ViewError
+
+router = APIRouter(prefix="/v1/rigs", tags=["rigs"], dependencies=[Depends(require_key)])
+
+
+class Progress(BaseModel):
+    fraction: float
+    stage: str
+
+
+class RecordingOut(BaseModel):
+    id: str
+    rig_id: str
+    name: str | None
+    kind: Literal["upload", "demo"] | None
+    created_at: str | None
+    state: Literal["processing", "ready", "failed", "gone"]
+    progress: Progress
+    job_id: str | None
+    frames: int | None = Field(None, description="frames per camera (when ready)")
+    fps: float | None = None
+    background: Literal["given", "median"] | None = None
+    error: str | None = None
+
+
+class RecordingList(BaseModel):
+    recordings: list[RecordingOut]
+
+
+@router.post("/{rig_id}/recordings", status_code=202, response_model=RecordingOut,
+             summary="Add a recording: one video per camera, or a zip of per-camera image folders",
+             description="Videos are matched to cameras by file name (the camera's name), else by order. "
+                         "A zip holds `<camera name>/<images in name order>` and optionally "
+                         "`backgrounds/<camera name>.png`. Frame counts, sizes and rates are checked against "
+                         "the rig at once (422); a job then decodes and stores the frames (state `processing`, "
+                         "then `ready`). Backgrounds (empty-scene images, one per camera) give the silhouettes; "
+                         "without them each camera's temporal median is used.")
+async def create_recording(
+    rig_id: str,
+    videos: list[UploadFile] | None = File(None, description="one video per camera, synchronised by frame index"),
+    archive: UploadFile | None = File(None, description="a zip of per-camera image folders"),
+    backgrounds: list[UploadFile] | None = File(None, description="optional empty-scene image per camera"),
+    params: str | None = Form(None, description="JSON object of RecordingRequest (name, fps of image folders)"),
+    svc: Services = Depends(services),
+) -> JSONResponse:
+    req = parse_params(RecordingRequest, params)
+    await rig_meta_or_404(svc, rig_id)
+    rig = await load_rig(svc, rig_id)
+    if (videos is None) == (archive is None):
+        raise ApiError(422, "send either 'videos' (one per camera) or 'archive' (a zip of image folders)",
+                       "invalid_request")
+    media = videos or [archive]
+    if len(media) + len(backgrounds or []) > svc.settings.max_batch_files:
+        raise ApiError(422, f"too many files; the limit is {svc.settings.max_batch_files}", "invalid_request")
+    try:
+        if videos is not None:
+            cameras = match_cameras([v.filename or "" for v in videos], rig)
+            await run_compute(svc, check_video_uploads, [(v.filename or "a video", v.file) for v in videos], cameras,
+                              rig, svc.settings.max_recording_frames)
+        else:
+            cameras = []
+            await run_compute(svc, check_archive_upload, archive.file, archive.filename or "the archive", rig,
+                              svc.settings.max_recording_frames, svc.settings.zip_limits)
+        bg_cameras = match_cameras([b.filename or "" for b in backgrounds], rig, "backgrounds") if backgrounds else []
+        if backgrounds:
+            await run_compute(svc, check_background_uploads, [(b.filename or "", b.file) for b in backgrounds],
+                              bg_cameras, rig)
+    except RecordingError as exc:
+        raise ApiError(422, str(exc), "invalid_recording") from None
+    job_params = RecordingImportParams(
+        rig_id=rig_id, source="videos" if videos is not None else "images", cameras=cameras,
+        backgrounds=bg_cameras, fps=req.fps, max_frames=svc.settings.max_recording_frames, name=req.name)
+    uploads = [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})]
+    if videos is not None:
+        uploads += [Upload(f"media-{i:03d}", v.file, {"filename": v.filename}) for i, v in enumerate(videos)]
+    else:
+        uploads.append(Upload("archive", archive.file, {"filename": archive.filename}))
+    uploads += [Upload(f"background-{i:03d}", b.file, {"filename": b.filename}) for i, b in enumerate(backgrounds or [])]
+    job = await create_job(svc, RECORDING_JOB, job_params, uploads)
+    meta = await asyncio.to_thread(rigstore.save_recording_meta, svc.store, rig_id, job.id,
+                                   {"name": req.name or media[0].filename, "kind": "upload"})
+    body = RecordingOut.model_validate(await recording_or_404(svc, rig_id, meta["id"])).model_dump(mode="json")
+    return JSONResponse(body, 202, headers={"Location": f"/v1/rigs/{rig_id}/recordings/{meta['id']}"})
+
+
+@router.get("/{rig_id}/recordings", response_model=RecordingList, summary="The rig's recordings, oldest first")
+async def list_recordings(rig_id: str, svc: Services = Depends(services)) -> dict[str, Any]:
+    await rig_meta_or_404(svc, rig_id)
+    return {"recordings": await recording_views(svc, rig_id)}
+
+
+@router.get("/{rig_id}/recordings/{recording_id}", response_model=RecordingOut,
+            summary="One recording: state (processing, ready, failed), import progress, frames, rate")
+async def get_recording(rig_id: str, recording_id: str, svc: Services = Depends(services)) -> dict[str, Any]:
+    await rig_meta_or_404(svc, rig_id)
+    return await recording_or_404(svc, rig_id, recording_id)
+
+
+@router.delete("/{rig_id}/recordings/{recording_id}", status_code=204, response_class=Response,
+               summary="Delete a recording (its import stops, its session ends)")
+async def delete_recording(rig_id: str, recording_id: str, svc: Services = Depends(services)) -> Response:
+    await rig_meta_or_404(svc, rig_id)
+    recording = await recording_or_404(svc, rig_id, recording_id)
+    await asyncio.to_thread(actor.end_sessions, rig_id, recording_id)
+    await delete_recording_data(svc, rig_id, recording)
+    return Response(status_code=204)
+
+
+# --- batch renders --------------------------------------------------------------------------------
+@router.post("/{rig_id}/renders", status_code=202, response_model=JobOut,
+             summary="Render a camera path over a recording: a job -> H.264 MP4 + zip of depth PNGs",
+             description="The path is an `orbit` (azimuth from/to around the rig) or `keyframes` (orbit, "
+                         "look_at or pose each); output frame k shows recording frame "
+                         "`frame_start + k (frame_end - frame_start) / (frames - 1)`. Results: `video.mp4` and "
+                         "`depth.zip` (16-bit PNGs, depth x 1000 = millimetres for a rig in metres, 0 = no surface, "
+                         "plus `path.json` with every camera). Progress is reported per frame.")
+async def create_render(rig_id: str, params: BatchRenderParams, svc: Services = Depends(services)) -> JSONResponse:
+    await rig_meta_or_404(svc, rig_id)
+    recording = await recording_or_404(svc, rig_id, params.recording_id)
+    require_ready(recording)
+    frames = recording["frames"]
+    end = params.frame_end if params.frame_end is not None else frames - 1
+    if params.frame_start >= frames or end >= frames:
+        raise ApiError(422, f"frames {params.frame_start}..{end} are out of range: recording {recording['id']} has "
+                            f"{frames} frames (0..{frames - 1})", "invalid_parameters")
+    try:
+        view_limits(svc.settings).check(params.width, params.height, params.planes)
+    except ViewError as exc:
+        raise ApiError(422, exc.detail, "invalid_parameters") from None
+    rig = await load_rig(svc, rig_id)
+    job = await create_job(svc, RENDER_JOB, params,
+                           [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})],
+                           {"recording": rigstore.archive_key(recording["id"])})
+    return job_accepted(job)
