@@ -682,7 +682,7 @@ def all_cameras_see(cams, virtual, depths: np.ndarray, best: np.ndarray) -> np.n
 # --- depth choice against a classic stereo pipeline (issue 20) --------------------------------------
 AGGREGATIONS = ("none", "window", "sgm")
 VISIBILITY_AGGREGATIONS = ("window", "sgm")  # also rendered with visibility-aware colouring (RenderOptions.visibility)
-FILL_AGGREGATIONS = ("none", "window", "sgm")  # also rendered with occlusions="fill" (visibility then on by default)
+FILL_AGGREGATIONS = ("window", "sgm")  # also rendered with occlusions="fill" (visibility then on by default)
 VISIBILITY_TOLERANCES = (0.01, 0.03, 0.1, 0.3)  # the relative depth margins of the visibility ablation
 STEREO_CASES = {  # name -> folder, prefix, target, GT disparity files (view -> file, divisor), input sets
     "teddy": ("teddy", "im", 4, {2: "disp2.pgm", 6: "disp6.pgm"}, 4.0, {"two": [2, 6], "all": [0, 1, 2, 3, 5, 6, 7, 8]}),
@@ -865,7 +865,8 @@ def live_aggregation(quick: bool) -> dict:
     gt = render(scene, cam, with_background=False)
     configs = {f"{agg}{'_c2f' if c2f else ''}{'_' + occ if occ == 'fill' else ''}":
                RenderOptions(planes=48, near=NEAR, far=FAR, aggregation=agg, coarse_to_fine=c2f, occlusions=occ)
-               for c2f in (True, False) for agg in AGGREGATIONS for occ in ("keep", "fill")}
+               for c2f in (True, False) for agg in AGGREGATIONS for occ in ("keep", "fill")
+               if occ == "keep" or agg in FILL_AGGREGATIONS}
     reps = 7 if quick else 21
     m = interleaved({k: (lambda o=o: hull.render(cam, o)) for k, o in configs.items()}, {k: reps for k in configs},
                     warm=tuple(configs))
@@ -961,9 +962,9 @@ def stereo_markdown(st: dict) -> str:
             "sweep_sgm_gt_half_vis (two views; a diagnostic): the sgm depth with the GT depth pasted into the "
             "half-occluded pixels (next table), coloured with visibility: what fixing the depth there alone gives. "
             "_fill: RenderOptions(occlusions=\"fill\"): pixels whose plane fewer than two cameras confirm (the "
-            "cross-view check on the aggregated cost volume; the visibility check after the pruned search of none) "
-            "take the farther of the neighbouring confirmed depths along the row, and the colour is visibility-aware "
-            "(workers/sweep/occlusion.py); its ms is the whole render.\n\n"
+            "cross-view check on the aggregated cost volume) take the farther of the neighbouring confirmed depths "
+            "along the row, and the colour is visibility-aware (workers/sweep/occlusion.py); its ms is the whole "
+            "render.\n\n"
             + "\n".join(f"- {line}" for line in stereo_goal_lines(st)) + "\n\n"
             + md_table(["case", "pipeline", "PSNR", "SSIM", "bad-1px %", "ms"], rows)
             + ("\n\n### Two views: pixels both sources see against half-occluded ones\n\n"
@@ -981,9 +982,9 @@ def stereo_markdown(st: dict) -> str:
                if tol_rows else "")
             + "\n\n### Live configuration by aggregation (320x240, 48 planes, 10 cameras, hull)\n\n"
               "Interleaved repeats, medians. _c2f: the aggregation at half resolution, then the pruned search "
-              "within +-2 planes at full resolution. _fill: occlusions=\"fill\" (the cross-view check where the "
-              "plane comes from a full-resolution cost volume, else the visibility check; background fill along "
-              "the rows; visibility-aware colouring on).\n\n"
+              "within +-2 planes at full resolution (with _fill: the aggregated search within those windows). "
+              "_fill: occlusions=\"fill\" (the cross-view check on the cost volume, background fill along the "
+              "rows, visibility-aware colouring on).\n\n"
             + md_table(["config", "fps", "ms", "CPU ms", "depth median err (mm)", "PSNR object", "covered", "load avg"],
                        live_rows)
             + ("\n\n" + "\n".join(f"- {n}" for n in st["notes"]) if st["notes"] else ""))

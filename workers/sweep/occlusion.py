@@ -17,9 +17,6 @@ this module does the same for a virtual view and any number of cameras:
   projects to is p itself (or a virtual pixel within ``tol_px`` of it). Where the foreground spills
   over a half-occluded strip, the cameras' pixels there are won by the background behind (or by the
   foreground's own pixels), so the spilled pixels lose their confirmations.
-- :func:`workers.sweep.visibility.visible_views`, the visibility check: in how many cameras the point is
-  neither outside the image nor hidden by a nearer surface of the view's own depth map. A point seen by
-  fewer than two cameras has a plane chosen on samples of which all but one show something else.
 - :func:`background_fill`: each run of rejected pixels along a line (the image rows, or the columns
   when the cameras are spread vertically, :func:`fill_along_rows`) takes the plane of the farther of the
   two accepted pixels that bound it (the one when the run touches the border or a pixel without depth):

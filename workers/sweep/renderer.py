@@ -27,7 +27,7 @@ from .lanes import lane_cost_volume
 from .occlusion import background_fill, confirmed_views, fill_along_rows
 from .rig import Rig, RigError
 from .silhouette import dilate, silhouette_box, silhouette_from_background
-from .visibility import ZBufferStore, surface_zbuffers, visible_views
+from .visibility import ZBufferStore, surface_zbuffers
 from .weighting import METHOD_CODES, global_camera, neighbour_angle, suggest_d_bnd
 
 MAX_PLANES = 1024
@@ -75,10 +75,11 @@ class RenderOptions(BaseModel):
     occlusions: "keep" the searched depth everywhere, or "fill" the pixels whose plane the cameras do not
     confirm (half-occluded strips next to depth edges and at the frame's edge, mismatches) with the farther
     of the neighbouring confirmed depths along the rows (the columns for a vertically spread rig), as
-    classic stereo does after its left-right check (:mod:`workers.sweep.occlusion`). The check is the
-    cross-view one where the plane was chosen on a cost volume at full resolution (aggregation "window" or
-    "sgm" without coarse_to_fine), else the visibility one. Gains 0.6-1.7 dB on the two-view Middlebury
-    cases and costs a scan of the cost volume per camera.
+    classic stereo does after its left-right check (:mod:`workers.sweep.occlusion`). The check runs on the
+    aggregated cost volume, so "fill" needs aggregation "window" or "sgm"; with coarse_to_fine the fine level
+    then aggregates too (within its narrow plane windows) instead of the pruned search. Measured with two
+    views it gains 1.2-1.7 dB on Middlebury Teddy; with all views it loses (there the default visibility-aware
+    colouring that comes with it does): benchmarks/RESULTS.md, issue 20.
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -116,6 +117,9 @@ class RenderOptions(BaseModel):
                 return self
             raise ValueError(f"aggregation {self.aggregation!r} works on the variance cost; use aggregation 'none' "
                              f"with the {self.consistency} cost")
+        if self.occlusions == "fill" and self.aggregation == "none":
+            raise ValueError("occlusions 'fill' checks the planes on a cost volume: use aggregation 'window' or 'sgm' "
+                             "(the pruned search of aggregation 'none' keeps none)")
         if self.sgm_p1 > self.sgm_p2:
             raise ValueError(f"sgm_p1 ({self.sgm_p1}) must not exceed sgm_p2 ({self.sgm_p2})")
         return self
@@ -265,8 +269,9 @@ class SweepRenderer:
         else:
             lo, hi = self._search_window(Q, B, h, w, s_planes, use_hull)
         # after an aggregated coarse level the fine search stays within a few planes of its choice: there
-        # the pruned winner-take-all search keeps the full resolution's detail at a fraction of the cost
-        fine = opt.model_copy(update={"aggregation": "none"}) if coarse else opt
+        # the pruned winner-take-all search keeps the full resolution's detail at a fraction of the cost; the
+        # occlusion fill's check needs the cost volume, so with it the fine level aggregates within those windows
+        fine = opt.model_copy(update={"aggregation": "none"}) if coarse and opt.occlusions == "keep" else opt
         best, cost, offset, volume = self._choose(Q, B, virtual.center, s_planes, use_hull, fine, lo, hi)
         t2 = time.perf_counter()
         timings["sweep_ms"] = (t2 - t1) * 1e3
@@ -397,25 +402,16 @@ class SweepRenderer:
         return best, cost, offset, volume
 
     def _fill_occlusions(self, virtual: Camera, Q: np.ndarray, B: np.ndarray, s_planes: np.ndarray, best: np.ndarray,
-                         offset: np.ndarray, volume: np.ndarray | None, lo: np.ndarray, hi: np.ndarray,
+                         offset: np.ndarray, volume: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                          opt: RenderOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The depth (best, offset) with the half-occluded and unconfirmed pixels given the farther neighbouring
-        depth along the line (:mod:`workers.sweep.occlusion`), and the mask (h, w) bool of those pixels. Where the
-        planes were chosen on a cost volume at this resolution (``volume`` (h, w, P) float32, plane windows lo..hi),
-        a pixel is kept when at least ``min_views`` cameras' own choices from that volume confirm its plane (the
-        cross-view check); after the pruned search, which keeps no volume, when at least ``min_views`` cameras
-        see its point past the view's own nearer surfaces (the visibility check, ``visibility_tolerance``).
-        Measured on Middlebury Teddy and Art (benchmarks/sweep.py): where both are possible, the cross-view check
-        alone gains more than both together (the visibility check also rejects the many background pixels
-        whose depth is noisy but whose colour is right)."""
-        need = opt.min_views
-        if volume is not None:
-            bad = confirmed_views(Q, B, s_planes, volume, lo, hi, best, self._sizes) < need
-        else:
-            s_pix = pixel_inverse_depth(s_planes, best, offset)
-            with self._zbuffers.taken() as store:
-                zbuf, zbox = surface_zbuffers(Q, B, s_pix, self._sizes, store.shape, out=store)
-                bad = visible_views(Q, B, s_pix, self._sizes, zbuf, zbox, opt.visibility_tolerance) < need
+        """The depth (best, offset) with the pixels whose plane fewer than ``min_views`` cameras' own choices from the
+        cost volume confirm (``volume`` (h, w, P) float32 with plane windows lo..hi; the cross-view check of
+        :mod:`workers.sweep.occlusion`) given the farther neighbouring depth along the line, and the mask (h, w)
+        bool of those pixels. (A visibility check instead, a point seen by fewer than two cameras past the view's
+        own depth, was measured too: on Middlebury Teddy it lost 2.6 dB after the per-pixel search and gained less
+        than the cross-view check after sgm, since it also rejects the many pixels whose depth is noisy but whose
+        colour is right.)"""
+        bad = confirmed_views(Q, B, s_planes, volume, lo, hi, best, self._sizes) < opt.min_views
         bad &= best >= 0
         best, offset = background_fill(best, offset, s_planes, bad, fill_along_rows(virtual, self._centers))
         return best, offset, bad

@@ -35,7 +35,7 @@ from typing import Iterator
 import numpy as np
 from numba import njit, prange
 
-from .kernels import plane_point, unhidden
+from .kernels import plane_point
 from .layout import FAST as _FAST
 from .layout import Z_MIN as _Z_MIN
 
@@ -164,36 +164,6 @@ def surface_zbuffers(Q: np.ndarray, B: np.ndarray, s_pix: np.ndarray, sizes: np.
     zbox = np.empty((n, 4), np.int64)
     splat_depths(Q, B, np.ascontiguousarray(s_pix, np.float64), sizes, out, zbox)
     return out, zbox
-
-
-@njit(cache=True, parallel=True, fastmath=_FAST, error_model="numpy")
-def _count_visible(Q, B, s_pix, sizes, zbuf, zbox, scale, out):  # pragma: no cover - compiled
-    N = Q.shape[0]
-    h, w = s_pix.shape
-    for y in prange(h):
-        for x in range(w):
-            s = s_pix[y, x]
-            n = 0
-            if s > 0:
-                for i in range(N):
-                    hz, u, v = plane_point(Q, B, i, x, y, s)
-                    if hz <= _Z_MIN or not (0.0 <= u <= sizes[i, 0] - 1 and 0.0 <= v <= sizes[i, 1] - 1):
-                        continue
-                    if unhidden(zbuf, zbox, i, u, v, sizes[i, 0], sizes[i, 1], hz / s, scale):
-                        n += 1
-            out[y, x] = min(n, 255)
-
-
-def visible_views(Q: np.ndarray, B: np.ndarray, s_pix: np.ndarray, sizes: np.ndarray, zbuf: np.ndarray,
-                  zbox: np.ndarray, tolerance: float) -> np.ndarray:
-    """(h, w) uint8: how many cameras see each virtual pixel's surface point: in front of the camera, inside
-    its image and not hidden by a nearer surface of the view (the colour kernel's test with the relative
-    depth margin ``tolerance``). Q (N, 3, 3), B (N, 3), s_pix (h, w) float64 (1/m, <= 0: no surface, 0
-    cameras), sizes (N, 2) int64 and the z-buffers zbuf (N, Hm, Wm) float32, zbox (N, 4) int64 of
-    :func:`surface_zbuffers` for the same s_pix."""
-    out = np.empty(s_pix.shape, np.uint8)
-    _count_visible(Q, B, np.ascontiguousarray(s_pix, np.float64), sizes, zbuf, zbox, 1.0 + float(tolerance), out)
-    return out
 
 
 class ZBufferStore:
