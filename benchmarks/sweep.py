@@ -24,9 +24,10 @@ with and without visual hull and coarse-to-fine, with the depth error against th
 each, and the per-frame extras of a stream (set_frames, JPEG encode).
 Depth choice (issue 20): the sweep with each aggregation (none / window / sgm) against OpenCV SGBM +
 DIBR (workers/depth/dibr.py) on Middlebury Teddy and Art, two views and all views, PSNR and bad-1px on
-the same pixels, each also with visibility-aware colouring (RenderOptions.visibility) and split into the pixels
-both source views see and the half-occluded ones, and the live configuration's speed with each aggregation, with
-and without visibility (--stereo-only runs just this).
+the same pixels, each also with visibility-aware colouring (RenderOptions.visibility) and with the occlusion fill
+(RenderOptions.occlusions="fill"), split into the pixels both source views see and the half-occluded ones (out of
+one source's frame, or hidden behind a nearer surface), and the live configuration's speed with each aggregation,
+with and without the fill (--stereo-only runs just this).
 Writes benchmarks/results/sweep.json and the "sweep" section of benchmarks/RESULTS.md.
 """
 from __future__ import annotations

@@ -143,8 +143,8 @@ class RenderResult:
     (h, w) float32 the sub-plane position in planes (-0.5..0.5; the depth is at inverse depth
     s[plane_index] + plane_offset * (s[1] - s[0])); filled (h, w) bool: the pixels whose depth the occlusion
     fill replaced (their cost is NaN; all False unless occlusions is "fill"); occlusions: the option the depth
-    was made with ("keep" or "fill"; re-shading with visibility None follows it); visual_hull: whether the hull culled; d_bnd: the D_bnd
-    used (kojima, kojima_k; None for the other methods); timings: ms per stage.
+    was made with ("keep" or "fill"; re-shading with visibility None follows it); visual_hull: whether the hull
+    culled; d_bnd: the D_bnd used (kojima, kojima_k; None for the other methods); timings: ms per stage.
     """
 
     camera: Camera
@@ -512,10 +512,12 @@ FALLBACK_SPACING_RAD = float(np.radians(10.0))
 
 
 def _for_previous(previous: RenderResult, options: RenderOptions | None, kwargs: dict) -> RenderOptions:
-    """The options of a re-shading of ``previous``: ``options`` updated by ``kwargs``, with the occlusion
-    option the depth was made with (which decides the default visibility)."""
-    base = {} if options is None else options.model_dump()
-    return RenderOptions(**{**base, **kwargs, "occlusions": previous.occlusions})
+    """The options of a re-shading of ``previous``: ``options`` updated by ``kwargs``; a visibility left None
+    follows the occlusion option the depth was made with, as the render's did."""
+    opt = RenderOptions(**kwargs) if options is None else RenderOptions(**{**options.model_dump(), **kwargs})
+    if opt.visibility is None:
+        opt = opt.model_copy(update={"visibility": previous.occlusions == "fill"})
+    return opt
 
 
 def aggregate(ssd: np.ndarray, votes: np.ndarray, opt: RenderOptions) -> np.ndarray:
