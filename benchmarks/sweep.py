@@ -1308,11 +1308,14 @@ def speed_only(quick: bool) -> int:
                "speed": speed(quick)}
     if previous.get("dome"):  # the weighting sections' dome rig, kept with the other quality tables
         results["dome"] = previous["dome"]
+    if previous.get("stereo"):  # the comparison with SGBM + DIBR (--stereo-only), kept
+        results["stereo"] = previous["stereo"]
     load1 = os.getloadavg()[0]
     results["load_average"] = {"start": load0, "end": load1}
     notes = quality_notes() + MIDDLEBURY_NOTES + [
         f"Speed measured in this run; the quality and temporal tables are from the run of {origin['date']} "
-        f"(`{origin['command']}`), kept unchanged.",
+        f"(`{origin['command']}`), and the comparison with SGBM + DIBR from the last --stereo-only run, kept "
+        f"unchanged.",
         load_note(load0, load1)]
     publish("sweep", results, markdown(results, notes))
     return 0
