@@ -69,17 +69,21 @@ class RenderOptions(BaseModel):
     point, and where every camera is hidden all take part. visibility_tolerance: relative depth margin of
     that test (0.03: a point counts as hidden when something is more than 3% nearer along the camera's axis).
     None (the default): on exactly when ``occlusions`` is "fill". With the sweep's own depth unfilled (wrong
-    in the half-occluded strips and at the occluding edges, where the test matters) it loses 0.2-2 dB; after
-    the fill it gains 0.6-1 dB (benchmarks/RESULTS.md, issue 20).
+    in the half-occluded strips and at the occluding edges, where the test matters) it loses 0.2-2 dB
+    (benchmarks/RESULTS.md, issue 20); after the fill, where the strips are background, it colours them from
+    the one camera that sees them.
 
     occlusions: "keep" the searched depth everywhere, or "fill" the pixels whose plane the cameras do not
     confirm (half-occluded strips next to depth edges and at the frame's edge, mismatches) with the farther
     of the neighbouring confirmed depths along the rows (the columns for a vertically spread rig), as
     classic stereo does after its left-right check (:mod:`workers.sweep.occlusion`). The check runs on the
     aggregated cost volume, so "fill" needs aggregation "window" or "sgm"; with coarse_to_fine the fine level
-    then aggregates too (within its narrow plane windows) instead of the pruned search. Measured with two
-    views it gains 1.2-1.7 dB on Middlebury Teddy; with all views it loses (there the default visibility-aware
-    colouring that comes with it does): benchmarks/RESULTS.md, issue 20.
+    then aggregates too (within its narrow plane windows) instead of the pruned search. Measured (fill with
+    its default visibility, against keep; benchmarks/RESULTS.md, issue 20): two views +1.2 (sgm) / +1.7
+    (window) dB on Middlebury Teddy, +0.8 / +1.5 dB on Art; all views +1.0 / +1.6 dB on Art but -2.2 / -1.0 dB
+    on Teddy, where the visibility-aware colouring alone loses 2.2 dB with 8 cameras. It costs a scan of the
+    cost volume per camera (1.75x the CPU time of the live configuration with window aggregation), so the
+    default is "keep".
     """
 
     model_config = ConfigDict(extra="forbid")
