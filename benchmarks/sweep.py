@@ -24,9 +24,10 @@ with and without visual hull and coarse-to-fine, with the depth error against th
 each, and the per-frame extras of a stream (set_frames, JPEG encode).
 Depth choice (issue 20): the sweep with each aggregation (none / window / sgm) against OpenCV SGBM +
 DIBR (workers/depth/dibr.py) on Middlebury Teddy and Art, two views and all views, PSNR and bad-1px on
-the same pixels, each also with visibility-aware colouring (RenderOptions.visibility) and split into the pixels
-both source views see and the half-occluded ones, and the live configuration's speed with each aggregation, with
-and without visibility (--stereo-only runs just this).
+the same pixels, each also with visibility-aware colouring (RenderOptions.visibility) and with the occlusion fill
+(RenderOptions.occlusions="fill"), split into the pixels both source views see and the half-occluded ones (out of
+one source's frame, or hidden behind a nearer surface), and the live configuration's speed with each aggregation,
+with and without the fill (--stereo-only runs just this).
 Writes benchmarks/results/sweep.json and the "sweep" section of benchmarks/RESULTS.md.
 """
 from __future__ import annotations
@@ -683,6 +684,7 @@ def all_cameras_see(cams, virtual, depths: np.ndarray, best: np.ndarray) -> np.n
 # --- depth choice against a classic stereo pipeline (issue 20) --------------------------------------
 AGGREGATIONS = ("none", "window", "sgm")
 VISIBILITY_AGGREGATIONS = ("window", "sgm")  # also rendered with visibility-aware colouring (RenderOptions.visibility)
+FILL_AGGREGATIONS = ("window", "sgm")  # also rendered with occlusions="fill" (visibility then on by default)
 VISIBILITY_TOLERANCES = (0.01, 0.03, 0.1, 0.3)  # the relative depth margins of the visibility ablation
 STEREO_CASES = {  # name -> folder, prefix, target, GT disparity files (view -> file, divisor), input sets
     "teddy": ("teddy", "im", 4, {2: "disp2.pgm", 6: "disp6.pgm"}, 4.0, {"two": [2, 6], "all": [0, 1, 2, 3, 5, 6, 7, 8]}),
@@ -757,11 +759,13 @@ def stereo_case(name: str, planes: int) -> dict:
         inputs, virtual = leave_one_out(files, sources, target, w, h)
         renderer = SweepRenderer(inputs, [images[k] for k in sources])
         renders, ms = {}, {}
-        runs = [(agg, agg, False) for agg in AGGREGATIONS] + [(f"{a}_vis", a, True) for a in VISIBILITY_AGGREGATIONS]
-        for key, agg, vis in runs:
-            renderer.render(virtual, planes=8, near=near, far=far, aggregation=agg, visibility=vis)  # compiled code loaded
+        runs = ([(agg, {"aggregation": agg, "visibility": False}) for agg in AGGREGATIONS]
+                + [(f"{a}_vis", {"aggregation": a, "visibility": True}) for a in VISIBILITY_AGGREGATIONS]
+                + [(f"{a}_fill", {"aggregation": a, "occlusions": "fill"}) for a in FILL_AGGREGATIONS])
+        for key, kw in runs:
+            renderer.render(virtual, planes=8, near=near, far=far, **kw)  # compiled code loaded
             t0 = time.perf_counter()
-            renders[key] = renderer.render(virtual, planes=planes, near=near, far=far, aggregation=agg, visibility=vis)
+            renders[key] = renderer.render(virtual, planes=planes, near=near, far=far, **kw)
             ms[key] = (time.perf_counter() - t0) * 1e3
         t0 = time.perf_counter()
         sgbm_img, sgbm_disp = sgbm_dibr(images, sources, target, hi * REF_SPACINGS)
@@ -812,17 +816,28 @@ def stereo_case(name: str, planes: int) -> dict:
             row["sweep_sgm_gt_half_vis"] = {"psnr_db": psnr(mixed, truth, mask), "ssim": ssim(mixed, truth, mask),
                                             "bad1": float(np.mean(np.abs(mix_disp[scored] - gt_target[scored]) > 1.0)),
                                             "ms": float("nan")}
-            images_by = {f"sweep_{k}": r.image for k, r in renders.items() if k in ("sgm", "sgm_vis")}
+            split_keys = ("window", "window_fill", "sgm", "sgm_vis", "sgm_fill")
+            images_by = {f"sweep_{k}": r.image for k, r in renders.items() if k in split_keys}
             images_by.update({"sgbm_dibr": sgbm_img, "gt_dibr": gt_dibr, "gt_depth_sweep_shading": oracles[""],
                               "gt_depth_sweep_shading_vis": oracles["_vis"], "sweep_sgm_gt_half_vis": mixed})
-            depth_disp = {"sweep_sgm": REF_SPACINGS * w / renders["sgm"].depth, "sgbm_dibr": sgbm_disp}
-            split = {"both_share": float(both.sum() / mask.sum()), "half_share": float(half.sum() / mask.sum())}
+            depth_disp = {f"sweep_{k}": REF_SPACINGS * w / r.depth for k, r in renders.items() if k in split_keys}
+            depth_disp["sgbm_dibr"] = sgbm_disp
+            # the half-occluded pixels split further: out of one source's frame (the view's left and right edges)
+            # or hidden behind a nearer surface
+            x = np.arange(w, dtype=np.float64)[None, :]
+            out_frame = np.zeros((h, w), bool)
+            for k in gt:
+                with np.errstate(invalid="ignore"):
+                    u = x + shifts[k] * np.nan_to_num(gt_target, nan=0.0)  # the source's column of the target pixel
+                out_frame |= (u < 0) | (u > w - 1)
+            parts = {"both": both, "half": half, "frame": half & out_frame, "hidden": half & ~out_frame}
+            split = {f"{p}_share": float(m.sum() / mask.sum()) for p, m in parts.items()}
             for k, img in images_by.items():
-                split[k] = {"psnr_both_db": psnr(img, truth, both), "psnr_half_db": psnr(img, truth, half)}
-                dd = depth_disp.get(k.removesuffix("_vis"))
+                split[k] = {f"psnr_{p}_db": psnr(img, truth, m) for p, m in parts.items()}
+                dd = depth_disp.get(k) if k in depth_disp else depth_disp.get(k.removesuffix("_vis"))
                 if dd is not None:
-                    split[k]["bad1_both"] = float(np.mean(np.abs(dd[both] - gt_target[both]) > 1.0))
-                    split[k]["bad1_half"] = float(np.mean(np.abs(dd[half] - gt_target[half]) > 1.0))
+                    for p, m in parts.items():
+                        split[k][f"bad1_{p}"] = float(np.mean(np.abs(dd[m] - gt_target[m]) > 1.0))
             row["occlusion_split"] = split
         row["scored_pixels"] = float(mask.mean())
         row["inputs"] = [files[k] for k in sources]
@@ -840,8 +855,8 @@ def renderers_d_bnd(renderer: SweepRenderer, virtual, s_pix: np.ndarray) -> floa
 
 def live_aggregation(quick: bool) -> dict:
     """The live configuration (320x240, 48 planes, 10 cameras at 640x480, the procedural scene with silhouettes)
-    with each aggregation, with and without coarse-to-fine, each with and without visibility-aware colouring
-    (suffix _vis), interleaved; fps from the median wall time, CPU ms, the depth error against the analytic truth
+    with each aggregation, with and without coarse-to-fine, each with and without the occlusion fill (suffix _fill:
+    occlusions="fill", which also turns visibility-aware colouring on), interleaved; fps from the median wall time, CPU ms, the depth error against the analytic truth
     and the PSNR inside the object."""
     scene = default_scene()
     cams = default_arc_rig(10, width=640, height=480)
@@ -850,9 +865,10 @@ def live_aggregation(quick: bool) -> dict:
     angles = arc_angles(10, 90.0)
     cam = arc_camera(float((angles[3] + angles[4]) / 2), width=320, height=240, name="live")
     gt = render(scene, cam, with_background=False)
-    configs = {f"{agg}{'_c2f' if c2f else ''}{'_vis' if vis else ''}":
-               RenderOptions(planes=48, near=NEAR, far=FAR, aggregation=agg, coarse_to_fine=c2f, visibility=vis)
-               for c2f in (True, False) for agg in AGGREGATIONS for vis in (False, True)}
+    configs = {f"{agg}{'_c2f' if c2f else ''}{'_' + occ if occ == 'fill' else ''}":
+               RenderOptions(planes=48, near=NEAR, far=FAR, aggregation=agg, coarse_to_fine=c2f, occlusions=occ)
+               for c2f in (True, False) for agg in AGGREGATIONS for occ in ("keep", "fill")
+               if occ == "keep" or agg in FILL_AGGREGATIONS}
     reps = 7 if quick else 21
     m = interleaved({k: (lambda o=o: hull.render(cam, o)) for k, o in configs.items()}, {k: reps for k in configs},
                     warm=tuple(configs))
@@ -881,6 +897,37 @@ def stereo(quick: bool) -> dict:
     return out
 
 
+SPLIT_PARTS = ("both", "half", "frame", "hidden")
+
+
+def stereo_goal_lines(st: dict) -> list[str]:
+    """Issue 20's goals from the measured figures: two views >= SGBM + DIBR's PSNR, all views >= SGBM + DIBR + 1 dB
+    (each for the default aggregation and for the best sweep option), the live configuration >= 30 fps."""
+    lines = []
+    default = RenderOptions().aggregation
+    for case, row in st["cases"].items():
+        sgbm = row["sgbm_dibr"]["psnr_db"]
+        need = sgbm + (1.0 if case.endswith("_all") else 0.0)
+        sweeps = {k: v["psnr_db"] for k, v in row.items() if k.startswith("sweep_") and isinstance(v, dict)
+                  and "psnr_db" in v and "gt_" not in k}
+        best = max(sweeps, key=sweeps.get)
+        lines.append(f"{case}: goal PSNR >= {need:.2f} dB (SGBM + DIBR {sgbm:.2f}"
+                     + (" + 1 dB" if case.endswith("_all") else "") + f"): best sweep {best} {sweeps[best]:.2f} dB "
+                     + ("met" if round(sweeps[best], 2) >= round(need, 2) else "NOT met")
+                     + f" (bad-1px {100 * row[best]['bad1']:.1f} % vs SGBM {100 * row['sgbm_dibr']['bad1']:.1f} %); "
+                     + f"default aggregation ({default}) {sweeps[f'sweep_{default}']:.2f} dB, with the fill "
+                     + f"{sweeps[f'sweep_{default}_fill']:.2f} dB.")
+    live = st.get("live", {})
+    if live:
+        key = default + ("_c2f" if RenderOptions().coarse_to_fine else "")
+        for k in (key, f"{key}_fill"):
+            v = live[k]
+            lines.append(f"Live configuration (320x240, 48 planes, 10 cameras), {k}: {v['fps']:.1f} fps "
+                         f"({v['cpu_ms']:.1f} ms CPU per frame, load average {v['load_average']:.1f}): >= 30 fps "
+                         + ("met" if v["fps"] >= 30 else "NOT met in this run") + ".")
+    return lines
+
+
 def stereo_markdown(st: dict) -> str:
     rows, split_rows, tol_rows = [], [], []
     for case, row in st["cases"].items():
@@ -892,11 +939,11 @@ def stereo_markdown(st: dict) -> str:
         for k, v in (split or {}).items():
             if isinstance(v, dict):
                 pct = lambda key: "" if key not in v else round(100 * v[key], 1)  # noqa: E731
-                split_rows.append([case, k, round(v["psnr_both_db"], 2), round(v["psnr_half_db"], 2), pct("bad1_both"),
-                                   pct("bad1_half")])
+                split_rows.append([case, k] + [round(v[f"psnr_{p}_db"], 2) for p in SPLIT_PARTS]
+                                  + [pct(f"bad1_{p}") for p in SPLIT_PARTS])
         if split:
-            split_rows.append([case, "(share of scored pixels)", round(split["both_share"], 3),
-                               round(split["half_share"], 3), "", ""])
+            split_rows.append([case, "(share of scored pixels)"] + [round(split[f"{p}_share"], 3) for p in SPLIT_PARTS]
+                              + [""] * len(SPLIT_PARTS))
         for tol, v in row.get("tolerance_psnr", {}).items():
             tol_rows.append([case, tol, round(v["sweep_sgm_vis"], 2), round(v["gt_depth_sweep_shading_vis"], 2)])
     live_rows = [[k, round(v["fps"], 1), round(v["ms"], 1), round(v["cpu_ms"], 1), round(v["depth_median_abs_err_mm"], 1),
@@ -915,13 +962,21 @@ def stereo_markdown(st: dict) -> str:
             "part where the view's own surface, z-buffered in that camera, is more than 3% nearer at the point's "
             "colour taps; workers/sweep/visibility.py); its ms is the whole render with visibility. "
             "sweep_sgm_gt_half_vis (two views; a diagnostic): the sgm depth with the GT depth pasted into the "
-            "half-occluded pixels (next table), coloured with visibility: what fixing the depth there alone gives.\n\n"
+            "half-occluded pixels (next table), coloured with visibility: what fixing the depth there alone gives. "
+            "_fill: RenderOptions(occlusions=\"fill\"): pixels whose plane fewer than two cameras confirm (the "
+            "cross-view check on the aggregated cost volume) take the farther of the neighbouring confirmed depths "
+            "along the row, and the colour is visibility-aware (workers/sweep/occlusion.py); its ms is the whole "
+            "render.\n\n"
+            + "\n".join(f"- {line}" for line in stereo_goal_lines(st)) + "\n\n"
             + md_table(["case", "pipeline", "PSNR", "SSIM", "bad-1px %", "ms"], rows)
             + ("\n\n### Two views: pixels both sources see against half-occluded ones\n\n"
                "The two-view rows split by the GT disparities of the two source views (forward-warped to the target): "
-               "'both' where both see the target's surface, 'half' where only one does (disocclusions next to depth "
-               "edges). PSNR and bad-1px within each part.\n\n"
-               + md_table(["case", "pipeline", "PSNR both", "PSNR half", "bad-1px both %", "bad-1px half %"], split_rows)
+               "'both' where both see the target's surface, 'half' where only one does, itself split into 'frame' "
+               "(the point is outside the other source's image: strips at the view's left and right edges) and "
+               "'hidden' (behind a nearer surface in the other source: disocclusions next to depth edges). PSNR and "
+               "bad-1px within each part.\n\n"
+               + md_table(["case", "pipeline"] + [f"PSNR {p}" for p in SPLIT_PARTS]
+                          + [f"bad-1px {p} %" for p in SPLIT_PARTS], split_rows)
                if split_rows else "")
             + ("\n\n### Visibility tolerance (relative depth margin)\n\n"
                "PSNR of the sgm depth and of the GT depth coloured with visibility at each margin (same pixels as "
@@ -929,7 +984,9 @@ def stereo_markdown(st: dict) -> str:
                if tol_rows else "")
             + "\n\n### Live configuration by aggregation (320x240, 48 planes, 10 cameras, hull)\n\n"
               "Interleaved repeats, medians. _c2f: the aggregation at half resolution, then the pruned search "
-              "within +-2 planes at full resolution. _vis: with visibility-aware colouring.\n\n"
+              "within +-2 planes at full resolution (with _fill: the aggregated search within those windows). "
+              "_fill: occlusions=\"fill\" (the cross-view check on the cost volume, background fill along the "
+              "rows, visibility-aware colouring on).\n\n"
             + md_table(["config", "fps", "ms", "CPU ms", "depth median err (mm)", "PSNR object", "covered", "load avg"],
                        live_rows)
             + ("\n\n" + "\n".join(f"- {n}" for n in st["notes"]) if st["notes"] else ""))
@@ -1252,11 +1309,14 @@ def speed_only(quick: bool) -> int:
                "speed": speed(quick)}
     if previous.get("dome"):  # the weighting sections' dome rig, kept with the other quality tables
         results["dome"] = previous["dome"]
+    if previous.get("stereo"):  # the comparison with SGBM + DIBR (--stereo-only), kept
+        results["stereo"] = previous["stereo"]
     load1 = os.getloadavg()[0]
     results["load_average"] = {"start": load0, "end": load1}
     notes = quality_notes() + MIDDLEBURY_NOTES + [
         f"Speed measured in this run; the quality and temporal tables are from the run of {origin['date']} "
-        f"(`{origin['command']}`), kept unchanged.",
+        f"(`{origin['command']}`), and the comparison with SGBM + DIBR from the last --stereo-only run, kept "
+        f"unchanged.",
         load_note(load0, load1)]
     publish("sweep", results, markdown(results, notes))
     return 0

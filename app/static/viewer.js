@@ -166,7 +166,7 @@
       type: "view", id: state.nextId++, width, height, fov: 50,
       orbit: { azimuth: state.azimuth, elevation: state.elevation, distance: state.distance },
       method: $("method").value, d_bnd: dBnd(), planes: Number($("planes").value) || 48,
-      aggregation: $("aggregation").value,
+      aggregation: $("aggregation").value, occlusions: $("occlusions").value,
       frame: state.source === "live" ? "live" : state.frame, overlay: $("overlay").value, quality: 80,
     };
   }
@@ -235,7 +235,7 @@
   canvas.addEventListener("dblclick", () => { goHome(); requestView(); });
 
   // --- controls ---------------------------------------------------------------------------------
-  for (const id of ["method", "overlay", "size", "planes", "aggregation"]) $(id).addEventListener("change", requestView);
+  for (const id of ["method", "overlay", "size", "planes", "aggregation", "occlusions"]) $(id).addEventListener("change", requestView);
   $("size").addEventListener("change", () => { state.sizeChosen = true; });
   $("dbnd").addEventListener("input", () => {
     $("dbnd-auto").checked = false;

@@ -23,6 +23,7 @@ CASES = {
     "none": dict(aggregation="none", visual_hull=False),
     "window": dict(aggregation="window", window=2, visual_hull=False),
     "sgm": dict(aggregation="sgm", sgm_directions=4, visual_hull=False),
+    "window_fill": dict(aggregation="window", window=2, visual_hull=False, occlusions="fill"),
     "window_hull_c2f": dict(aggregation="window", window=1, visual_hull=True, coarse_to_fine=True),
 }
 
@@ -54,7 +55,7 @@ def main() -> None:
         same_found = float(np.mean((rc.plane_index >= 0) == (rg.plane_index >= 0)))
         near = float(np.mean(np.abs(rc.plane_index[both] - rg.plane_index[both]) <= 1)) if both.any() else 1.0
         exact = float(np.mean(rc.plane_index[both] == rg.plane_index[both])) if both.any() else 1.0
-        report["cases"][name] = {"same_found": same_found, "within_one_plane": near, "same_plane": exact,
+        report["cases"][name] = {"same_filled": float(np.mean(rc.filled == rg.filled)), "same_found": same_found, "within_one_plane": near, "same_plane": exact,
                                  "psnr_gpu_vs_cpu": float(psnr(rc.image, rg.image)),
                                  "pixels_with_depth": float(np.mean(rc.plane_index >= 0))}
     Q, B, _ = cpu._geometry(virtual)

@@ -7,8 +7,9 @@ silhouettes, random per-pixel plane windows, random row bands taken in a random 
 array the kernels read or write placed at an address offset from 16, 32 and 64-byte boundaries. Every
 search variant (the 16-lane variance search, the per-pixel variance and truncated searches, each with and
 without the visual hull) must choose a plane of least cost by the numpy definition
-(:mod:`tests.sweep.numpy_search`), the two variance searches must agree exactly, and the unpruned cost
-volume (the input of cost aggregation) must give every plane's cost. Run it in a subprocess: a memory error then ends that
+(:mod:`tests.sweep.numpy_search`), the two variance searches must agree exactly, the unpruned cost
+volume (the input of cost aggregation) must give every plane's cost, and the occlusion fill's cross-view check
+on that volume must count the confirming cameras as its numpy definition does. Run it in a subprocess: a memory error then ends that
 process with a signal, which the caller reports, instead of killing the test runner.
 
     python -m tests.sweep.kernel_stress --reps 50 --threads 2 --seed 1
@@ -26,9 +27,10 @@ import numpy as np
 from workers.camera import Camera
 from workers.sweep import kernels
 from workers.sweep import lanes as lanes_mod
+from workers.sweep.occlusion import confirmed_views
 from workers.sweep.renderer import SweepRenderer
 
-from .numpy_search import best_plane, plane_costs
+from .numpy_search import best_plane, confirmations, plane_costs
 
 # per-pixel float64 sums of the reference and the kernels may round a position differently when it lies
 # within an ulp of a half step; such a pixel may then pick another plane (seen: < 0.1% of pixels)
@@ -157,6 +159,14 @@ def run_case(case: dict, rng: np.random.Generator) -> dict:
             want = np.where(np.isfinite(costs), costs, np.inf)
             off = ~np.isclose(volume, want, rtol=1e-4, atol=1e-3) & ~(np.isinf(volume) & np.isinf(want))
             worst = max(worst, float(off.mean()))
+            # the occlusion fill's cross-view check on that volume (each camera's own winner among the view's
+            # hypotheses), misaligned, against its numpy definition
+            vol = np.ascontiguousarray(volume.transpose(1, 2, 0), np.float32)
+            best_v = best_plane(volume.transpose(0, 1, 2)).astype(np.int32)
+            n = confirmed_views(Q, B, misaligned(case["s_planes"], rng), misaligned(vol, rng), misaligned(case["lo"], rng),
+                                misaligned(case["hi"], rng), misaligned(best_v, rng), misaligned(r._sizes, rng))
+            want_n = confirmations(r.cameras, virtual, case["s_planes"], vol, best_v)
+            worst = max(worst, float((n != want_n).mean()))
     (b1, c1), (b2, c2) = found[(False, True)], found[(False, False)]
     same = bool(np.array_equal(b1, b2) and np.array_equal(c1, c2, equal_nan=True))
     return {"disagreement": worst, "variance_searches_equal": same, "with_depth": float(np.mean(covered))}

@@ -48,3 +48,34 @@ def plane_costs(cameras, images, sils, virtual, s_planes, bits, trunc2=0.0, min_
 def best_plane(costs):
     best = np.argmin(costs, axis=0)  # the first of equal costs: the nearer plane
     return np.where(np.isfinite(costs.min(axis=0)), best, -1)
+
+
+def confirmations(cameras, virtual, s_planes, cost, best, tol_px=1):
+    """The cross-view check (workers.sweep.occlusion) in numpy: per virtual pixel, how many cameras' own choices
+    confirm its plane ``best`` (h, w). cost (h, w, P), inf where not a candidate. Each camera pixel is won by the
+    least-cost hypothesis (y, x, j) whose point it sees nearest (ties to the first in (y, x, j) order); a camera
+    confirms a pixel when the winner of the pixel its point at ``best`` lands on lies within tol_px of it."""
+    h, w, P = cost.shape
+    G = virtual.R.T @ np.linalg.inv(virtual.K)
+    xs, ys = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+    pix = np.stack([xs, ys, np.ones_like(xs)], axis=-1)
+    yi, xi = np.mgrid[:h, :w]
+    out = np.zeros((h, w), int)
+    for cam in cameras:
+        M, p = cam.P[:, :3], cam.P[:, 3]
+        hom = pix[:, :, None, :] @ (M @ G).T + s_planes[None, None, :, None] * (M @ virtual.center + p)  # h w P 3
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u, v = hom[..., 0] / hom[..., 2], hom[..., 1] / hom[..., 2]
+        ok = (hom[..., 2] > 1e-9) & (u >= 0) & (v >= 0) & (u <= cam.width - 1) & (v <= cam.height - 1)
+        key = np.where(ok, np.floor(np.where(ok, v, 0) + 0.5) * cam.width + np.floor(np.where(ok, u, 0) + 0.5), -1)
+        key = key.astype(np.int64).ravel()
+        flat = cost.ravel()
+        idx = np.flatnonzero((key >= 0) & np.isfinite(flat))
+        order = idx[np.lexsort((idx, flat[idx], key[idx]))]
+        first = np.r_[True, key[order][1:] != key[order][:-1]][:len(order)]
+        winner = np.full(cam.width * cam.height, -1, np.int64)
+        winner[key[order][first]] = order[first] // P  # the winning virtual pixel, y * w + x
+        mine = key.reshape(h, w, P)[yi, xi, np.maximum(best, 0)]
+        wp = winner[np.maximum(mine, 0)]
+        out += (best >= 0) & (mine >= 0) & (wp >= 0) & (np.abs(wp // w - yi) <= tol_px) & (np.abs(wp % w - xi) <= tol_px)
+    return out

@@ -90,10 +90,15 @@ class SweepSettings(BaseModel):
                               "'window' on the cameras' variance over a 5x5 px window, 'sgm' the windowed cost "
                               "with semi-global smoothing (best on real scenes, slowest); see "
                               "workers.sweep.costs")
-    visibility: bool = Field(
-        False, description="colour each pixel only from the cameras its surface point is not hidden from by a "
-                           "nearer surface of the view (per-camera z-buffers of the rendered depth); see "
-                           "workers.sweep.visibility")
+    visibility: bool | None = Field(
+        None, description="colour each pixel only from the cameras its surface point is not hidden from by a "
+                          "nearer surface of the view (per-camera z-buffers of the rendered depth); see "
+                          "workers.sweep.visibility. None: on exactly when occlusions is 'fill'")
+    occlusions: Literal["keep", "fill"] = Field(
+        "keep", description="'fill': the pixels whose depth plane the cameras do not confirm (half-occluded strips "
+                            "next to depth edges, mismatches) take the farther neighbouring depth along the "
+                            "scanline, as classic stereo does after its left-right check; 'keep': the searched "
+                            "depth everywhere; see workers.sweep.occlusion")
 
     @model_validator(mode="after")
     def _near_far(self) -> "SweepSettings":
@@ -104,7 +109,7 @@ class SweepSettings(BaseModel):
     def render_fields(self) -> dict:
         """The fields :class:`RenderOptions` takes."""
         return self.model_dump(include={"method", "d_bnd", "k", "planes", "near", "far", "visual_hull", "coarse_to_fine",
-                                             "aggregation", "visibility"})
+                                             "aggregation", "visibility", "occlusions"})
 
 
 class Viewpoint(ViewPose, SweepSettings):

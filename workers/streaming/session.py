@@ -142,7 +142,7 @@ class Session:
             cam = virtual_camera(vp, self.orbit, (vp.width, vp.height))
             options = RenderOptions(**vp.render_fields())
             key = (self.frame_key, cam.K.tobytes(), cam.R.tobytes(), cam.t.tobytes(), vp.planes, vp.near, vp.far,
-                   vp.visual_hull, vp.coarse_to_fine, vp.aggregation)
+                   vp.visual_hull, vp.coarse_to_fine, vp.aggregation, vp.occlusions)
             previous = self._previous.get(viewer)
             reshaded = previous is not None and previous[0] == key
             if reshaded:

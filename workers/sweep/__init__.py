@@ -15,6 +15,8 @@ API (import from the submodules; arrays follow workers.camera conventions, image
   (image, depth, regions, primary, cost, planes, timings); ``RenderOptions`` (pydantic, extra=forbid).
 - ``costs``: cost-volume aggregation shared by plane searches: ``windowed_variance(ssd, votes, radius)``,
   ``robust_cost``, ``semi_global(cost, p1, p2, directions)``, ``winner(cost)`` (best plane + parabola offset).
+- ``occlusion``: the occlusion fill (``RenderOptions.occlusions``): ``confirmed_views`` (cross-view check on the
+  cost volume), ``background_fill`` (farther neighbouring depth along the line), ``fill_along_rows``.
 - ``weighting``: ``kojima_weights``, ``kojima_k_weights`` (k-camera boundary blending), ``ulr_weights``,
   ``global_camera``, ``suggest_d_bnd``, ``METHODS``.
 - ``silhouette``: ``silhouette_from_background(image, background)``.

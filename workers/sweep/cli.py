@@ -61,10 +61,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--visibility", action=argparse.BooleanOptionalAction,
                    default=RenderOptions.model_fields["visibility"].default,
                    help="colour each pixel only from the cameras its surface point is not hidden from by a nearer "
-                        "surface of the view (per-camera z-buffers of the rendered depth)")
+                        "surface of the view (per-camera z-buffers of the rendered depth; default: on with "
+                        "--occlusions fill)")
     p.add_argument("--visibility-tolerance", type=float,
                    default=RenderOptions.model_fields["visibility_tolerance"].default,
                    help="relative depth margin of the visibility test (0.03: hidden when something is 3%% nearer)")
+    p.add_argument("--occlusions", default=RenderOptions.model_fields["occlusions"].default, choices=["keep", "fill"],
+                   help="fill the pixels whose depth the cameras do not confirm (half-occluded strips next to depth "
+                        "edges) with the farther neighbouring depth along the scanline (fill), or keep the searched "
+                        "depth (keep)")
     p.set_defaults(func=run_render)
 
 
@@ -84,7 +89,7 @@ def run_render(args: argparse.Namespace) -> int:
             consistency="truncated" if args.truncated is not None else "variance",
             truncation=args.truncated if args.truncated is not None else 30.0,
             aggregation="none" if args.truncated is not None else args.aggregation, window=args.window,
-            visibility=args.visibility, visibility_tolerance=args.visibility_tolerance,
+            visibility=args.visibility, visibility_tolerance=args.visibility_tolerance, occlusions=args.occlusions,
         )
         result = renderer.render(virtual, options)
     except (RigError, CameraError, ValidationError, ValueError) as e:

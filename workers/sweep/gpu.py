@@ -204,12 +204,14 @@ class GpuSweep:
 
     def choose(self, Q: np.ndarray, B: np.ndarray, s_planes: np.ndarray, use_hull: bool, min_views: int,
                bits: int, lo: np.ndarray, hi: np.ndarray, aggregation: str, window: int, subplane: bool,
-               cost_cap: float = 40.0, sgm_p1: float = 2.0, sgm_p2: float = 32.0,
-               sgm_directions: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Best plane (h, w) int32 (-1 none), its cost (h, w) float32 and the sub-plane offset (h, w)
-        float32 (planes), as :meth:`workers.sweep.renderer.SweepRenderer._choose` defines them for
-        ``aggregation`` "none" (the per-pixel variance, no offset), "window" (the windowed variance over
-        (2 window + 1)^2 px) or "sgm" (then semi-global aggregation on the CPU)."""
+               cost_cap: float = 40.0, sgm_p1: float = 2.0, sgm_p2: float = 32.0, sgm_directions: int = 8,
+               want_volume: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """Best plane (h, w) int32 (-1 none), its cost (h, w) float32, the sub-plane offset (h, w) float32
+        (planes) and the cost volume it was chosen on, as :meth:`workers.sweep.renderer.SweepRenderer._choose`
+        defines them for ``aggregation`` "none" (the per-pixel variance, no offset, no volume), "window" (the
+        windowed variance over (2 window + 1)^2 px) or "sgm" (then semi-global aggregation on the CPU). The
+        volume (h, w, P) float32 comes back to the host only when ``want_volume`` (the occlusion fill reads
+        it) or when SGM made it there; else None."""
         ssd, votes, tmp_s, tmp_v, var = self._sums(Q, B, s_planes, use_hull, min_views, bits, lo, hi)
         P, h, w = var.shape
         grid, block = _grid3(h, w, P)
@@ -218,16 +220,20 @@ class GpuSweep:
         _windowed_variance[grid, block](tmp_s, tmp_v, votes, radius, var)
         if aggregation == "sgm":
             host = np.ascontiguousarray(var.copy_to_host().transpose(1, 2, 0))
-            best, value, offset = cpu_winner(semi_global(robust_cost(host, cost_cap), sgm_p1, sgm_p2, sgm_directions))
+            volume = semi_global(robust_cost(host, cost_cap), sgm_p1, sgm_p2, sgm_directions)
+            best, value, offset = cpu_winner(volume)
             if not subplane:
                 offset[:] = 0.0
-            return best, value, offset
+            return best, value, offset, volume
         best = cuda.device_array((h, w), np.int32)
         value = cuda.device_array((h, w), np.float32)
         offset = cuda.device_array((h, w), np.float32)
         grid2 = (-(-w // BLOCK[0]), -(-h // BLOCK[1]))
         _winner_kernel[grid2, BLOCK[:2]](var, subplane and aggregation != "none", best, value, offset)
-        return best.copy_to_host(), value.copy_to_host(), offset.copy_to_host()
+        volume = None
+        if want_volume and aggregation != "none":
+            volume = np.ascontiguousarray(var.copy_to_host().transpose(1, 2, 0))
+        return best.copy_to_host(), value.copy_to_host(), offset.copy_to_host(), volume
 
     def _sums(self, Q, B, s_planes, use_hull, min_views, bits, lo, hi):
         h, w = lo.shape

@@ -97,6 +97,23 @@ def plane_point(Q, B, i, x, y, s):  # pragma: no cover - compiled
     return hz, u, v
 
 
+@njit(cache=True, inline="always", fastmath=_FAST, error_model="numpy")
+def unhidden(zbuf, zbox, i, u, v, W, H, depth, scale):  # pragma: no cover - compiled
+    """Whether camera ``i`` sees the point at its pixel (u, v) (inside its W x H image) and ``depth`` (m along its
+    axis) past the z-buffered surface of :mod:`workers.sweep.visibility` (zbuf (N, Hm, Wm) float32, zbox (N, 4)
+    int64): depth <= scale x the smallest buffered depth over the four pixels its colour is sampled from
+    (nothing buffered outside the camera's box)."""
+    xa = np.int64(u)
+    ya = np.int64(v)
+    xb = xa + 1 if u < W - 1 else xa
+    yb = ya + 1 if v < H - 1 else ya
+    zmin = np.inf
+    if (zbox[i, 0] <= xa and xb <= zbox[i, 1] and zbox[i, 2] <= ya and yb <= zbox[i, 3]
+            and yb < zbuf.shape[1] and xb < zbuf.shape[2]):
+        zmin = min(min(zbuf[i, ya, xa], zbuf[i, ya, xb]), min(zbuf[i, yb, xa], zbuf[i, yb, xb]))
+    return depth <= zmin * scale
+
+
 @njit(cache=True, inline="always")
 def _bilinear(p00, p01, p10, p11, fx, fy, ub):  # pragma: no cover - compiled
     """Bilinear blend of four packed pixels with fixed-point weights fx, fy in [0, 2**ub): the three
@@ -334,8 +351,6 @@ def shade(Q, B, s_pix, imgs, sizes, sils, use_hull, centers, vcenter, G, method,
     n_rank = 2 if method == KOJIMA else (min(k + 1, N) if method == ULR else 1)
     use_vis = zbuf.shape[0] > 0 and zbuf.shape[0] >= N and zbox.shape[0] >= N and zbox.shape[1] >= 4
     vis_scale = 1.0 + vis_tol
-    zh = zbuf.shape[1]
-    zw = zbuf.shape[2]
     for y in prange(h):
         seen = np.empty(N, np.bool_)  # visibility: no nearer surface of the view in front of the point
         cosv = np.empty(N)
@@ -369,17 +384,8 @@ def shade(Q, B, s_pix, imgs, sizes, sils, use_hull, centers, vcenter, G, method,
                     us[m] = u
                     vs[m] = v
                     cam[m] = i
-                    if use_vis:
-                        # the smallest buffered depth over the four colour taps (inside the camera's box)
-                        xa = np.int64(u)
-                        ya = np.int64(v)
-                        xb = xa + 1 if u < sizes[i, 0] - 1 else xa
-                        yb = ya + 1 if v < sizes[i, 1] - 1 else ya
-                        zmin = np.inf
-                        if (zbox[i, 0] <= xa and xb <= zbox[i, 1] and zbox[i, 2] <= ya and yb <= zbox[i, 3]
-                                and yb < zh and xb < zw):
-                            zmin = min(min(zbuf[i, ya, xa], zbuf[i, ya, xb]), min(zbuf[i, yb, xa], zbuf[i, yb, xb]))
-                        seen[m] = hz * z <= zmin * vis_scale  # the point's depth along camera i: hz / s
+                    if use_vis:  # the point's depth along camera i: hz / s
+                        seen[m] = unhidden(zbuf, zbox, i, u, v, sizes[i, 0], sizes[i, 1], hz * z, vis_scale)
                     m += 1
             if use_vis and m > 1:
                 # keep only the cameras nothing of the view hides the point from (in camera order, as if the

@@ -27,6 +27,7 @@ from workers.settings import worker_settings
 
 from . import costs, kernels
 from .lanes import lane_cost_volume
+from .occlusion import background_fill, confirmed_views, fill_along_rows
 from .rig import Rig, RigError
 from .silhouette import dilate, silhouette_box, silhouette_from_background
 from .visibility import ZBufferStore, surface_zbuffers
@@ -72,9 +73,22 @@ class RenderOptions(BaseModel):
     :mod:`workers.sweep.visibility`); a hidden camera is treated as one whose image does not contain the
     point, and where every camera is hidden all take part. visibility_tolerance: relative depth margin of
     that test (0.03: a point counts as hidden when something is more than 3% nearer along the camera's axis).
-    Off by default: it gains 1-6 dB with a true depth, but with the sweep's own depth (wrong in the
-    half-occluded strips and at the occluding edges, where the test matters) it loses 0.2-2 dB
-    (benchmarks/RESULTS.md, issue 20).
+    None (the default): on exactly when ``occlusions`` is "fill". With the sweep's own depth unfilled (wrong
+    in the half-occluded strips and at the occluding edges, where the test matters) it loses 0.2-2 dB
+    (benchmarks/RESULTS.md, issue 20); after the fill, where the strips are background, it colours them from
+    the one camera that sees them.
+
+    occlusions: "keep" the searched depth everywhere, or "fill" the pixels whose plane the cameras do not
+    confirm (half-occluded strips next to depth edges and at the frame's edge, mismatches) with the farther
+    of the neighbouring confirmed depths along the rows (the columns for a vertically spread rig), as
+    classic stereo does after its left-right check (:mod:`workers.sweep.occlusion`). The check runs on the
+    aggregated cost volume, so "fill" needs aggregation "window" or "sgm"; with coarse_to_fine the fine level
+    then aggregates too (within its narrow plane windows) instead of the pruned search. Measured (fill with
+    its default visibility, against keep; benchmarks/RESULTS.md, issue 20): two views +1.2 (sgm) / +1.7
+    (window) dB on Middlebury Teddy, +0.8 / +1.5 dB on Art; all views +1.0 / +1.6 dB on Art but -2.2 / -1.0 dB
+    on Teddy, where the visibility-aware colouring alone loses 2.2 dB with 8 cameras. It costs a scan of the
+    cost volume per camera (1.75x the CPU time of the live configuration with window aggregation), so the
+    default is "keep".
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -100,8 +114,9 @@ class RenderOptions(BaseModel):
     sgm_p2: float = Field(32.0, ge=0.0, le=1000.0)
     sgm_directions: Literal[4, 8] = 8
     subplane: bool = True
-    visibility: bool = False
+    visibility: bool | None = None
     visibility_tolerance: float = Field(0.03, ge=1e-4, le=1.0)
+    occlusions: Literal["keep", "fill"] = "keep"
 
     @model_validator(mode="after")
     def _compatible(self) -> "RenderOptions":
@@ -111,9 +126,17 @@ class RenderOptions(BaseModel):
                 return self
             raise ValueError(f"aggregation {self.aggregation!r} works on the variance cost; use aggregation 'none' "
                              f"with the {self.consistency} cost")
+        if self.occlusions == "fill" and self.aggregation == "none":
+            raise ValueError("occlusions 'fill' checks the planes on a cost volume: use aggregation 'window' or 'sgm' "
+                             "(the pruned search of aggregation 'none' keeps none)")
         if self.sgm_p1 > self.sgm_p2:
             raise ValueError(f"sgm_p1 ({self.sgm_p1}) must not exceed sgm_p2 ({self.sgm_p2})")
         return self
+
+    @property
+    def use_visibility(self) -> bool:
+        """Whether the colour is visibility-aware: ``visibility``, or when it is None, whether ``occlusions`` fills."""
+        return self.visibility if self.visibility is not None else self.occlusions == "fill"
 
 
 @dataclass(frozen=True)
@@ -127,8 +150,10 @@ class RenderResult:
     photo-consistency at the chosen plane (the variance without aggregation, else the aggregated cost);
     planes (P,) float64 plane depths; plane_index (h, w) int32 the chosen plane (-1 none); plane_offset
     (h, w) float32 the sub-plane position in planes (-0.5..0.5; the depth is at inverse depth
-    s[plane_index] + plane_offset * (s[1] - s[0])); visual_hull: whether the hull culled; d_bnd: the D_bnd
-    used (kojima, kojima_k; None for the other methods); timings: ms per stage.
+    s[plane_index] + plane_offset * (s[1] - s[0])); filled (h, w) bool: the pixels whose depth the occlusion
+    fill replaced (their cost is NaN; all False unless occlusions is "fill"); occlusions: the option the depth
+    was made with ("keep" or "fill"; re-shading with visibility None follows it); visual_hull: whether the hull
+    culled; d_bnd: the D_bnd used (kojima, kojima_k; None for the other methods); timings: ms per stage.
     """
 
     camera: Camera
@@ -140,6 +165,8 @@ class RenderResult:
     planes: np.ndarray
     plane_index: np.ndarray
     plane_offset: np.ndarray
+    filled: np.ndarray
+    occlusions: str
     visual_hull: bool
     d_bnd: float | None
     timings: dict[str, float] = field(default_factory=dict)
@@ -260,7 +287,7 @@ class SweepRenderer:
             coarse_cam = virtual.scaled(0.5)
             Qc, Bc, _ = self._geometry(coarse_cam)
             window = self._search_window(Qc, Bc, coarse_cam.height, coarse_cam.width, s_planes, use_hull)
-            best_c, _, _ = self._choose(Qc, Bc, virtual.center, s_planes, use_hull, opt, *window)
+            best_c, _, _, _ = self._choose(Qc, Bc, virtual.center, s_planes, use_hull, opt, *window)
             lo = np.empty((h, w), np.int32)
             hi = np.empty((h, w), np.int32)
             kernels.refine_windows(best_c, h, w, 1, opt.refine_margin, opt.planes, lo, hi)
@@ -270,11 +297,18 @@ class SweepRenderer:
         else:
             lo, hi = self._search_window(Q, B, h, w, s_planes, use_hull)
         # after an aggregated coarse level the fine search stays within a few planes of its choice: there
-        # the pruned winner-take-all search keeps the full resolution's detail at a fraction of the cost
-        fine = opt.model_copy(update={"aggregation": "none"}) if coarse else opt
-        best, cost, offset = self._choose(Q, B, virtual.center, s_planes, use_hull, fine, lo, hi)
+        # the pruned winner-take-all search keeps the full resolution's detail at a fraction of the cost; the
+        # occlusion fill's check needs the cost volume, so with it the fine level aggregates within those windows
+        fine = opt.model_copy(update={"aggregation": "none"}) if coarse and opt.occlusions == "keep" else opt
+        best, cost, offset, volume = self._choose(Q, B, virtual.center, s_planes, use_hull, fine, lo, hi)
         t2 = time.perf_counter()
         timings["sweep_ms"] = (t2 - t1) * 1e3
+        filled = np.zeros(best.shape, bool)
+        if opt.occlusions == "fill":
+            best, offset, filled = self._fill_occlusions(virtual, Q, B, s_planes, best, offset, volume, lo, hi, opt)
+            cost = np.where(filled, np.float32(np.nan), cost)
+            t1, t2 = t2, time.perf_counter()
+            timings["occlusions_ms"] = (t2 - t1) * 1e3
         s_pix = pixel_inverse_depth(s_planes, best, offset)
         with np.errstate(divide="ignore"):
             depth = (1.0 / s_pix).astype(np.float32)  # inf where s_pix is 0 (no surface)
@@ -283,14 +317,14 @@ class SweepRenderer:
         t3 = time.perf_counter()
         timings["shade_ms"] = (t3 - t2) * 1e3
         timings["total_ms"] = (t3 - t0) * 1e3
-        return RenderResult(virtual, image, depth, regions, primary, cost, 1.0 / s_planes, best, offset, use_hull,
-                            d_bnd, timings)
+        return RenderResult(virtual, image, depth, regions, primary, cost, 1.0 / s_planes, best, offset, filled,
+                            opt.occlusions, use_hull, d_bnd, timings)
 
     def reshade(self, previous: RenderResult, options: RenderOptions | None = None, **kwargs: object) -> RenderResult:
         """The view of ``previous`` (same camera, same depth) coloured with other weighting options
         (``method``, ``d_bnd``, ``k``, ``fill``, ``visibility``): no new sweep. The frames must be the same."""
         t0 = time.perf_counter()
-        opt = RenderOptions(**kwargs) if options is None else RenderOptions(**{**options.model_dump(), **kwargs})
+        opt = _for_previous(previous, options, kwargs)
         virtual = previous.camera
         Q, B, G = self._geometry(virtual)
         s_planes = 1.0 / previous.planes
@@ -308,7 +342,7 @@ class SweepRenderer:
         colour it: (h, w, N) float32, N the rig's cameras in rig order; a pixel's weights sum to 1
         (all 0 where there is no surface). For diagnostics: where the blended set of cameras changes,
         how far a weight moves from pixel to pixel."""
-        opt = RenderOptions(**kwargs) if options is None else RenderOptions(**{**options.model_dump(), **kwargs})
+        opt = _for_previous(previous, options, kwargs)
         virtual = previous.camera
         Q, B, G = self._geometry(virtual)
         d_bnd = self._d_bnd(virtual, previous.depth, opt)
@@ -366,7 +400,7 @@ class SweepRenderer:
         regions = np.empty((h, w), np.uint8)
         primary = np.empty((h, w), np.int16)
         gcam = global_camera(self._axes, virtual.axis)
-        with self._zbuffers.taken() if opt.visibility else nullcontext() as store:
+        with self._zbuffers.taken() if opt.use_visibility else nullcontext() as store:
             if store is not None:
                 zbuf, zbox = surface_zbuffers(Q, B, s_pix, self._sizes, store.shape, out=store)
             else:
@@ -379,28 +413,47 @@ class SweepRenderer:
         return image, regions, primary
 
     def _choose(self, Q: np.ndarray, B: np.ndarray, center: np.ndarray, s_planes: np.ndarray, use_hull: bool,
-                opt: RenderOptions, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Best plane (h, w) int32 (-1 none), its cost (h, w) float32 and the sub-plane offset (h, w) float32
+                opt: RenderOptions, lo: np.ndarray, hi: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """Best plane (h, w) int32 (-1 none), its cost (h, w) float32, the sub-plane offset (h, w) float32
         (planes) in windows lo..hi, by ``opt.aggregation``: the pruned winner-take-all search, or the
-        aggregated cost volume (:mod:`workers.sweep.costs`); on the GPU when the renderer has one."""
+        aggregated cost volume (:mod:`workers.sweep.costs`); and that volume (h, w, P) float32 (None for the
+        pruned search, which builds none, and on the GPU unless the occlusion fill needs it). On the GPU when the
+        renderer has one."""
         if self._gpu is not None and opt.consistency == "variance":
             try:
                 bits = opt.subpixel_bits if 0 < opt.subpixel_bits <= kernels.MAX_BITS else kernels.MAX_BITS
                 return self._gpu.choose(Q, B, s_planes, use_hull, opt.min_views, bits, lo, hi, opt.aggregation,
                                         opt.window, opt.subplane, opt.cost_cap, opt.sgm_p1, opt.sgm_p2,
-                                        opt.sgm_directions)
+                                        opt.sgm_directions, want_volume=opt.occlusions == "fill")
             except Exception:  # noqa: BLE001 - e.g. a driver without NVVM: the CPU still renders
                 log.exception("the GPU depth search failed; this renderer goes on with the CPU")
                 self._gpu = None
                 self.device = "cpu"
         if opt.aggregation == "none":
             best, cost = self._sweep(Q, B, center, s_planes, use_hull, opt, lo, hi)
-            return best, cost, np.zeros(best.shape, np.float32)
+            return best, cost, np.zeros(best.shape, np.float32), None
         ssd, votes = self._volume(Q, B, center, s_planes, use_hull, opt, lo, hi)
-        best, cost, offset = costs.winner(aggregate(ssd, votes, opt))
+        volume = aggregate(ssd, votes, opt)
+        best, cost, offset = costs.winner(volume)
         if not opt.subplane:
             offset[:] = 0.0
-        return best, cost, offset
+        return best, cost, offset, volume
+
+    def _fill_occlusions(self, virtual: Camera, Q: np.ndarray, B: np.ndarray, s_planes: np.ndarray, best: np.ndarray,
+                         offset: np.ndarray, volume: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                         opt: RenderOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The depth (best, offset) with the pixels whose plane fewer than ``min_views`` cameras' own choices from the
+        cost volume confirm (``volume`` (h, w, P) float32 with plane windows lo..hi; the cross-view check of
+        :mod:`workers.sweep.occlusion`) given the farther neighbouring depth along the line, and the mask (h, w)
+        bool of those pixels. (A visibility check instead, a point seen by fewer than two cameras past the view's
+        own depth, was measured too: on Middlebury Teddy it lost 2.6 dB after the per-pixel search and gained less
+        than the cross-view check after sgm, since it also rejects the many pixels whose depth is noisy but whose
+        colour is right.)"""
+        bad = confirmed_views(Q, B, s_planes, volume, lo, hi, best, self._sizes) < opt.min_views
+        bad &= best >= 0
+        best, offset = background_fill(best, offset, s_planes, bad, fill_along_rows(virtual, self._centers))
+        return best, offset, bad
 
     def _volume(self, Q: np.ndarray, B: np.ndarray, center: np.ndarray, s_planes: np.ndarray, use_hull: bool,
                 opt: RenderOptions, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -513,6 +566,15 @@ def _wants_gpu(device: str | None) -> bool:
 
 FALLBACK_SPACING_RAD = float(np.radians(10.0))
 """Camera spacing assumed by :meth:`SweepRenderer.auto_d_bnd` when every camera stands at one place."""
+
+
+def _for_previous(previous: RenderResult, options: RenderOptions | None, kwargs: dict) -> RenderOptions:
+    """The options of a re-shading of ``previous``: ``options`` updated by ``kwargs``; a visibility left None
+    follows the occlusion option the depth was made with, as the render's did."""
+    opt = RenderOptions(**kwargs) if options is None else RenderOptions(**{**options.model_dump(), **kwargs})
+    if opt.visibility is None:
+        opt = opt.model_copy(update={"visibility": previous.occlusions == "fill"})
+    return opt
 
 
 def aggregate(ssd: np.ndarray, votes: np.ndarray, opt: RenderOptions) -> np.ndarray:
