@@ -33,6 +33,7 @@ def _assert_agrees(report: dict, min_same_plane: float) -> None:
     assert report["ssd_rel_diff_median"] < 0.01
     for name, case in report["cases"].items():
         assert case["same_found"] > 0.97, name
+        assert case["same_filled"] > 0.97, name  # the occlusion fill's cross-view check on the GPU's volume
         assert case["within_one_plane"] > 0.97, name
         assert case["same_plane"] > min_same_plane, name
         assert case["psnr_gpu_vs_cpu"] > 30.0, name
