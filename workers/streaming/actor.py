@@ -33,7 +33,7 @@ from pydantic import ValidationError
 
 from workers.storage import open_store
 
-from .images import decode_image
+from .images import decode_stored
 from .params import Viewpoint
 from .recording import RecordingArchive
 from .session import LiveSession, RecordingSession, Session, SessionLimits, ViewError
@@ -102,7 +102,8 @@ class SessionHost:
         if self.config.source == LIVE:
             session = LiveSession(rig, self.config.limits, self.config.bg_rate)
             seq, jpegs, pngs = load_live(self.store, self.config.rig_id, len(rig))
-            backgrounds = [decode_image(p, (c.width, c.height)) for c, p in zip(rig.cameras, pngs)]
+            # stored at the size the session worked at (at most the camera's); resampled to today's
+            backgrounds = [decode_stored(p, (c.width, c.height)) for c, p in zip(rig.cameras, pngs)]
             session.restore(seq, jpegs, backgrounds)
             return session
         archive = RecordingArchive(self.store.local_path(archive_key(self.config.source)))
@@ -135,23 +136,36 @@ class SessionHost:
         return {"ok": True, "header": header, "jpeg": jpeg}
 
     def push(self, jpegs: list[bytes], background: bool = False) -> dict[str, Any]:
-        """Apply a live frame set (JPEGs in rig order): ``{"ok": True, "seq", ...}`` or an error."""
+        """Apply a live frame set (JPEGs in rig order): ``{"ok": True, "seq", ...}`` or an error.
+        The set is decoded before the render lock is taken (OpenCV releases the GIL), so a decode
+        runs beside a render instead of delaying it."""
         self._touch(None)
-        if not isinstance(self.session, LiveSession):
+        session = self.session
+        if not isinstance(session, LiveSession):
             return {"ok": False, "error": "not_live", "detail": "this session shows a recording"}
-        with self._working():
+        with self._working(locked=False):
+            t0 = time.perf_counter()
             try:
-                ack = self.session.push(jpegs, background)
+                images = session.decode(jpegs)
+            except ViewError as exc:
+                return {"ok": False, "error": exc.code, "detail": exc.detail}
+        t1 = time.perf_counter()
+        with self._working():
+            t2 = time.perf_counter()
+            try:
+                session.apply(images, jpegs, background)
+                ack = session.ack((t1 - t0) * 1e3, (time.perf_counter() - t2) * 1e3, background)
             except ViewError as exc:
                 return {"ok": False, "error": exc.code, "detail": exc.detail}
             except Exception as exc:  # noqa: BLE001 - as in render: this set is lost, not the session
                 log.exception("applying a live frame set failed")
                 self.failures += 1
-                self.session.discard_after_failure(None)
+                session.discard_after_failure(None)
                 return {"ok": False, "error": "frame_set_failed",
                         "detail": f"the frame set could not be applied ({_summary(exc)}); send the next one"}
             if background or time.monotonic() - self._persisted >= self.config.persist_seconds:
                 self._persist_live(with_background=background)
+        ack["lock_wait_ms"] = round((t2 - t1) * 1e3, 2)
         return {"ok": True, **ack}
 
     def _persist_live(self, with_background: bool) -> None:
@@ -187,8 +201,8 @@ class SessionHost:
         if viewer is not None:
             self._viewers[viewer] = self._last
 
-    def _working(self) -> "_Busy":
-        return _Busy(self)
+    def _working(self, locked: bool = True) -> "_Busy":
+        return _Busy(self, locked)
 
     def _watch(self) -> None:
         """End the actor when idle; store a live set that arrived within the persistence interval."""
@@ -212,17 +226,21 @@ def _summary(exc: BaseException) -> str:
 
 
 class _Busy:
-    """Holds the render lock and marks the actor busy (the idle watch never ends a busy actor)."""
+    """Marks the actor busy (the idle watch never ends a busy actor) and holds the render lock
+    (unless ``locked`` is False)."""
 
-    def __init__(self, actor: Any) -> None:
+    def __init__(self, actor: Any, locked: bool = True) -> None:
         self.actor = actor
+        self.locked = locked
 
     def __enter__(self) -> None:
         self.actor._busy += 1
-        self.actor._lock.acquire()
+        if self.locked:
+            self.actor._lock.acquire()
 
     def __exit__(self, *exc: object) -> None:
-        self.actor._lock.release()
+        if self.locked:
+            self.actor._lock.release()
         self.actor._busy -= 1
         self.actor._last = time.monotonic()
 
