@@ -20,6 +20,7 @@ renderer's undistortion at the small size), and keeps a renderer per factor in u
 """
 from __future__ import annotations
 
+import threading
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -103,9 +104,25 @@ class SessionLimits:
     viewers_kept: int = 32
 
 
+@dataclass(frozen=True)
+class Plan:
+    """A view ready to draw (:meth:`Session.prepare`): the viewpoint, its camera and options, the key of
+    what it shows (for re-shading), and the renderer, frame label, live set and factor it was planned on."""
+
+    vp: Viewpoint
+    camera: Camera
+    options: RenderOptions
+    key: tuple
+    frame_label: int | str
+    renderer: SweepRenderer
+    seq: int | None
+    source_factor: int
+
+
 class Session:
-    """Renders views of ``rig`` from the frames loaded by a subclass (not thread-safe: the actor
-    serialises calls)."""
+    """Renders views of ``rig`` from the frames loaded by a subclass. Not thread-safe as a whole:
+    :meth:`prepare` and frame changes run alone, :meth:`draw` on several threads at once (the actor's
+    readers-writer lock)."""
 
     kind = "?"
     seq: int | None = None
@@ -119,6 +136,7 @@ class Session:
         self.frame_key: Any = None
         self.source_factor = 1
         self._previous: OrderedDict[str, tuple[tuple, RenderResult]] = OrderedDict()
+        self._kept_lock = threading.Lock()  # _previous: drawn into from several threads
         self.renders = 0
 
     def check(self, vp: Viewpoint) -> None:
@@ -131,32 +149,47 @@ class Session:
 
     def render(self, viewer: str, vp: Viewpoint) -> tuple[dict[str, Any], bytes]:
         """Render ``vp`` for ``viewer`` (any id; it keys the previous render for re-shading)."""
+        return self.draw(viewer, self.prepare(viewer, vp))
+
+    def prepare(self, viewer: str, vp: Viewpoint) -> "Plan":
+        """First half of :meth:`render`: check ``vp`` and load the frames it asks for into the
+        renderer. Changes the session: callers that render on several threads run it alone."""
         self.check(vp)
         frame_label = self._prepare(viewer, vp)
         try:
             cam = virtual_camera(vp, self.orbit, (vp.width, vp.height))
             options = RenderOptions(**vp.render_fields())
-            key = (self.frame_key, cam.K.tobytes(), cam.R.tobytes(), cam.t.tobytes(), vp.planes, vp.near, vp.far,
-                   vp.visual_hull, vp.coarse_to_fine, vp.aggregation)
-            previous = self._previous.get(viewer)
-            reshaded = previous is not None and previous[0] == key
-            if reshaded:
-                result = self.renderer.reshade(previous[1], method=vp.method, d_bnd=vp.d_bnd, k=vp.k,
-                                                 visibility=vp.visibility)
-            else:
-                result = self.renderer.render(cam, options)
         except (RigError, CameraError, ValidationError) as exc:
             raise ViewError("bad_view", _one_line(exc)) from None
-        self._remember(viewer, key, result)
+        key = (self.frame_key, cam.K.tobytes(), cam.R.tobytes(), cam.t.tobytes(), vp.planes, vp.near, vp.far,
+               vp.visual_hull, vp.coarse_to_fine, vp.aggregation)
+        return Plan(vp, cam, options, key, frame_label, self.renderer, self.seq, self.source_factor)
+
+    def draw(self, viewer: str, plan: "Plan") -> tuple[dict[str, Any], bytes]:
+        """Second half of :meth:`render`: sweep (or re-shade) and encode. Reads the frames only, so
+        several threads may draw at once while no :meth:`prepare` or frame change runs."""
+        vp = plan.vp
+        try:
+            with self._kept_lock:
+                previous = self._previous.get(viewer)
+            reshaded = previous is not None and previous[0] == plan.key
+            if reshaded:
+                result = plan.renderer.reshade(previous[1], method=vp.method, d_bnd=vp.d_bnd, k=vp.k,
+                                               visibility=vp.visibility)
+            else:
+                result = plan.renderer.render(plan.camera, plan.options)
+        except (RigError, CameraError, ValidationError) as exc:
+            raise ViewError("bad_view", _one_line(exc)) from None
+        self._remember(viewer, plan.key, result)
         t0 = time.perf_counter()
         jpeg = encode_jpeg(_composed(result, vp.overlay), vp.quality)
         encode_ms = (time.perf_counter() - t0) * 1e3
         self.renders += 1
         found = np.isfinite(result.depth)
         header = {
-            "type": "frame", "id": vp.id, "frame": frame_label, "seq": self.seq,
+            "type": "frame", "id": vp.id, "frame": plan.frame_label, "seq": plan.seq,
             "width": vp.width, "height": vp.height, "method": vp.method, "d_bnd": result.d_bnd, "planes": vp.planes,
-            "overlay": vp.overlay, "source_factor": self.source_factor,
+            "overlay": vp.overlay, "source_factor": plan.source_factor,
             "depth_range": [float(result.planes.min()), float(result.planes.max())],
             "depth_found": [float(result.depth[found].min()), float(result.depth[found].max())] if found.any() else None,
             "coverage": float(found.mean()),
@@ -167,7 +200,8 @@ class Session:
 
     def forget(self, viewer: str) -> None:
         """Drop what is kept for ``viewer`` (it left)."""
-        self._previous.pop(viewer, None)
+        with self._kept_lock:
+            self._previous.pop(viewer, None)
 
     def discard_after_failure(self, viewer: str | None) -> None:
         """After an unexpected exception in a render for ``viewer`` (None: in applying frames),
@@ -187,10 +221,11 @@ class Session:
         raise NotImplementedError
 
     def _remember(self, viewer: str, key: tuple, result: RenderResult) -> None:
-        self._previous[viewer] = (key, result)
-        self._previous.move_to_end(viewer)
-        while len(self._previous) > self.limits.viewers_kept:
-            self._previous.popitem(last=False)
+        with self._kept_lock:
+            self._previous[viewer] = (key, result)
+            self._previous.move_to_end(viewer)
+            while len(self._previous) > self.limits.viewers_kept:
+                self._previous.popitem(last=False)
 
 
 @dataclass
