@@ -600,8 +600,8 @@ def run_throughput(photos: list[Path], yunet: Path | None, repeats: int) -> int:
         "(the detector alone); combined: the service's default (YuNet + parts, paper fallback, text cue on). "
         f"JPEG decoding alone: {results['engine']['decode_cpu_ms_per_photo']:.1f} ms CPU per photo (DCT-scaled to <= 900 px). "
         f"Load average before {load_before:.2f}, after {results['load_average_after']:.2f}"
-        + (" (other work shared the 2 cores: wall-clock rates are low; CPU ms per photo is the load-independent figure)"
-           if busy else "") + ".\n\n"
+        + (" (other work shared the 2 cores: every rate here is low, and even CPU ms per photo grows under such "
+           "contention; compare ratios within this table, not with quiet runs)" if busy else "") + ".\n\n"
         + md_table(["path", "photos/s 1 thread", "photos/s 2 threads / HTTP", "note", "/healthz p50 / p99 ms"], rows)
         + "\n"))
     return 0

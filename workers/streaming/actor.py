@@ -95,6 +95,7 @@ class SessionHost:
         self._busy = 0
         self._viewers: dict[str, float] = {}
         self._persisted = 0.0
+        self._persist_lock = threading.Lock()
         self.persisted_seq = self.session.seq
         self.failures = 0
         """Renders and pushes that raised unexpectedly (each answered with an error) since (re)start."""
@@ -180,19 +181,30 @@ class SessionHost:
                 session.discard_after_failure(None)
                 return {"ok": False, "error": "frame_set_failed",
                         "detail": f"the frame set could not be applied ({_summary(exc)}); send the next one"}
-            if background or time.monotonic() - self._persisted >= self.config.persist_seconds:
-                self._persist_live(with_background=background)
+            due = background or time.monotonic() - self._persisted >= self.config.persist_seconds
+            snapshot = self._live_snapshot(with_background=background) if due else None
+        if snapshot is not None:  # written after the lock is released: views are not held up by the disk
+            self._persist_live(snapshot)
         ack["lock_wait_ms"] = round((t2 - t1) * 1e3, 2)
         return {"ok": True, **ack}
 
-    def _persist_live(self, with_background: bool) -> None:
-        """Store the latest live set (and the background model when a background set reset it; its
-        slow drift is relearnt after a restart). Called with the frames' write lock held."""
+    def _live_snapshot(self, with_background: bool) -> tuple[int, list[bytes], list[Any] | None]:
+        """What :meth:`_persist_live` stores, taken while the frames' write lock is held: the latest live
+        set and, when a background set reset it, the background model (its slow drift is relearnt after
+        a restart)."""
         session = self.session
-        save_live(self.store, self.config.rig_id, session.seq, session.latest_jpegs,
-                  session.background.images() if with_background else None)
-        self._persisted = time.monotonic()
-        self.persisted_seq = session.seq
+        self._persisted = time.monotonic()  # due again only after the interval, even while this one writes
+        return session.seq, list(session.latest_jpegs), session.background.images() if with_background else None
+
+    def _persist_live(self, snapshot: tuple[int, list[bytes], list[Any] | None]) -> None:
+        """Store a :meth:`_live_snapshot` (one writer at a time): skipped when a newer set was stored
+        meanwhile, unless it carries a background model (then stored with its own, consistent set)."""
+        seq, jpegs, backgrounds = snapshot
+        with self._persist_lock:
+            if seq <= self.persisted_seq and backgrounds is None:
+                return
+            save_live(self.store, self.config.rig_id, seq, jpegs, backgrounds)
+            self.persisted_seq = max(self.persisted_seq, seq)
 
     def touch(self, viewer: str | None = None) -> None:
         """Keep the session alive (sockets call this while they are open)."""
@@ -228,7 +240,8 @@ class SessionHost:
             time.sleep(period)
             if isinstance(self.session, LiveSession) and self.session.seq != self.persisted_seq:
                 with self._frames.writing():
-                    self._persist_live(with_background=False)
+                    snapshot = self._live_snapshot(with_background=False)
+                self._persist_live(snapshot)
             if self._busy == 0 and time.monotonic() - self._last > self.config.idle_seconds:
                 ray.kill(self._me, no_restart=True)  # an idle end is final: no restart
                 return
