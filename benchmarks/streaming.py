@@ -713,6 +713,8 @@ def live(seconds: float, viewers: int) -> int:
                 for v in r["viewers"]:
                     line += f"; viewer {v['fps']:.1f} fps p95 {v['latency_p95_ms']:.0f} ms"
                 print(line, file=sys.stderr)
+    results["in_process"] = live_set_costs(rig, background, sets)
+    print(f"in process, per set: {results['in_process']}", file=sys.stderr)
     both = results["ingest + viewers"]
     results["target"] = {**LIVE_TARGET, "met": both["ingest"]["sets_per_s"] >= LIVE_TARGET["ingest_sets_per_s"]
                          and min(v["fps"] for v in both["viewers"]) >= LIVE_TARGET["viewer_fps"]}
@@ -721,8 +723,38 @@ def live(seconds: float, viewers: int) -> int:
     return 0
 
 
+def live_set_costs(rig: Rig, background: list[bytes], sets: list[list[bytes]], repeats: int = 5) -> dict:
+    """CPU ms per frame set in this process (numba's threads included; medians over passes through ``sets``):
+    decoding at full size (the anchor: what the session did before decoding at the viewers' size), decoding
+    at half size (DCT scaling, what a 320x240 viewer needs of 640x480 cameras), and applying a decoded set
+    (background model, silhouettes, renderer frames)."""
+    from workers.streaming.images import decode_image
+    from workers.streaming.session import LiveSession, SessionLimits
+
+    live = LiveSession(rig, SessionLimits())
+    live.push(background, True)
+    live.render("bench", Viewpoint(frame="live", width=LIVE_VIEW[0], height=LIVE_VIEW[1], planes=PLANES))
+    decoded = [live.decode(s) for s in sets]
+
+    def per_set(fn) -> float:
+        passes = []
+        for _ in range(repeats):
+            t = time.process_time()
+            for i, s in enumerate(sets):
+                fn(i, s)
+            passes.append((time.process_time() - t) * 1e3 / len(sets))
+        return float(statistics.median(passes))
+
+    return {
+        "decode_full_ms": per_set(lambda i, s: [decode_image(d, (c.width, c.height)) for c, d in zip(rig.cameras, s)]),
+        "decode_reduced_ms": per_set(lambda i, s: live.decode(s)),
+        "apply_ms": per_set(lambda i, s: live.apply(decoded[i], s)),
+        "source_factor": live.source_factor,
+    }
+
+
 def live_markdown(results: dict) -> str:
-    st, t = results["setup"], results["target"]
+    st, t, ip = results["setup"], results["target"], results["in_process"]
     rows = []
     for name in ("viewer alone", "ingest alone", "ingest + viewers"):
         r = results[name]
@@ -745,6 +777,10 @@ def live_markdown(results: dict) -> str:
         + (" (other work shared the 2 cores: the figures are low)" if busy else "") + ".\n\n"
         + md_table(["configuration", "ingest sets/s", "ack p50 ms", "ack p95 ms", "decode ms/set", "apply ms/set",
                     "viewer fps (min)", "viewer p95 ms (max)", "server CPU cores"], rows)
+        + f"\n\nPer frame set in this process (CPU ms, numba's threads included): decoding the 10 JPEGs at full size "
+        f"{ip['decode_full_ms']:.1f} (the anchor), at the viewer's size (factor {ip['source_factor']}, DCT scaling) "
+        f"{ip['decode_reduced_ms']:.1f}; applying a decoded set (background model, silhouettes, renderer frames) "
+        f"{ip['apply_ms']:.1f}."
         + f"\n\nTarget: >= {t['ingest_sets_per_s']:g} sets/s ingested while each viewer gets >= {t['viewer_fps']:g} "
         f"fps: **{'met' if t['met'] else 'not met'}**.\n"
     )

@@ -16,7 +16,9 @@ A recording session renders from frames at about the viewer's size: for a view w
 rig's images by the integer factor :func:`source_factor` (the largest that keeps them at least w x h;
 1920x1080 cameras and a 640x360 view: 3), once per frame set and factor (area averaging, then the
 renderer's undistortion at the small size), and keeps a renderer per factor in use (at most
-``MAX_LEVELS``). The header then also says ``"source_factor"`` (1: the recorded size).
+``MAX_LEVELS``). The header then also says ``"source_factor"`` (1: the recorded size). A live session
+decodes each pushed set once, at the factor of the largest view its present viewers ask for (JPEG DCT
+scaling: a 640x480 rig seen at 320x240 decodes at half size), see :class:`LiveSession`.
 """
 from __future__ import annotations
 
