@@ -303,8 +303,8 @@ def edge_band_figure(scene: SceneData, codec: str, qp: int, factor: int, upsampl
     for m in FIGURE_METHODS:
         top.append(_panel(views[m][crop], m, zoom))
         e = cv2.cvtColor(np.clip(err[m][crop] * 4, 0, 255).astype(np.uint8), cv2.COLOR_GRAY2BGR)
-        psnr = psnr(luma(views[m]), luma(real), band)
-        bottom.append(_panel(e, f"|Y err| x4, band {psnr:.2f} dB", zoom, outline))
+        band_psnr = psnr(luma(views[m]), luma(real), band)
+        bottom.append(_panel(e, f"|Y err| x4, band {band_psnr:.2f} dB", zoom, outline))
     path.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(path), np.vstack([np.hstack(top), np.hstack(bottom)]))
     return {"file": str(path.relative_to(Path(__file__).resolve().parents[1])), "sequence": scene.seq.name,

@@ -31,6 +31,13 @@ Two more sections, each its own run:
   640x360 on it, closed loop: orbiting on one frame, and playing (a new frame with every view), fps and
   latency p50/p95, and the session's cost per new frame set (decode, shrink 3x, set_frames). Section
   ``streaming_hd``.
+- ``--live [--viewers-live 1]``: live camera streams (the paper's use). A rig of 10 cameras 640x480 (the demo
+  rig's) is created through the API; frame sets of the studio with its moving ball (rendered here, JPEG quality
+  90, ~50 KB per camera) are pushed over ``/v1/rigs/{id}/live`` closed-loop (the next set as soon as the previous
+  one is acknowledged) while viewers on ``?source=live`` render 320x240 views closed-loop. Reports ingest sets/s,
+  ack latency p50/p95 (set sent -> ack), the session's decode/apply/lock-wait time per set, and each viewer's
+  fps and latency meanwhile; anchors in the same run: the viewer alone (no ingest) and the ingest alone (no
+  viewer). Section ``streaming_live``.
 """
 from __future__ import annotations
 
@@ -235,6 +242,12 @@ def main() -> int:
     ap.add_argument("--viewer-sizes", action="store_true", help="only: the viewer's default size (one viewer per size)")
     ap.add_argument("--hd", action="store_true", help="only: undistortion cost and an HD 8-camera recording at 640x360")
     ap.add_argument("--hd-frames", type=int, default=6, help="frames of the HD recording (default 6)")
+    ap.add_argument("--viewers", type=int, nargs="+", default=list(VIEWERS),
+                    help=f"main section: viewer counts (default {' '.join(map(str, VIEWERS))})")
+    ap.add_argument("--sizes", nargs="+", default=[f"{w}x{h}" for w, h in SIZES],
+                    help="main section: view sizes WxH (default 320x240 640x480)")
+    ap.add_argument("--live", action="store_true", help="only: live ingest of 10 x 640x480 JPEG cameras with viewers")
+    ap.add_argument("--viewers-live", type=int, default=1, help="--live: viewers on the live source (default 1)")
     ap.add_argument("--quiet", type=float, help="--viewer-sizes: before each size wait (up to 3 min) for the "
                                                 "1-minute load average to fall under this")
     args = ap.parse_args()
@@ -243,12 +256,18 @@ def main() -> int:
         return viewer_sizes(seconds, args.quiet)
     if args.hd:
         return hd(seconds, args.hd_frames)
+    if args.live:
+        return live(seconds, args.viewers_live)
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory(prefix="sweepcast-bench-") as tmp:
         data_dir = Path(tmp) / "data"
         log = Path(tmp) / "server.log"
         t_start = time.monotonic()
-        with serve_app({"SWEEPCAST_DATA_DIR": str(data_dir)}, log=log, wait=False) as app:
+        subset = args.viewers != list(VIEWERS) or args.sizes != [f"{w}x{h}" for w, h in SIZES]
+        env = {"SWEEPCAST_DATA_DIR": str(data_dir)}
+        if subset:  # steady state only (its own section): kernels from the checkout's cache, not compiled first
+            env["SWEEPCAST_NUMBA_CACHE_DIR"] = str(Path(__file__).resolve().parents[1] / ".numba_cache")
+        with serve_app(env, log=log, wait=False) as app:
             proc = app.proc
             app.wait_ready(120)
             ready_s = time.monotonic() - t_start
@@ -262,22 +281,22 @@ def main() -> int:
                   f"after start", file=sys.stderr)
             results: dict = {"viewers": {}, "baseline": {}}
             base = Baseline(data_dir, rig_id, recording["id"])
-            for size in SIZES:
+            for size in [tuple(int(v) for v in k.split("x")) for k in args.sizes]:
                 key = f"{size[0]}x{size[1]}"
                 results["baseline"][key] = base.measure(size, 5 if args.quick else 15)  # just before its viewers
-                for n in VIEWERS:
+                for n in args.viewers:
                     r = asyncio.run(run_config(url, n, size, seconds, proc.pid))
                     results["viewers"].setdefault(str(n), {})[key] = r
                     print(f"{n:2d} viewers {key}: {r['fps']:.1f} fps each, latency p50 {r['latency_p50_ms']:.0f} ms "
                           f"p95 {r['latency_p95_ms']:.0f} ms, server {r['server_cpu_cores']:.2f} cores",
                           file=sys.stderr)
-    one = results["viewers"]["1"]["320x240"]
+    one = results["viewers"][str(args.viewers[0])][args.sizes[0]]
     results["first_run"] = {"server_ready_s": ready_s, "demo_ready_s": demo_s, "first_frame_s": first_frame_s}
     results["target"] = {**TARGET, "met": one["fps"] >= TARGET["fps"] and one["latency_p95_ms"] <= TARGET["latency_p95_ms"]}
     results["setup"] = {"cameras": 10, "camera_size": "640x480", "planes": PLANES, "method": "kojima",
                         "coarse_to_fine": True, "visual_hull": True, "seconds_per_config": seconds,
                         "load_average_before": load_before}
-    publish("streaming", results, markdown(results))
+    publish("streaming_viewers" if subset else "streaming", results, markdown(results))
     return 0
 
 
@@ -512,6 +531,258 @@ def hd_markdown(results: dict) -> str:
         f"ms, `set_frames` at {HD_VIEW[0]}x{HD_VIEW[1]} (undistortion, silhouettes, packing) "
         f"{fs['set_frames_ms']:.1f} ms. Target (orbit): >= 10 fps: "
         f"{'met' if viewers['orbit']['fps'] >= 10 else 'not met'}.\n"
+    )
+
+
+# --- live camera streams --------------------------------------------------------------------------------
+LIVE_SETS = 6
+LIVE_VIEW = (320, 240)
+LIVE_TARGET = {"ingest_sets_per_s": 15.0, "viewer_fps": 15.0}
+
+
+def live_frame_sets(rig: Rig, sets: int, quality: int = 90) -> tuple[list[bytes], list[list[bytes]]]:
+    """JPEGs of the empty studio (the background set) and of ``sets`` frame sets of the demo scene (its ball
+    moving), one per camera of ``rig``."""
+    import dataclasses
+
+    from workers.streaming.demo import _ball, demo_scene
+    from workers.synth import render_moved, render_views
+
+    def jpeg(img: np.ndarray) -> bytes:
+        return cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, quality])[1].tobytes()
+
+    first = demo_scene(0.0)
+    k, _ = _ball(first)
+    stills = render_views(dataclasses.replace(first, objects=first.objects[:k] + first.objects[k + 1:]),
+                          list(rig.cameras))
+    frames = []
+    for f in range(sets):
+        scene = demo_scene(f / (4 * sets))
+        frames.append([jpeg(render_moved(scene, still, _ball(scene)[1])) for still in stills])
+    return [jpeg(s.background) for s in stills], frames
+
+
+def frame_set_message(jpegs: list[bytes], seq: int, background: bool = False) -> bytes:
+    from workers.streaming.framing import pack_message
+
+    return pack_message({"sizes": [len(j) for j in jpegs], "seq": seq, "background": background}, jpegs)
+
+
+async def pusher(url: str, sets: list[list[bytes]], start: asyncio.Event, stop: asyncio.Event) -> dict:
+    """Closed-loop ingest: the next frame set as soon as the previous one is acknowledged."""
+    async with websockets.connect(url, max_size=None) as ws:
+        json.loads(await ws.recv())  # hello
+        await start.wait()
+        acks, latencies, seq = [], [], 0
+        t0 = time.perf_counter()
+        while not stop.is_set():
+            seq += 1
+            t = time.perf_counter()
+            await ws.send(frame_set_message(sets[seq % len(sets)], seq))
+            reply = json.loads(await ws.recv())
+            if reply.get("type") != "ack":
+                raise RuntimeError(f"frame set {seq}: {reply}")
+            latencies.append((time.perf_counter() - t) * 1e3)
+            acks.append(reply)
+        wall = time.perf_counter() - t0
+    return {"sets": len(acks), "seconds": wall, "latencies": latencies, "acks": acks}
+
+
+async def live_viewer(url: str, start: asyncio.Event, stop: asyncio.Event, phase: float,
+                      counted: bool = True) -> dict:
+    """Closed-loop viewer of the live source: renders before ``start`` are warm-up, those received
+    between ``start`` and ``stop`` count (``counted`` False: one view, nothing counted)."""
+    async with websockets.connect(url, max_size=None) as ws:
+        while json.loads(await ws.recv())["type"] != "ready":
+            pass
+        latencies, renders, seqs, i = [], [], set(), 0
+        t0 = None
+        while i == 0 or not stop.is_set():
+            i += 1
+            msg = {**view_message(i, phase, LIVE_VIEW), "frame": "live"}
+            t = time.perf_counter()
+            await ws.send(json.dumps(msg))
+            while True:
+                message = await ws.recv()
+                if isinstance(message, bytes):
+                    header, _ = unpack_message(message)
+                    if header["id"] == i:
+                        break
+                elif json.loads(message).get("type") == "error":
+                    raise RuntimeError(message)
+            if t0 is not None and not stop.is_set():
+                latencies.append((time.perf_counter() - t) * 1e3)
+                renders.append(header["render_ms"])
+                seqs.add(header["seq"])
+            elif start.is_set() and t0 is None:
+                t0 = time.perf_counter()
+        wall = time.perf_counter() - t0 if t0 is not None else float("nan")
+    if not counted:
+        return {}
+    if not latencies:
+        raise SystemExit("a live viewer received no frame within the measurement: give --seconds more")
+    return {"fps": len(latencies) / wall, "latency_p50_ms": float(np.percentile(latencies, 50)),
+            "latency_p95_ms": float(np.percentile(latencies, 95)), "render_p50_ms": float(np.median(renders)),
+            "live_sets_seen": len(seqs)}
+
+
+async def live_config(base: str, rig_id: str, sets: list[list[bytes]], viewers: int, ingest: bool, seconds: float,
+                      server_pid: int) -> dict:
+    """Ingest and/or ``viewers`` viewers for ``seconds``; ingest figures, each viewer's, server cores."""
+    ws = base.replace("http", "ws")
+    start, stop = asyncio.Event(), asyncio.Event()
+    push_task = asyncio.create_task(pusher(f"{ws}/v1/rigs/{rig_id}/live", sets, start, stop)) if ingest else None
+    view_tasks = [asyncio.create_task(live_viewer(f"{ws}/v1/rigs/{rig_id}/view?source=live", start, stop,
+                                                  80.0 * k / viewers))
+                  for k in range(viewers)]
+    await asyncio.sleep(3.0)  # sockets open, viewers past their first frames
+    cpu0, t0 = cpu_seconds(server_pid), time.perf_counter()
+    start.set()
+    await asyncio.sleep(seconds)
+    stop.set()
+    out: dict = {"server_cpu_cores": 0.0, "viewers": [await t for t in view_tasks]}
+    out["server_cpu_cores"] = (cpu_seconds(server_pid) - cpu0) / (time.perf_counter() - t0)
+    if push_task is not None:
+        p = await push_task
+        acks = p["acks"]
+        out["ingest"] = {
+            "sets_per_s": p["sets"] / p["seconds"], "ack_p50_ms": float(np.percentile(p["latencies"], 50)),
+            "ack_p95_ms": float(np.percentile(p["latencies"], 95)), "sets": p["sets"],
+            "dropped": acks[-1]["dropped"] if acks else 0,
+            **{f"{k}_p50": float(np.median([a.get(k, np.nan) for a in acks]))
+               for k in ("decode_ms", "apply_ms", "lock_wait_ms")},
+            "source_factor": acks[-1].get("source_factor") if acks else None,
+        }
+    return out
+
+
+def live(seconds: float, viewers: int) -> int:
+    from workers.streaming.demo import demo_rig
+    from workers.sweep.rig_io import rig_to_dict
+
+    import pickle
+
+    load_before = os.getloadavg()[0]
+    rig = demo_rig()
+    t0 = time.perf_counter()
+    cache = Path(tempfile.gettempdir()) / f"sweepcast-bench-live-{LIVE_SETS}.pickle"  # the inputs only: minutes to render
+    if cache.exists():
+        background, sets = pickle.loads(cache.read_bytes())
+    else:
+        background, sets = live_frame_sets(rig, LIVE_SETS)
+        cache.write_bytes(pickle.dumps((background, sets)))
+    print(f"rendered {LIVE_SETS} frame sets in {time.perf_counter() - t0:.0f} s; "
+          f"{np.mean([sum(map(len, s)) for s in sets]) / 1e3:.0f} KB per set", file=sys.stderr)
+    results: dict = {"setup": {
+        "cameras": len(rig), "camera_size": "640x480", "jpeg_kb_per_set": float(np.mean([sum(map(len, s)) for s in sets]) / 1e3),
+        "view": f"{LIVE_VIEW[0]}x{LIVE_VIEW[1]}", "planes": PLANES, "method": "kojima", "coarse_to_fine": True,
+        "visual_hull": True, "viewers": viewers, "seconds_per_config": seconds, "load_average_before": load_before}}
+    with tempfile.TemporaryDirectory(prefix="sweepcast-bench-") as tmp:
+        log = Path(tmp) / "server.log"
+        # steady state: kernels from the checkout's cache (.numba_cache, the test suite's), not compiled on the clock
+        env = {"SWEEPCAST_DATA_DIR": str(Path(tmp) / "data"), "SWEEPCAST_DEMO_RIG": "false",
+               "SWEEPCAST_NUMBA_CACHE_DIR": str(Path(__file__).resolve().parents[1] / ".numba_cache")}
+        with serve_app(env, log=log) as app:
+            with httpx.Client(base_url=app.base, timeout=60) as http:
+                rig_id = http.post("/v1/rigs", files={"files": ("rig.json", json.dumps(rig_to_dict(rig)).encode())}
+                                   ).json()["id"]
+
+            async def prime() -> None:  # background set, a frame set, a first view: the session is made and warm
+                async with websockets.connect(f"{app.base.replace('http', 'ws')}/v1/rigs/{rig_id}/live",
+                                              max_size=None) as ws:
+                    json.loads(await ws.recv())
+                    for seq, (jpegs, flag) in enumerate([(background, True), (sets[0], False)], 1):
+                        await ws.send(frame_set_message(jpegs, seq, flag))
+                        reply = json.loads(await ws.recv())
+                        if reply.get("type") != "ack":
+                            raise SystemExit(f"the live socket refused a set: {reply}")
+                stop = asyncio.Event()
+                stop.set()
+                await live_viewer(f"{app.base.replace('http', 'ws')}/v1/rigs/{rig_id}/view?source=live", stop, stop,
+                                  0.0, counted=False)
+
+            asyncio.run(prime())
+            configs = {"viewer alone": (viewers, False), "ingest alone": (0, True), "ingest + viewers": (viewers, True)}
+            for name, (n, ingest) in configs.items():
+                r = asyncio.run(live_config(app.base, rig_id, sets, n, ingest, seconds, app.proc.pid))
+                results[name] = r
+                line = f"{name}: server {r['server_cpu_cores']:.2f} cores"
+                if "ingest" in r:
+                    line += (f"; ingest {r['ingest']['sets_per_s']:.1f} sets/s, ack p95 {r['ingest']['ack_p95_ms']:.0f} ms"
+                             f" (decode {r['ingest']['decode_ms_p50']:.0f} ms, apply {r['ingest']['apply_ms_p50']:.0f} ms)")
+                for v in r["viewers"]:
+                    line += f"; viewer {v['fps']:.1f} fps p95 {v['latency_p95_ms']:.0f} ms"
+                print(line, file=sys.stderr)
+    results["in_process"] = live_set_costs(rig, background, sets)
+    print(f"in process, per set: {results['in_process']}", file=sys.stderr)
+    both = results["ingest + viewers"]
+    results["target"] = {**LIVE_TARGET, "met": both["ingest"]["sets_per_s"] >= LIVE_TARGET["ingest_sets_per_s"]
+                         and min(v["fps"] for v in both["viewers"]) >= LIVE_TARGET["viewer_fps"]}
+    results["load_average_after"] = os.getloadavg()[0]
+    publish("streaming_live", results, live_markdown(results))
+    return 0
+
+
+def live_set_costs(rig: Rig, background: list[bytes], sets: list[list[bytes]], repeats: int = 5) -> dict:
+    """CPU ms per frame set in this process (numba's threads included; medians over passes through ``sets``):
+    decoding at full size (the anchor: what the session did before decoding at the viewers' size), decoding
+    at half size (DCT scaling, what a 320x240 viewer needs of 640x480 cameras), and applying a decoded set
+    (background model, silhouettes, renderer frames)."""
+    from workers.streaming.images import decode_image
+    from workers.streaming.session import LiveSession, SessionLimits
+
+    live = LiveSession(rig, SessionLimits())
+    live.push(background, True)
+    live.render("bench", Viewpoint(frame="live", width=LIVE_VIEW[0], height=LIVE_VIEW[1], planes=PLANES))
+    decoded = [live.decode(s) for s in sets]
+
+    def per_set(fn) -> float:
+        passes = []
+        for _ in range(repeats):
+            t = time.process_time()
+            for i, s in enumerate(sets):
+                fn(i, s)
+            passes.append((time.process_time() - t) * 1e3 / len(sets))
+        return float(statistics.median(passes))
+
+    return {
+        "decode_full_ms": per_set(lambda i, s: [decode_image(d, (c.width, c.height)) for c, d in zip(rig.cameras, s)]),
+        "decode_reduced_ms": per_set(lambda i, s: live.decode(s)),
+        "apply_ms": per_set(lambda i, s: live.apply(decoded[i], s)),
+        "source_factor": live.source_factor,
+    }
+
+
+def live_markdown(results: dict) -> str:
+    st, t, ip = results["setup"], results["target"], results["in_process"]
+    rows = []
+    for name in ("viewer alone", "ingest alone", "ingest + viewers"):
+        r = results[name]
+        ing = r.get("ingest")
+        vs = r["viewers"]
+        rows.append([name, ing["sets_per_s"] if ing else "-", ing["ack_p50_ms"] if ing else "-",
+                     ing["ack_p95_ms"] if ing else "-", ing["decode_ms_p50"] if ing else "-",
+                     ing["apply_ms_p50"] if ing else "-",
+                     min(v["fps"] for v in vs) if vs else "-", max(v["latency_p95_ms"] for v in vs) if vs else "-",
+                     r["server_cpu_cores"]])
+    busy = st["load_average_before"] > 0.5
+    return (
+        f"Live camera streams: {st['cameras']} cameras {st['camera_size']} (the demo rig), JPEG frame sets of the studio "
+        f"with its moving ball ({st['jpeg_kb_per_set']:.0f} KB per set) pushed over `/v1/rigs/{{id}}/live` closed-loop "
+        f"(the next set when the previous is acknowledged) while {st['viewers']} viewer(s) on `?source=live` render "
+        f"{st['view']} views closed-loop ({st['planes']} planes, Kojima, coarse-to-fine, visual hull from the live "
+        f"background model). {st['seconds_per_config']:g} s per configuration. The session decodes each set at the "
+        "size its viewers need (JPEG DCT scaling; `source_factor` in the ack) before taking the render lock. "
+        f"Load average before the run {st['load_average_before']:.2f}, after {results['load_average_after']:.2f}"
+        + (" (other work shared the 2 cores: the figures are low)" if busy else "") + ".\n\n"
+        + md_table(["configuration", "ingest sets/s", "ack p50 ms", "ack p95 ms", "decode ms/set", "apply ms/set",
+                    "viewer fps (min)", "viewer p95 ms (max)", "server CPU cores"], rows)
+        + f"\n\nPer frame set in this process (CPU ms, numba's threads included): decoding the 10 JPEGs at full size "
+        f"{ip['decode_full_ms']:.1f} (the anchor), at the viewer's size (factor {ip['source_factor']}, DCT scaling) "
+        f"{ip['decode_reduced_ms']:.1f}; applying a decoded set (background model, silhouettes, renderer frames) "
+        f"{ip['apply_ms']:.1f}."
+        + f"\n\nTarget: >= {t['ingest_sets_per_s']:g} sets/s ingested while each viewer gets >= {t['viewer_fps']:g} "
+        f"fps: **{'met' if t['met'] else 'not met'}**.\n"
     )
 
 

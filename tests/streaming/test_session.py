@@ -5,6 +5,7 @@ import pytest
 
 from tests.streaming.capture import jpeg
 from workers.streaming.background import BackgroundModel
+from workers.streaming.images import ImageError, decode_image, decode_reduced, reduced_size
 from workers.streaming.params import Orbit, Viewpoint
 from workers.streaming.recording import ArchiveWriter, RecordingArchive
 from workers.streaming.session import LiveSession, RecordingSession, SessionLimits, ViewError
@@ -156,3 +157,49 @@ def test_session_limits_check_is_the_one_view_rule():
     with pytest.raises(ViewError, match="65 planes is over the limit of 64") as e:
         limits.check(10, 10, 65)
     assert e.value.code == "too_many_planes"
+
+
+def test_reduced_decoding_matches_area_averaging_and_checks_the_size(take):
+    image = take.frames[0][1]  # 96x72
+    data = jpeg(image, 95)
+    full = decode_image(data, (96, 72))
+    for factor in (1, 2, 3, 4, 8):
+        small = decode_reduced(data, (96, 72), factor)
+        w, h = reduced_size((96, 72), factor)
+        assert small.shape == (h, w, 3) and small.dtype == np.uint8
+        # DCT scaling (2, 4, 8) and area averaging (3) give the same picture, pixel centres aligned
+        area = cv2.resize(full, (w, h), interpolation=cv2.INTER_AREA).astype(int)
+        assert np.abs(small.astype(int) - area).mean() < 2.0
+    with pytest.raises(ImageError, match="is 96x72, the calibration says 48x36"):
+        decode_reduced(data, (48, 36), 2)
+    with pytest.raises(ImageError, match="does not decode"):
+        decode_reduced(data[: len(data) // 3], (96, 72), 2)
+
+
+def test_live_frames_are_decoded_at_the_size_the_viewers_need(take):
+    live = LiveSession(take.rig, SessionLimits())
+    live.push([jpeg(b) for b in take.backgrounds], is_background=True)
+    live.push([jpeg(i) for i in take.frames[0]])
+    assert live.source_factor == 1  # no viewer yet: the protocol's default size (320x240) needs every pixel
+    small = Viewpoint(frame="live", width=48, height=36, planes=PLANES)
+    header, _ = live.render("small", small)
+    assert header["source_factor"] == 1  # the set on show was decoded before this viewer came
+    ack = live.push([jpeg(i) for i in take.frames[1]])
+    assert ack["source_factor"] == 2 and live.renderer.cameras[0].width == 48  # the next set: half size
+    assert live.background.images()[0].shape == (36, 48, 3)  # the model follows
+    header, _ = live.render("small", small)
+    assert header["source_factor"] == 2 and header["seq"] == 3 and header["coverage"] > 0.02
+    header, _ = live.render("big", Viewpoint(frame="live", width=96, height=72, planes=PLANES))
+    assert header["source_factor"] == 1 and header["seq"] == 3  # the same set, decoded again at full size at once
+    assert header["coverage"] > 0.05
+    live.forget("big")
+    assert live.push([jpeg(i) for i in take.frames[0]])["source_factor"] == 2
+
+
+def test_a_live_set_decoded_for_another_factor_is_decoded_again(take):
+    live = LiveSession(take.rig, SessionLimits())
+    jpegs = [jpeg(i) for i in take.frames[0]]
+    images = live.decode(jpegs, factor=2)
+    live.apply(images, jpegs)  # the session wants factor 1 (no viewer): the set is decoded again
+    assert live.source_factor == 1 and live.seq == 1
+    assert live.renderer.cameras[0].width == 96

@@ -9,7 +9,7 @@ Modules (import from them; arrays follow workers.camera conventions, images uint
   ``virtual_camera(view, frame, size)``, ``path_cameras(keys, ats, frame, size, count)``.
 - ``framing``: binary messages (4-byte header length, JSON header, payload): ``pack_message``,
   ``unpack_message``, ``unpack_frame_set(data, camera_names) -> FrameSet``, ``FramingError``.
-- ``images``: ``image_size`` (from the header), ``decode_image(data, size)``, ``encode_jpeg`` (PNG: ``workers.common.images.encode_png``).
+- ``images``: ``image_size`` (from the header), ``decode_image(data, size)``, ``decode_reduced(data, size, factor)`` (JPEG DCT scaling), ``decode_stored``, ``encode_jpeg`` (PNG: ``workers.common.images.encode_png``).
 - ``video``: PyAV ``probe_video``, ``decode_frames``, ``H264Writer``.
 - ``recording``: checks against the rig (``match_cameras``, ``check_videos``, ``scan_image_zip``,
   ``check_image_sizes``), the archive (``ArchiveWriter``, ``RecordingArchive``), imports

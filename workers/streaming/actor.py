@@ -4,8 +4,10 @@ The first viewer creates it (a named, detached actor: every API process finds th
 others share it, and it ends itself after ``idle_seconds`` without any call (sockets send a
 ``touch`` while they are open, so only a vanished client lets it idle out). A crashed actor is
 restarted by Ray (``max_restarts``) and reloads its calibration and frames from the blob store.
-Renders are serialised inside the actor; each viewer has at most one render in flight (the API
-keeps only its latest viewpoint), so no render ever waits behind a stale request.
+Views of several viewers are drawn at once on the actor's threads (the renderer only reads the
+frames; numba's kernels release the GIL), sharing the cores (:func:`_render_threads`); preparing a
+view and changing frames run alone (:class:`FrameLock`). Each viewer has at most one render in flight
+(the API keeps only its latest viewpoint), so no render ever waits behind a stale request.
 
 Failures cost one request, never the session: an exception in a render (or in applying a live
 frame set) is caught here and answered as an error for that request alone. A process crash during
@@ -19,14 +21,16 @@ the blob store by the actor, and a live frame set is sent to it once.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import os
 import threading
 import time
 import warnings
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
+import numba
 import ray
 import ray.exceptions
 from pydantic import ValidationError
@@ -34,7 +38,7 @@ from pydantic import ValidationError
 from workers.common.validation import describe_errors
 from workers.storage import open_store
 
-from .images import decode_image
+from .images import decode_stored
 from .params import Viewpoint
 from .recording import RecordingArchive
 from .session import LiveSession, RecordingSession, Session, SessionLimits, ViewError
@@ -87,11 +91,12 @@ class SessionHost:
             self.restarted = ctx.was_current_actor_reconstructed
         self.store = open_store(config.store_url)
         self.session = self._load()
-        self._lock = threading.Lock()
+        self._frames = FrameLock()
         self._last = time.monotonic()
         self._busy = 0
         self._viewers: dict[str, float] = {}
         self._persisted = 0.0
+        self._persist_lock = threading.Lock()
         self.persisted_seq = self.session.seq
         self.failures = 0
         """Renders and pushes that raised unexpectedly (each answered with an error) since (re)start."""
@@ -103,7 +108,8 @@ class SessionHost:
         if self.config.source == LIVE:
             session = LiveSession(rig, self.config.limits, self.config.bg_rate)
             seq, jpegs, pngs = load_live(self.store, self.config.rig_id, len(rig))
-            backgrounds = [decode_image(p, (c.width, c.height)) for c, p in zip(rig.cameras, pngs)]
+            # stored at the size the session worked at (at most the camera's); resampled to today's
+            backgrounds = [decode_stored(p, (c.width, c.height)) for c, p in zip(rig.cameras, pngs)]
             session.restore(seq, jpegs, backgrounds)
             return session
         archive = RecordingArchive(self.store.local_path(archive_key(self.config.source)))
@@ -121,48 +127,85 @@ class SessionHost:
         except ViewError as exc:
             return {"ok": False, "error": exc.code, "detail": exc.detail}
         t0 = time.perf_counter()
-        with self._working():
+        with self._working(locked=False):
+            self._frames.acquire_write()
+            drawing = False
             try:
-                header, jpeg = self.session.render(viewer, vp)
+                plan = self.session.prepare(viewer, vp)
+                self._frames.downgrade()  # other viewers draw beside this one; frame changes wait
+                drawing = True
+                with _render_threads(self._frames.readers):
+                    header, jpeg = self.session.draw(viewer, plan)
             except ViewError as exc:
                 return {"ok": False, "error": exc.code, "detail": exc.detail}
             except Exception as exc:  # noqa: BLE001 - a renderer bug costs this view, not the session
                 log.exception("render of viewpoint %s for viewer %s failed", vp.id, viewer)
                 self.failures += 1
+                if drawing:  # discarding changes the session: alone
+                    self._frames.release_read()
+                    self._frames.acquire_write()
                 self.session.discard_after_failure(viewer)
+                self._frames.release_write()
                 return {"ok": False, "error": "render_failed",
                         "detail": f"the renderer failed on this viewpoint ({_summary(exc)}); the session goes on"}
+            finally:
+                if self._frames.holds_current():
+                    self._frames.release_current()
         header["session_ms"] = round((time.perf_counter() - t0) * 1e3, 2)
         return {"ok": True, "header": header, "jpeg": jpeg}
 
     def push(self, jpegs: list[bytes], background: bool = False) -> dict[str, Any]:
-        """Apply a live frame set (JPEGs in rig order): ``{"ok": True, "seq", ...}`` or an error."""
+        """Apply a live frame set (JPEGs in rig order): ``{"ok": True, "seq", ...}`` or an error.
+        The set is decoded before the render lock is taken (OpenCV releases the GIL), so a decode
+        runs beside a render instead of delaying it."""
         self._touch(None)
-        if not isinstance(self.session, LiveSession):
+        session = self.session
+        if not isinstance(session, LiveSession):
             return {"ok": False, "error": "not_live", "detail": "this session shows a recording"}
-        with self._working():
+        with self._working(locked=False):
+            t0 = time.perf_counter()
             try:
-                ack = self.session.push(jpegs, background)
+                images = session.decode(jpegs)
+            except ViewError as exc:
+                return {"ok": False, "error": exc.code, "detail": exc.detail}
+        t1 = time.perf_counter()
+        with self._working():
+            t2 = time.perf_counter()
+            try:
+                session.apply(images, jpegs, background)
+                ack = session.ack((t1 - t0) * 1e3, (time.perf_counter() - t2) * 1e3, background)
             except ViewError as exc:
                 return {"ok": False, "error": exc.code, "detail": exc.detail}
             except Exception as exc:  # noqa: BLE001 - as in render: this set is lost, not the session
                 log.exception("applying a live frame set failed")
                 self.failures += 1
-                self.session.discard_after_failure(None)
+                session.discard_after_failure(None)
                 return {"ok": False, "error": "frame_set_failed",
                         "detail": f"the frame set could not be applied ({_summary(exc)}); send the next one"}
-            if background or time.monotonic() - self._persisted >= self.config.persist_seconds:
-                self._persist_live(with_background=background)
+            due = background or time.monotonic() - self._persisted >= self.config.persist_seconds
+            snapshot = self._live_snapshot(with_background=background) if due else None
+        if snapshot is not None:  # written after the lock is released: views are not held up by the disk
+            self._persist_live(snapshot)
+        ack["lock_wait_ms"] = round((t2 - t1) * 1e3, 2)
         return {"ok": True, **ack}
 
-    def _persist_live(self, with_background: bool) -> None:
-        """Store the latest live set (and the background model when a background set reset it; its
-        slow drift is relearnt after a restart). Called under the render lock."""
+    def _live_snapshot(self, with_background: bool) -> tuple[int, list[bytes], list[Any] | None]:
+        """What :meth:`_persist_live` stores, taken while the frames' write lock is held: the latest live
+        set and, when a background set reset it, the background model (its slow drift is relearnt after
+        a restart)."""
         session = self.session
-        save_live(self.store, self.config.rig_id, session.seq, session.latest_jpegs,
-                  session.background.images() if with_background else None)
-        self._persisted = time.monotonic()
-        self.persisted_seq = session.seq
+        self._persisted = time.monotonic()  # due again only after the interval, even while this one writes
+        return session.seq, list(session.latest_jpegs), session.background.images() if with_background else None
+
+    def _persist_live(self, snapshot: tuple[int, list[bytes], list[Any] | None]) -> None:
+        """Store a :meth:`_live_snapshot` (one writer at a time): skipped when a newer set was stored
+        meanwhile, unless it carries a background model (then stored with its own, consistent set)."""
+        seq, jpegs, backgrounds = snapshot
+        with self._persist_lock:
+            if seq <= self.persisted_seq and backgrounds is None:
+                return
+            save_live(self.store, self.config.rig_id, seq, jpegs, backgrounds)
+            self.persisted_seq = max(self.persisted_seq, seq)
 
     def touch(self, viewer: str | None = None) -> None:
         """Keep the session alive (sockets call this while they are open)."""
@@ -171,7 +214,7 @@ class SessionHost:
     def leave(self, viewer: str) -> None:
         """A viewer left: forget what was kept for it."""
         self._viewers.pop(viewer, None)
-        with self._lock:
+        with self._frames.writing():
             self.session.forget(viewer)
 
     def info(self) -> dict[str, Any]:
@@ -188,8 +231,8 @@ class SessionHost:
         if viewer is not None:
             self._viewers[viewer] = self._last
 
-    def _working(self) -> "_Busy":
-        return _Busy(self)
+    def _working(self, locked: bool = True) -> "_Busy":
+        return _Busy(self, locked)
 
     def _watch(self) -> None:
         """End the actor when idle; store a live set that arrived within the persistence interval."""
@@ -197,8 +240,9 @@ class SessionHost:
         while True:
             time.sleep(period)
             if isinstance(self.session, LiveSession) and self.session.seq != self.persisted_seq:
-                with self._lock:
-                    self._persist_live(with_background=False)
+                with self._frames.writing():
+                    snapshot = self._live_snapshot(with_background=False)
+                self._persist_live(snapshot)
             if self._busy == 0 and time.monotonic() - self._last > self.config.idle_seconds:
                 ray.kill(self._me, no_restart=True)  # an idle end is final: no restart
                 return
@@ -212,18 +256,100 @@ def _summary(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text[0][:200]}" if text else type(exc).__name__
 
 
-class _Busy:
-    """Holds the render lock and marks the actor busy (the idle watch never ends a busy actor)."""
+class FrameLock:
+    """A readers-writer lock over a session's frames: views are drawn by any number of threads at once
+    (readers); preparing a view, a new frame set, a viewer leaving, persisting run alone (the writer).
+    A waiting writer goes before new readers, so frame sets are not starved by a stream of views;
+    :meth:`downgrade` turns the writer into a reader without letting another writer in between (a view
+    is drawn on the very frames it was prepared on). Which mode the calling thread holds is kept per
+    thread for :meth:`holds_current` / :meth:`release_current`."""
 
-    def __init__(self, actor: Any) -> None:
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self.readers = 0
+        self._writer = False
+        self._writers_waiting = 0
+        self._mine = threading.local()
+
+    def acquire_write(self) -> None:
+        with self._cond:
+            self._writers_waiting += 1
+            while self._writer or self.readers:
+                self._cond.wait()
+            self._writers_waiting -= 1
+            self._writer = True
+        self._mine.mode = "write"
+
+    def release_write(self) -> None:
+        with self._cond:
+            self._writer = False
+            self._cond.notify_all()
+        self._mine.mode = None
+
+    def downgrade(self) -> None:
+        with self._cond:
+            self._writer = False
+            self.readers += 1
+            self._cond.notify_all()
+        self._mine.mode = "read"
+
+    def acquire_read(self) -> None:
+        with self._cond:
+            while self._writer or self._writers_waiting:
+                self._cond.wait()
+            self.readers += 1
+        self._mine.mode = "read"
+
+    def release_read(self) -> None:
+        with self._cond:
+            self.readers -= 1
+            self._cond.notify_all()
+        self._mine.mode = None
+
+    def holds_current(self) -> bool:
+        return getattr(self._mine, "mode", None) is not None
+
+    def release_current(self) -> None:
+        (self.release_write if self._mine.mode == "write" else self.release_read)()
+
+    @contextlib.contextmanager
+    def writing(self) -> Iterator[None]:
+        self.acquire_write()
+        try:
+            yield
+        finally:
+            self.release_write()
+
+
+@contextlib.contextmanager
+def _render_threads(drawing: int) -> Iterator[None]:
+    """Share the compute threads among the views drawn at once: a view drawn alone uses numba's
+    threads; ``drawing`` views at once take a share each (numba's setting is per calling thread),
+    so concurrent views fill the cores instead of oversubscribing them."""
+    total = numba.config.NUMBA_NUM_THREADS
+    numba.set_num_threads(max(1, total // max(1, drawing)))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(total)
+
+
+class _Busy:
+    """Marks the actor busy (the idle watch never ends a busy actor) and holds the frames' write lock
+    (unless ``locked`` is False)."""
+
+    def __init__(self, actor: Any, locked: bool = True) -> None:
         self.actor = actor
+        self.locked = locked
 
     def __enter__(self) -> None:
         self.actor._busy += 1
-        self.actor._lock.acquire()
+        if self.locked:
+            self.actor._frames.acquire_write()
 
     def __exit__(self, *exc: object) -> None:
-        self.actor._lock.release()
+        if self.locked:
+            self.actor._frames.release_write()
         self.actor._busy -= 1
         self.actor._last = time.monotonic()
 

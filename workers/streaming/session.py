@@ -16,10 +16,13 @@ A recording session renders from frames at about the viewer's size: for a view w
 rig's images by the integer factor :func:`source_factor` (the largest that keeps them at least w x h;
 1920x1080 cameras and a 640x360 view: 3), once per frame set and factor (area averaging, then the
 renderer's undistortion at the small size), and keeps a renderer per factor in use (at most
-``MAX_LEVELS``). The header then also says ``"source_factor"`` (1: the recorded size).
+``MAX_LEVELS``). The header then also says ``"source_factor"`` (1: the recorded size). A live session
+decodes each pushed set once, at the factor of the largest view its present viewers ask for (JPEG DCT
+scaling: a 640x480 rig seen at 320x240 decodes at half size), see :class:`LiveSession`.
 """
 from __future__ import annotations
 
+import threading
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -36,7 +39,7 @@ from workers.sweep.renderer import RenderOptions, RenderResult, SweepRenderer
 from workers.sweep.rig import Rig, RigError
 
 from .background import BackgroundModel
-from .images import ImageError, decode_image, encode_jpeg
+from .images import ImageError, decode_reduced, encode_jpeg
 from .params import Viewpoint
 from .recording import RecordingArchive
 from .viewpoint import OrbitFrame, orbit_frame, virtual_camera
@@ -112,9 +115,25 @@ class SessionLimits:
             raise ViewError("too_many_planes", f"{planes} planes is over the limit of {self.max_planes}")
 
 
+@dataclass(frozen=True)
+class Plan:
+    """A view ready to draw (:meth:`Session.prepare`): the viewpoint, its camera and options, the key of
+    what it shows (for re-shading), and the renderer, frame label, live set and factor it was planned on."""
+
+    vp: Viewpoint
+    camera: Camera
+    options: RenderOptions
+    key: tuple
+    frame_label: int | str
+    renderer: SweepRenderer
+    seq: int | None
+    source_factor: int
+
+
 class Session:
-    """Renders views of ``rig`` from the frames loaded by a subclass (not thread-safe: the actor
-    serialises calls)."""
+    """Renders views of ``rig`` from the frames loaded by a subclass. Not thread-safe as a whole:
+    :meth:`prepare` and frame changes run alone, :meth:`draw` on several threads at once (the actor's
+    readers-writer lock)."""
 
     kind = "?"
     seq: int | None = None
@@ -128,6 +147,7 @@ class Session:
         self.frame_key: Any = None
         self.source_factor = 1
         self._previous: OrderedDict[str, tuple[tuple, RenderResult]] = OrderedDict()
+        self._kept_lock = threading.Lock()  # _previous: drawn into from several threads
         self.renders = 0
 
     def check(self, vp: Viewpoint) -> None:
@@ -136,32 +156,47 @@ class Session:
 
     def render(self, viewer: str, vp: Viewpoint) -> tuple[dict[str, Any], bytes]:
         """Render ``vp`` for ``viewer`` (any id; it keys the previous render for re-shading)."""
+        return self.draw(viewer, self.prepare(viewer, vp))
+
+    def prepare(self, viewer: str, vp: Viewpoint) -> "Plan":
+        """First half of :meth:`render`: check ``vp`` and load the frames it asks for into the
+        renderer. Changes the session: callers that render on several threads run it alone."""
         self.check(vp)
-        frame_label = self._prepare(vp)
+        frame_label = self._prepare(viewer, vp)
         try:
             cam = virtual_camera(vp, self.orbit, (vp.width, vp.height))
             options = RenderOptions(**vp.render_fields())
-            key = (self.frame_key, cam.K.tobytes(), cam.R.tobytes(), cam.t.tobytes(), vp.planes, vp.near, vp.far,
-                   vp.visual_hull, vp.coarse_to_fine, vp.aggregation, vp.occlusions)
-            previous = self._previous.get(viewer)
-            reshaded = previous is not None and previous[0] == key
-            if reshaded:
-                result = self.renderer.reshade(previous[1], method=vp.method, d_bnd=vp.d_bnd, k=vp.k,
-                                                 visibility=vp.visibility)
-            else:
-                result = self.renderer.render(cam, options)
         except (RigError, CameraError, ValidationError) as exc:
             raise ViewError("bad_view", _one_line(exc)) from None
-        self._remember(viewer, key, result)
+        key = (self.frame_key, cam.K.tobytes(), cam.R.tobytes(), cam.t.tobytes(), vp.planes, vp.near, vp.far,
+               vp.visual_hull, vp.coarse_to_fine, vp.aggregation, vp.occlusions)
+        return Plan(vp, cam, options, key, frame_label, self.renderer, self.seq, self.source_factor)
+
+    def draw(self, viewer: str, plan: "Plan") -> tuple[dict[str, Any], bytes]:
+        """Second half of :meth:`render`: sweep (or re-shade) and encode. Reads the frames only, so
+        several threads may draw at once while no :meth:`prepare` or frame change runs."""
+        vp = plan.vp
+        try:
+            with self._kept_lock:
+                previous = self._previous.get(viewer)
+            reshaded = previous is not None and previous[0] == plan.key
+            if reshaded:
+                result = plan.renderer.reshade(previous[1], method=vp.method, d_bnd=vp.d_bnd, k=vp.k,
+                                               visibility=vp.visibility)
+            else:
+                result = plan.renderer.render(plan.camera, plan.options)
+        except (RigError, CameraError, ValidationError) as exc:
+            raise ViewError("bad_view", _one_line(exc)) from None
+        self._remember(viewer, plan.key, result)
         t0 = time.perf_counter()
         jpeg = encode_jpeg(_composed(result, vp.overlay), vp.quality)
         encode_ms = (time.perf_counter() - t0) * 1e3
         self.renders += 1
         found = np.isfinite(result.depth)
         header = {
-            "type": "frame", "id": vp.id, "frame": frame_label, "seq": self.seq,
+            "type": "frame", "id": vp.id, "frame": plan.frame_label, "seq": plan.seq,
             "width": vp.width, "height": vp.height, "method": vp.method, "d_bnd": result.d_bnd, "planes": vp.planes,
-            "overlay": vp.overlay, "source_factor": self.source_factor,
+            "overlay": vp.overlay, "source_factor": plan.source_factor,
             "depth_range": [float(result.planes.min()), float(result.planes.max())],
             "depth_found": [float(result.depth[found].min()), float(result.depth[found].max())] if found.any() else None,
             "coverage": float(found.mean()),
@@ -172,7 +207,8 @@ class Session:
 
     def forget(self, viewer: str) -> None:
         """Drop what is kept for ``viewer`` (it left)."""
-        self._previous.pop(viewer, None)
+        with self._kept_lock:
+            self._previous.pop(viewer, None)
 
     def discard_after_failure(self, viewer: str | None) -> None:
         """After an unexpected exception in a render for ``viewer`` (None: in applying frames),
@@ -187,15 +223,16 @@ class Session:
     def describe(self) -> dict[str, Any]:
         return {"kind": self.kind, "cameras": len(self.rig), "renders": self.renders}
 
-    def _prepare(self, vp: Viewpoint) -> int | str:
+    def _prepare(self, viewer: str, vp: Viewpoint) -> int | str:
         """Load the frames ``vp`` asks for into the renderer; return the frame label for the header."""
         raise NotImplementedError
 
     def _remember(self, viewer: str, key: tuple, result: RenderResult) -> None:
-        self._previous[viewer] = (key, result)
-        self._previous.move_to_end(viewer)
-        while len(self._previous) > self.limits.viewers_kept:
-            self._previous.popitem(last=False)
+        with self._kept_lock:
+            self._previous[viewer] = (key, result)
+            self._previous.move_to_end(viewer)
+            while len(self._previous) > self.limits.viewers_kept:
+                self._previous.popitem(last=False)
 
 
 @dataclass
@@ -228,7 +265,7 @@ class RecordingSession(Session):
         start = Viewpoint()  # the protocol's default view size
         self._use(source_factor(rig, start.width, start.height), 0)
 
-    def _prepare(self, vp: Viewpoint) -> int:
+    def _prepare(self, viewer: str, vp: Viewpoint) -> int:
         if not isinstance(vp.frame, int):
             raise ViewError("bad_frame", "this socket shows a recording: 'frame' must be a frame index")
         if not 0 <= vp.frame < self.frames:
@@ -281,7 +318,16 @@ class RecordingSession(Session):
 
 class LiveSession(Session):
     """Views of the latest frame set pushed by a live client; keeps a background model per camera
-    for the silhouettes (:class:`BackgroundModel`)."""
+    for the silhouettes (:class:`BackgroundModel`).
+
+    Frames are decoded at the size the viewers need: shrunk by :func:`source_factor` of the largest
+    view asked for by a viewer still present (JPEG DCT scaling: :func:`decode_reduced`), or of the
+    protocol's default view size while there is none. The renderer and the background model work at
+    that size; a viewer that needs finer frames has the latest set decoded again for it at once, and
+    a factor that viewers leaving make coarser takes effect with the next set.
+
+    :meth:`decode` (the expensive part, thread-safe, no state changed) and :meth:`apply` (under the
+    caller's lock) split :meth:`push`, so the actor decodes a set while views are rendered."""
 
     kind = "live"
 
@@ -291,51 +337,107 @@ class LiveSession(Session):
         self.seq = 0
         self.latest_jpegs: list[bytes] = []
         self.received_at: float | None = None
+        start = Viewpoint()
+        self.default_factor = source_factor(rig, start.width, start.height)
+        self.source_factor = self.default_factor
+        self.work_rig = shrunk_rig(rig, self.default_factor)
+        self._viewer_factors: dict[str, int] = {}
+
+    def wanted_factor(self) -> int:
+        """The factor frames are decoded at: the finest any present viewer needs (else the default's)."""
+        return min(self._viewer_factors.values(), default=self.default_factor)
+
+    def decode(self, jpegs: Sequence[bytes], factor: int | None = None) -> list[np.ndarray]:
+        """The frame set (one JPEG per camera, rig order) decoded at ``factor`` (None: :meth:`wanted_factor`),
+        (h, w, 3) uint8 BGR per camera. A JPEG that does not decode, or not at its camera's size,
+        raises ViewError. Changes nothing: safe to call while another thread renders."""
+        if len(jpegs) != len(self.rig):
+            raise ViewError("bad_frame_set", f"{len(jpegs)} images for {len(self.rig)} cameras")
+        factor = self.wanted_factor() if factor is None else factor
+        images = []
+        for cam, data in zip(self.rig.cameras, jpegs):
+            try:
+                images.append(decode_reduced(data, (cam.width, cam.height), factor))
+            except ImageError as exc:
+                raise ViewError("bad_image", f"camera {cam.name}: the image {exc}") from None
+        return images
+
+    def apply(self, images: Sequence[np.ndarray], jpegs: Sequence[bytes], is_background: bool = False) -> None:
+        """Show a decoded set (:meth:`decode` of ``jpegs``): background model, silhouettes, renderer.
+        A set decoded at another factor than the one wanted now is decoded again."""
+        factor = self.wanted_factor()
+        small = shrunk_rig(self.rig, factor)
+        if [img.shape[:2] for img in images] != [(c.height, c.width) for c in small.cameras]:
+            images = self.decode(jpegs, factor)
+        self._use_factor(factor, small)
+        silhouettes = self.background.observe(images, is_background)
+        self._show(images, silhouettes)
+        self.seq += 1
+        self.frame_key = ("live", self.seq, factor)
+        self.latest_jpegs = list(jpegs)
+        self.received_at = time.time()
 
     def push(self, jpegs: Sequence[bytes], is_background: bool = False) -> dict[str, Any]:
         """Decode and apply a synchronised frame set (one JPEG per camera, rig order). A JPEG that
         does not decode, or not at its camera's size, raises ViewError and keeps the previous set."""
-        if len(jpegs) != len(self.rig):
-            raise ViewError("bad_frame_set", f"{len(jpegs)} images for {len(self.rig)} cameras")
         t0 = time.perf_counter()
-        images = []
-        for cam, data in zip(self.rig.cameras, jpegs):
-            try:
-                images.append(decode_image(data, (cam.width, cam.height)))
-            except ImageError as exc:
-                raise ViewError("bad_image", f"camera {cam.name}: the image {exc}") from None
-        silhouettes = self.background.observe(images, is_background)
+        images = self.decode(jpegs)
         t1 = time.perf_counter()
-        if self.renderer is None:
-            self.renderer = SweepRenderer(self.rig, images, silhouettes=silhouettes)
-        else:
-            self.renderer.set_frames(images, silhouettes)
-        self.seq += 1
-        self.frame_key = ("live", self.seq)
-        self.latest_jpegs = list(jpegs)
-        self.received_at = time.time()
-        t2 = time.perf_counter()
-        return {"seq": self.seq, "decode_ms": round((t1 - t0) * 1e3, 2), "apply_ms": round((t2 - t1) * 1e3, 2),
-                "background_model": self.background.ready, "background": is_background}
+        self.apply(images, jpegs, is_background)
+        return self.ack(decode_ms=(t1 - t0) * 1e3, apply_ms=(time.perf_counter() - t1) * 1e3,
+                        background=is_background)
+
+    def ack(self, decode_ms: float, apply_ms: float, background: bool) -> dict[str, Any]:
+        """What a client is told of the set just applied."""
+        return {"seq": self.seq, "decode_ms": round(decode_ms, 2), "apply_ms": round(apply_ms, 2),
+                "background_model": self.background.ready, "background": background,
+                "source_factor": self.source_factor}
 
     def restore(self, seq: int, jpegs: Sequence[bytes], backgrounds: Sequence[np.ndarray] | None) -> None:
-        """Reload a persisted state: the background model (if any) and frame set number ``seq``."""
+        """Reload a persisted state: the background model (if any; any stored size, resampled to the
+        working size) and frame set number ``seq``."""
         if backgrounds:
-            self.background.load(backgrounds)
+            self.background.load(backgrounds, [(c.width, c.height) for c in self.work_rig.cameras])
         if jpegs:
             self.seq = seq - 1
             self.push(jpegs)
 
-    def _prepare(self, vp: Viewpoint) -> str:
+    def forget(self, viewer: str) -> None:
+        super().forget(viewer)
+        self._viewer_factors.pop(viewer, None)
+
+    def _prepare(self, viewer: str, vp: Viewpoint) -> str:
         if vp.frame != "live":
             raise ViewError("bad_frame", "this socket shows the live stream: 'frame' must be \"live\"")
         if self.renderer is None:
             raise ViewError("no_frames", "no live frame set has arrived yet")
+        self._viewer_factors[viewer] = source_factor(self.rig, vp.width, vp.height)
+        factor = self.wanted_factor()
+        if factor < self.source_factor:  # this viewer needs finer frames than those shown: decode them again
+            small = shrunk_rig(self.rig, factor)
+            images = self.decode(self.latest_jpegs, factor)
+            self._use_factor(factor, small)
+            self._show(images, self.background.silhouettes(images))
+            self.frame_key = ("live", self.seq, factor)
         return "live"
+
+    def _use_factor(self, factor: int, small: Rig) -> None:
+        """Make ``factor`` (with ``small``, the rig shrunk by it) the working size of the renderer and model."""
+        if factor == self.source_factor and self.renderer is not None:
+            return
+        self.source_factor, self.work_rig = factor, small
+        self.renderer = None  # rebuilt for the new camera sizes by _show
+        self.background.resize([(c.width, c.height) for c in small.cameras])
+
+    def _show(self, images: Sequence[np.ndarray], silhouettes: Sequence[np.ndarray] | None) -> None:
+        if self.renderer is None:
+            self.renderer = SweepRenderer(self.work_rig, images, silhouettes=silhouettes)
+        else:
+            self.renderer.set_frames(images, silhouettes)
 
     def describe(self) -> dict[str, Any]:
         return {**super().describe(), "seq": self.seq, "background_model": self.background.ready,
-                "received_at": self.received_at}
+                "received_at": self.received_at, "source_factor": self.source_factor}
 
 
 def _composed(result: RenderResult, overlay: str) -> np.ndarray:
