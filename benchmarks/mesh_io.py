@@ -6,7 +6,8 @@ tests/faces/test_faces_mesh.py with an error (ours: FaceInputError naming the pr
 triangulation or vertex merging), extra PLY properties and elements, and OBJ texture references for
 ``replace_vertices``; (3) speed on a face-sized mesh (10,201 vertices, 10,000 quads and triangles mixed).
 
-    python benchmarks/mesh_io.py        (needs the bench extra's trimesh, meshio and plyfile)
+    python benchmarks/mesh_io.py        (the bench extra's trimesh and meshio; plyfile, GPL-3.0, only when
+                                         installed by hand: `pip install plyfile`, else its column says so)
 """
 from __future__ import annotations
 
@@ -124,6 +125,8 @@ def _outcome(lib: str, data: bytes, name: str) -> str:
             verts, faces = reader(data, name)
     except NotImplementedError:
         return "n/a"
+    except ModuleNotFoundError:
+        return "not installed"
     except FaceInputError as exc:
         return f"error: FaceInputError ({str(exc)[:40]})"
     except Exception as exc:  # noqa: BLE001 - what a library raises is what we measure
@@ -138,7 +141,7 @@ def main() -> int:
         print(what, hostile[what], flush=True)
     refused = {lib: sum(v[lib].startswith("error") for v in hostile.values()) for lib in READERS}
     hangs = {lib: sum(v[lib].startswith("hangs") for v in hostile.values()) for lib in READERS}
-    applicable = {lib: sum(v[lib] != "n/a" for v in hostile.values()) for lib in READERS}
+    applicable = {lib: sum(v[lib] not in ("n/a", "not installed") for v in hostile.values()) for lib in READERS}
 
     mesh = grid_mesh()
     files = {"obj": (write_mesh(mesh, "obj"), "a.obj"), "ply binary": (write_mesh(mesh, "ply", True), "a.ply"),
@@ -152,7 +155,7 @@ def main() -> int:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
                     verts, faces = fn(data, name)
-            except NotImplementedError:
+            except (NotImplementedError, ModuleNotFoundError):
                 continue
             except Exception as exc:  # noqa: BLE001 - a valid file the library cannot read
                 keeps[f"{fmt} {lib}"] = f"fails to read it ({type(exc).__name__}: {str(exc)[:40]})"
