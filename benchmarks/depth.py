@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import sys
 import threading
 import time
@@ -43,6 +42,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._report import RESULTS_DIR, md_table, publish  # noqa: E402
+from benchmarks._timing import timed  # noqa: E402
 from benchmarks.bd import bd_pair  # noqa: E402
 from workers.common.datasets import dataset  # noqa: E402
 from workers.common.imagemetrics import psnr  # noqa: E402
@@ -303,8 +303,8 @@ def edge_band_figure(scene: SceneData, codec: str, qp: int, factor: int, upsampl
     for m in FIGURE_METHODS:
         top.append(_panel(views[m][crop], m, zoom))
         e = cv2.cvtColor(np.clip(err[m][crop] * 4, 0, 255).astype(np.uint8), cv2.COLOR_GRAY2BGR)
-        band_psnr = psnr(luma(views[m]), luma(real), band)
-        bottom.append(_panel(e, f"|Y err| x4, band {band_psnr:.2f} dB", zoom, outline))
+        band_db = psnr(luma(views[m]), luma(real), band)
+        bottom.append(_panel(e, f"|Y err| x4, band {band_db:.2f} dB", zoom, outline))
     path.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(path), np.vstack([np.hstack(top), np.hstack(bottom)]))
     return {"file": str(path.relative_to(Path(__file__).resolve().parents[1])), "sequence": scene.seq.name,
@@ -344,17 +344,6 @@ def synthetic_low_res_frame() -> np.ndarray:
         c = (int(rng.integers(0, 960)), int(rng.integers(0, 544)))
         cv2.circle(low, c, int(rng.integers(10, 120)), int(rng.integers(80, 250)), -1)
     return jpeg(low, 60)
-
-
-def _timed(fn, reps: int) -> tuple[float, float]:
-    """Median wall and thread-CPU seconds of ``fn()`` over ``reps`` calls."""
-    wall, cpu = [], []
-    for _ in range(reps):
-        w0, c0 = time.perf_counter(), time.thread_time()
-        fn()
-        cpu.append(time.thread_time() - c0)
-        wall.append(time.perf_counter() - w0)
-    return statistics.median(wall), statistics.median(cpu)
 
 
 def _two_workers(make, frames: int) -> float:
@@ -397,8 +386,8 @@ def throughput(reps: int) -> dict[str, float]:
         dst = np.empty_like(full)
         return lambda: cv2.dilate(full, kernel, dst=dst)
 
-    pipe_wall, pipe_cpu = _timed(make_pipeline(), reps)
-    dil_wall, dil_cpu = _timed(make_dilate(), reps)
+    pipe, dil = timed(make_pipeline(), reps), timed(make_dilate(), reps)
+    pipe_wall, pipe_cpu, dil_wall, dil_cpu = pipe.median, pipe.median_cpu, dil.median, dil.median_cpu
     fps2 = _two_workers(make_pipeline, reps)
     dil_fps2 = _two_workers(make_dilate, reps)
     return {

@@ -30,6 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks._timing import timed  # noqa: E402
 from benchmarks._report import md_table, publish  # noqa: E402
 from workers.common.datasets import dataset  # noqa: E402
 from workers.drone import bundle  # noqa: E402
@@ -56,9 +57,9 @@ def _load() -> float:
 
 
 def _timed(fn: Callable[[], Any]) -> tuple[Any, float]:
-    t0 = time.perf_counter()
-    out = fn()
-    return out, time.perf_counter() - t0
+    """(what ``fn()`` returned, its wall seconds): one timed call."""
+    t = timed(fn)
+    return t.result, t.best
 
 
 # ---------------------------------------------------------------------------------------------

@@ -34,9 +34,8 @@ Run: ``python benchmarks/faces.py [--quick]`` from the repository root.
 from __future__ import annotations
 
 import argparse
-import statistics
+import json
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,7 +47,9 @@ from sklearn.svm import SVC
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks import _plots as plots  # noqa: E402
 from benchmarks._report import RESULTS_DIR, md_table, publish  # noqa: E402
+from benchmarks._timing import timed  # noqa: E402
 from workers.common.datasets import dataset  # noqa: E402
 from workers.faces.blas import single_threaded  # noqa: E402
 from workers.faces.dataset import NEUTRAL, FaceDataset, load_dataset_zip, write_dataset_zip  # noqa: E402
@@ -60,7 +61,7 @@ from workers.faces.train import TrainSettings, train_face_model  # noqa: E402
 from workers.faces.transform import transform_mesh, transform_vertices  # noqa: E402
 
 METHODS = ("fisher", "svm")
-COLOURS = {"fisher": (60, 90, 230), "svm": (200, 140, 30), "none": (150, 150, 150)}  # BGR
+COLOURS = {"fisher": "tab:red", "svm": "tab:blue", "none": "tab:gray"}  # matplotlib colours
 LR = ("_L", "_R")
 # Blendshape weights of the paper's six expressions (names ending in "*" mean both _L and _R).
 RECIPES: dict[str, dict[str, float]] = {
@@ -347,23 +348,13 @@ def pick_persons(people: list[Person]) -> list[int]:
 # ------------------------------------------------------------------------------------ timing
 
 def _median_ms(fn, repeats: int) -> float:
-    fn()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return 1000.0 * statistics.median(times)
+    return timed(fn, repeats, warmup=1).median_ms
 
 
 def timings(model, train_ds: FaceDataset, sample: TestFace, quick: bool) -> dict:
     """Speed: training on the 280 meshes, transforms of one face, mesh I/O, the preview."""
     reps = 15 if quick else 60
-    train_times = []
-    for _ in range(1 if quick else 3):
-        t = time.perf_counter()
-        train_face_model(train_ds)
-        train_times.append(time.perf_counter() - t)
+    train = timed(lambda: train_face_model(train_ds), 1 if quick else 3)
     basis, x = model.morph.basis, sample.weak.ravel()
     obj = write_mesh(model.morph.topology.with_vertices(sample.weak), "obj")
     ply = write_mesh(model.morph.topology.with_vertices(sample.weak), "ply")
@@ -377,7 +368,7 @@ def timings(model, train_ds: FaceDataset, sample: TestFace, quick: bool) -> dict
         return lambda: transform_vertices(model, sample.weak, "smile_open", method, 1.0, **kw)
 
     out = {
-        "train_s": statistics.median(train_times),
+        "train_s": train.median,
         "baseline_matmul_ms": _median_ms(baseline, reps),
         "transform_ms": _median_ms(transform("svm", neutral=sample.neutral), reps),
         "transform_fisher_ms": _median_ms(transform("fisher", neutral=sample.neutral), reps),
@@ -394,117 +385,48 @@ def timings(model, train_ds: FaceDataset, sample: TestFace, quick: bool) -> dict
     if not quick:
         for fmt in ("ply", "obj"):
             zipped = write_dataset_zip(train_ds, fmt)
-            t = time.perf_counter()
-            load_dataset_zip(zipped)
-            out[f"import_{fmt}_zip_s"] = time.perf_counter() - t
+            out[f"import_{fmt}_zip_s"] = timed(lambda: load_dataset_zip(zipped)).median
     return out
 
 
 # ------------------------------------------------------------------------------------ plots
 
-def _nice_ticks(lo: float, hi: float, n: int = 5) -> np.ndarray:
-    span = max(hi - lo, 1e-9)
-    step = 10 ** np.floor(np.log10(span / n))
-    step *= next(m for m in (1, 2, 2.5, 5, 10) if span / (m * step) <= n)
-    return np.arange(np.ceil(lo / step) * step, hi + 1e-9, step)
-
-
-def _span(values: np.ndarray, include_zero: bool) -> tuple[float, float]:
-    lo, hi = float(values.min()), float(values.max())
-    if include_zero:
-        lo, hi = min(lo, 0.0), max(hi, 0.0)
-    hi = hi if hi > lo else lo + 1.0
-    pad = 0.05 * (hi - lo)
-    return lo - pad, hi + pad
-
-
-def line_panel(title: str, series: dict[str, tuple[list[float], list[float], tuple]], xlabel: str,
-               ylabel: str, vline: float | None = None, size: tuple[int, int] = (420, 300)) -> np.ndarray:
-    """A line chart: ``series`` label -> (xs, ys, BGR colour); an optional dashed vertical line."""
-    w, h = size
-    img = np.full((h, w, 3), 255, np.uint8)
-    left, right, top, bottom = 56, 12, 28, 40
-    xlo, xhi = _span(np.concatenate([np.asarray(v[0], float) for v in series.values()]), False)
-    ylo, yhi = _span(np.concatenate([np.asarray(v[1], float) for v in series.values()]), True)
-    px = lambda x: int(left + (x - xlo) / (xhi - xlo) * (w - left - right))  # noqa: E731
-    py = lambda y: int(h - bottom - (y - ylo) / (yhi - ylo) * (h - top - bottom))  # noqa: E731
-    font, grey = cv2.FONT_HERSHEY_SIMPLEX, (60, 60, 60)
-    for t in _nice_ticks(ylo, yhi):
-        cv2.line(img, (left, py(t)), (w - right, py(t)), (230, 230, 230), 1)
-        cv2.putText(img, f"{t:g}", (4, py(t) + 4), font, 0.38, grey, 1, cv2.LINE_AA)
-    for t in _nice_ticks(xlo, xhi, 6):
-        cv2.putText(img, f"{t:g}", (px(t) - 8, h - bottom + 16), font, 0.38, grey, 1, cv2.LINE_AA)
-    if ylo < 0 < yhi:
-        cv2.line(img, (left, py(0)), (w - right, py(0)), (160, 160, 160), 1)
-    if vline is not None and xlo < vline < xhi:
-        for y in range(top, h - bottom, 8):
-            cv2.line(img, (px(vline), y), (px(vline), min(y + 4, h - bottom)), (120, 120, 120), 1)
-    cv2.rectangle(img, (left, top), (w - right, h - bottom), (0, 0, 0), 1)
-    for k, (label, (xs, ys, colour)) in enumerate(series.items()):
-        pts = np.array([[px(x), py(y)] for x, y in zip(xs, ys)], np.int32)
-        cv2.polylines(img, [pts], False, colour, 2, cv2.LINE_AA)
-        for p in pts:
-            cv2.circle(img, (int(p[0]), int(p[1])), 3, colour, -1, cv2.LINE_AA)
-        cv2.putText(img, label, (left + 8, top + 16 + 16 * k), font, 0.42, colour, 1, cv2.LINE_AA)
-    cv2.putText(img, title, (left, 18), font, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.putText(img, f"{xlabel}   ({ylabel})", (left, h - 8), font, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
-    return img
-
-
-def bar_panel(title: str, groups: list[str], series: dict[str, tuple[list[float], tuple]],
-              size: tuple[int, int] = (520, 320)) -> np.ndarray:
-    """Grouped bars: ``series`` label -> (one value per group, BGR colour)."""
-    w, h = size
-    img = np.full((h, w, 3), 255, np.uint8)
-    left, right, top, bottom = 56, 12, 28, 36
-    lo, hi = _span(np.concatenate([np.asarray(v[0], float) for v in series.values()]), True)
-    py = lambda y: int(h - bottom - (y - lo) / (hi - lo) * (h - top - bottom))  # noqa: E731
-    font = cv2.FONT_HERSHEY_SIMPLEX
-    for t in _nice_ticks(lo, hi):
-        cv2.line(img, (left, py(t)), (w - right, py(t)), (230, 230, 230), 1)
-        cv2.putText(img, f"{t:g}", (4, py(t) + 4), font, 0.38, (60, 60, 60), 1, cv2.LINE_AA)
-    group_w = (w - left - right) / len(groups)
-    bar_w = group_w * 0.8 / len(series)
-    for g, name in enumerate(groups):
-        x0 = left + g * group_w + group_w * 0.1
-        for k, (values, colour) in enumerate(series.values()):
-            x = int(x0 + k * bar_w)
-            cv2.rectangle(img, (x, py(max(values[g], 0))), (int(x + bar_w) - 2, py(min(values[g], 0))), colour, -1)
-        cv2.putText(img, name, (int(x0 + group_w * 0.3), h - bottom + 18), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.line(img, (left, py(0)), (w - right, py(0)), (0, 0, 0), 1)
-    for k, (label, (_, colour)) in enumerate(series.items()):
-        cv2.putText(img, label, (left + 8 + 130 * k, top + 14), font, 0.42, colour, 1, cv2.LINE_AA)
-    cv2.putText(img, title, (left, 18), font, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
-    return img
-
-
-def grid(panels: list[np.ndarray], cols: int) -> np.ndarray:
-    blank = np.full_like(panels[0], 255)
-    rows = [panels[i:i + cols] + [blank] * (cols - len(panels[i:i + cols])) for i in range(0, len(panels), cols)]
-    return np.concatenate([np.concatenate(r, axis=1) for r in rows], axis=0)
-
-
-def write_plots(qs: list[float], results: dict, reference: dict, fig56: dict, examples: np.ndarray,
+def write_plots(qs: list[float], results: dict, reference: dict, fig56: dict, examples: np.ndarray | None,
                 out_dir: Path) -> list[str]:
-    """The PNGs named in RESULTS.md; returns their names."""
-    files = {}
+    """The charts named in RESULTS.md (and the example sheet, when given); returns their names."""
+    files = []
     for metric, label, name in (("perceptibility", "linear judge log-odds", "faces_perceptibility.png"),
                                 ("kernel_perceptibility", "kernel judge decision", "faces_kernel_judge.png"),
                                 ("distance_mm", "RMS mm to the real strong face", "faces_distance.png"),
                                 ("mahalanobis", "Mahalanobis, judge PCA", "faces_plausibility.png")):
-        files[name] = grid([line_panel(e, {m: (qs, results[e][m][metric], COLOURS[m]) for m in METHODS}, "Q", label)
-                            for e in EXPRESSIONS], 3)
-    files["faces_tradeoff.png"] = grid([line_panel(
-        e, {m: (results[e][m]["mahalanobis"], results[e][m]["perceptibility"], COLOURS[m]) for m in METHODS},
-        "Mahalanobis", "linear judge; dashed: real strong faces", reference[f"{e}.strong"]["mahalanobis"])
-        for e in EXPRESSIONS], 3)
-    files["faces_fig5_6.png"] = grid([bar_panel(f"{e}: linear judge log-odds, persons A-D", fig56["persons"],
-                                                {k: (fig56[e][k], COLOURS[k]) for k in ("none", "fisher", "svm")})
-                                      for e in ("smile_closed", "smile_open")], 2)
-    files["faces_examples.png"] = examples
-    for name, img in files.items():
-        cv2.imwrite(str(out_dir / name), img)
-    return list(files)
+        fig, axes = plots.panels(len(EXPRESSIONS), 3)
+        for ax, e in zip(axes, EXPRESSIONS):
+            plots.line_chart(ax, e, {m: (qs, results[e][m][metric], COLOURS[m]) for m in METHODS}, "Q", label)
+        plots.save(fig, out_dir / name)
+        files.append(name)
+    fig, axes = plots.panels(len(EXPRESSIONS), 3)
+    for ax, e in zip(axes, EXPRESSIONS):
+        plots.line_chart(ax, e, {m: (results[e][m]["mahalanobis"], results[e][m]["perceptibility"], COLOURS[m])
+                                 for m in METHODS}, "Mahalanobis (dashed: real strong faces)", "linear judge log-odds",
+                         reference[f"{e}.strong"]["mahalanobis"])
+    plots.save(fig, out_dir / "faces_tradeoff.png")
+    files.append("faces_tradeoff.png")
+    fig, axes = plots.panels(2, 2, (5.2, 3.2))
+    for ax, e in zip(axes, ("smile_closed", "smile_open")):
+        plots.bar_chart(ax, f"{e}: persons A-D", fig56["persons"],
+                        {k: (fig56[e][k], COLOURS[k]) for k in ("none", "fisher", "svm")}, "linear judge log-odds")
+    plots.save(fig, out_dir / "faces_fig5_6.png")
+    files.append("faces_fig5_6.png")
+    if examples is not None:
+        cv2.imwrite(str(out_dir / "faces_examples.png"), examples)
+        files.append("faces_examples.png")
+    return files
+
+
+def replot(out_dir: Path = RESULTS_DIR) -> list[str]:
+    """Redraw the charts from the last run's ``faces.json`` (the example sheet needs the model: kept)."""
+    saved = json.loads((out_dir / "faces.json").read_text())
+    return write_plots(saved["config"]["qs"], saved["sweep"], saved["reference"], saved["fig5_6"], None, out_dir)
 
 
 def example_sheet(model, tests: list[TestFace], person: int, q: float, size: int = 200) -> np.ndarray:
@@ -636,7 +558,11 @@ def markdown(qs: list[float], results: dict, reference: dict, plausible: dict, f
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer people, fewer Q values, fewer repeats")
+    parser.add_argument("--plots-only", action="store_true", help="redraw the charts from results/faces.json")
     args = parser.parse_args(argv)
+    if args.plots_only:
+        print("\n".join(replot()))
+        return 0
     path = dataset("face3d", "ict", "ict_face_area.npz")
     if path is None:
         print("skipped: face3d/ict/ict_face_area.npz not found under $SWEEPCAST_DATA (ICT-FaceKit)")
