@@ -101,7 +101,9 @@ def _ours_ba(prob: BALProblem, repeats: int, options: bundle.BAOptions) -> dict[
 
 
 def _ba_profile(prob: BALProblem, repeats: int = 20) -> dict[str, float]:
-    """CPU milliseconds of each step of one LM iteration of our solver on ``prob`` (one thread)."""
+    """CPU milliseconds of each step of one LM iteration of our solver on ``prob``, on one thread
+    (as :func:`bundle.solve` runs problems of this size)."""
+    import numba
     from threadpoolctl import threadpool_limits
 
     fixed = np.zeros(prob.params.shape, bool)
@@ -120,19 +122,26 @@ def _ba_profile(prob: BALProblem, repeats: int = 20) -> dict[str, float]:
         out[name] = round((time.process_time() - c0) / repeats * 1e3, 3)
         return value
 
-    with threadpool_limits(1, user_api="blas"):
-        r, Jc, Jp = step("residuals_and_jacobians", lambda: model.evaluate(prob.params, prob.points, ci, pj, prob.obs,
-                                                                            True))
-        U, V, W, gc, gp = step("normal_equation_blocks", lambda: bundle._normal_blocks(Jc, Jp, r, ci, pj, n_cams, n_pts))
-        blocks, rhs, Vinv = step("schur_complement", lambda: bundle._schur(
-            U, V, W, gc, gp, ci, st.order, st.point_start, st.pair_block, st.pair_start, st.blk_indptr, st.blk_indices,
-            1e-4, 1))
-        x = step("reduced_system_cholesky", lambda: bundle._solve_reduced(st, blocks, rhs, 2000))
-        dc = np.zeros(n_cams * 9)
-        dc[st.free_index >= 0] = x
-        dc = dc.reshape(n_cams, 9)
-        dp = step("back_substitution", lambda: bundle._back_substitute(dc, W, Vinv, gp, ci, st.order, st.point_start))
-        step("model_decrease", lambda: bundle._model_decrease(Jc, Jp, r, dc, dp, ci, pj))
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        with threadpool_limits(1, user_api="blas"):
+            r, Jc, Jp = step("residuals_and_jacobians",
+                             lambda: model.evaluate(prob.params, prob.points, ci, pj, prob.obs, True))
+            U, V, W, gc, gp = step("normal_equation_blocks",
+                                   lambda: bundle._normal_blocks(Jc, Jp, r, ci, pj, n_cams, n_pts))
+            blocks, rhs, Vinv = step("schur_complement", lambda: bundle._schur(
+                U, V, W, gc, gp, ci, st.order, st.point_start, st.pair_block, st.pair_start, st.blk_indptr,
+                st.blk_indices, 1e-4, 1))
+            x = step("reduced_system_cholesky", lambda: bundle._solve_reduced(st, blocks, rhs, 2000))
+            dc = np.zeros(n_cams * 9)
+            dc[st.free_index >= 0] = x
+            dc = dc.reshape(n_cams, 9)
+            dp = step("back_substitution",
+                      lambda: bundle._back_substitute(dc, W, Vinv, gp, ci, st.order, st.point_start))
+            step("model_decrease", lambda: bundle._model_decrease(Jc, Jp, r, dc, dp, ci, pj))
+    finally:
+        numba.set_num_threads(threads)
     out["reduced_unknowns"] = st.n_free
     out["point_pairs"] = int((st.pair_block >= 0).sum())
     return out
@@ -236,7 +245,7 @@ def _pycolmap_ba(prob: BALProblem, repeats: int) -> dict[str, Any]:
             "threads": "all cores (num_threads=-1)"}
 
 
-def bench_ba(quick: bool) -> tuple[dict[str, Any], str]:
+def bench_ba(quick: bool, scipy_too: bool = True) -> tuple[dict[str, Any], str]:
     path = dataset("sfm", "bal", "problem-49-7776-pre.txt")
     if path is None:
         return {"skipped": "BAL data not found"}, "BAL problem-49-7776 not found: skipped.\n"
@@ -255,7 +264,7 @@ def bench_ba(quick: bool) -> tuple[dict[str, Any], str]:
     out["ours_default"] = _ours_ba(prob, repeats, bundle.BAOptions(max_iterations=100))
     if pycolmap is not None:
         out["pycolmap"] = _pycolmap_ba(prob, repeats)
-    if not quick:
+    if not quick and scipy_too:
         out["scipy"] = _scipy_ba(prob)
     out["profile_ms_per_iteration"] = _ba_profile(prob)
     out["load_average"] = [load0, _load()]
@@ -283,7 +292,7 @@ def bench_ba(quick: bool) -> tuple[dict[str, Any], str]:
             "pipeline's). "
           + f"Median of {repeats} warm run(s); our first call "
             f"{out['ours']['seconds_first_call']:.2f} s (numba cache load/compile). "
-          + ("scipy skipped (--quick). " if quick else "")
+          + ("scipy skipped (--quick or --no-scipy). " if quick or not scipy_too else "")
           + f"Load average {out['load_average']} on {os.cpu_count()} cores.\n\n"
           + f"Where one of our iterations goes (CPU ms, one thread, {prof['reduced_unknowns']} reduced unknowns, "
             f"{prof['point_pairs']} observation pairs in the Schur complement; total {total:.1f} ms):\n\n"
@@ -658,6 +667,7 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="short run: fewer repeats and frames, no scipy")
     ap.add_argument("--only", help="comma-separated subset of: ba,synthetic,slow_flight,temple,drone_fc350 (the other sections "
                                    "of the previous results are kept)")
+    ap.add_argument("--no-scipy", action="store_true", help="leave out the scipy least_squares BA (about a minute)")
     args = ap.parse_args()
     benches = {"ba": bench_ba, "synthetic": bench_synthetic, "slow_flight": bench_slow_flight, "temple": bench_temple,
                "drone_fc350": bench_fc350}
@@ -676,7 +686,7 @@ def main() -> int:
     for name in chosen:
         print(f"[drone] {name} ...", file=sys.stderr, flush=True)
         load0 = _load()
-        out, md = benches[name](args.quick)
+        out, md = (bench_ba(args.quick, not args.no_scipy) if name == "ba" else benches[name](args.quick))
         out["load_average_start_end"] = [load0, _load()]
         out["markdown"] = md
         out["quick"] = args.quick
