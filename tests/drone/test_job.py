@@ -37,7 +37,8 @@ def test_job_writes_all_results(tmp_path, flight):
                                         "export", "preview"}
     assert cv2.imdecode(np.frombuffer(ctx.result_path("preview.png").read_bytes(), np.uint8), 1).shape[2] == 3
     traj = json.loads(ctx.result_path("trajectory.json").read_text())
-    assert len(traj["frames"]) == report["frames"]["selected"]
+    assert len(traj["frames"]) == report["frames"]["decoded"]  # every decoded frame, selected or not
+    assert traj["counts"]["registered"] == report["frames"]["registered"] + report["frames"]["skipped_registered"]
     stages = [s for _, s in ctx.progress_calls]
     assert stages[0] == "decode" and stages[-1] == "done"
     assert any(s.startswith("track ") for s in stages) and any(s.startswith("BA iteration") for s in stages)

@@ -65,8 +65,11 @@ def test_pipeline_recovers_the_flight(flight, matcher):
     cam = texts["cameras.txt"].splitlines()[-1].split()
     assert cam[1] == "PINHOLE" and float(cam[6]) == pytest.approx(K[0, 2] + 0.5)
     traj = trajectory(model)
-    assert len(traj["frames"]) == len(model.frame_index)
-    assert sum(f["registered"] for f in traj["frames"]) == int(model.registered.sum())
+    assert [f["frame"] for f in traj["frames"]] == list(range(36))  # every decoded frame, in order
+    selected = [f for f in traj["frames"] if f["selected"]]
+    assert [f["frame"] for f in selected] == list(model.frame_index)
+    assert sum(f["registered"] for f in selected) == int(model.registered.sum())
+    assert traj["counts"]["registered"] == sum(f["registered"] for f in traj["frames"])
     img = render_preview(model.points, model.colors, model.R[model.registered], model.t[model.registered], 200)
     assert img.shape == (200, 600, 3) and (img != 40).any(axis=2).mean() > 0.02
 

@@ -10,6 +10,8 @@ Modules (one concept each):
 - ``camera_models``, ``bundle``: our Levenberg–Marquardt bundle adjuster with Schur complement.
 - ``bal``: BAL problem files (benchmark).
 - ``reconstruction``: the incremental pipeline -> ``SparseModel``.
+- ``localise``: the frames outside the map (non-keyframes, frames selection left out) registered
+  afterwards by PnP, so every decoded frame gets a pose (our addition, as COLMAP poses every image).
 - ``export``, ``preview``: PLY, COLMAP text, trajectory JSON; the three-view preview PNG.
 - ``evaluation``: Sim(3) alignment, ATE, rotation error.
 - ``params``, ``job``, ``cli``: ``ReconstructionParams``, ``run_reconstruction``, ``sweepcast reconstruct``.

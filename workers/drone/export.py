@@ -80,26 +80,60 @@ def colmap_text(model: SparseModel) -> dict[str, str]:
     return {"cameras.txt": cameras, "images.txt": img.getvalue(), "points3D.txt": pts.getvalue()}
 
 
+def _pose_item(R: np.ndarray, t: np.ndarray) -> dict[str, Any]:
+    return {"R": R.tolist(), "t": t.tolist(), "center": camera_centre(R, t).tolist(),
+            "quaternion_wxyz": rotation_to_quat(R).tolist()}
+
+
 def trajectory(model: SparseModel) -> dict[str, Any]:
-    """JSON-able trajectory: every selected frame with its pose when registered."""
+    """JSON-able trajectory: every decoded frame in order, with its pose when it has one.
+
+    Each frame says whether frame selection tracked it (``selected``; else ``skipped_because``),
+    whether it is a ``keyframe``, and how it got its pose (``registration``): 'map' (the
+    incremental mapping and bundle adjustment; ``inliers`` = its observations in the final map) or
+    'pnp' (registered afterwards against the final map; ``inliers`` of ``candidates`` mapped points).
+    A frame without a pose has ``reason``. ``unregistered`` lists those frames again.
+    """
     intr = model.intrinsics.scaled(1.0 / model.scale)
-    centres = camera_centre(model.R, model.t)
+    n = len(model.frame_index)
+    registration = model.frame_registration or ["map" if r else None for r in model.registered]
+    failure = model.frame_failure or [None] * n
     frames = []
-    for f in range(len(model.frame_index)):
+    for f in range(n):
         item: dict[str, Any] = {"frame": int(model.frame_index[f]), "name": model.frame_name[f],
-                                "time": model.frame_time[f], "keyframe": bool(model.keyframe[f]),
-                                "registered": bool(model.registered[f])}
+                                "time": model.frame_time[f], "selected": True, "keyframe": bool(model.keyframe[f]),
+                                "registered": bool(model.registered[f]), "registration": registration[f]}
+        if len(model.frame_inliers):
+            item["inliers"] = int(model.frame_inliers[f])
         if model.registered[f]:
-            item.update(R=model.R[f].tolist(), t=model.t[f].tolist(), center=centres[f].tolist(),
-                        quaternion_wxyz=rotation_to_quat(model.R[f]).tolist())
+            item.update(_pose_item(model.R[f], model.t[f]))
+        else:
+            item["reason"] = failure[f] or "not registered"
         frames.append(item)
+    for view, loc in model.skipped:
+        item = {"frame": view.index, "name": view.name, "time": view.time, "selected": False,
+                "skipped_because": view.reason, "keyframe": False, "registered": loc.R is not None,
+                "registration": "pnp" if loc.R is not None else None, "inliers": loc.inliers,
+                "candidates": loc.candidates}
+        if loc.R is not None:
+            item.update(_pose_item(loc.R, loc.t))
+        else:
+            item["reason"] = loc.failure
+        frames.append(item)
+    frames.sort(key=lambda item: item["frame"])
     return {
         "convention": "world-to-camera x_cam = R X + t, OpenCV axes (x right, y down, z forward); the world is the "
                       "first reconstructed camera's frame, the unit the baseline of the initial pair",
         "intrinsics": {"fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy,
                        "width": int(round(model.width / model.scale)),
                        "height": int(round(model.height / model.scale))},
+        "counts": {"decoded": len(frames), "selected": n, "keyframes": int(model.keyframe.sum()),
+                   "registered": sum(item["registered"] for item in frames),
+                   "registered_in_map": sum(item["registration"] == "map" for item in frames),
+                   "registered_afterwards": sum(item["registration"] == "pnp" for item in frames)},
         "frames": frames,
+        "unregistered": [{"frame": item["frame"], "name": item["name"], "reason": item["reason"]}
+                         for item in frames if not item["registered"]],
     }
 
 

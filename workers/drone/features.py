@@ -15,8 +15,8 @@ def fast_corners(gray: np.ndarray, threshold: int = 20) -> tuple[np.ndarray, np.
     kps = det.detect(gray, None)
     if not kps:
         return np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
-    pts = np.array([k.pt for k in kps], np.float32)
-    resp = np.array([k.response for k in kps], np.float32)
+    pts = cv2.KeyPoint_convert(kps).reshape(-1, 2)  # in C++: a list of tuples costs ~3x the detection
+    resp = np.fromiter((k.response for k in kps), np.float32, len(kps))
     order = np.argsort(-resp, kind="stable")
     return pts[order], resp[order]
 

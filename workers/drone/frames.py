@@ -41,6 +41,18 @@ class Frame:
     gray: np.ndarray
 
 
+@dataclass(frozen=True)
+class Skipped:
+    """A decoded frame that frame selection left out: ``gray`` (H, W) uint8 at the working
+    resolution (undistorted), None when the frame cannot be used at all; ``reason`` in words."""
+
+    index: int
+    time: float | None
+    name: str
+    gray: np.ndarray | None
+    reason: str
+
+
 @dataclass
 class MediaSource:
     """Decoded frames of a video or an image sequence, (index, time, name, BGR image)."""
@@ -184,6 +196,7 @@ def select_frames(
     max_width: int = 1280,
     stats: SelectionStats | None = None,
     on_decoded: Callable[[int], None] | None = None,
+    on_skipped: Callable[[Skipped], None] | None = None,
 ) -> Iterator[Frame]:
     """Stream the frames worth tracking.
 
@@ -194,7 +207,9 @@ def select_frames(
     At most ``max_frames`` frames: the step grows when the length is known, else the stream
     is cut. Frames are resized to at most ``max_width`` and undistorted with ``intrinsics.dist``;
     ``intrinsics`` (native resolution) are checked against the first frame's size.
-    ``on_decoded(n)`` is called after each decoded frame.
+    ``on_decoded(n)`` is called after each decoded frame; ``on_skipped`` receives every decoded
+    frame that is not selected (with its working-resolution gray image when it has the first
+    frame's size), before the next selected frame is yielded.
     """
     stats = stats if stats is not None else SelectionStats()
     stride = 1
@@ -222,8 +237,21 @@ def select_frames(
                 maps = cv2.initUndistortRectifyMap(k, intrinsics.dist, None, k, stats.working_size, cv2.CV_16SC2)
         elif bgr.shape[1::-1] != stats.native_size:
             source.errors.append(f"{name}: size {bgr.shape[1]}x{bgr.shape[0]} differs from the first frame; skipped")
+            if on_skipped is not None:
+                on_skipped(Skipped(index, time, name, None, "size differs from the first frame"))
             continue
+
+        def skip(reason: str) -> None:
+            if on_skipped is not None:
+                gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+                if scale != 1.0:
+                    gray = cv2.resize(gray, stats.working_size, interpolation=cv2.INTER_AREA)
+                if maps is not None:
+                    gray = cv2.remap(gray, maps[0], maps[1], cv2.INTER_LINEAR)
+                on_skipped(Skipped(index, time, name, gray, reason))
+
         if index % stride:
+            skip(f"max_frames: every {stride}th frame tracked")
             continue
         since += 1
         thumb_s = _THUMB / max(bgr.shape[:2])
@@ -244,9 +272,12 @@ def select_frames(
             motion = float(np.linalg.norm(shift)) / thumb.shape[1] if peak >= 0.05 else np.inf
             due, late = motion >= min_motion, motion >= 3 * min_motion and since >= 3
         if not due:
+            skip(f"frame_step: every {frame_step}th frame tracked" if frame_step is not None
+                 else "little motion since the last selected frame")
             continue
         if blurred and not late:
             stats.skipped_blurred += 1
+            skip("blurred")
             continue
         if stats.selected >= max_frames:
             stats.truncated = True

@@ -3,7 +3,9 @@
 media -> selected frames -> tracks (FAST+LK with the III-A rule, or SIFT) -> keyframes by
 parallax -> initial pair (E, pose, DLT: III-C) -> next keyframes by PnP in the same scale, new
 tracks triangulated, local bundle adjustments -> global bundle adjustment (eq. 5) with outliers
-removed between rounds -> the remaining frames located by PnP against the final map.
+removed between rounds -> the remaining frames located by PnP against the final map: the
+selected frames that are not keyframes, and the decoded frames selection left out, followed by
+optical flow from the selected frame before them (:mod:`workers.drone.localise`).
 """
 from __future__ import annotations
 
@@ -19,7 +21,8 @@ from workers.common.jobctx import JobInputError
 from . import bundle
 from .calibration import Intrinsics
 from .camera_models import PinholeModel, pose_params, poses_from_params
-from .frames import SelectionStats, open_media, select_frames
+from .frames import SelectionStats, Skipped, open_media, select_frames
+from .localise import MIN_INLIERS, Located, SideView, follow_skipped, locate
 from .multiview import register_pnp, select_keyframes, triangulate_pairs, two_view
 from .params import ReconstructionParams
 from .tracks import FlowTracker, SiftTracker, TrackSet
@@ -28,7 +31,7 @@ ProgressFn = Callable[[float, str], None]
 
 _MIN_TRACKS = 20
 _MIN_INIT_POINTS = 30
-_MIN_PNP = 12
+_MIN_PNP = MIN_INLIERS
 _LOCAL_WINDOW = 8
 _LOCAL_ITERATIONS = 8
 _INIT_FIRST = 6     # initial pairs are searched among the first keyframes ...
@@ -44,6 +47,11 @@ class SparseModel:
     world-to-camera (identity/zero where unregistered); points (P, 3), colors (P, 3) uint8 BGR,
     point_error (P,) mean reprojection error in pixels; BA observations obs_frame (M,),
     obs_point (M,), obs_xy (M, 2) pixels; ``report`` a JSON-able summary.
+    ``frame_registration`` (F,) 'map' (posed by the incremental mapping and bundle adjustment),
+    'pnp' (registered afterwards against the final map) or None; ``frame_inliers`` (F,) int64
+    observations in the final map ('map') or PnP inliers ('pnp'); ``frame_failure`` why an
+    unregistered frame has no pose. ``skipped``: the decoded frames selection left out, each
+    with its pose against the map or the reason it has none.
     """
 
     K: np.ndarray
@@ -65,6 +73,10 @@ class SparseModel:
     obs_point: np.ndarray
     obs_xy: np.ndarray
     report: dict[str, Any] = field(default_factory=dict)
+    frame_registration: list[str | None] = field(default_factory=list)
+    frame_inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    frame_failure: list[str | None] = field(default_factory=list)
+    skipped: list[tuple[SideView, Located]] = field(default_factory=list)
 
 
 def _stage(progress: ProgressFn | None, fraction: float, stage: str) -> None:
@@ -85,6 +97,7 @@ class _Tracked:
     seconds_decode: float
     seconds_track: float
     errors: list[str]
+    side: list[SideView] = field(default_factory=list)
 
 
 def track_media(media: str | Path, intrinsics: Intrinsics, p: ReconstructionParams,
@@ -101,13 +114,19 @@ def track_media(media: str | Path, intrinsics: Intrinsics, p: ReconstructionPara
     t_track = 0.0
     t0 = time.perf_counter()
     stage = ["decode"]
+    side: list[SideView] = []
+
+    def on_skipped(skipped: Skipped) -> None:
+        # Called before the next selected frame: the tracker's last frame is the one before it.
+        side.append(follow_skipped(skipped, tracker.last_frame() if tracker is not None else None, len(idx) - 1,
+                                   p.fb_threshold, p.lk_window, p.lk_levels))
 
     def on_decoded(n: int) -> None:
         if source.count:
             _stage(progress, span * min(n / source.count, 1.0), stage[0])
 
     for frame in select_frames(source, intrinsics, p.frame_step, p.min_motion, p.blur_ratio, p.max_frames,
-                               p.max_width, stats, on_decoded):
+                               p.max_width, stats, on_decoded, on_skipped):
         if tracker is None:
             K = intrinsics.scaled(stats.scale).K
             tracker = (FlowTracker if p.matcher == "fast_lk" else SiftTracker)(K, p)
@@ -128,7 +147,8 @@ def track_media(media: str | Path, intrinsics: Intrinsics, p: ReconstructionPara
         raise JobInputError(f"{source.name}: only {len(idx)} usable frame(s) of {stats.decoded} decoded; "
                             "a reconstruction needs at least two")
     tracks = tracker.result()
-    return _Tracked(tracks, stats, idx, times, names, time.perf_counter() - t0 - t_track, t_track, source.errors)
+    return _Tracked(tracks, stats, idx, times, names, time.perf_counter() - t0 - t_track, t_track, source.errors,
+                    side)
 
 
 def _expected_frames(count: int | None, stats: SelectionStats) -> int | None:
@@ -414,30 +434,59 @@ def reconstruct(media: str | Path, intrinsics: Intrinsics, params: Reconstructio
 
     t0 = time.perf_counter()
     _stage(progress, 0.95, "localise")
-    localised = _localise_rest(mapper, tracks)
+    mapped = mapper.reg.copy()
+    located = _localise_rest(mapper, tracks)
+    skipped = [(v, _locate_side(mapper, tracks, v)) for v in tr.side]
     timings["localise"] = time.perf_counter() - t0
     _stage(progress, 0.97, "localise")
 
     model = _assemble(mapper, tracks, intr, stats, tr, keyframes)
-    model.report = _report(model, tr, p, keyframes, mapper, localised, err0, err1, final, rounds, timings)
+    rows, _ = mapper.errors()
+    model.frame_registration = ["map" if mapped[f] else "pnp" if mapper.reg[f] else None
+                                for f in range(tracks.n_frames)]
+    model.frame_inliers = np.bincount(mapper.of[rows], minlength=tracks.n_frames).astype(np.int64)
+    model.frame_failure = [None] * tracks.n_frames
+    for f, loc in located.items():
+        model.frame_inliers[f] = loc.inliers
+        model.frame_failure[f] = loc.failure
+    model.skipped = skipped
+    model.report = _report(model, tr, p, keyframes, mapper, len([v for v in located.values() if v.R is not None]),
+                           err0, err1, final, rounds, timings)
     return model
 
 
-def _localise_rest(mapper: _Mapper, tracks: TrackSet) -> int:
-    """PnP for every frame not registered yet, against the final points (no map changes)."""
-    n = 0
+def _map_points(mapper: _Mapper, track_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (K,) into ``track_ids`` of tracks with a live map point, and those points (K,)."""
+    pt = np.where(track_ids >= 0, mapper.track_point[np.maximum(track_ids, 0)], -1)
+    ok = pt >= 0
+    ok[ok] = mapper.alive[pt[ok]]
+    return np.flatnonzero(ok), pt[ok]
+
+
+def _localise_rest(mapper: _Mapper, tracks: TrackSet) -> dict[int, Located]:
+    """PnP for every selected frame not registered yet, against the final points (no map changes)."""
+    out = {}
     for f in np.flatnonzero(~mapper.reg):
         sl = tracks.frame_slice(int(f))
-        pt = mapper.track_point[tracks.obs_track[sl]]
-        ok = pt >= 0
-        ok[ok] = mapper.alive[pt[ok]]
-        res = register_pnp(mapper.X[pt[ok]], tracks.obs_xy[sl][ok], mapper.K, mapper.p.reprojection_threshold,
-                           _MIN_PNP)
-        if res is not None:
-            mapper.R[f], mapper.t[f] = res[0], res[1]
+        rows, pt = _map_points(mapper, tracks.obs_track[sl])
+        loc = locate(mapper.X[pt], tracks.obs_xy[sl][rows], mapper.K, mapper.p.reprojection_threshold, _MIN_PNP)
+        if loc.R is not None:
+            mapper.R[f], mapper.t[f] = loc.R, loc.t
             mapper.reg[f] = True
-            n += 1
-    return n
+        out[int(f)] = loc
+    return out
+
+
+def _locate_side(mapper: _Mapper, tracks: TrackSet, view: SideView) -> Located:
+    """Pose of a frame selection left out, from the features followed into it (no map changes)."""
+    if view.failure is not None:
+        return Located(None, None, 0, 0, view.failure)
+    raw = tracks.raw_to_track
+    known = view.keys < len(raw)
+    tid = np.full(len(view.keys), -1, np.int64)
+    tid[known] = raw[view.keys[known]]
+    rows, pt = _map_points(mapper, tid)
+    return locate(mapper.X[pt], view.xy[rows].astype(np.float64), mapper.K, mapper.p.reprojection_threshold, _MIN_PNP)
 
 
 def _assemble(mapper: _Mapper, tracks: TrackSet, intr: Intrinsics, stats: SelectionStats, tr: _Tracked,
@@ -494,7 +543,9 @@ def _report(model: SparseModel, tr: _Tracked, p: ReconstructionParams, keyframes
         "frames": {"decoded": stats.decoded, "selected": stats.selected, "skipped_blurred": stats.skipped_blurred,
                    "stride": stats.stride, "keyframes": int(len(keyframes)),
                    "keyframes_registered": int((model.registered & model.keyframe).sum()),
-                   "registered": int(model.registered.sum()), "localised_by_pnp": localised},
+                   "registered": int(model.registered.sum()), "localised_by_pnp": localised,
+                   "skipped_by_selection": len(model.skipped),
+                   "skipped_registered": sum(loc.R is not None for _, loc in model.skipped)},
         "tracks": {"count": tr.tracks.n_tracks, "observations": int(len(tr.tracks.obs_frame)),
                    "mean_length": float(len(tr.tracks.obs_frame) / max(tr.tracks.n_tracks, 1))},
         "matcher": matcher,

@@ -15,7 +15,7 @@ Both take frames one at a time (:meth:`add`) and return a :class:`TrackSet`.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -36,7 +36,9 @@ class TrackSet:
 
     obs_frame (M,) int64 position of the frame in the selected sequence; obs_track (M,) int64
     track ids 0..n_tracks-1; obs_xy (M, 2) float64 pixels (working resolution);
-    obs_rgb (M, 3) uint8 BGR colour at the observation; pairs: statistics per matched pair.
+    obs_rgb (M, 3) uint8 BGR colour at the observation; pairs: statistics per matched pair;
+    raw_to_track (R,) int64: the tracker's own key of a feature (see :meth:`FlowTracker.last_frame`)
+    -> track id, -1 for features in no kept track.
     """
 
     obs_frame: np.ndarray
@@ -45,6 +47,7 @@ class TrackSet:
     obs_rgb: np.ndarray
     n_frames: int
     pairs: list[PairStats]
+    raw_to_track: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     @property
     def n_tracks(self) -> int:
@@ -58,7 +61,8 @@ class TrackSet:
 
 def _build(frames: list[np.ndarray], tracks: list[np.ndarray], xys: list[np.ndarray], rgbs: list[np.ndarray],
            n_frames: int, pairs: list[PairStats]) -> TrackSet:
-    """Assemble observations, keep tracks seen in at least two frames, renumber them."""
+    """Assemble observations, keep tracks seen in at least two frames, renumber them; the
+    TrackSet's ``raw_to_track`` maps the given track ids (0..max) to the new ones."""
     if not frames:
         return TrackSet(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 3), np.uint8),
                         n_frames, pairs)
@@ -68,10 +72,12 @@ def _build(frames: list[np.ndarray], tracks: list[np.ndarray], xys: list[np.ndar
     rgb = np.concatenate(rgbs)
     _, inv, counts = np.unique(t, return_inverse=True, return_counts=True)
     keep = counts[inv] >= 2
-    _, t_new = np.unique(t[keep], return_inverse=True)
+    kept, t_new = np.unique(t[keep], return_inverse=True)
+    raw_to_track = np.full(int(t.max()) + 1 if len(t) else 0, -1, np.int64)
+    raw_to_track[kept] = np.arange(len(kept))
     f, xy, rgb = f[keep], xy[keep], rgb[keep]
     order = np.lexsort((t_new, f))
-    return TrackSet(f[order], t_new[order].astype(np.int64), xy[order], rgb[order], n_frames, pairs)
+    return TrackSet(f[order], t_new[order].astype(np.int64), xy[order], rgb[order], n_frames, pairs, raw_to_track)
 
 
 def _colours(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -142,6 +148,13 @@ class FlowTracker:
         self.misses = np.where(seen, 0, self.misses[keep] + 1)
         return seen
 
+    def last_frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The last added frame's gray (H, W) uint8 and its live features: keys (N,) int64 (raw
+        track ids, see ``TrackSet.raw_to_track``) and positions (N, 2) float32; None before any."""
+        if self.prev is None:
+            return None
+        return self.prev, self.ids, self.pts
+
     def _motion(self, gray: np.ndarray) -> np.ndarray | None:
         """Approximate image motion (2, 3) from the previous frame: a phase-correlation shift
         when it is clear and small (video), else a similarity from ORB matches (stills, turns)."""
@@ -169,6 +182,7 @@ class SiftTracker:
         self._edges: list[tuple[np.ndarray, np.ndarray]] = []
         self.pairs: list[PairStats] = []
         self.n = 0
+        self.prev: np.ndarray | None = None
 
     def add(self, frame: Frame) -> None:
         """Extract SIFT in ``frame`` and match it with the previous frames of the window."""
@@ -184,7 +198,16 @@ class SiftTracker:
         self.n_nodes += len(kp)
         self._xy.append(kp.astype(np.float64))
         self._rgb.append(_colours(frame.image, kp))
+        self.prev = frame.gray
         self.n += 1
+
+    def last_frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The last added frame's gray (H, W) uint8, its keypoints' keys (N,) int64 (node ids,
+        see ``TrackSet.raw_to_track``) and positions (N, 2) float32; None before any frame."""
+        if self.prev is None:
+            return None
+        off = self.offsets[-1]
+        return self.prev, np.arange(off, off + len(self._xy[-1]), dtype=np.int64), self._xy[-1].astype(np.float32)
 
     def result(self) -> TrackSet:
         """Tracks = connected components of the match graph without two points in one frame."""
@@ -204,4 +227,9 @@ class SiftTracker:
         keep = matched & ~np.isin(label, bad)
         xy = np.concatenate(self._xy)
         rgb = np.concatenate(self._rgb)
-        return _build([node_frame[keep]], [label[keep]], [xy[keep]], [rgb[keep]], self.n, self.pairs)
+        out = _build([node_frame[keep]], [label[keep]], [xy[keep]], [rgb[keep]], self.n, self.pairs)
+        # Keys of this tracker are nodes (keypoints), not component labels.
+        node_track = np.full(self.n_nodes, -1, np.int64)
+        node_track[keep] = out.raw_to_track[label[keep]]
+        out.raw_to_track = node_track
+        return out
