@@ -47,8 +47,8 @@ def _sweep() -> None:
         with_hull.render(virtual, RenderOptions(planes=8, method=method))
     for visibility in (True, False):
         with_hull.render(virtual, RenderOptions(planes=8, visibility=visibility))
-    for aggregation in ("none", "window"):  # the occlusion fill's two checks (cost volume, visibility)
-        with_hull.render(virtual, RenderOptions(planes=8, aggregation=aggregation, occlusions="fill"))
+    for coarse in (False, True):  # the occlusion fill's cross-view check and background fill
+        with_hull.render(virtual, RenderOptions(planes=8, coarse_to_fine=coarse, occlusions="fill"))
 
 
 def _demo() -> None:
