@@ -68,10 +68,15 @@ sweepcast_base() {
 }
 
 sweepcast_image() {
+  # Its build time and source commit are kept next to the store, so a run that reuses the image reports both.
   if [ "${SWEEPCAST_REBUILD:-0}" = 1 ] || ! have_image localhost/sweepcast:latest; then
     echo "== buildah bud docker/Dockerfile"
+    local start; start=$(date +%s)
     "${bah[@]}" bud --isolation chroot --format docker --build-arg BASE=localhost/sweepcast-base-local \
       --build-arg FETCH_MODELS=0 -f docker/Dockerfile -t localhost/sweepcast:latest .
+    printf '{"seconds": %s, "built_at": "%s", "commit": "%s", "dirty": %s}\n' "$(( $(date +%s) - start ))" \
+      "$(date -u +%Y-%m-%dT%H:%M:%SZ)" "$(git rev-parse HEAD)" \
+      "$(git diff --quiet HEAD -- app workers docker pyproject.toml && echo false || echo true)" > "$work/app-image.json"
   fi
 }
 
