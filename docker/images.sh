@@ -26,6 +26,10 @@ runtime = "runc"
 CONF
 export CONTAINERS_STORAGE_CONF="$work/storage.conf" CONTAINERS_CONF="$work/containers.conf"
 bah=(buildah --storage-driver vfs)
+# What the app image is built from (the package metadata's README aside): its git tree, and whether it has local changes.
+image_sources=(app workers docker/Dockerfile docker/entrypoint.sh pyproject.toml)
+image_source_tree() { git ls-tree -r HEAD -- "${image_sources[@]}" | sha256sum | cut -c1-16; }
+image_source_dirty() { git diff --quiet HEAD -- "${image_sources[@]}" && echo false || echo true; }
 
 install_tools() {
   local need=() tool
@@ -74,9 +78,9 @@ sweepcast_image() {
     local start; start=$(date +%s)
     "${bah[@]}" bud --isolation chroot --format docker --build-arg BASE=localhost/sweepcast-base-local \
       --build-arg FETCH_MODELS=0 -f docker/Dockerfile -t localhost/sweepcast:latest .
-    printf '{"seconds": %s, "built_at": "%s", "commit": "%s", "dirty": %s}\n' "$(( $(date +%s) - start ))" \
-      "$(date -u +%Y-%m-%dT%H:%M:%SZ)" "$(git rev-parse HEAD)" \
-      "$(git diff --quiet HEAD -- app workers docker pyproject.toml && echo false || echo true)" > "$work/app-image.json"
+    printf '{"seconds": %s, "built_at": "%s", "commit": "%s", "sources": "%s", "dirty": %s}\n' \
+      "$(( $(date +%s) - start ))" "$(date -u +%Y-%m-%dT%H:%M:%SZ)" "$(git rev-parse HEAD)" "$(image_source_tree)" \
+      "$(image_source_dirty)" > "$work/app-image.json"
   fi
 }
 

@@ -4,8 +4,8 @@
 #
 #   sudo docker/verify-stack.sh          (as root, by hand, not in CI; Debian bookworm with apt; ~20 min)
 #
-# 1. Images (docker/images.sh): the app image (docker/Dockerfile, rebuilt unless SWEEPCAST_REBUILD=0 and it
-#    exists), PostgreSQL from Debian's packages and an S3 stand-in, all on one debootstrapped bookworm base.
+# 1. Images (docker/images.sh): the app image (docker/Dockerfile, rebuilt unless it was built from these very
+#    sources), PostgreSQL from Debian's packages and an S3 stand-in, all on one debootstrapped bookworm base.
 # 2. docker/compose.yaml, changed only where this machine needs it (docker/verify/compose_for_podman.py says
 #    what and why: Debian's postgres image, the S3 stand-in for MinIO, two API replicas, two Ray workers),
 #    is brought up with podman-compose; secrets come from docker/.env (made from env.example with random
@@ -36,11 +36,13 @@ port="${SWEEPCAST_PORT:-8000}"
 project=sweepcast-verify
 network="${project}_default"
 
-build_start=$(date +%s.%N)
 sweepcast_base
-[ "${SWEEPCAST_REBUILD:-1}" = 0 ] || SWEEPCAST_REBUILD=1
-SWEEPCAST_REBUILD=$SWEEPCAST_REBUILD sweepcast_image
-build_s=$(python3 -c "print($(date +%s.%N) - $build_start)")
+# The app image is rebuilt unless its record says it was built from these very sources, without local changes.
+if ! python3 -c "import json, sys; r = json.load(open(sys.argv[1])); sys.exit(r['sources'] != sys.argv[2] or r['dirty'])" \
+     "$work/app-image.json" "$(image_source_tree)" 2>/dev/null || [ "$(image_source_dirty)" = true ]; then
+  SWEEPCAST_REBUILD=1
+fi
+SWEEPCAST_REBUILD=${SWEEPCAST_REBUILD:-0} sweepcast_image
 postgres_image
 s3_image
 
@@ -77,6 +79,6 @@ trap cleanup EXIT
 
 echo "== podman-compose up ($compose)"
 .venv/bin/python benchmarks/docker_stack.py --compose "${podman_compose[*]}" --project "$project" \
-  --port "$port" --api-key "${SWEEPCAST_API_KEYS%%,*}" --image-build-s "$build_s" \
-  --podman-version "$(podman --version) / $(podman-compose --version 2>/dev/null | head -1)"
+  --port "$port" --api-key "${SWEEPCAST_API_KEYS%%,*}" --image-record "$work/app-image.json" \
+  --podman-version "$(podman --version), podman-compose $(dpkg-query -W -f='${Version}' podman-compose)"
 echo "OK: the compose stack passed every check ($(date -u +%Y-%m-%d)); see the docker section of benchmarks/RESULTS.md"
