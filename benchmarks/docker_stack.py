@@ -3,7 +3,7 @@
 Called by ``docker/verify-stack.sh`` (as root, after it built the images and started the S3 stand-in):
 
     python benchmarks/docker_stack.py --compose "podman-compose -p P -f FILE" --project P --port 8000 \
-        --api-key KEY --image-record /var/tmp/sweepcast-image/app-image.json
+        --image-record /var/tmp/sweepcast-image/app-image.json
 
 Steps, each timed: ``up`` to ``/readyz`` 200 on both API replicas; a photo batch, a depth video and a
 reconstruction submitted and their results fetched; the demo rig's viewer socket streaming frames; a Ray
@@ -281,11 +281,11 @@ def main() -> int:
     ap.add_argument("--compose", required=True, help="the podman-compose command with -p and -f")
     ap.add_argument("--project", required=True)
     ap.add_argument("--port", type=int, default=8000)
-    ap.add_argument("--api-key", default="")
     ap.add_argument("--image-record", type=Path, required=True, help="docker/images.sh's record of the app image build")
     ap.add_argument("--podman-version", default="")
     args = ap.parse_args()
-    stack = Stack(args.compose, args.project, args.port, args.api_key)
+    # the key from the environment (verify-stack.sh exports docker/.env), never on the command line RESULTS.md records
+    stack = Stack(args.compose, args.project, args.port, os.environ.get("SWEEPCAST_API_KEYS", "").split(",")[0])
     load_before = os.getloadavg()
     res: dict[str, Any] = {"image": json.loads(args.image_record.read_text()), "podman": args.podman_version}
 

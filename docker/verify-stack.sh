@@ -79,6 +79,6 @@ trap cleanup EXIT
 
 echo "== podman-compose up ($compose)"
 .venv/bin/python benchmarks/docker_stack.py --compose "${podman_compose[*]}" --project "$project" \
-  --port "$port" --api-key "${SWEEPCAST_API_KEYS%%,*}" --image-record "$work/app-image.json" \
+  --port "$port" --image-record "$work/app-image.json" \
   --podman-version "$(podman --version), podman-compose $(dpkg-query -W -f='${Version}' podman-compose)"
 echo "OK: the compose stack passed every check ($(date -u +%Y-%m-%d)); see the docker section of benchmarks/RESULTS.md"
