@@ -24,7 +24,7 @@ case "$role" in
     ;;
   ray-worker)
     exec sweepcast worker --address="${SWEEPCAST_RAY_ADDRESS:?set SWEEPCAST_RAY_ADDRESS=ray-head:6379}" \
-      ${RAY_WORKER_RESOURCES:+--resources "$RAY_WORKER_RESOURCES"}
+      ${RAY_WORKER_CPUS:+--num-cpus "$RAY_WORKER_CPUS"} ${RAY_WORKER_RESOURCES:+--resources "$RAY_WORKER_RESOURCES"}
     ;;
   *)
     exec "$@"

@@ -1,0 +1,365 @@
+"""The compose deployment checked as a user would, through the API's published ports only; timings.
+
+Called by ``docker/verify-stack.sh`` (as root, after it built the images and started the S3 stand-in):
+
+    python benchmarks/docker_stack.py --compose "podman-compose -p P -f FILE" --project P --port 8000 \
+        --image-record /var/tmp/sweepcast-image/app-image.json
+
+Steps, each timed: ``up`` to ``/readyz`` 200 on both API replicas; a photo batch, a depth video and a
+reconstruction submitted and their results fetched; the demo rig's viewer socket streaming frames; a Ray
+worker container killed mid-job (the job finishes on the other); an API container killed right after it
+accepted a job (the other replica keeps serving and finishes the job); ``down`` then ``up`` (every finished
+job's result files byte-identical afterwards). The only things driven outside HTTP are the container
+lifecycle commands a user would type (podman-compose up/down, podman kill) and, to pick the worker
+container to kill, reading which container holds the process the job's ``started`` event names.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import hashlib
+import json
+import os
+import shlex
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import httpx
+import numpy as np
+import websockets
+from websockets.sync.client import connect
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks._report import md_table, publish  # noqa: E402
+from benchmarks.cluster import photos  # noqa: E402
+from benchmarks.coldstart import make_flight  # noqa: E402
+from benchmarks.streaming import view_message  # noqa: E402
+
+FINAL = ("succeeded", "failed", "cancelled")
+
+
+class Stack:
+    """The compose project: its lifecycle commands and its API replicas' base URLs."""
+
+    def __init__(self, compose: str, project: str, port: int, key: str) -> None:
+        self.compose = shlex.split(compose)
+        self.project = project
+        self.bases = [f"http://127.0.0.1:{port}", f"http://127.0.0.1:{port + 1}"]
+        self.headers = {"Authorization": f"Bearer {key}"}
+        self.log: list[str] = []
+
+    def run(self, *args: str) -> None:
+        done = subprocess.run([*self.compose, *args], capture_output=True, text=True)
+        self.log.append(f"$ {' '.join(self.compose + list(args))}\n{done.stdout[-2000:]}{done.stderr[-2000:]}")
+        if done.returncode:
+            raise SystemExit(f"{' '.join(args)} failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}")
+
+    def containers(self, service: str) -> list[str]:
+        out = subprocess.run(["podman", "ps", "--format", "{{.Names}}",
+                              "--filter", f"label=com.docker.compose.project={self.project}",
+                              "--filter", f"label=com.docker.compose.service={service}"],
+                             capture_output=True, text=True, check=True).stdout.split()
+        return sorted(out)
+
+    def client(self, replica: int) -> httpx.Client:
+        return httpx.Client(base_url=self.bases[replica], headers=self.headers, timeout=120)
+
+    def ws(self, replica: int, path: str):
+        return connect(self.bases[replica].replace("http", "ws") + path, additional_headers=self.headers,
+                       max_size=None, open_timeout=30)
+
+
+def wait_for(check: Callable[[], Any], timeout: float, what: str, interval: float = 0.5) -> Any:
+    deadline = time.monotonic() + timeout
+    last: Exception | None = None
+    while time.monotonic() < deadline:
+        try:
+            value = check()
+            if value:
+                return value
+        except (httpx.HTTPError, ValueError, KeyError) as exc:
+            last = exc
+        time.sleep(interval)
+    raise SystemExit(f"timed out after {timeout:.0f} s waiting for {what} (last error: {last})")
+
+
+def ready(stack: Stack, replica: int) -> bool:
+    return httpx.get(f"{stack.bases[replica]}/readyz", timeout=5).status_code == 200
+
+
+def wait_job(http: httpx.Client, job_id: str, timeout: float = 900) -> dict:
+    job = wait_for(lambda: (j := http.get(f"/v1/jobs/{job_id}").json())["state"] in FINAL and j, timeout,
+                   f"job {job_id}")
+    if job["state"] != "succeeded":
+        raise SystemExit(f"job {job_id} {job['state']}: {job.get('error')}")
+    return job
+
+
+def result_digests(http: httpx.Client, job: dict) -> dict[str, str]:
+    """sha256 of every result file of a succeeded job, fetched through the API."""
+    out = {}
+    for f in job["result"]["files"]:
+        r = http.get(f"/v1/jobs/{job['id']}/results/{f['name']}")
+        r.raise_for_status()
+        out[f["name"]] = hashlib.sha256(r.content).hexdigest()
+    return out
+
+
+def batch_files(count: int) -> list[tuple[str, tuple[str, bytes, str]]]:
+    return [("files", (name, data, "image/jpeg")) for name, data in photos(count)]
+
+
+def depth_sequence(frames: int = 24, size: int = 128) -> bytes:
+    """8-bit 4:0:0 depth frames (bytes): a near square moving over a far background."""
+    seq = np.full((frames, size, size), 50, np.uint8)
+    for i in range(frames):
+        seq[i, size // 4:size // 2, size // 4 + i:size // 2 + i] = 200
+    return seq.tobytes()
+
+
+def timed_job(stack: Stack, replica: int, post: Callable[[httpx.Client], httpx.Response]) -> tuple[dict, float]:
+    with stack.client(replica) as http:
+        t = time.monotonic()
+        r = post(http)
+        if r.status_code != 202:
+            raise SystemExit(f"submit refused: {r.status_code} {r.text}")
+        job = wait_job(http, r.json()["id"])
+        return job, time.monotonic() - t
+
+
+def jobs(stack: Stack, tmp: Path) -> dict:
+    """A photo batch (replica 1), a depth video (replica 2), a reconstruction (replica 1); results checked."""
+    out: dict[str, Any] = {}
+    job, s = timed_job(stack, 0, lambda h: h.post("/v1/photos/batches", files=batch_files(12)))
+    with stack.client(0) as http:
+        report = http.get(f"/v1/jobs/{job['id']}/results/report.json").json()
+    assert len(report) == 12, report
+    out["photo_batch"] = {"id": job["id"], "seconds": s, "photos": 12}
+
+    params = {"width": 128, "height": 128, "method": "modified_morph", "scale": 2}
+    job, s = timed_job(stack, 1, lambda h: h.post(
+        "/v1/depth/videos", files={"depth": ("seq.yuv", depth_sequence(), "application/octet-stream")},
+        data={"params": json.dumps(params)}))
+    with stack.client(1) as http:
+        filtered = http.get(f"/v1/jobs/{job['id']}/results/filtered.yuv").content
+    assert len(filtered) == 24 * 256 * 256, len(filtered)
+    out["depth_video"] = {"id": job["id"], "seconds": s, "frames": 24}
+
+    video, intrinsics = make_flight(tmp)
+    job, s = timed_job(stack, 0, lambda h: h.post(
+        "/v1/reconstructions", files={"media": ("flight.mp4", video.read_bytes(), "video/mp4")},
+        data={"params": json.dumps({**intrinsics, "max_features": 1000})}))
+    with stack.client(0) as http:
+        report = http.get(f"/v1/jobs/{job['id']}/results/report.json").json()
+        ply = http.get(f"/v1/jobs/{job['id']}/results/points.ply").content
+    assert report["frames"]["registered"] >= 20 and ply.startswith(b"ply"), report
+    out["reconstruction"] = {"id": job["id"], "seconds": s, "registered": report["frames"]["registered"],
+                             "points": report["points"]}
+    return out
+
+
+def viewer(stack: Stack, frames: int = 10) -> dict:
+    """The demo rig's recording ready, then its viewer socket on replica 2: first frame and ``frames`` more."""
+    t = time.monotonic()
+
+    def demo() -> tuple[str, str] | None:
+        with stack.client(1) as http:
+            rigs = [r for r in http.get("/v1/rigs").json()["rigs"] if r["demo"]]
+            recs = http.get(f"/v1/rigs/{rigs[0]['id']}").json()["recordings"] if rigs else []
+        if recs and recs[0]["state"] == "failed":
+            raise SystemExit(f"the demo recording failed: {recs[0]['error']}")
+        return (rigs[0]["id"], recs[0]["id"]) if recs and recs[0]["state"] == "ready" else None
+
+    rig_id, rec_id = wait_for(demo, 900, "the demo recording")
+    demo_s = time.monotonic() - t
+
+    async def stream() -> tuple[float, int]:
+        url = f"{stack.bases[1].replace('http', 'ws')}/v1/rigs/{rig_id}/view?source={rec_id}"
+        async with websockets.connect(url, additional_headers=stack.headers, max_size=None) as ws:
+            t0 = time.monotonic()
+            first = None
+            for i in range(frames + 1):
+                await ws.send(json.dumps(view_message(i + 1, 0.0, (320, 240))))
+                while True:
+                    message = await asyncio.wait_for(ws.recv(), 300)
+                    if isinstance(message, bytes):
+                        break
+                    if json.loads(message).get("type") == "error":
+                        raise SystemExit(f"the viewer got an error: {message}")
+                first = first if first is not None else time.monotonic() - t0
+            return first, frames + 1
+
+    first, count = asyncio.run(stream())
+    return {"demo_ready_wait_s": demo_s, "first_frame_s": first, "frames": count}
+
+
+def container_of(stack: Stack, pid: int) -> str:
+    """The Ray worker container whose process ``pid`` (in its own PID namespace) is running a task."""
+    found = []
+    for name in stack.containers("ray-worker"):
+        cmd = subprocess.run(["podman", "exec", name, "cat", f"/proc/{pid}/cmdline"], capture_output=True)
+        title = cmd.stdout.replace(b"\0", b" ").decode(errors="replace")
+        if cmd.returncode == 0 and title.startswith("ray::") and "IDLE" not in title:
+            found.append(name)
+    if len(found) != 1:
+        raise SystemExit(f"cannot tell which worker container runs pid {pid}: {found}")
+    return found[0]
+
+
+def kill_worker(stack: Stack) -> dict:
+    """40 photos through replica 1, watched on both replicas (only the one whose dispatcher runs the job relays
+    its worker's ``started`` event); the worker container running it is killed once it reports progress, and
+    the job must succeed after losing its worker."""
+    with stack.client(0) as http:
+        job = http.post("/v1/photos/batches", files=batch_files(40)).json()
+    t = time.monotonic()
+    sockets = [stack.ws(r, f"/v1/jobs/{job['id']}/events") for r in (0, 1)]
+    try:
+        pid = None
+        victim = killed_at = final = None
+        deadline = time.monotonic() + 1200
+        while final is None:
+            if time.monotonic() > deadline:
+                raise SystemExit(f"job {job['id']}: no final event (killed {victim})")
+            for ws in sockets:
+                try:
+                    event = json.loads(ws.recv(timeout=0.2))
+                except TimeoutError:
+                    continue
+                if event["type"] == "started" and pid is None:
+                    pid = event["pid"]
+                elif event["type"] == "progress" and pid is not None and victim is None:
+                    victim = container_of(stack, pid)
+                    subprocess.run(["podman", "kill", victim], check=True, capture_output=True)
+                    killed_at = time.monotonic() - t
+                elif event["type"] == "final":
+                    final = event["job"]
+                    break
+    finally:
+        for ws in sockets:
+            ws.close()
+    assert victim is not None, f"the job finished before a worker could be killed: {final}"
+    assert final["state"] == "succeeded" and final["worker_losses"] >= 1 and final["attempts"] >= 2, final
+    return {"id": job["id"], "killed": victim, "killed_after_s": killed_at, "seconds": time.monotonic() - t,
+            "attempts": final["attempts"], "worker_losses": final["worker_losses"]}
+
+
+def kill_api(stack: Stack) -> dict:
+    """A batch accepted by replica 1, whose container is then killed: replica 2 keeps answering and the job
+    finishes (its lease expires and replica 2 takes it over); replica 1 is started again afterwards."""
+    victim = stack.containers("api")[0]
+    with stack.client(0) as http:
+        job = http.post("/v1/photos/batches", files=batch_files(8)).json()
+    subprocess.run(["podman", "kill", victim], check=True, capture_output=True)
+    t = time.monotonic()
+    served = 0
+    with stack.client(1) as http:
+        def done() -> dict | None:
+            nonlocal served
+            assert http.get("/readyz").status_code == 200
+            served += 1
+            j = http.get(f"/v1/jobs/{job['id']}").json()
+            return j if j["state"] in FINAL else None
+
+        final = wait_for(done, 600, "the orphaned job on the other replica", interval=1.0)
+        assert final["state"] == "succeeded", final
+        report = http.get(f"/v1/jobs/{job['id']}/results/report.json").json()
+    assert len(report) == 8, report
+    seconds = time.monotonic() - t
+    subprocess.run(["podman", "start", victim], check=True, capture_output=True)
+    wait_for(lambda: ready(stack, 0), 300, "the killed replica to come back")
+    return {"id": job["id"], "killed": victim, "seconds": seconds, "readyz_answered": served}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--compose", required=True, help="the podman-compose command with -p and -f")
+    ap.add_argument("--project", required=True)
+    ap.add_argument("--port", type=int, default=8000)
+    ap.add_argument("--image-record", type=Path, required=True, help="docker/images.sh's record of the app image build")
+    ap.add_argument("--podman-version", default="")
+    args = ap.parse_args()
+    # the key from the environment (verify-stack.sh exports docker/.env), never on the command line RESULTS.md records
+    stack = Stack(args.compose, args.project, args.port, os.environ.get("SWEEPCAST_API_KEYS", "").split(",")[0])
+    load_before = os.getloadavg()
+    res: dict[str, Any] = {"image": json.loads(args.image_record.read_text()), "podman": args.podman_version}
+
+    t = time.monotonic()
+    stack.run("up", "-d")
+    for replica in (0, 1):
+        wait_for(lambda: ready(stack, replica), 600, f"API replica {replica + 1} /readyz")
+    res["up_to_ready_s"] = time.monotonic() - t
+    res["containers"] = {s: stack.containers(s) for s in ("postgres", "ray-head", "ray-worker", "api", "api-2")}
+    print(json.dumps(res, indent=1), flush=True)
+
+    with tempfile.TemporaryDirectory(prefix="sweepcast-docker-") as tmp:
+        res["jobs"] = jobs(stack, Path(tmp))
+    print(json.dumps(res["jobs"], indent=1), flush=True)
+    res["viewer"] = viewer(stack)
+    print(json.dumps(res["viewer"], indent=1), flush=True)
+    res["kill_worker"] = kill_worker(stack)
+    print(json.dumps(res["kill_worker"], indent=1), flush=True)
+    res["kill_api"] = kill_api(stack)
+    print(json.dumps(res["kill_api"], indent=1), flush=True)
+
+    finished = [res["jobs"][k]["id"] for k in ("photo_batch", "depth_video", "reconstruction")]
+    finished += [res["kill_worker"]["id"], res["kill_api"]["id"]]
+    with stack.client(0) as http:
+        before = {j: result_digests(http, http.get(f"/v1/jobs/{j}").json()) for j in finished}
+    t = time.monotonic()
+    stack.run("down")
+    stack.run("up", "-d")
+    for replica in (0, 1):
+        wait_for(lambda: ready(stack, replica), 600, f"API replica {replica + 1} /readyz after down/up")
+    res["down_up_to_ready_s"] = time.monotonic() - t
+    with stack.client(1) as http:
+        after = {j: result_digests(http, wait_job(http, j, 60)) for j in finished}
+    assert after == before, (before, after)
+    res["after_down_up"] = {"jobs": len(finished), "files": sum(len(v) for v in after.values()), "identical": True}
+    res["load_average"] = {"before": load_before, "after": os.getloadavg()}
+    publish("docker", res, markdown(res))
+    print(json.dumps(res, indent=1))
+    return 0
+
+
+def markdown(r: dict) -> str:
+    j, v, kw, ka = r["jobs"], r["viewer"], r["kill_worker"], r["kill_api"]
+    rows = [
+        [f"app image build (buildah bud docker/Dockerfile on the debootstrapped base; built {r['image']['built_at']} "
+         f"from commit {r['image']['commit'][:10]})", r["image"]["seconds"]],
+        ["`podman-compose up -d` to `/readyz` 200 on both API replicas", r["up_to_ready_s"]],
+        [f"photo batch, {j['photo_batch']['photos']} photos (submit to results)", j["photo_batch"]["seconds"]],
+        [f"depth video, {j['depth_video']['frames']} frames 128x128 -> 256x256", j["depth_video"]["seconds"]],
+        [f"reconstruction, 36-frame 320x240 flight ({j['reconstruction']['registered']} registered, "
+         f"{j['reconstruction']['points']} points)", j["reconstruction"]["seconds"]],
+        ["demo recording ready (waited after the jobs above)", v["demo_ready_wait_s"]],
+        ["first viewer frame (320x240, socket on replica 2)", v["first_frame_s"]],
+        [f"40-photo batch, worker `{kw['killed']}` killed {kw['killed_after_s']:.0f} s in "
+         f"(attempts {kw['attempts']})", kw["seconds"]],
+        [f"8-photo batch, API `{ka['killed']}` killed after accepting it; finished by replica 2", ka["seconds"]],
+        ["`down` then `up -d` to `/readyz` 200 on both replicas", r["down_up_to_ready_s"]],
+    ]
+    la = r["load_average"]
+    return "\n".join([
+        "`docker/verify-stack.sh` (as root): docker/compose.yaml run with podman and podman-compose "
+        f"({r['podman']}; runc, vfs storage), changed as docker/verify/compose_for_podman.py says: PostgreSQL "
+        "from Debian's packages, moto's S3 server standing in for MinIO (outside the compose project), two API "
+        "replicas, a Ray head and two Ray workers of one CPU each. Checked through the API's published ports only.",
+        "", md_table(["step", "seconds"], [[a, f"{b:.1f}"] for a, b in rows]), "",
+        f"Every check passed: results fetched for each job; viewer streamed {v['frames']} frames; the job whose worker "
+        f"container was killed finished on the other worker; replica 2 answered `/readyz` {ka['readyz_answered']} "
+        f"times while replica 1 was down; after `down`/`up`, all {r['after_down_up']['files']} result files of "
+        f"{r['after_down_up']['jobs']} finished jobs were fetched byte-identical.",
+        "",
+        f"Load average (1 min) {la['before'][0]:.1f} before, {la['after'][0]:.1f} after: other work was running "
+        "on this 2-core machine, so the seconds above are longer than on an idle one.",
+    ])
+
+
+if __name__ == "__main__":
+    sys.exit(main())
