@@ -310,6 +310,17 @@ def test_a_sign_too_short_for_osd_is_decided_by_the_scene_reading(rotation):
 
 
 @needs_tesseract
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_each_backend_reads_the_scene_upright_and_not_turned(backend):
+    detector = TesseractOsd(use_api=backend == "tesserocr")
+    if not detector.ocr:
+        pytest.skip("no English OCR data (tesseract-ocr-eng)")
+    counts = {c.rotation: c.letters for c in detector.read_scene(turned(sign_photo(), 90))}
+    assert sorted(counts) == list(ROTATIONS)
+    assert counts.pop(90) >= 20 and max(counts.values()) <= 2, counts
+
+
+@needs_tesseract
 def test_small_text_image_is_upscaled_and_read():
     small = cv2.resize(text_page(), None, fx=0.45, fy=0.45, interpolation=cv2.INTER_AREA)  # 630 x 450
     report = analyze(jpeg(turned(small, 90)), Engine(FakeDetector(), TESSERACT, text_status()))
