@@ -131,12 +131,15 @@ OCR_VARIANTS: tuple[Variant, ...] = ("gray", "binary")
 that a local threshold breaks), then the binarised one (faint thermal receipts)."""
 TEXT_SCENE_MIN_LETTERS = 8
 """Least confident letters (:func:`count_letters`) the scene reading (:meth:`TesseractOsd.read_scene`) must find
-in its best view to decide. Calibrated on the text/ and noup/ photos at 4 rotations (``benchmarks/orientation.py``,
-grid and held-out selection in RESULTS.md, orientation_text): no texture or aerial view read more than 7 in any view;
-signs read 13 to 60 upright."""
+in its best view to decide: about two words, what a road sign holds. Set from single readings of the real photos
+before the benchmark run (``benchmarks/orientation.py``): signs read 10 (a Korean/English sign, English model) to
+52 (French signposts) letters upright, a generated two-line sign 26; textures and aerial views at most 2 to 4 in any
+view (their single letters do not count). The benchmark's grid and held-out selection check it (RESULTS.md,
+orientation_text)."""
 TEXT_SCENE_RATIO = 3.0
 """... and this many times as many as the best of the other three views (at least 1 counted there): upside-down
-capitals read as letters too (a sign read 19 upright, 10 upside down with English alone)."""
+capitals read as letters too (a Japanese/English sign read 33 upright, 10 upside down); the same ratio as the
+verifying OCR's ``TEXT_VERIFY_RATIO``."""
 TEXT_SCENE_PSM = 11
 """Tesseract's page segmentation for the scene reading: sparse text (find as much text as possible in no particular
 order): signs and posters are scattered lines that the block mode of the verifying OCR does not find."""
