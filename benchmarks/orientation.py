@@ -24,10 +24,12 @@ used both detectors' evidence), ``combined`` (faces only) and ``engine`` (combin
 OSD verified by OCR when the faces decide nothing: the service's default). Per set and cue: decided
 (right), rejected, wrong. A text/ or noup/ trial decided by faces is counted under ``faces``. The text
 cue's thresholds are calibrated here: every engine trial in which the text cue ran records its four OSD
-views and its OCR word counts (the engine reads every OCR variant here; its decisions are the service's),
-and the text rule is re-applied to those records over a grid of (OSD-alone least mean confidence, OCR
-least words, OCR ratio): in sample, and held out (thresholds selected on the other images, applied to
-the held-out image; and by source repository). Trials run on two threads. The text cue's speed is then
+views, its OCR word counts (the engine reads every OCR variant here; its decisions are the service's) and,
+when the first stage rejected it, the scene reading's letters per view; the text rule is re-applied to those
+records over a grid of (OSD-alone least mean confidence, OCR least words, OCR ratio), then of the scene
+reading's (least letters, ratio) behind the chosen first stage: in sample, and held out (thresholds selected
+on the other images, applied to the held-out image; and by source repository). A first-stage point stricter
+than the engine's rejects trials that have no scene record: those count as undecided there. Trials run on two threads. The text cue's speed is then
 measured apart in the service's configuration (one thread, each text photo once).
 
 Speed. ~12-megapixel JPEGs are made by upscaling dev photos. Engine only: ``analyze`` in-process
@@ -79,9 +81,9 @@ from workers.orientation.geometry import ROTATIONS, rotate_view  # noqa: E402
 from workers.orientation.parts import PartSpec  # noqa: E402
 from workers.orientation.service import analyze, combine_cues  # noqa: E402
 from workers.orientation.detect import Engine  # noqa: E402
-from workers.orientation.text import (TEXT_MIN_AGREE, TEXT_MIN_CONFIDENCE, TEXT_VERIFY_MIN_WORDS,  # noqa: E402
-                                      TEXT_VERIFY_RATIO, OsdView, TesseractOsd, TextResult, WordCount,
-                                      text_decision)
+from workers.orientation.text import (TEXT_MIN_AGREE, TEXT_MIN_CONFIDENCE, TEXT_SCENE_MIN_LETTERS,  # noqa: E402
+                                      TEXT_SCENE_RATIO, TEXT_VERIFY_MIN_WORDS, TEXT_VERIFY_RATIO, LetterCount,
+                                      OsdView, TesseractOsd, TextResult, WordCount, decide_text)
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp")
 NEGATIVES = {"dogs.jpg"}
@@ -159,6 +161,7 @@ class RecordingText(TesseractOsd):
 
     def __init__(self, binary: str) -> None:
         super().__init__(binary, exhaustive=True)
+        self.exhaustive_scene = False  # the scene reading runs as in the service: only when the first stage rejects
         self.last = __import__("threading").local()
 
     def upright(self, gray: np.ndarray) -> TextResult:
@@ -181,7 +184,11 @@ def run_sets(sets: dict[str, list[Path]], detectors: dict[str, OrientationDetect
                 views = [[v.view_degrees, v.ran, v.rotation_degrees, v.confidence] for v in report.text.views]
                 recorded = getattr(getattr(getattr(detector, "text", None), "last", None), "result", None)
                 words = [[w.variant, w.rotation, w.words] for w in recorded.words] if recorded else []
-                out.append({"text_words": words, "text_how": recorded.how if recorded else None,"set": set_name, "image": path.name, "turn": r, "config": name,
+                scene = [[c.rotation, c.letters] for c in recorded.scene] if recorded else []
+                out.append({"text_words": words, "text_how": recorded.how if recorded else None,
+                            "text_scene": scene, "text_scene_language": recorded.scene_language if recorded else None,
+                            "text_scripts": [v.script for v in recorded.views] if recorded else [],
+                            "set": set_name, "image": path.name, "turn": r, "config": name,
                             "rotation": report.rotation_degrees, "cue": report.cue, "reason": report.reject_reason,
                             "accepted": report.accepted_rotations, "text_views": views,
                             "text_status": report.text.status, "ms": report.elapsed_ms})
@@ -243,23 +250,29 @@ CALIBRATION_CONFIDENCES = (1.5, 2.0, 2.5, 3.0, 4.0, 6.0, 99.0)
 """OSD-alone thresholds tried (99: never decide by OSD alone)."""
 CALIBRATION_WORDS = (3, 5, 8, 10, 15, 20, 30)
 CALIBRATION_RATIOS = (1.5, 2.0, 3.0, 4.0, 6.0)
+SCENE_LETTERS = (4, 6, 8, 10, 12, 15, 20, 30, 999)
+"""Scene-reading least letters tried (999: no scene reading)."""
+SCENE_RATIOS = (1.5, 2.0, 3.0, 4.0, 6.0)
+NO_SCENE = (999, 6.0)
 
 
-def _final(t: dict, conf: float, words: int, ratio: float) -> int | None:
+def _final(t: dict, conf: float, words: int, ratio: float, letters: int = NO_SCENE[0],
+           scene_ratio: float = NO_SCENE[1]) -> int | None:
     views = tuple(OsdView(v, ok, rot, c) for v, ok, rot, c in t["text_views"])
     counts = tuple(WordCount(var, rot, n) for var, rot, n in t.get("text_words", []))
-    rotation, reason, how = text_decision(views, counts, conf, TEXT_MIN_AGREE, words, ratio)
+    scene = tuple(LetterCount(rot, n) for rot, n in t.get("text_scene", []))
+    rotation, reason, how = decide_text(views, counts, scene, conf, TEXT_MIN_AGREE, words, ratio, letters, scene_ratio)
     faces = Decision(tuple(t["accepted"]), None)  # the faces decided nothing: only their views matter
-    final, _, _ = combine_cues(faces, TextResult(rotation, reason, views, counts, how))
+    final, _, _ = combine_cues(faces, TextResult(rotation, reason, views, counts, how, scene))
     return final
 
 
-def _score(trials: list[dict], conf: float, words: int, ratio: float) -> dict:
+def _score(trials: list[dict], *point) -> dict:
     out: dict = {}
     for t in trials:
         cell = out.setdefault(t["set"], {"trials": 0, "decided": 0, "wrong": 0})
         cell["trials"] += 1
-        final = _final(t, conf, words, ratio)
+        final = _final(t, *point)
         if final is not None:
             cell["decided" if t["set"] != "noup" and final == t["turn"] else "wrong"] += 1
     return out
@@ -269,39 +282,70 @@ def _grid() -> list[tuple[float, int, float]]:
     return [(c, w, r) for c in CALIBRATION_CONFIDENCES for w in CALIBRATION_WORDS for r in CALIBRATION_RATIOS]
 
 
-def _outcomes(trials: list[dict]) -> dict[tuple[float, int, float], list[str | None]]:
-    """Per grid point, each trial's outcome: "d" (decided right), "w" (wrong; any decision on noup/), None."""
-    out = {}
-    for point in _grid():
-        row = []
-        for t in trials:
-            final = _final(t, *point)
-            row.append(None if final is None else "d" if t["set"] != "noup" and final == t["turn"] else "w")
-        out[point] = row
+def _scene_grid() -> list[tuple[int, float]]:
+    return [(n, r) for n in SCENE_LETTERS for r in SCENE_RATIOS]
+
+
+def _row(trials: list[dict], point: tuple) -> list[str | None]:
+    """Each trial's outcome at ``point``: "d" (decided right), "w" (wrong; any decision on noup/), None."""
+    out = []
+    for t in trials:
+        final = _final(t, *point)
+        out.append(None if final is None else "d" if t["set"] != "noup" and final == t["turn"] else "w")
     return out
 
 
-def select_thresholds(outcomes: dict, idx: list[int]) -> tuple[float, int, float]:
-    """The calibration rule, as a held-out fold applies it to the trials ``idx``: among the grid points with
-    no wrong turn (no-up decisions count as wrong), the one deciding the most; ties go to the strictest; then
-    the OSD-alone confidence one grid step stricter (a margin: the loosest safe value sits next to a wrong
-    turn)."""
+class Outcomes:
+    """Trial outcomes per grid point: the first stage's grid without the scene reading, and the scene reading's
+    grid behind a given first-stage point (computed when first asked)."""
+
+    def __init__(self, trials: list[dict]) -> None:
+        self.trials = trials
+        self.first = {point: _row(trials, (*point, *NO_SCENE)) for point in _grid()}
+        self._scene: dict = {}
+
+    def scene(self, first: tuple) -> dict:
+        if first not in self._scene:
+            self._scene[first] = {sp: _row(self.trials, (*first, *sp)) for sp in _scene_grid()}
+        return self._scene[first]
+
+
+def _best(rows: dict, idx: list[int]) -> tuple | None:
+    """The point with no wrong turn on ``idx`` deciding the most; ties to the strictest (the largest values)."""
     best = None
-    for point, row in outcomes.items():
+    for point, row in rows.items():
         got = [row[i] for i in idx]
         if "w" in got:
             continue
         key = (got.count("d"), *point)
         best = key if best is None or key > best else best
-    if best is None:
-        return CALIBRATION_CONFIDENCES[-1], CALIBRATION_WORDS[-1], CALIBRATION_RATIOS[-1]
-    i = CALIBRATION_CONFIDENCES.index(best[1])
-    return CALIBRATION_CONFIDENCES[min(i + 1, len(CALIBRATION_CONFIDENCES) - 1)], best[2], best[3]
+    return None if best is None else best[1:]
 
 
-def held_out(trials: list[dict], outcomes: dict, key) -> dict:
+def _stricter(grid: tuple, value):
+    return grid[min(grid.index(value) + 1, len(grid) - 1)]
+
+
+def select_thresholds(outcomes: Outcomes, idx: list[int]) -> tuple:
+    """The calibration rule, as a held-out fold applies it to the trials ``idx``, stage by stage. First stage
+    (OSD-alone confidence, OCR words, OCR ratio) without the scene reading: among the grid points with no wrong
+    turn (no-up decisions count as wrong), the one deciding the most; ties go to the strictest; then the OSD-alone
+    confidence one grid step stricter (a margin: the loosest safe value sits next to a wrong turn). Then the scene
+    reading (least letters, ratio) behind that first stage, by the same rule, its least letters one step stricter."""
+    first = _best(outcomes.first, idx)
+    if first is None:
+        first = (CALIBRATION_CONFIDENCES[-1], CALIBRATION_WORDS[-1], CALIBRATION_RATIOS[-1])
+    else:
+        first = (_stricter(CALIBRATION_CONFIDENCES, first[0]), first[1], first[2])
+    scene = _best(outcomes.scene(first), idx)
+    scene = NO_SCENE if scene is None else (_stricter(SCENE_LETTERS, scene[0]), scene[1])
+    return (*first, *scene)
+
+
+def held_out(outcomes: Outcomes, key) -> dict:
     """Thresholds selected without a group (all 4 turns of an image, or every image of a source), applied to
     it; decided / wrong per set over all groups, and the thresholds the folds chose."""
+    trials = outcomes.trials
     groups: dict = {}
     for i, t in enumerate(trials):
         groups.setdefault(key(t), []).append(i)
@@ -310,11 +354,12 @@ def held_out(trials: list[dict], outcomes: dict, key) -> dict:
     for g, test in groups.items():
         chosen = select_thresholds(outcomes, [i for k, v in groups.items() if k != g for i in v])
         picks[str(chosen)] = picks.get(str(chosen), 0) + 1
+        row = outcomes.scene(chosen[:3])[chosen[3:]]
         for i in test:
             t = trials[i]
             tot = totals.setdefault(t["set"], {"trials": 0, "decided": 0, "wrong": 0, "wrong_cases": []})
             tot["trials"] += 1
-            got = outcomes[chosen][i]
+            got = row[i]
             tot["decided"] += got == "d"
             tot["wrong"] += got == "w"
             if got == "w":
@@ -323,7 +368,7 @@ def held_out(trials: list[dict], outcomes: dict, key) -> dict:
 
 
 def text_calibration(trials: list[dict]) -> dict:
-    """The text rule re-applied to the engine trials in which the text cue ran: the grid in-sample (decided /
+    """The text rule re-applied to the engine trials in which the text cue ran: the grids in-sample (decided /
     wrong per set as the engine would decide, faces' accepted views included) and held out by image and by
     source (the part of the file name before ``__``)."""
     ran = [t for t in trials if t["config"] == "engine" and t["text_status"] == "ran"]
@@ -331,12 +376,17 @@ def text_calibration(trials: list[dict]) -> dict:
     for conf, words, ratio in _grid():
         if ratio != TEXT_VERIFY_RATIO and words != TEXT_VERIFY_MIN_WORDS:
             continue  # the table shows the grid's two slices through the chosen point
-        rows.append({"min_confidence": conf, "min_words": words, "ratio": ratio, **_score(ran, conf, words, ratio)})
+        rows.append({"min_confidence": conf, "min_words": words, "ratio": ratio,
+                     **_score(ran, conf, words, ratio, *NO_SCENE)})
+    chosen_first = (TEXT_MIN_CONFIDENCE, TEXT_VERIFY_MIN_WORDS, TEXT_VERIFY_RATIO)
+    scene_rows = [{"min_letters": n, "ratio": r, **_score(ran, *chosen_first, n, r)} for n, r in _scene_grid()
+                  if n != NO_SCENE[0]]
     sample = [t for t in ran if t["set"] in ("text", "noup")]
-    outcomes = _outcomes(sample)
-    return {"grid": rows, "in_sample_selection": select_thresholds(outcomes, list(range(len(sample)))),
-            "leave_one_image_out": held_out(sample, outcomes, lambda t: (t["set"], t["image"])),
-            "leave_one_source_out": held_out(sample, outcomes, lambda t: t["image"].split("__")[0])}
+    outcomes = Outcomes(sample)
+    return {"grid": rows, "scene_grid": scene_rows,
+            "in_sample_selection": select_thresholds(outcomes, list(range(len(sample)))),
+            "leave_one_image_out": held_out(outcomes, lambda t: (t["set"], t["image"])),
+            "leave_one_source_out": held_out(outcomes, lambda t: t["image"].split("__")[0])}
 
 
 def text_speed(paths: list[Path], yunet: Path | None) -> dict:
@@ -696,7 +746,9 @@ def run_orientation_sets(face_photos: list[Path], yunet: Path | None, quick: boo
     return {"images": {k: len(v) for k, v in sets.items()}, "text_cue": text_info, "tallies": tallies,
             "paper_vs": compare, "calibration": calibration, "text_speed": speed,
             "chosen": {"min_confidence": TEXT_MIN_CONFIDENCE, "min_agree": TEXT_MIN_AGREE,
-                       "min_words": TEXT_VERIFY_MIN_WORDS, "ratio": TEXT_VERIFY_RATIO}, "trials": trials}
+                       "min_words": TEXT_VERIFY_MIN_WORDS, "ratio": TEXT_VERIFY_RATIO,
+                       "scene_min_letters": TEXT_SCENE_MIN_LETTERS, "scene_ratio": TEXT_SCENE_RATIO},
+            "trials": trials}
 
 
 def sets_markdown(sets: dict | None) -> list[str]:
@@ -742,6 +794,16 @@ def sets_markdown(sets: dict | None) -> list[str]:
                     "there are 50 + 13 independent images, not 252 trials.", "",
                 md_table(["OSD-alone min mean confidence", "OCR min words", "OCR ratio", *names, ""], rows)]
         rows = []
+        for r in cal.get("scene_grid", []):
+            cells = [f"{r[n]['decided']}/{r[n]['wrong']} of {r[n]['trials']}" if n in r else "-" for n in names]
+            chosen = (r["min_letters"], r["ratio"]) == (TEXT_SCENE_MIN_LETTERS, TEXT_SCENE_RATIO)
+            rows.append([r["min_letters"], r["ratio"], *cells, "chosen" if chosen else ""])
+        if rows:
+            out += ["", "Scene reading calibration (in sample): behind the chosen first stage (OSD proposes, OCR "
+                        "verifies), the sparse-text reading of the four views decides when its best view reads at "
+                        "least 'min letters' confident letters and 'ratio' times every other view.", "",
+                    md_table(["scene min letters", "scene ratio", *names, ""], rows)]
+        rows = []
         for label, key in (("leave one image out", "leave_one_image_out"), ("leave one source out", "leave_one_source_out")):
             h = cal[key]
             for set_name, tot in h["totals"].items():
@@ -749,10 +811,11 @@ def sets_markdown(sets: dict | None) -> list[str]:
                              f"{100 * tot['decided'] / max(tot['trials'], 1):.1f}%", tot["wrong"],
                              "; ".join(tot["wrong_cases"][:4]) or "-"])
         picks = "; ".join(f"{k}: {v} folds" for k, v in cal["leave_one_image_out"]["picks"].items())
-        out += ["", "Held-out calibration: for each fold the thresholds (OSD-alone confidence, OCR words, OCR ratio) "
-                    "are selected on the other images only (most decided with no wrong turn and every no-up trial "
-                    "rejected, ties to the strictest, then the OSD-alone confidence one grid step stricter) and applied "
-                    f"to the held-out image(s). In-sample selection: {tuple(cal['in_sample_selection'])}; "
+        out += ["", "Held-out calibration: for each fold the thresholds (OSD-alone confidence, OCR words, OCR ratio; "
+                    "then the scene reading's least letters and ratio) are selected on the other images only, stage by "
+                    "stage (most decided with no wrong turn and every no-up trial rejected, ties to the strictest, "
+                    "then the OSD-alone confidence and the scene reading's least letters one grid step stricter) and "
+                    f"applied to the held-out image(s). In-sample selection: {tuple(cal['in_sample_selection'])}; "
                     f"leave-one-image-out picks: {picks}.", "",
                 md_table(["held out", "folds", "set", "trials", "decided", "decided %", "wrong", "wrong cases"], rows)]
     sp = sets.get("text_speed")
@@ -907,7 +970,7 @@ def main() -> int:
                         help="with --sets-only: only these sets (repeat; default all)")
     parser.add_argument("--sets-only", metavar="JSON", type=Path,
                         help="only the faces-then-text sets, written to JSON and printed (nothing published): "
-                             "for calibrating the text cue")
+                             "for calibrating the text cue; with --text-section: published and written")
     parser.add_argument("--text-section", action="store_true",
                         help="only the faces-then-text sets (text, noup, faces; --set narrows), published as the "
                              "section orientation_text (a few minutes)")
@@ -939,6 +1002,8 @@ def main() -> int:
         photos = [p for i, p in enumerate(photos) if i % 3 == 0 or p.name in NEGATIVES]
     sets_result = None if args.no_sets and not args.sets_only else run_orientation_sets(photos, yunet, args.quick,
                                                                                             args.set)
+    if args.sets_only and sets_result is not None and args.text_section:  # the records too, for a closer look
+        args.sets_only.write_text(json.dumps(sets_result, indent=1))
     if args.text_section:
         if sets_result is None:
             return 0

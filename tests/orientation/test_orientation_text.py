@@ -10,8 +10,10 @@ from tests.orientation.builders import FakeDetector, asymmetric_image, encode, j
 from workers.orientation.detect import Decision, DetectorConfig, Engine, Face, decide, fuse_paper, get_detector
 from workers.orientation.geometry import ROTATIONS, rotate_view
 from workers.orientation.service import analyze, combine_cues
-from workers.orientation.text import (OsdView, TesseractOsd, TextResult, TextUnavailable, WordCount, count_words,
-                                      get_text_detector, ocr_pages, osd_candidate, parse_osd, parse_tsv_words, prepare,
+from workers.common.datasets import dataset
+from workers.orientation.text import (LetterCount, OsdView, TesseractOsd, TextResult, TextUnavailable, WordCount,
+                                      count_letters, count_words, decide_text, get_text_detector, ocr_pages,
+                                      osd_candidate, parse_osd, parse_tsv_words, prepare, scene_language, scene_turn,
                                       text_decision, text_status, tesserocr)
 
 TESSERACT = get_text_detector()
@@ -48,6 +50,17 @@ def text_page(width: int = 1400, height: int = 1000, lines: list[str] = LINES) -
     for i, line in enumerate(lines):
         cv2.putText(page, line, (40, 80 + i * step), cv2.FONT_HERSHEY_DUPLEX, 1.3, (0, 0, 0), 2, cv2.LINE_AA)
     return page
+
+
+def sign_photo(lines: tuple[str, ...] = ("Palais du LOUVRE", "Theatre ROYAL")) -> np.ndarray:
+    """A street sign: two lines of light text on a dark plate over a shaded wall, upright ((700, 900) uint8 grey).
+    Too few characters for OSD; the scene reading finds them."""
+    y, x = np.mgrid[0:700, 0:900]
+    photo = (90 + 80 * x / 900 + 40 * np.sin(y / 37.0)).astype(np.uint8)
+    cv2.rectangle(photo, (120, 220), (800, 470), 30, -1)
+    for i, line in enumerate(lines):
+        cv2.putText(photo, line, (150, 310 + 110 * i), cv2.FONT_HERSHEY_DUPLEX, 1.8, 235, 3, cv2.LINE_AA)
+    return photo
 
 
 def turned(image: np.ndarray, rotation: int) -> np.ndarray:
@@ -137,6 +150,52 @@ def test_words_count_only_confident_letters():
            "5\t1\t1\t1\t1\t1\t3\t4\t20\t10\t91.5\tHello\n"
            "5\t1\t1\t1\t1\t2\t30\t4\t20\t10\t12\t\n")
     assert parse_tsv_words(tsv) == [("Hello", 91.5)]
+
+
+def test_letters_count_confident_words_of_any_script():
+    words = [("Seoul", 91.0), ("서울", 96.0), ("禁止", 85.0), ("S", 95.0), ("205Km", 91.0), ("Tax", 40.0),
+             ("np", 96.0), ("x1y2z3", 90.0)]
+    assert count_letters(words) == 5 + 2 + 2 + 2  # single letters, mostly digits and unsure words do not count
+    assert count_letters(words, min_letters=3) == 5
+    assert count_letters([]) == 0
+
+
+def _scene(**letters: int) -> tuple[LetterCount, ...]:
+    return tuple(LetterCount(int(k[1:]), n) for k, n in letters.items())
+
+
+def test_scene_reading_decides_the_view_that_reads_clearly_best():
+    assert scene_turn(_scene(r0=0, r90=26, r180=0, r270=1), 12, 3.0) == 90
+    assert scene_turn(_scene(r0=19, r90=1, r180=10, r270=3), 12, 3.0) is None  # upside down reads too well
+    assert scene_turn(_scene(r0=19, r90=1, r180=6, r270=3), 12, 3.0) == 0
+    assert scene_turn(_scene(r0=11, r90=0, r180=0, r270=0), 12, 3.0) is None  # too few letters
+    assert scene_turn(_scene(r0=40, r180=0), 12, 3.0) is None  # not every view read
+    assert scene_turn((), 12, 3.0) is None
+
+
+def test_scene_reading_adds_the_script_model_osd_saw():
+    def views(*scripts):
+        return [OsdView(90 * i, s is not None, 0 if s else None, 1.0 if s else 0.0, s, 1.0 if s else 0.0)
+                for i, s in enumerate(scripts)]
+    installed = ("HanS", "Hangul", "Japanese")
+    assert scene_language(views("Hangul", "Hangul", "Latin", None), installed) == "Hangul+eng"
+    assert scene_language(views("Han", "Han", "Japanese", None), installed) == "HanS+eng"  # Han: the HanS model
+    assert scene_language(views("Latin", "Latin", "Hangul", None), installed) == "eng"
+    assert scene_language(views("Thai", "Thai", None, None), installed) == "eng"  # not installed
+    assert scene_language(views(None, None, None, None), installed) == "eng"
+
+
+def test_the_scene_reading_decides_only_what_osd_and_ocr_did_not():
+    agreeing = [_view(r, 90, 5.0) for r in ROTATIONS]
+    none = [_view(r, None) for r in ROTATIONS]
+    sign = _scene(r0=30, r90=0, r180=2, r270=0)
+    assert decide_text(agreeing, (), sign, 2.5, 2, 8, 3.0, 12, 3.0) == (90, None, "osd")  # the first stage first
+    assert decide_text(none, (), sign, 2.5, 2, 8, 3.0, 12, 3.0) == (0, None, "scene")
+    assert decide_text(none, (), (), 2.5, 2, 8, 3.0, 12, 3.0) == (None, "no_cue", None)
+    unclear = _scene(r0=30, r90=0, r180=20, r270=0)
+    assert decide_text(none, (), unclear, 2.5, 2, 8, 3.0, 12, 3.0) == (None, "low_confidence", None)
+    scattered = [_view(0, 0, 3.0), _view(90, 90, 2.0), _view(180, 0, 3.0), _view(270, None)]
+    assert decide_text(scattered, (), unclear, 2.5, 2, 8, 3.0, 12, 3.0) == (None, "conflicting_rotations", None)
 
 
 def test_ocr_reads_a_window_where_the_ink_is():
@@ -238,6 +297,30 @@ def test_a_texture_is_rejected_by_each_backend(backend):
 
 
 @needs_tesseract
+@pytest.mark.parametrize("rotation", ROTATIONS)
+def test_a_sign_too_short_for_osd_is_decided_by_the_scene_reading(rotation):
+    if not TESSERACT.ocr:
+        pytest.skip("no English OCR data (tesseract-ocr-eng)")
+    result = TESSERACT.upright(turned(sign_photo(), rotation))
+    assert not any(v.ran for v in result.views)  # OSD: too few characters
+    assert result.rotation == rotation and result.how == "scene" and result.scene_language == "eng", result
+    best = {c.rotation: c.letters for c in result.scene}
+    assert best.pop(rotation) >= 20 and max(best.values()) <= 2
+    assert "scene text read" in result.summary()
+
+
+@needs_tesseract
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_each_backend_reads_the_scene_upright_and_not_turned(backend):
+    detector = TesseractOsd(use_api=backend == "tesserocr")
+    if not detector.ocr:
+        pytest.skip("no English OCR data (tesseract-ocr-eng)")
+    counts = {c.rotation: c.letters for c in detector.read_scene(turned(sign_photo(), 90))}
+    assert sorted(counts) == list(ROTATIONS)
+    assert counts.pop(90) >= 20 and max(counts.values()) <= 2, counts
+
+
+@needs_tesseract
 def test_small_text_image_is_upscaled_and_read():
     small = cv2.resize(text_page(), None, fx=0.45, fy=0.45, interpolation=cv2.INTER_AREA)  # 630 x 450
     report = analyze(jpeg(turned(small, 90)), Engine(FakeDetector(), TESSERACT, text_status()))
@@ -256,6 +339,21 @@ def test_an_image_without_text_is_rejected_for_review(image):
     assert report.cue == "none" and report.needs_review
     assert report.reject_reason in ("no_cue", "conflicting_rotations", "low_confidence")
     assert report.text.status == "ran"
+
+
+SIGNS = dataset("orientation", "text")
+
+
+@needs_tesseract
+@pytest.mark.skipif(SIGNS is None or not (SIGNS / "easyocr__korean.png").is_file(),
+                    reason="no $SWEEPCAST_DATA/orientation/text (real sign photos)")
+def test_a_real_road_sign_is_decided_by_reading_it():
+    """A Korean/English road sign (EasyOCR's example): OSD runs in no view, the scene reading decides."""
+    if not TESSERACT.ocr:
+        pytest.skip("no English OCR data (tesseract-ocr-eng)")
+    photo = cv2.imread(str(SIGNS / "easyocr__korean.png"), cv2.IMREAD_COLOR)
+    report = analyze(jpeg(turned(photo, 270)), Engine(FakeDetector(), TESSERACT, text_status()))
+    assert report.rotation_degrees == 270 and report.cue == "text" and not report.needs_review
 
 
 @needs_tesseract

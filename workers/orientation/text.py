@@ -1,5 +1,6 @@
 """The second cue: which way is up from text, by Tesseract's orientation and script detection (OSD),
-verified by reading the text (OCR) the way OSD says is up and upside down.
+verified by reading the text (OCR) the way OSD says is up and upside down; and, when that decides nothing,
+by reading the scene's text (sparse OCR) in all four views.
 
 Faces come first (the paper); when they decide nothing, the photo's text may. Tesseract's OSD
 (Debian packages ``tesseract-ocr`` and ``tesseract-ocr-osd``) classifies up to a few hundred
@@ -34,7 +35,15 @@ and what guards each:
   read, are decided this way);
 - *uneven light, faint print*: OSD sees the view binarised with a local threshold (Tesseract's own
   global threshold lost thermal receipts, which OSD then read upside down in every view); OCR reads
-  the grey page first and, when that does not verify, the binarised one.
+  the grey page first and, when that does not verify, the binarised one;
+- *signs and posters* (a few scattered words: OSD finds too few characters or scatters its votes, the
+  block OCR finds no lines; or a script English cannot read): the scene reading
+  (:meth:`TesseractOsd.read_scene`) runs Tesseract's sparse-text mode on the whole page in each of the
+  four views, in English plus the script model of the script OSD saw most (when installed: Debian
+  ``tesseract-ocr-script-hang``, ``-jpan``, ...), and decides the view that reads at least
+  ``TEXT_SCENE_MIN_LETTERS`` confident letters and ``TEXT_SCENE_RATIO`` times as many as every other
+  view (:func:`scene_turn`). Text read sideways or upside down gives few confident letters; a texture
+  gives a few single letters, which do not count (:func:`count_letters`).
 
 The thresholds were calibrated on real text photos and textures (``benchmarks/orientation.py``,
 ``$SWEEPCAST_DATA/orientation``, with held-out figures by image and by source): see their docstrings.
@@ -121,6 +130,29 @@ OSD_TIMEOUT_S = 60.0
 OCR_VARIANTS: tuple[Variant, ...] = ("gray", "binary")
 """The pages OCR reads, in order, until one verifies: the grey page (posters, photos: white-on-colour text
 that a local threshold breaks), then the binarised one (faint thermal receipts)."""
+TEXT_SCENE_MIN_LETTERS = 8
+"""Least confident letters (:func:`count_letters`) the scene reading (:meth:`TesseractOsd.read_scene`) must find
+in its best view to decide: about two words, what a road sign holds. Set from single readings of the real photos
+before the benchmark run (``benchmarks/orientation.py``): signs read 10 (a Korean/English sign, English model) to
+52 (French signposts) letters upright, a generated two-line sign 26; textures and aerial views at most 2 to 4 in any
+view (their single letters do not count). The benchmark's grid and held-out selection check it (RESULTS.md,
+orientation_text)."""
+TEXT_SCENE_RATIO = 3.0
+"""... and this many times as many as the best of the other three views (at least 1 counted there): upside-down
+capitals read as letters too (a Japanese/English sign read 33 upright, 10 upside down); the same ratio as the
+verifying OCR's ``TEXT_VERIFY_RATIO``."""
+TEXT_SCENE_PSM = 11
+"""Tesseract's page segmentation for the scene reading: sparse text (find as much text as possible in no particular
+order): signs and posters are scattered lines that the block mode of the verifying OCR does not find."""
+TEXT_LETTER_MIN_LETTERS = 2
+"""A word's letters count (:func:`count_letters`) when it has at least this many, making up at least
+``TEXT_WORD_LETTER_SHARE`` of it, at ``TEXT_WORD_MIN_CONFIDENCE`` (a priori: single letters are what noise reads;
+two keeps CJK words, often one or two characters long)."""
+LATIN_SCRIPTS = frozenset({"Latin", "Common"})
+"""OSD scripts the English model reads already: no script model added for them."""
+SCRIPT_MODELS = {"Han": "HanS"}
+"""Tesseract's script models are named after the scripts OSD reports (``Hangul``, ``Japanese``, ``Thai``,
+``Cyrillic``, ...; Debian ``tesseract-ocr-script-*``), except Han, read by the simplified-Chinese model."""
 
 class TextUnavailable(RuntimeError):
     """Tesseract or its ``osd`` data is not installed (the engine then works on faces alone)."""
@@ -157,6 +189,16 @@ class WordCount:
 
 
 @dataclass(frozen=True)
+class LetterCount:
+    """The scene reading of the page turned one way: how many confident letters it read."""
+
+    rotation: int
+    """Clockwise degrees the stored image was turned before reading."""
+    letters: int
+    """Letters of the confident words read (:func:`count_letters`)."""
+
+
+@dataclass(frozen=True)
 class TextResult:
     """The text cue's decision."""
 
@@ -169,13 +211,23 @@ class TextResult:
     views: tuple[OsdView, ...]
     words: tuple[WordCount, ...] = ()
     """OCR readings of the candidate turn and its opposite (empty when OCR did not run)."""
-    how: Literal["ocr", "osd"] | None = None
-    """What decided: OCR verified the candidate, or OSD alone (every vote agreeing, confident)."""
+    how: Literal["ocr", "osd", "scene"] | None = None
+    """What decided: OCR verified the candidate, OSD alone (every vote agreeing, confident), or the scene reading
+    (sparse OCR of all four views, when neither of the others decided)."""
+    scene: tuple[LetterCount, ...] = ()
+    """The scene reading's letters per view (empty when it did not run)."""
+    scene_language: str | None = None
+    """The Tesseract languages of the scene reading (``eng``, or a script model and ``eng``)."""
 
     def summary(self) -> str:
         """A few words for people on how the text decided."""
         agreeing = sum(v.ran and v.rotation == self.rotation for v in self.views)
         osd = f"OSD in {agreeing} of {len(self.views)} views"
+        if self.how == "scene":
+            best = max((c.letters for c in self.scene if c.rotation == self.rotation), default=0)
+            other = max((c.letters for c in self.scene if c.rotation != self.rotation), default=0)
+            return (f"scene text read ({self.scene_language}): {best} confident letters this way up, at most {other} "
+                    "turned any other way")
         if self.how != "ocr":
             return f"{osd} (OSD alone)"
         var = next((v for v in OCR_VARIANTS if ocr_turn(self.rotation, self.words, v) == self.rotation), None)
@@ -191,6 +243,66 @@ def count_words(words: Iterable[tuple[str, float]], min_confidence: float = TEXT
         letters = sum(ch.isalpha() for ch in text)
         n += conf >= min_confidence and letters >= min_letters and letters >= letter_share * len(text)
     return n
+
+
+def count_letters(words: Iterable[tuple[str, float]], min_confidence: float = TEXT_WORD_MIN_CONFIDENCE,
+                  min_letters: int = TEXT_LETTER_MIN_LETTERS, letter_share: float = TEXT_WORD_LETTER_SHARE) -> int:
+    """The letters of the (text, confidence 0-100) OCR words that are confident and made of letters (any script:
+    a CJK character counts one)."""
+    n = 0
+    for text, conf in words:
+        letters = sum(ch.isalpha() for ch in text)
+        if conf >= min_confidence and letters >= min_letters and letters >= letter_share * len(text):
+            n += letters
+    return n
+
+
+def scene_turn(counts: Sequence[LetterCount], min_letters: int = TEXT_SCENE_MIN_LETTERS,
+               ratio: float = TEXT_SCENE_RATIO) -> int | None:
+    """The view the scene reading decides: the one with the most letters when it has at least ``min_letters`` and
+    ``ratio`` times as many as every other view (at least 1 counted there); None otherwise (or when not every one
+    of the four views was read)."""
+    if sorted(c.rotation for c in counts) != list(ROTATIONS):
+        return None
+    best = max(counts, key=lambda c: c.letters)
+    other = max(c.letters for c in counts if c is not best)
+    return best.rotation if best.letters >= min_letters and best.letters >= ratio * max(other, 1) else None
+
+
+def scene_language(views: Sequence[OsdView], installed: Iterable[str]) -> str:
+    """The languages of the scene reading: English, plus the script model of the script OSD saw most (summed
+    script confidence over the views that ran) when it is not Latin and its model is installed
+    (``SCRIPT_MODELS``)."""
+    totals: dict[str, float] = {}
+    for v in views:
+        if v.ran and v.script:
+            totals[v.script] = totals.get(v.script, 0.0) + v.script_confidence
+    if not totals:
+        return "eng"
+    script = max(sorted(totals), key=lambda k: totals[k])
+    model = SCRIPT_MODELS.get(script, script)
+    return f"{model}+eng" if script not in LATIN_SCRIPTS and model in set(installed) else "eng"
+
+
+def decide_text(views: Sequence[OsdView], words: Sequence[WordCount] = (), scene: Sequence[LetterCount] = (),
+                min_confidence: float = TEXT_MIN_CONFIDENCE, min_agree: int = TEXT_MIN_AGREE,
+                min_words: int = TEXT_VERIFY_MIN_WORDS, ratio: float = TEXT_VERIFY_RATIO,
+                scene_letters: int = TEXT_SCENE_MIN_LETTERS, scene_ratio: float = TEXT_SCENE_RATIO,
+                ) -> tuple[int | None, RejectReason | None, Literal["ocr", "osd", "scene"] | None]:
+    """The text cue's whole rule: OSD proposes and OCR verifies (:func:`osd_candidate`, :func:`text_decision`);
+    when that decides nothing, the scene reading of the four views (:func:`scene_turn`). A rejection keeps the
+    first stage's reason, except that a scene read clearly in some view is not "no_cue" but "low_confidence"."""
+    candidate, why = osd_candidate(views, min_agree)
+    if candidate is not None:
+        rotation, why, how = text_decision(views, words, min_confidence, min_agree, min_words, ratio)
+        if rotation is not None:
+            return rotation, None, how
+    turn = scene_turn(scene, scene_letters, scene_ratio)
+    if turn is not None:
+        return turn, None, "scene"
+    if why == "no_cue" and any(c.letters >= scene_letters for c in scene):
+        why = "low_confidence"
+    return None, why, None
 
 
 def osd_candidate(views: Sequence[OsdView], min_agree: int = TEXT_MIN_AGREE) -> tuple[int | None, RejectReason | None]:
@@ -375,7 +487,10 @@ class TesseractOsd:
         if "osd" not in langs:
             raise TextUnavailable(f"{path} has no 'osd' data (install the Debian package tesseract-ocr-osd)")
         self.ocr = "eng" in langs
-        """Whether OCR verification is available (the ``eng`` data); without it OSD decides alone."""
+        """Whether OCR verification and the scene reading are available (the ``eng`` data); without it OSD decides
+        alone."""
+        self.script_models = tuple(sorted(lang for lang in langs if lang[:1].isupper()))
+        """The installed script models (``Hangul``, ``Japanese``, ...) the scene reading can add to English."""
         self.min_confidence = min_confidence
         self.min_agree = min_agree
         self.min_characters = min_characters
@@ -383,6 +498,8 @@ class TesseractOsd:
         self.exhaustive = exhaustive
         """Read every OCR variant even after one verified (benchmarks: the calibration needs them all; the
         decision is the same)."""
+        self.exhaustive_scene = exhaustive
+        """Run the scene reading even when the first stage decided (the decision is the same)."""
         want_api = (use_api is None or use_api) and tesserocr is not None and self.tessdata is not None
         if use_api and not want_api:
             raise TextUnavailable("the tesserocr binding is not installed (pip install tesserocr)")
@@ -391,16 +508,18 @@ class TesseractOsd:
 
     # ---- the two backends --------------------------------------------------------------------------------------
 
-    def _api(self, lang: str):
+    def _api(self, lang: str, psm: int | None = None):
         apis = self._local.__dict__.setdefault("apis", {})
-        if lang not in apis:
+        key = (lang, psm)
+        if key not in apis:
             if lang == "osd":
                 api = tesserocr.PyTessBaseAPI(path=self.tessdata, lang="osd", psm=tesserocr.PSM.OSD_ONLY)
                 api.SetVariable("min_characters_to_try", str(self.min_characters))
             else:
-                api = tesserocr.PyTessBaseAPI(path=self.tessdata, lang=lang, psm=tesserocr.PSM.SINGLE_BLOCK)
-            apis[lang] = api
-        return apis[lang]
+                api = tesserocr.PyTessBaseAPI(path=self.tessdata, lang=lang,
+                                              psm=tesserocr.PSM.SINGLE_BLOCK if psm is None else psm)
+            apis[key] = api
+        return apis[key]
 
     def _run(self, image: np.ndarray, args: list[str]) -> tuple[str, str] | str:
         """(stdout, stderr) of the tesseract command line on ``image``, or why it did not run."""
@@ -437,12 +556,13 @@ class TesseractOsd:
             return OsdView(view, False, detail=out)
         return parse_osd(view, *out)
 
-    def words(self, page: np.ndarray) -> list[tuple[str, float]]:
-        """(text, confidence 0-100) of every word English OCR reads on ``page`` ((H, W) uint8, one block)."""
+    def words(self, page: np.ndarray, lang: str = "eng", psm: int = 6) -> list[tuple[str, float]]:
+        """(text, confidence 0-100) of every word OCR in ``lang`` reads on ``page`` ((H, W) uint8) with Tesseract's
+        page segmentation ``psm`` (6: one block, the verifying OCR; 11: sparse text, the scene reading)."""
         if self.backend == "tesserocr":
             from PIL import Image
 
-            api = self._api("eng")
+            api = self._api(lang, None if psm == 6 else psm)
             api.SetImage(Image.fromarray(page))
             api.SetSourceResolution(300)
             api.Recognize()
@@ -457,7 +577,7 @@ class TesseractOsd:
                 except RuntimeError:  # an empty word
                     continue
             return out
-        got = self._run(page, ["--psm", "6", "-l", "eng", "tsv"])
+        got = self._run(page, ["--psm", str(psm), "-l", lang, "tsv"])
         return [] if isinstance(got, str) else parse_tsv_words(got[0])
 
     # ---- the cue ----------------------------------------------------------------------------------------------
@@ -480,15 +600,26 @@ class TesseractOsd:
                 break
         return tuple(out)
 
+    def read_scene(self, gray: np.ndarray, lang: str = "eng") -> tuple[LetterCount, ...]:
+        """The scene reading: sparse-text OCR (``TEXT_SCENE_PSM``) in ``lang`` of ``gray`` ((H, W) uint8, stored
+        orientation) sized like the verifying OCR's page (whole, no window), in each of the four views."""
+        page = _resize_long_side(gray, TEXT_MIN_SIDE, TEXT_OCR_MAX_SIDE, TEXT_MAX_UPSCALE)
+        return tuple(LetterCount(r, count_letters(self.words(rotate_view(page, r), lang, TEXT_SCENE_PSM)))
+                     for r in ROTATIONS)
+
     def upright(self, gray: np.ndarray) -> TextResult:
-        """The turn that shows ``gray``'s text upright, or a rejection with its reason."""
+        """The turn that shows ``gray``'s text upright, or a rejection with its reason: OSD proposes, OCR verifies;
+        when that decides nothing, the scene reading of the four views (:func:`decide_text`)."""
         views = self.views(gray)
-        candidate, why = osd_candidate(views, self.min_agree)
-        if candidate is None:
-            return TextResult(None, why, views)
-        words = self.verify(gray, candidate)
-        rotation, reason, how = text_decision(views, words, self.min_confidence, self.min_agree)
-        return TextResult(rotation, reason, views, words, how)
+        candidate, _ = osd_candidate(views, self.min_agree)
+        words = self.verify(gray, candidate) if candidate is not None else ()
+        rotation, reason, how = decide_text(views, words, (), self.min_confidence, self.min_agree)
+        if not self.ocr or (rotation is not None and not self.exhaustive_scene):
+            return TextResult(rotation, reason, views, words, how)
+        lang = scene_language(views, self.script_models)
+        scene = self.read_scene(gray, lang)
+        rotation, reason, how = decide_text(views, words, scene, self.min_confidence, self.min_agree)
+        return TextResult(rotation, reason, views, words, how, scene, lang)
 
 
 _TESSDATA = re.compile(r'List of available languages in "([^"]+)"')
@@ -534,7 +665,8 @@ def text_status(binary: str = DEFAULT_TESSERACT, enabled: bool = True) -> dict[s
     if isinstance(found, str):
         return {"available": False, "enabled": True, "detail": f"{found}; faces only"}
     return {"available": True, "enabled": True, "path": found.path, "version": found.version,
-            "backend": found.backend, "ocr_verification": found.ocr,
+            "backend": found.backend, "ocr_verification": found.ocr, "scene_reading": found.ocr,
+            "script_models": list(found.script_models),
             "min_confidence": found.min_confidence, "min_agree": found.min_agree}
 
 
