@@ -284,7 +284,7 @@ def test_bad_dense_params_are_refused(fields, message):
 
 
 def test_sgm_volume_limit_is_a_user_error(tmp_path, flight, monkeypatch):
-    monkeypatch.setenv("SWEEPCAST_MAX_DENSE_VOLUME", "1000")
+    monkeypatch.setenv("SWEEPCAST_MAX_DENSE_VOLUME", "1000000")  # the smallest limit the setting allows
     ctx = FakeContext(tmp_path, {**_intrinsics(flight), **DENSE_FAST, "dense_aggregation": "sgm"},
                       {"media": flight.path.read_bytes()})
     with pytest.raises(JobInputError, match="SWEEPCAST|limit"):
