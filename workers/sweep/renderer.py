@@ -218,13 +218,14 @@ class SweepRenderer:
         self._gpu = None
         self.set_frames(images, silhouettes)
         self.device = "cpu"
+        device = device or worker_settings().sweep_device
         if _wants_gpu(device):
             from .gpu import GpuSweep
             try:
                 self._gpu = GpuSweep(self._imgs, self._sils, self._sizes)
                 self.device = "cuda"
             except Exception:  # noqa: BLE001 - "auto" never fails for want of a working GPU
-                if (device or worker_settings().sweep_device) == "cuda":
+                if device == "cuda":
                     raise
                 log.exception("the GPU could not take the frames; this renderer uses the CPU")
 
@@ -422,7 +423,7 @@ class SweepRenderer:
         renderer has one."""
         if self._gpu is not None and opt.consistency == "variance":
             try:
-                bits = opt.subpixel_bits if 0 < opt.subpixel_bits <= kernels.MAX_BITS else kernels.MAX_BITS
+                bits = search_bits(opt)
                 return self._gpu.choose(Q, B, s_planes, use_hull, opt.min_views, bits, lo, hi, opt.aggregation,
                                         opt.window, opt.subplane, opt.cost_cap, opt.sgm_p1, opt.sgm_p2,
                                         opt.sgm_directions, want_volume=opt.occlusions == "fill")
@@ -461,7 +462,7 @@ class SweepRenderer:
         shape = lo.shape + (len(s_planes),)
         ssd = np.empty(shape, np.float32)
         votes = np.empty(shape, np.float32)
-        bits = opt.subpixel_bits if 0 < opt.subpixel_bits <= kernels.MAX_BITS else kernels.MAX_BITS
+        bits = search_bits(opt)
         camf, cami = self._camera_table(Q, B, center, bits)
         lane_cost_volume(camf, cami, self._pix.reshape(-1), self._sils.reshape(-1), use_hull, opt.min_views, bits,
                          s_planes, lo, hi, self._bands(lo.shape[0]), BAND_ROWS, ssd, votes)
@@ -475,7 +476,7 @@ class SweepRenderer:
         best = np.empty(lo.shape, np.int32)
         cost = np.empty(lo.shape, np.float32)
         trunc2 = opt.truncation**2 if opt.consistency == "truncated" else 0.0
-        bits = opt.subpixel_bits if 0 < opt.subpixel_bits <= kernels.MAX_BITS else kernels.MAX_BITS
+        bits = search_bits(opt)
         camf, cami = self._camera_table(Q, B, center, bits)
         kernels.sweep_depth(camf, cami, self._pix.reshape(-1), self._sils.reshape(-1), use_hull, opt.min_views,
                             trunc2, bits, s_planes, lo, hi, self._bands(lo.shape[0]), BAND_ROWS, best, cost, lanes)
@@ -546,8 +547,14 @@ class SweepRenderer:
         return cv2.remap(img, maps[0], maps[1], interp, borderMode=cv2.BORDER_CONSTANT)
 
 
+def search_bits(opt: RenderOptions) -> int:
+    """The depth search's sampling step, 1/2**bits px, for ``opt.subpixel_bits`` (0 or above MAX_BITS: the finest)."""
+    return opt.subpixel_bits if 0 < opt.subpixel_bits <= kernels.MAX_BITS else kernels.MAX_BITS
+
+
 def _wants_gpu(device: str | None) -> bool:
-    """Whether a renderer asked for ``device`` (see :class:`SweepRenderer`) runs its search on the GPU."""
+    """Whether a renderer asked for ``device`` (see :class:`SweepRenderer`; None: the worker setting) runs its
+    search on the GPU."""
     device = device or worker_settings().sweep_device
     if device == "cpu":
         return False
