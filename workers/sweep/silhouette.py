@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from numba import njit, prange
 
 
 def silhouette_from_background(
@@ -21,9 +20,7 @@ def silhouette_from_background(
     if threshold < 0 or threshold >= 255:  # every pixel, or none (differences are integers 0..255)
         mask = np.full((h, w), 1 if threshold < 0 else 0, np.uint8)
     else:
-        mask = np.empty((h, w), np.uint8)
-        _foreground(np.ascontiguousarray(image).reshape(-1), np.ascontiguousarray(background).reshape(-1),
-                    np.uint8(threshold), mask.reshape(-1))
+        mask = _foreground(image, background, int(threshold))
     if clean_px > 0:
         disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * clean_px + 1, 2 * clean_px + 1))
         mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, disk)
@@ -31,23 +28,15 @@ def silhouette_from_background(
     return mask.astype(bool)
 
 
-@njit(cache=True, parallel=True)
-def _foreground(image, background, threshold, out):  # pragma: no cover - compiled
-    """out (H*W,) uint8 = 1 where the largest channel difference of image and background (H*W*3,)
-    uint8 BGR exceeds threshold (uint8: for integer differences d > t equals d > floor(t)), else 0.
-    One pass in uint8 arithmetic, which the compiler vectorises; numpy's max over the channel axis
-    is ~25x slower."""
-    n = out.shape[0]
-    for k in prange((n + 4095) // 4096):
-        for i in range(4096 * k, min(4096 * (k + 1), n)):
-            a0 = image[3 * i]
-            a1 = image[3 * i + 1]
-            a2 = image[3 * i + 2]
-            b0 = background[3 * i]
-            b1 = background[3 * i + 1]
-            b2 = background[3 * i + 2]
-            d = max(max(max(a0, b0) - min(a0, b0), max(a1, b1) - min(a1, b1)), max(a2, b2) - min(a2, b2))
-            out[i] = np.uint8(d > threshold)
+def _foreground(image: np.ndarray, background: np.ndarray, threshold: int) -> np.ndarray:
+    """(H, W) uint8, 255 where the largest channel difference of ``image`` and ``background`` ((H, W, 3)
+    uint8) exceeds ``threshold`` (an integer: for integer differences d > t equals d > floor(t)), else 0.
+    OpenCV's vectorised single-threaded passes: a live rig calls this for every camera of every frame
+    set, and a parallel numba kernel on a 320x240 image spent more CPU starting and parking its
+    threads than comparing (0.26-6 ms against 0.1 ms here, more the busier the machine)."""
+    diff = cv2.absdiff(np.ascontiguousarray(image), np.ascontiguousarray(background))
+    b, g, r = cv2.split(diff)
+    return cv2.compare(cv2.max(cv2.max(b, g), r), threshold, cv2.CMP_GT)
 
 
 def dilate(mask: np.ndarray, px: int) -> np.ndarray:
