@@ -142,6 +142,9 @@ async def create_batch(files: list[UploadFile] = File(..., description="the phot
                        force: bool = Form(False, description="replace existing tags other than 1"),
                        sidecar: bool = Form(False, description="XMP sidecars for every photo instead of changed "
                                                                "photos"),
+                       text: bool = Form(True, description="when the faces decide nothing, try the text cue "
+                                                           "(where the service has it on); false: faces only, "
+                                                           "about 1-3 s of CPU less per photo without a face"),
                        svc: Services = Depends(services)) -> JSONResponse:
     limit = svc.settings.max_batch_files
     if len(files) > limit:
@@ -152,4 +155,4 @@ async def create_batch(files: list[UploadFile] = File(..., description="the phot
         Upload(f"photo-{i:04d}", f.file, {"filename": f.filename or f"photo-{i:04d}", "content_type": f.content_type})
         for i, f in enumerate(files)
     ]
-    return job_accepted(await create_job(svc, BATCH_JOB, OrientationBatchParams(force=force, sidecar=sidecar), uploads))
+    return job_accepted(await create_job(svc, BATCH_JOB, OrientationBatchParams(force=force, sidecar=sidecar, text=text), uploads))

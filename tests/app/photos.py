@@ -5,6 +5,11 @@ import cv2
 import numpy as np
 
 
+FACES_ONLY = {"text": "false"}
+"""Form fields of a photo batch without the text cue: the job-system tests' photos have no face, and reading
+them for text (1-3 s of CPU each) would only make those tests slow."""
+
+
 def noise_jpeg(seed: int, width: int = 640, height: int = 480, quality: int = 85) -> bytes:
     """A JPEG of smooth random blobs: decodes fine, has no face (the detector rejects it)."""
     rng = np.random.default_rng(seed)

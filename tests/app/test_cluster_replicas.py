@@ -15,7 +15,7 @@ import httpx
 import pytest
 from websockets.sync.client import connect
 
-from tests.app.photos import batch_files
+from tests.app.photos import FACES_ONLY, batch_files
 from tests.servers import ray_cluster, serve_app
 
 
@@ -44,7 +44,7 @@ def test_two_replicas_share_jobs_and_survive_a_lost_node(cluster, postgres_url, 
         base_a, base_b = (app.base for app in apps)
 
         files = [("files", f) for _, f in batch_files(40, width=1600, height=1200)]
-        job = httpx.post(f"{base_b}/v1/photos/batches", files=files, timeout=60).json()
+        job = httpx.post(f"{base_b}/v1/photos/batches", files=files, data=FACES_ONLY, timeout=60).json()
         ws_b = connect(f"{base_b.replace('http', 'ws')}/v1/jobs/{job['id']}/events")
         ws_a = connect(f"{base_a.replace('http', 'ws')}/v1/jobs/{job['id']}/events")
         while (event := json.loads(ws_b.recv(timeout=120)))["type"] != "started":

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.app.photos import batch_files
+from tests.app.photos import FACES_ONLY, batch_files
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -61,7 +61,7 @@ def test_batch_with_one_corrupt_photo_streams_events_and_results(client_factory)
 
 def test_cancel_then_delete(client_factory):
     client = client_factory()
-    job = client.post("/v1/photos/batches", files=batch_files(60, width=1600, height=1200)).json()
+    job = client.post("/v1/photos/batches", files=batch_files(60, width=1600, height=1200), data=FACES_ONLY).json()
     deadline = time.monotonic() + 60
     while client.get(f"/v1/jobs/{job['id']}").json()["state"] == "queued" and time.monotonic() < deadline:
         time.sleep(0.02)
@@ -74,7 +74,7 @@ def test_cancel_then_delete(client_factory):
 
 def test_worker_killed_mid_batch_is_retried_and_nothing_is_lost(client_factory):
     client = client_factory()
-    job = client.post("/v1/photos/batches", files=batch_files(40, width=1600, height=1200)).json()
+    job = client.post("/v1/photos/batches", files=batch_files(40, width=1600, height=1200), data=FACES_ONLY).json()
     with client.websocket_connect(f"/v1/jobs/{job['id']}/events") as ws:
         while True:
             event = ws.receive_json()
@@ -100,8 +100,8 @@ def test_jobs_queued_when_the_service_stops_complete_after_restart(ray_local, se
 
     with TestClient(create_app(settings_factory())) as first:
         _wait_ready(first)
-        ids = [first.post("/v1/photos/batches", files=batch_files(12, width=1600, height=1200)).json()["id"]
-               for _ in range(4)]
+        files = batch_files(12, width=1600, height=1200)
+        ids = [first.post("/v1/photos/batches", files=files, data=FACES_ONLY).json()["id"] for _ in range(4)]
         states = [first.get(f"/v1/jobs/{i}").json()["state"] for i in ids]
     # Leaving the block stopped the service; with 2 CPUs some jobs were still queued or running.
     assert {"queued", "running"} & set(states), states

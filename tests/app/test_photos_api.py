@@ -197,6 +197,31 @@ def test_batch_limits(client_factory):
     assert client.get("/v1/jobs", params={"kind": "orientation.batch"}).json()["jobs"] == []  # nothing queued
 
 
+def _batch_reports(client, files, **form) -> list[dict]:
+    job = client.post("/v1/photos/batches", files=files, data=form)
+    assert job.status_code == 202, job.text
+    with client.websocket_connect(f"/v1/jobs/{job.json()['id']}/events") as ws:
+        while (event := ws.receive_json())["type"] != "final":
+            pass
+    assert event["job"]["state"] == "succeeded", event
+    return [e["report"] for e in client.get(f"/v1/jobs/{job.json()['id']}/results/report.json").json()]
+
+
+def test_a_batch_can_leave_out_the_text_cue(client_factory):
+    from tests.orientation.test_orientation_text import needs_tesseract_reason, text_page, turned
+
+    if needs_tesseract_reason():
+        pytest.skip(needs_tesseract_reason())
+    ok, buf = cv2.imencode(".jpg", turned(text_page(), 90), [cv2.IMWRITE_JPEG_QUALITY, 92])
+    files = [("files", ("page.jpg", buf.tobytes(), "image/jpeg"))]
+    client = client_factory()
+    read, = _batch_reports(client, files)
+    skipped, = _batch_reports(client, files, text="false")
+    assert read["rotation_degrees"] == 90 and read["cue"] == "text" and read["text"]["status"] == "ran"
+    assert skipped["rotation_degrees"] is None and skipped["cue"] == "none" and skipped["text"]["status"] != "ran"
+    assert client.post("/v1/photos/batches", files=files, data={"text": "maybe"}).status_code == 422
+
+
 def _real_face_photo():
     photo = dataset("faces", "dev", "face_recognition", "examples_obama-480p.jpg")
     if photo is None:

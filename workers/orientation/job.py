@@ -48,6 +48,9 @@ class OrientationBatchParams(BaseModel):
     sidecar: bool = Field(False, description="write XMP sidecars for every photo instead of changing any photo")
     method: Method = Field("auto", description="detector: auto (combined when YuNet is configured, else paper), "
                                                "paper, yunet or combined")
+    text: bool = Field(True, description="when the faces decide nothing, try the text cue (where the service has it "
+                                         "on); false: faces only, which saves about 1-3 s of CPU per photo "
+                                         "without a face")
 
 
 def configured_yunet(models_folder: Path | None) -> Path | None:
@@ -72,7 +75,8 @@ def run_orientation_batch(ctx: JobContext) -> dict[str, Any]:
     if not names:
         raise JobInputError("the batch has no photos")
     try:
-        detector = get_detector(detector_config_from_env(params.method))
+        config = detector_config_from_env(params.method)
+        detector = get_detector(config.model_copy(update={"text": config.text and params.text}))
     except ValueError as exc:
         raise JobInputError(str(exc)) from None
     max_pixels = max_pixels_from_env()
