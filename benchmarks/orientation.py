@@ -609,6 +609,20 @@ class _HealthProbe:
 THROUGHPUT_CLIENTS = (4, 50)
 
 
+def no_face_cost(yunet: Path | None, count: int = 6) -> dict | None:
+    """CPU ms per 12 MP photo with neither a face nor an up (``$SWEEPCAST_DATA/orientation/noup``: textures,
+    aerial and microscope images) through the service's default engine with its text cue on: what a photo
+    organiser's landscapes cost, since the text cue runs whenever the faces decide nothing."""
+    root = dataset("orientation")
+    paths = find_photos(root / "noup") if root is not None else []
+    if not paths:
+        return None
+    photos = make_large_jpegs(paths, count)
+    engine = get_detector(DetectorConfig(yunet_model=yunet, text=True))
+    return {"engine": engine.name, "photos": len(photos), "text_cue": engine.text_info.get("available"),
+            "cpu_ms_per_photo": cpu_ms_per_photo(lambda d: analyze(d, engine), photos)}
+
+
 def run_throughput(photos: list[Path], yunet: Path | None, repeats: int) -> int:
     """Section orientation_throughput (issue 21): 12 MP JPEGs through the engines in this process (the
     anchor) and over HTTP with 4 and 50 concurrent clients, /healthz latency meanwhile; the paper's
@@ -622,6 +636,7 @@ def run_throughput(photos: list[Path], yunet: Path | None, repeats: int) -> int:
                      "mean_megabytes": float(np.mean([len(b) for b in large]) / 1e6), "load_average_before": load_before,
                      "engine": run_engine_speed(large, engines, repeats), "http": {}}
     results["engine"]["decode_cpu_ms_per_photo"] = cpu_ms_per_photo(decode_gray, large)
+    results["engine"]["no_face"] = no_face_cost(yunet)
     servers = {"paper": (None, False)} | ({"combined": (yunet, True)} if yunet is not None else {})
     for name, (model, text) in servers.items():
         results["http"][name] = run_http_speed(large, model, list(THROUGHPUT_CLIENTS), repeats, text=text)
@@ -641,6 +656,11 @@ def run_throughput(photos: list[Path], yunet: Path | None, repeats: int) -> int:
             h = r["healthz"]
             rows.append([f"HTTP {name}, {n} clients", "-", r["photos_per_s"], f"median latency {r['median_latency_ms']:.0f} ms",
                          f"{h['p50_ms']:.0f} / {h['p99_ms']:.0f}"])
+    no_face = results["engine"]["no_face"]
+    if no_face:
+        rows.append([f"engine {no_face['engine']}, text cue on, photos without faces", "-", "-",
+                     f"{no_face['cpu_ms_per_photo']:.0f} ms CPU/photo (2 idle cores: ~{2000 / no_face['cpu_ms_per_photo']:.1f}/s)"
+                     f"; {no_face['photos']} noup/ photos at ~{MEGAPIXELS:.0f} MP, all four views read for text", "-"])
     busy = load_before > 0.5
     publish("orientation_throughput", results, (
         f"{len(large)} face photos upscaled to ~{MEGAPIXELS:.0f} MP, JPEG q90 ({results['mean_megabytes']:.1f} MB each). "
