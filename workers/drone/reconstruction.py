@@ -3,9 +3,10 @@
 media -> selected frames -> tracks (FAST+LK with the III-A rule, or SIFT) -> keyframes by
 parallax -> initial pair (E, pose, DLT: III-C) -> next keyframes by PnP in the same scale, new
 tracks triangulated, local bundle adjustments -> global bundle adjustment (eq. 5) with outliers
-removed between rounds -> the remaining frames located by PnP against the final map: the
-selected frames that are not keyframes, and the decoded frames selection left out, followed by
-optical flow from the selected frame before them (:mod:`workers.drone.localise`).
+removed between rounds -> the selected frames that are not keyframes located by PnP against
+the map, then (``joint_ba``) refined together with it by a final bundle adjustment over their
+tracked observations -> the decoded frames selection left out located by PnP against the final
+map, followed by optical flow from the selected frame before them (:mod:`workers.drone.localise`).
 """
 from __future__ import annotations
 
@@ -48,7 +49,7 @@ class SparseModel:
     point_error (P,) mean reprojection error in pixels; BA observations obs_frame (M,),
     obs_point (M,), obs_xy (M, 2) pixels; ``report`` a JSON-able summary.
     ``frame_registration`` (F,) 'map' (posed by the incremental mapping and bundle adjustment),
-    'pnp' (registered afterwards against the final map) or None; ``frame_inliers`` (F,) int64
+    'pnp' (registered afterwards by PnP against the map; with ``joint_ba`` then refined with it) or None; ``frame_inliers`` (F,) int64
     observations in the final map ('map') or PnP inliers ('pnp'); ``frame_failure`` why an
     unregistered frame has no pose. ``skipped``: the decoded frames selection left out, each
     with its pose against the map or the reason it has none.
@@ -387,7 +388,7 @@ def reconstruct(media: str | Path, intrinsics: Intrinsics, params: Reconstructio
 
     ``intrinsics`` refer to the media's native resolution. ``progress(fraction, stage)`` reports
     stages 'decode', 'track k/N', 'keyframes', 'initialise', 'register k/N', 'BA iteration i'
-    and 'localise' with fractions up to 0.97 (the caller writes the outputs and reports 'done').
+    and 'localise' (the final joint adjustment included) with fractions up to 0.97 (the caller writes the outputs and reports 'done').
     User-caused failures raise JobInputError; ``media_name`` names the media in their messages.
     """
     p = params
