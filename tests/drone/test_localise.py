@@ -148,3 +148,28 @@ def test_a_frame_that_cannot_be_registered_is_listed_with_its_reason(flight):
     assert "fewer than 12" in blank["reason"] and "R" not in blank
     assert traj["unregistered"] == [{"frame": 11, "name": blank["name"], "reason": blank["reason"]}]
     assert traj["counts"]["registered"] == 35
+
+
+def test_the_final_adjustment_refines_the_frames_registered_by_pnp(flight):
+    """With ``joint_ba`` the selected non-keyframes, first posed by PnP against the map, join the
+    final bundle adjustment with their tracked observations: each has observations in the model,
+    and their poses lie on the true path at least as well as the PnP poses alone."""
+    K = flight.K
+    n = len(flight.frames)
+    runs = {}
+    for joint in (False, True):
+        model = reconstruct(flight.path, from_values(K[0, 0], K[1, 1], K[0, 2], K[1, 2]),
+                            ReconstructionParams(max_features=800, keyframe_parallax=0.06, joint_ba=joint))
+        pnp = [f for f in range(len(model.frame_index)) if model.frame_registration[f] == "pnp"]
+        assert len(pnp) >= 5 and model.registered.all()
+        observed = np.bincount(model.obs_frame, minlength=len(model.frame_index))
+        assert (observed[pnp] > 0).all() == joint  # only the joint adjustment keeps their observations
+        assert trajectory(model)["counts"]["registered"] == n
+        idx = model.frame_index
+        err = _truth_error(flight, idx, model.R, model.t)
+        aligned = np.linalg.norm(err.alignment.apply(camera_centre(model.R, model.t))
+                                 - np.stack([flight.cameras[i].center for i in idx]), axis=1)
+        runs[joint] = (err.ate_rmse, float(np.sqrt(np.mean(aligned[pnp] ** 2))))
+    path = np.linalg.norm(np.diff([c.center for c in flight.cameras], axis=0), axis=1).sum()
+    assert runs[True][0] < 0.005 * path and runs[True][1] < 0.005 * path
+    assert runs[True][0] <= runs[False][0] * 1.05 and runs[True][1] <= runs[False][1] * 1.05, runs

@@ -91,7 +91,8 @@ def trajectory(model: SparseModel) -> dict[str, Any]:
     Each frame says whether frame selection tracked it (``selected``; else ``skipped_because``),
     whether it is a ``keyframe``, and how it got its pose (``registration``): 'map' (the
     incremental mapping and bundle adjustment; ``inliers`` = its observations in the final map) or
-    'pnp' (registered afterwards against the final map; ``inliers`` of ``candidates`` mapped points).
+    'pnp' (registered afterwards by PnP against the map, ``inliers`` of ``candidates`` mapped points;
+    selected frames are then refined with the map by the final bundle adjustment when ``joint_ba``).
     A frame without a pose has ``reason``. ``unregistered`` lists those frames again.
     """
     intr = model.intrinsics.scaled(1.0 / model.scale)

@@ -75,6 +75,9 @@ class ReconstructionParams(BaseModel):
     ba_loss: Literal["trivial", "huber", "cauchy"] = "cauchy"
     ba_loss_scale: float = Field(2.0, gt=0, le=100, description="Robust loss scale, pixels.")
     ba_iterations: int = Field(50, ge=1, le=1000, description="LM iterations of each global adjustment.")
+    joint_ba: bool = Field(True, description="After the selected non-keyframes are registered by PnP, a final "
+                                             "bundle adjustment refines them with the keyframes and points, their "
+                                             "tracked observations included.")
 
     dense: bool = Field(False, description="After the sparse model, a dense pass: a depth map per reference frame "
                                            "(plane sweep, ZNCC), fused into dense.ply (points, normals, colours).")

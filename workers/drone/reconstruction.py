@@ -3,9 +3,10 @@
 media -> selected frames -> tracks (FAST+LK with the III-A rule, or SIFT) -> keyframes by
 parallax -> initial pair (E, pose, DLT: III-C) -> next keyframes by PnP in the same scale, new
 tracks triangulated, local bundle adjustments -> global bundle adjustment (eq. 5) with outliers
-removed between rounds -> the remaining frames located by PnP against the final map: the
-selected frames that are not keyframes, and the decoded frames selection left out, followed by
-optical flow from the selected frame before them (:mod:`workers.drone.localise`).
+removed between rounds -> the selected frames that are not keyframes located by PnP against
+the map, then (``joint_ba``) refined together with it by a final bundle adjustment over their
+tracked observations -> the decoded frames selection left out located by PnP against the final
+map, followed by optical flow from the selected frame before them (:mod:`workers.drone.localise`).
 """
 from __future__ import annotations
 
@@ -48,7 +49,7 @@ class SparseModel:
     point_error (P,) mean reprojection error in pixels; BA observations obs_frame (M,),
     obs_point (M,), obs_xy (M, 2) pixels; ``report`` a JSON-able summary.
     ``frame_registration`` (F,) 'map' (posed by the incremental mapping and bundle adjustment),
-    'pnp' (registered afterwards against the final map) or None; ``frame_inliers`` (F,) int64
+    'pnp' (registered afterwards by PnP against the map; with ``joint_ba`` then refined with it) or None; ``frame_inliers`` (F,) int64
     observations in the final map ('map') or PnP inliers ('pnp'); ``frame_failure`` why an
     unregistered frame has no pose. ``skipped``: the decoded frames selection left out, each
     with its pose against the map or the reason it has none.
@@ -292,6 +293,28 @@ class _Mapper:
         self._add_points(tids[owner[good]], X[good])
         return int(good.sum())
 
+    def add_frames(self, frames: np.ndarray) -> int:
+        """Bring the observations of ``frames`` (non-keyframes registered by PnP) into the map, so
+        that the next bundle adjustment refines their poses with it and their tracks constrain the
+        points; returns the observations added (those of tracks with a map point)."""
+        t = self.tracks
+        new = np.isin(t.obs_frame, frames) & ~self.is_key[t.obs_frame]
+        pt = self.track_point[t.obs_track[new]]
+        new[np.flatnonzero(new)[pt < 0]] = False
+        if not new.any():
+            return 0
+        self.is_key[frames] = True
+        of = np.concatenate([self.of, t.obs_frame[new]])
+        order = np.argsort(of, kind="stable")
+        self.of = of[order]
+        self.ot = np.concatenate([self.ot, t.obs_track[new]])[order]
+        self.xy = np.concatenate([self.xy, t.obs_xy[new]])[order]
+        self.rgb = np.concatenate([self.rgb, t.obs_rgb[new]])[order]
+        self.valid = np.concatenate([self.valid, np.ones(int(new.sum()), bool)])[order]
+        self.by_track = np.argsort(self.ot, kind="stable")
+        self.track_start = np.concatenate([[0], np.cumsum(np.bincount(self.ot, minlength=t.n_tracks))])
+        return int(new.sum())
+
     # -- bundle adjustment --------------------------------------------------------------------
     def _ba_rows(self) -> tuple[np.ndarray, np.ndarray]:
         pt = self.track_point[self.ot]
@@ -365,7 +388,7 @@ def reconstruct(media: str | Path, intrinsics: Intrinsics, params: Reconstructio
 
     ``intrinsics`` refer to the media's native resolution. ``progress(fraction, stage)`` reports
     stages 'decode', 'track k/N', 'keyframes', 'initialise', 'register k/N', 'BA iteration i'
-    and 'localise' with fractions up to 0.97 (the caller writes the outputs and reports 'done').
+    and 'localise' (the final joint adjustment included) with fractions up to 0.97 (the caller writes the outputs and reports 'done').
     User-caused failures raise JobInputError; ``media_name`` names the media in their messages.
     """
     p = params
@@ -428,16 +451,22 @@ def reconstruct(media: str | Path, intrinsics: Intrinsics, params: Reconstructio
     else:
         rounds = 4
         final = mapper.adjust(None, p.ba_iterations, ba_progress) or final
-    _, err0 = mapper.errors(initial=True)
-    _, err1 = mapper.errors()
     timings["bundle_adjustment"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     _stage(progress, 0.95, "localise")
     mapped = mapper.reg.copy()
     located = _localise_rest(mapper, tracks)
-    skipped = [(v, _locate_side(mapper, tracks, v)) for v in tr.side]
     timings["localise"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    joint = _adjust_with_located(mapper, np.flatnonzero(mapper.reg & ~mapped), p.ba_iterations) if p.joint_ba else None
+    final = (joint[0] or final) if joint else final
+    timings["joint_adjustment"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    skipped = [(v, _locate_side(mapper, tracks, v)) for v in tr.side]
+    timings["localise"] += time.perf_counter() - t0
+    _, err0 = mapper.errors(initial=True)
+    _, err1 = mapper.errors()
     _stage(progress, 0.97, "localise")
 
     model = _assemble(mapper, tracks, intr, stats, tr, keyframes)
@@ -472,9 +501,27 @@ def _localise_rest(mapper: _Mapper, tracks: TrackSet) -> dict[int, Located]:
         loc = locate(mapper.X[pt], tracks.obs_xy[sl][rows], mapper.K, mapper.p.reprojection_threshold, _MIN_PNP)
         if loc.R is not None:
             mapper.R[f], mapper.t[f] = loc.R, loc.t
+            mapper.R0[f], mapper.t0[f] = loc.R, loc.t
             mapper.reg[f] = True
         out[int(f)] = loc
     return out
+
+
+def _adjust_with_located(mapper: _Mapper, frames: np.ndarray, iterations: int
+                         ) -> tuple[bundle.BAResult | None, int] | None:
+    """The final bundle adjustment (eq. 5) over the keyframes and the selected ``frames`` (F,)
+    registered by PnP: their tracked observations join the map's, all poses and points are refined
+    together, outliers above the reprojection threshold are removed between rounds (at most three).
+    Returns the last solver result and the observations added; None when ``frames`` is empty."""
+    if len(frames) == 0:
+        return None
+    added = mapper.add_frames(frames)
+    res = None
+    for _ in range(3):
+        res = mapper.adjust(None, iterations) or res
+        if mapper.filter_outliers() == 0:
+            break
+    return res, added
 
 
 def _locate_side(mapper: _Mapper, tracks: TrackSet, view: SideView) -> Located:
