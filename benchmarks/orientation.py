@@ -636,7 +636,7 @@ def run_throughput(photos: list[Path], yunet: Path | None, repeats: int) -> int:
                      "mean_megabytes": float(np.mean([len(b) for b in large]) / 1e6), "load_average_before": load_before,
                      "engine": run_engine_speed(large, engines, repeats), "http": {}}
     results["engine"]["decode_cpu_ms_per_photo"] = cpu_ms_per_photo(decode_gray, large)
-    results["engine"]["no_face"] = no_face_cost(yunet)
+    results["no_face"] = no_face_cost(yunet)
     servers = {"paper": (None, False)} | ({"combined": (yunet, True)} if yunet is not None else {})
     for name, (model, text) in servers.items():
         results["http"][name] = run_http_speed(large, model, list(THROUGHPUT_CLIENTS), repeats, text=text)
@@ -656,7 +656,7 @@ def run_throughput(photos: list[Path], yunet: Path | None, repeats: int) -> int:
             h = r["healthz"]
             rows.append([f"HTTP {name}, {n} clients", "-", r["photos_per_s"], f"median latency {r['median_latency_ms']:.0f} ms",
                          f"{h['p50_ms']:.0f} / {h['p99_ms']:.0f}"])
-    no_face = results["engine"]["no_face"]
+    no_face = results["no_face"]
     if no_face:
         rows.append([f"engine {no_face['engine']}, text cue on, photos without faces", "-", "-",
                      f"{no_face['cpu_ms_per_photo']:.0f} ms CPU/photo (2 idle cores: ~{2000 / no_face['cpu_ms_per_photo']:.1f}/s)"
