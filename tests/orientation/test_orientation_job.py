@@ -108,7 +108,9 @@ def test_batch_force_and_report_only(tmp_path, fake_detector):
 
 def test_batch_params_are_validated():
     assert OrientationBatchParams.model_validate({}).model_dump() == {"force": False, "write": True, "sidecar": False,
-                                                                      "method": "auto"}
+                                                                      "method": "auto", "text": True}
+    with pytest.raises(ValueError):
+        OrientationBatchParams.model_validate({"text": "perhaps"})
     with pytest.raises(ValueError):
         OrientationBatchParams.model_validate({"force": True, "yunet_model": "/etc/passwd"})
     with pytest.raises(ValueError):
