@@ -293,16 +293,16 @@ class _Mapper:
         self._add_points(tids[owner[good]], X[good])
         return int(good.sum())
 
-    def add_frames(self, frames: np.ndarray) -> int:
+    def add_frames(self, frames: np.ndarray) -> None:
         """Bring the observations of ``frames`` (non-keyframes registered by PnP) into the map, so
         that the next bundle adjustment refines their poses with it and their tracks constrain the
-        points; returns the observations added (those of tracks with a map point)."""
+        points (only the observations of tracks with a map point)."""
         t = self.tracks
         new = np.isin(t.obs_frame, frames) & ~self.is_key[t.obs_frame]
         pt = self.track_point[t.obs_track[new]]
         new[np.flatnonzero(new)[pt < 0]] = False
         if not new.any():
-            return 0
+            return
         self.is_key[frames] = True
         of = np.concatenate([self.of, t.obs_frame[new]])
         order = np.argsort(of, kind="stable")
@@ -313,7 +313,6 @@ class _Mapper:
         self.valid = np.concatenate([self.valid, np.ones(int(new.sum()), bool)])[order]
         self.by_track = np.argsort(self.ot, kind="stable")
         self.track_start = np.concatenate([[0], np.cumsum(np.bincount(self.ot, minlength=t.n_tracks))])
-        return int(new.sum())
 
     # -- bundle adjustment --------------------------------------------------------------------
     def _ba_rows(self) -> tuple[np.ndarray, np.ndarray]:
@@ -459,8 +458,8 @@ def reconstruct(media: str | Path, intrinsics: Intrinsics, params: Reconstructio
     located = _localise_rest(mapper, tracks)
     timings["localise"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    joint = _adjust_with_located(mapper, np.flatnonzero(mapper.reg & ~mapped), p.ba_iterations) if p.joint_ba else None
-    final = (joint[0] or final) if joint else final
+    if p.joint_ba:
+        final = _adjust_with_located(mapper, np.flatnonzero(mapper.reg & ~mapped), p.ba_iterations) or final
     timings["joint_adjustment"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     skipped = [(v, _locate_side(mapper, tracks, v)) for v in tr.side]
@@ -507,21 +506,20 @@ def _localise_rest(mapper: _Mapper, tracks: TrackSet) -> dict[int, Located]:
     return out
 
 
-def _adjust_with_located(mapper: _Mapper, frames: np.ndarray, iterations: int
-                         ) -> tuple[bundle.BAResult | None, int] | None:
+def _adjust_with_located(mapper: _Mapper, frames: np.ndarray, iterations: int) -> bundle.BAResult | None:
     """The final bundle adjustment (eq. 5) over the keyframes and the selected ``frames`` (F,)
     registered by PnP: their tracked observations join the map's, all poses and points are refined
     together, outliers above the reprojection threshold are removed between rounds (at most three).
-    Returns the last solver result and the observations added; None when ``frames`` is empty."""
+    Returns the last solver result; None when ``frames`` is empty or no adjustment ran."""
     if len(frames) == 0:
         return None
-    added = mapper.add_frames(frames)
+    mapper.add_frames(frames)
     res = None
     for _ in range(3):
         res = mapper.adjust(None, iterations) or res
         if mapper.filter_outliers() == 0:
             break
-    return res, added
+    return res
 
 
 def _locate_side(mapper: _Mapper, tracks: TrackSet, view: SideView) -> Located:

@@ -552,10 +552,9 @@ def search_bits(opt: RenderOptions) -> int:
     return opt.subpixel_bits if 0 < opt.subpixel_bits <= kernels.MAX_BITS else kernels.MAX_BITS
 
 
-def _wants_gpu(device: str | None) -> bool:
-    """Whether a renderer asked for ``device`` (see :class:`SweepRenderer`; None: the worker setting) runs its
-    search on the GPU."""
-    device = device or worker_settings().sweep_device
+def _wants_gpu(device: str) -> bool:
+    """Whether a renderer asked for ``device`` (auto, cpu or cuda; see :class:`SweepRenderer`) runs its search
+    on the GPU."""
     if device == "cpu":
         return False
     if device not in ("auto", "cuda"):
