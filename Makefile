@@ -10,6 +10,9 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[test]'
+	# every engine's kernels compiled once, here, into ./sweepcast-data/cache/numba (serve's and the tests'):
+	# no first request waits for a compile
+	$(BIN)/sweepcast warmup
 	touch $(STAMP)
 
 serve: $(STAMP)

@@ -32,9 +32,7 @@ def _is_loopback(host: str) -> bool:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    import uvicorn
-
-    from app.main import create_app
+    from app import raycluster
     from app.settings import Settings
 
     overrides = {k: v for k, v in {"host": args.host, "port": args.port, "data_dir": args.data_dir}.items() if v is not None}
@@ -46,6 +44,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    raycluster.start_connecting(settings)  # Ray's start overlaps the imports below (readyz sooner)
+    import uvicorn
+
+    from app.main import create_app
+
     print(f"sweepcast: serving on http://{settings.host}:{settings.port} (data in {settings.data_dir.resolve()})",
           file=sys.stderr)
     uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level=args.log_level)
@@ -84,7 +87,7 @@ def cmd_warmup(args: argparse.Namespace) -> int:
     from workers import warmup
 
     print(f"sweepcast: compiling into {os.environ['NUMBA_CACHE_DIR']}", file=sys.stderr)
-    return warmup.main(args.engines)
+    return warmup.main([*args.engines, "--jobs", str(args.jobs)])
 
 
 def cmd_openapi(args: argparse.Namespace) -> int:
@@ -173,6 +176,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("warmup", help="compile every engine's kernels into the kernel cache ahead of the first "
                                       "request (the service also does it at start-up)")
     p.add_argument("engines", nargs="*", help="sweep, demo, drone, dense, depth, faces (default: all)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                   help="processes compiling at once (default: one per core)")
     p.add_argument("--data-dir", type=Path, help="data folder whose cache/numba is used (default ./sweepcast-data; "
                                                  "SWEEPCAST_NUMBA_CACHE_DIR or NUMBA_CACHE_DIR instead when set)")
     p.set_defaults(func=cmd_warmup)

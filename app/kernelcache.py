@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -45,8 +46,10 @@ class KernelWarmup:
         at lower priority; ``report``: read its result for :meth:`status` (else its output is discarded)."""
         env = {**os.environ, "NUMBA_CACHE_DIR": str(cache_dir)}
         out = subprocess.PIPE if report else subprocess.DEVNULL
+        # its own process group: it compiles in one process per core, and stop() ends them all
         proc = subprocess.Popen([sys.executable, "-m", "workers.warmup", *engines], env=env, stdout=out,
-                                stdin=subprocess.DEVNULL, preexec_fn=lambda: os.nice(WARMUP_NICENESS))
+                                stdin=subprocess.DEVNULL, preexec_fn=lambda: os.nice(WARMUP_NICENESS),
+                                start_new_session=True)
         log.info("compiling the engines' kernels in the background (pid %d) into %s", proc.pid, cache_dir)
         return cls(proc)
 
@@ -83,8 +86,15 @@ class KernelWarmup:
 
     def stop(self) -> None:
         if self.proc is not None and self.proc.poll() is None:
-            self.proc.terminate()
+            _signal_group(self.proc, signal.SIGTERM)
             try:
                 self.proc.wait(5)
             except subprocess.TimeoutExpired:
-                self.proc.kill()
+                _signal_group(self.proc, signal.SIGKILL)
+
+
+def _signal_group(proc: subprocess.Popen, sig: int) -> None:
+    try:
+        os.killpg(proc.pid, sig)
+    except ProcessLookupError:
+        pass

@@ -4,6 +4,7 @@ from __future__ import annotations
 import logging
 import os
 import tempfile
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -40,8 +41,24 @@ def connect(address: str | None, num_cpus: int | None = None, env: dict[str, str
     return True
 
 
+_early: tuple[Settings, Future[bool]] | None = None
+# Ray's client breaks (later calls hang) when the thread that ran ray.init ends: the early start's
+# thread is an executor's, which lives as long as the process.
+_connector = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ray-connect")
+
+
+def start_connecting(settings: Settings) -> None:
+    """Begin :func:`connect_for` on a thread now, so that Ray's start (seconds of waiting for its
+    processes) overlaps the service's own imports; the lifespan's :func:`connect_for` then waits for it."""
+    global _early
+    _early = (settings, _connector.submit(connect, settings.ray_address, settings.ray_num_cpus, worker_env(settings)))
+
+
 def connect_for(settings: Settings) -> bool:
-    """:func:`connect` as ``settings`` say, with :func:`worker_env` for the workers. Blocking."""
+    """:func:`connect` as ``settings`` say, with :func:`worker_env` for the workers (the result of
+    :func:`start_connecting` when it was called for these settings). Blocking."""
+    if _early is not None and _early[0] is settings:
+        return _early[1].result()
     return connect(settings.ray_address, settings.ray_num_cpus, worker_env(settings))
 
 

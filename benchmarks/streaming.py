@@ -266,7 +266,7 @@ def main() -> int:
         subset = args.viewers != list(VIEWERS) or args.sizes != [f"{w}x{h}" for w, h in SIZES]
         env = {"SWEEPCAST_DATA_DIR": str(data_dir)}
         if subset:  # steady state only (its own section): kernels from the checkout's cache, not compiled first
-            env["SWEEPCAST_NUMBA_CACHE_DIR"] = str(Path(__file__).resolve().parents[1] / ".numba_cache")
+            env["SWEEPCAST_NUMBA_CACHE_DIR"] = str(Path(__file__).resolve().parents[1] / "sweepcast-data" / "cache" / "numba")
         with serve_app(env, log=log, wait=False) as app:
             proc = app.proc
             app.wait_ready(120)
@@ -679,9 +679,9 @@ def live(seconds: float, viewers: int) -> int:
         "visual_hull": True, "viewers": viewers, "seconds_per_config": seconds, "load_average_before": load_before}}
     with tempfile.TemporaryDirectory(prefix="sweepcast-bench-") as tmp:
         log = Path(tmp) / "server.log"
-        # steady state: kernels from the checkout's cache (.numba_cache, the test suite's), not compiled on the clock
+        # steady state: the checkout's kernel cache (make's install filled it), not compiled on the clock
         env = {"SWEEPCAST_DATA_DIR": str(Path(tmp) / "data"), "SWEEPCAST_DEMO_RIG": "false",
-               "SWEEPCAST_NUMBA_CACHE_DIR": str(Path(__file__).resolve().parents[1] / ".numba_cache")}
+               "SWEEPCAST_NUMBA_CACHE_DIR": str(Path(__file__).resolve().parents[1] / "sweepcast-data" / "cache" / "numba")}
         with serve_app(env, log=log) as app:
             with httpx.Client(base_url=app.base, timeout=60) as http:
                 rig_id = http.post("/v1/rigs", files={"files": ("rig.json", json.dumps(rig_to_dict(rig)).encode())}

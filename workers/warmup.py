@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import subprocess
 import sys
 import time
 from typing import Callable
@@ -144,6 +146,23 @@ ENGINES: dict[str, Callable[[], None]] = {"sweep": _sweep, "demo": _demo, "drone
                                           "depth": _depth, "faces": _faces}
 """Engine name -> its warm-up, in the order users meet them (the demo viewer first)."""
 
+COMPILE_SECONDS = {"sweep": 77.0, "demo": 3.5, "drone": 42.0, "dense": 33.0, "depth": 7.4, "faces": 2.0}
+"""Each engine's compile time from an empty cache on 2 cores (``benchmarks/coldstart.py``, 2026-11-26):
+only for sharing the engines out between processes."""
+
+
+def shares(engines: list[str], jobs: int) -> list[list[str]]:
+    """``engines`` split into at most ``jobs`` non-empty groups of about equal compile time (the longest
+    first, each to the least loaded group), every group in :data:`ENGINES` order."""
+    groups: list[list[str]] = [[] for _ in range(max(1, min(jobs, len(engines))))]
+    load = [0.0] * len(groups)
+    for name in sorted(engines, key=lambda e: -COMPILE_SECONDS.get(e, 1.0)):
+        k = load.index(min(load))
+        groups[k].append(name)
+        load[k] += COMPILE_SECONDS.get(name, 1.0)
+    order = list(ENGINES)
+    return [sorted(g, key=order.index) for g in groups if g]
+
 
 def warm(engines: list[str] | None = None, log: Callable[[str], None] | None = None) -> dict[str, float]:
     """Compile (or load from numba's cache) the kernels of ``engines`` (default: all, in
@@ -164,16 +183,39 @@ def warm(engines: list[str] | None = None, log: Callable[[str], None] | None = N
     return seconds
 
 
+def warm_in_processes(engines: list[str], jobs: int, log: Callable[[str], None] | None = None) -> dict[str, float]:
+    """:func:`warm` with ``engines`` shared out over ``jobs`` processes at once (numba compiles on one
+    core: two processes on two cores take about half the time); seconds per engine."""
+    groups = shares(engines, jobs)
+    if len(groups) == 1:
+        return warm(groups[0], log)
+    procs = [subprocess.Popen([sys.executable, "-m", "workers.warmup", "--jobs", "1", *g], stdout=subprocess.PIPE,
+                              stdin=subprocess.DEVNULL) for g in groups]
+    seconds: dict[str, float] = {}
+    for proc in procs:
+        out, _ = proc.communicate()
+        try:  # a group that failed is only slower later: its kernels compile on first use
+            seconds.update(json.loads(out.decode().strip().splitlines()[-1]))
+        except (ValueError, IndexError):
+            if log is not None:
+                log(f"a warm-up process exited with code {proc.returncode}")
+    return {name: seconds[name] for name in ENGINES if name in seconds}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="sweepcast warmup", description="compile every engine's kernels into "
                                  "numba's cache (NUMBA_CACHE_DIR) ahead of the first request")
     ap.add_argument("engines", nargs="*", metavar="ENGINE", help=f"any of {', '.join(ENGINES)} (default: all)")
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                    help="processes compiling at once (default: one per core)")
     args = ap.parse_args(argv)
     unknown = sorted(set(args.engines) - set(ENGINES))
     if unknown:
         ap.error(f"unknown engine(s) {', '.join(unknown)}; expected any of {', '.join(ENGINES)}")
-    result = warm(args.engines or None, log=lambda m: print(m, file=sys.stderr, flush=True))
-    print(json.dumps(result))
+    if args.jobs < 1:
+        ap.error("--jobs must be at least 1")
+    log = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
+    print(json.dumps(warm_in_processes(args.engines or list(ENGINES), args.jobs, log)))
     return 0
 
 

@@ -1,6 +1,7 @@
 """The kernel cache the service owns: where it is, the warm-up that fills it, and what readiness says."""
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -61,3 +62,37 @@ def test_readiness_reports_the_kernels_and_never_waits_for_them(settings_factory
     with TestClient(create_app(settings_factory(warm_kernels=False))) as client:
         kernels = client.get("/readyz").json()["checks"]["kernels"]
     assert kernels == {"ok": True, "state": "off"}
+
+
+def test_engines_are_shared_out_by_compile_time_and_keep_their_order():
+    from workers.warmup import ENGINES, shares
+
+    assert shares(list(ENGINES), 1) == [list(ENGINES)]
+    two = shares(list(ENGINES), 2)
+    assert sorted(sum(two, [])) == sorted(ENGINES) and len(two) == 2
+    assert ["sweep", "demo", "faces"] in two and ["drone", "dense", "depth"] in two  # ~82 s each on 2 cores
+    assert shares(["faces"], 4) == [["faces"]]  # never an idle process
+
+
+def test_warming_in_two_processes_reports_every_engine(tmp_path):
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    done = subprocess.run([sys.executable, "-m", "workers.warmup", "--jobs", "2", "faces", "depth"], cwd=ROOT,
+                          env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert set(json.loads(done.stdout.splitlines()[-1])) == {"faces", "depth"}
+    assert _index_files(tmp_path, "preview._rasterise")
+
+
+def test_stopping_the_warmup_ends_its_compiling_processes(tmp_path):
+    warm = KernelWarmup.start(tmp_path, engines=("sweep", "drone"))
+    deadline = time.monotonic() + 60
+    children: list[int] = []
+    while not children and time.monotonic() < deadline:  # its two compiling processes
+        children = [int(p) for p in subprocess.run(["pgrep", "-P", str(warm.proc.pid)], capture_output=True,
+                                                    text=True).stdout.split()]
+        time.sleep(0.1)
+    assert children
+    warm.stop()
+    time.sleep(0.5)
+    assert all(not Path(f"/proc/{pid}").exists() or "zombie" in Path(f"/proc/{pid}/status").read_text()
+               for pid in children)
