@@ -215,7 +215,10 @@ def _synthetic_photo() -> bytes:
 
 def markdown(r: dict) -> str:
     rows = [[name, f"{v['compile_s']:.1f}", f"{v['cached_s']:.2f}"] for name, v in r["kernels"].items()]
-    parts = ["Kernels, each engine's warm-up (`workers.warmup`) in a fresh process: with an empty cache, and with "
+    load = r["load_average_before"]
+    parts = [f"Load average before the run {load:.2f} on {os.cpu_count()} cores"
+             + (" (other work shared the CPU: every figure here is high)" if load > 0.5 else "") + ".", "",
+             "Kernels, each engine's warm-up (`workers.warmup`) in a fresh process: with an empty cache, and with "
              "the cache the first process wrote.", "", md_table(["engine", "compile (s)", "from cache (s)"], rows), ""]
     rows = [[name, f"{v['cold_s']:.2f}", f"{v['warm_start_s']:.2f}", f"{v['steady_s']:.2f}"]
             for name, v in r["first_calls"].items()]

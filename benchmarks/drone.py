@@ -656,6 +656,14 @@ def bench_slow_flight(quick: bool) -> tuple[dict[str, Any], str]:
                "track: Lucas-Kanade flow chained frame to frame drifts along a track, an error correlated along "
                "it that bundle adjustment cannot average out; SIFT positions (pycolmap) are measured in each "
                "frame independently.\n")
+    speedup = out.get("ours", {}).get("speedup_vs_pycolmap")
+    if speedup is not None and speedup < 15:
+        budget = out["pycolmap"]["seconds"] / 15
+        top = sorted(out["timings_s"].items(), key=lambda kv: -kv[1])[:3]
+        md += (f"\nSpeed goal >= 15x pycolmap: **not met** ({speedup:.1f}x). It needs our whole run within "
+               f"{budget:.1f} s against {seconds:.1f} s; the largest stages are "
+               + ", ".join(f"{k} {v:.1f} s" for k, v in top)
+               + f" (timings above), on {os.cpu_count()} cores.\n")
     return out, md
 
 
