@@ -3,6 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.sweepcast-installed
+KERNELS := sweepcast-data/cache/numba/.warmed
 
 .PHONY: serve test bench openapi clean
 
@@ -10,12 +11,16 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[test]'
-	# every engine's kernels compiled once, here, into ./sweepcast-data/cache/numba (serve's and the tests'):
-	# no first request waits for a compile
-	$(BIN)/sweepcast warmup
 	touch $(STAMP)
 
-serve: $(STAMP)
+# Every engine's kernels compiled once, before the first serve, into ./sweepcast-data/cache/numba (the cache
+# serve and the tests use): no first request waits for a compile. Kernels changed since are compiled by
+# serve's background warm-up.
+$(KERNELS): $(STAMP)
+	$(BIN)/sweepcast warmup
+	touch $(KERNELS)
+
+serve: $(KERNELS)
 	$(BIN)/sweepcast serve
 
 test: $(STAMP)

@@ -7,8 +7,8 @@
    call of a process with an empty cache ("cold"), the first call of a process with a warm cache
    ("warm start") and the second call of that process ("steady").
 3. The service as a new user starts it: ``python -m app serve`` on a fresh data folder whose kernel cache
-   ``make``'s install filled (``sweepcast warmup``, timed: the install's compile), no demo rig yet; again on
-   the same folder (a restart); and on a fresh folder with an empty cache (an install that skipped the
+   the first ``make serve`` filled (``sweepcast warmup``, timed), no demo rig yet; again on
+   the same folder (a restart); and on a fresh folder with an empty cache (a start that skipped the
    warm-up, e.g. a bare ``pip install``): seconds from the process start to
    ``/readyz`` 200, to the demo recording ready and to the kernels' warm-up done (background); the
    first viewer frame (320x240, 48 planes) after ready and after the recording is ready; then the first
@@ -108,7 +108,7 @@ def ray_start() -> dict:
 
 
 def install_warmup(data_dir: Path) -> float:
-    """``make``'s install step (``sweepcast warmup``: one process per core) into ``data_dir``'s empty cache;
+    """The first ``make serve``'s compile (``sweepcast warmup``: one process per core) into ``data_dir``'s empty cache;
     wall seconds."""
     env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "SWEEPCAST_NUMBA_CACHE_DIR")}
     t0 = time.monotonic()
@@ -235,11 +235,11 @@ def markdown(r: dict) -> str:
     rows = [[label, f"{sv['first_start'][k]:.1f}", f"{sv['restart'][k]:.1f}", f"{sv['empty_cache'][k]:.1f}",
              f"<= {GOALS[k]:.0f}" if k in GOALS else ""] for k, label in keys]
     parts += [f"`python -m app serve` as a new user starts it: on a fresh data folder (no demo rig) whose kernel "
-              f"cache `make`'s install filled (`sweepcast warmup`, one process per core: "
-              f"**{sv['install_warmup_s']:.1f} s** at install), then restarted on the same folder; and on a fresh "
-              "folder with an empty kernel cache (an install without the warm-up: kernels compile in the "
+              f"cache the first `make serve` filled before starting it (`sweepcast warmup`, one process per core: "
+              f"**{sv['install_warmup_s']:.1f} s**), then restarted on the same folder; and on a fresh "
+              "folder with an empty kernel cache (`sweepcast serve` without that warm-up: kernels compile in the "
               "background while requests come); seconds.", "",
-              md_table(["", "first start after install", "restart", "first start, empty cache", "goal"], rows), ""]
+              md_table(["", "first start after the warm-up", "restart", "first start, empty cache", "goal"], rows), ""]
     if max(sv["first_start"]["ready_s"], sv["restart"]["ready_s"]) > GOALS["ready_s"]:
         ray = r["ray_start"]
         parts += [f"Readiness waits for Ray: the API answers {sv['restart']['answering_s']:.1f} s after a restart, and "
