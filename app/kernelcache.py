@@ -21,7 +21,9 @@ from pathlib import Path
 
 log = logging.getLogger("sweepcast.kernels")
 
-WARMUP_NICENESS = 10
+WARMUP_NICENESS = 19
+"""The warm-up's priority: the lowest. Ray runs its workers (jobs, the viewers' session actors) at nice 15,
+so anything less than that would take the CPU from the very requests the warm-up is there to speed up."""
 
 
 def use_cache_dir(path: Path) -> Path:

@@ -96,3 +96,12 @@ def test_stopping_the_warmup_ends_its_compiling_processes(tmp_path):
     time.sleep(0.5)
     assert all(not Path(f"/proc/{pid}").exists() or "zombie" in Path(f"/proc/{pid}/status").read_text()
                for pid in children)
+
+
+def test_the_warmup_yields_the_cpu_to_rays_workers(tmp_path):
+    warm = KernelWarmup.start(tmp_path, engines=("faces",))
+    try:
+        nice = int(Path(f"/proc/{warm.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()[16])
+    finally:
+        warm.stop()
+    assert nice > 15  # Ray's worker processes run at nice 15
