@@ -24,7 +24,9 @@ def index() -> str:
 
 
 @router.get("/healthz", summary="Liveness: the process answers")
-def healthz() -> dict[str, str]:
+async def healthz() -> dict[str, str]:
+    # answered on the event loop itself: a sync route hops through Starlette's thread pool and back, which
+    # under 50 photo uploads on 2 busy cores added tens of ms to the probe's p99
     return {"status": "ok"}
 
 

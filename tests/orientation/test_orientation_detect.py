@@ -101,6 +101,25 @@ def test_real_faces_are_found_upright_in_every_rotation(name):
 
 
 @pytest.mark.skipif(FACES is None, reason="needs $SWEEPCAST_DATA/faces/dev")
+def test_parts_confirm_a_real_face_upright_and_not_upside_down():
+    """The eye cascades run in turn until one gives a pair: the upright face still shows eyes and mouth in
+    their places, and the same face upside down is not accepted."""
+    import cv2
+
+    from workers.orientation.detect import HAAR_MIN_FACE, HAAR_MIN_NEIGHBORS, HAAR_SCALE_FACTOR, HAAR_SCAN_SIZE
+    from workers.orientation.faces import HaarFaceFinder
+    from workers.orientation.parts import face_crop
+
+    gray = cv2.imread(str(FACES / REAL[0]), cv2.IMREAD_GRAYSCALE)
+    finder = HaarFaceFinder(HAAR_SCAN_SIZE, HAAR_SCALE_FACTOR, HAAR_MIN_NEIGHBORS, HAAR_MIN_FACE)
+    (face,) = finder.find(gray)
+    crop = face_crop(gray, face.box)
+    verifier = PartVerifier(PartSpec.opencv())
+    assert verifier.parts(crop) == ("eyes", "mouth")
+    assert not verifier.accepts(verifier.parts(rotate_view(crop, 180)))
+
+
+@pytest.mark.skipif(FACES is None, reason="needs $SWEEPCAST_DATA/faces/dev")
 def test_dog_photo_is_never_given_a_wrong_rotation():
     import cv2
 

@@ -1,7 +1,7 @@
 """Whole-face detectors run on one view: Haar (the paper's) and YuNet (optional, stronger).
 
-Both search a copy of the view shrunk to ``scan_size`` on its long side (small faces are lost
-below ~20 px there; the facial parts are searched later in the full-resolution view) and return
+Both search a copy of the view shrunk to ``scan_size`` on its long side (faces smaller than the
+search's smallest window there are lost; the facial parts are searched later in the full-resolution view) and return
 candidates in view pixels. Instances hold OpenCV state and are not thread-safe.
 """
 from __future__ import annotations
@@ -39,8 +39,8 @@ def _shrink(view: np.ndarray, scan_size: int) -> tuple[np.ndarray, float]:
 class HaarFaceFinder:
     """Viola-Jones frontal-face detection (``detectMultiScale`` on the histogram-equalised scan)."""
 
-    def __init__(self, scan_size: int, scale_factor: float, cascade: Path = HAAR_FACE_CASCADE,
-                 min_neighbors: int = 3, min_size: int = 20) -> None:
+    def __init__(self, scan_size: int, scale_factor: float, min_neighbors: int, min_size: int,
+                 cascade: Path = HAAR_FACE_CASCADE) -> None:
         self._cascade = load_cascade(cascade)
         self.scan_size = scan_size
         self.scale_factor = scale_factor
