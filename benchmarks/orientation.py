@@ -38,7 +38,7 @@ same run as the baseline. End to end: the service is started as a subprocess
 (``python -m app serve``), and a few concurrent clients POST the photos to
 ``/v1/photos/orientation`` (the clients run on the same machine and take their share of its CPU, which is
 counted: the server's, the clients' and everything else's CPU per photo); the server's start-up work (kernel
-warm-up from the checkout's ``.numba_cache``, demo rig, Ray) finishes first; after one warm-up pass (reported
+warm-up from the checkout's kernel cache, ``sweepcast-data/cache/numba``, demo rig, Ray) finishes first; after one warm-up pass (reported
 apart), photos per second is the median over repeats, each pass at least two requests per client.
 
 Writers (``--writers``, section orientation_writers). Every real file of ``$SWEEPCAST_DATA/exif`` and
@@ -528,14 +528,14 @@ def run_http_speed(large: list[bytes], yunet: Path | None, clients: int | list[i
     """Photos per second through ``POST /v1/photos/orientation`` of a real server subprocess; with a list
     of client counts, one result per count (same server), each with ``/healthz`` latency meanwhile.
     ``text`` False: the server's text cue off (the faces alone). The server's start-up work is left to finish
-    first (:func:`_settle`): its numba kernels come from the checkout's cache (``.numba_cache``), as in a
+    first (:func:`_settle`): its numba kernels come from the checkout's cache (``sweepcast-data/cache/numba``), as in a
     service that has started before, so no compile shares the cores with the photos."""
     import httpx
 
     with tempfile.TemporaryDirectory(prefix="sweepcast-bench-") as tmp:
         # fetching stays off (serve_app): the paper run must not pick up a fetched model
         env = {"SWEEPCAST_DATA_DIR": tmp, "SWEEPCAST_ORIENTATION_YUNET_MODEL": str(yunet) if yunet else None,
-               "SWEEPCAST_NUMBA_CACHE_DIR": str(ROOT / ".numba_cache")}
+               "SWEEPCAST_NUMBA_CACHE_DIR": str(ROOT / "sweepcast-data" / "cache" / "numba")}
         if not text:
             env["SWEEPCAST_ORIENTATION_TEXT"] = "false"
         try:
