@@ -14,7 +14,7 @@ visual hull from the recording's backgrounds) measures:
 Baseline in the same run: the same views rendered in this process by ``SweepRenderer`` directly
 (median of repeated renders, server idle, just before each size's viewers), so the streaming
 overhead is latency minus render time.
-Also recorded: the first-run times (server answering, demo recording ready, first frame received).
+Also recorded: the first-run times (server ready, demo recording ready, first frame received).
 
 Run: ``python benchmarks/streaming.py [--quick]`` from the repository root.
 
@@ -293,9 +293,10 @@ def main() -> int:
                     print(f"{n:2d} viewers {key}: {r['fps']:.1f} fps each, latency p50 {r['latency_p50_ms']:.0f} ms "
                           f"p95 {r['latency_p95_ms']:.0f} ms, server {r['server_cpu_cores']:.2f} cores",
                           file=sys.stderr)
-    one = results["viewers"][str(args.viewers[0])][args.sizes[0]]
     results["first_run"] = {"server_ready_s": ready_s, "demo_ready_s": demo_s, "first_frame_s": first_frame_s}
-    results["target"] = {**TARGET, "met": one["fps"] >= TARGET["fps"] and one["latency_p95_ms"] <= TARGET["latency_p95_ms"]}
+    one = results["viewers"].get("1", {}).get("320x240")  # the target's configuration, when this run had it
+    results["target"] = {**TARGET, "met": None if one is None else
+                         one["fps"] >= TARGET["fps"] and one["latency_p95_ms"] <= TARGET["latency_p95_ms"]}
     results["setup"] = {"cameras": 10, "camera_size": "640x480", "planes": args.planes, "method": "kojima",
                         "coarse_to_fine": True, "visual_hull": True, "seconds_per_config": seconds,
                         "load_average_before": load_before}
@@ -356,10 +357,10 @@ def markdown(results: dict) -> str:
         + md_table(["viewers", "size", "fps per viewer", "fps total", "latency p50 ms", "latency p95 ms",
                     "session render p50 ms", "baseline render p50 ms", "server CPU cores", "server CPU ms per frame"],
                    rows)
-        + f"\n\nTarget (1 viewer, 320x240): >= {t['fps']:g} fps with p95 <= {t['latency_p95_ms']:g} ms: "
-        f"{'met' if t['met'] else 'not met'}.\n\n"
+        + "\n\n" + (f"Target (1 viewer, 320x240): >= {t['fps']:g} fps with p95 <= {t['latency_p95_ms']:g} ms: "
+                    f"{'met' if t['met'] else 'not met'}.\n\n" if t["met"] is not None else "")
         + "".join(line + "\n" for line in goal_lines(results)) + ("\n" if goal_lines(results) else "")
-        + f"First run from a fresh data folder: server answering after {fr['server_ready_s']:.1f} s, demo recording "
+        + f"First run from a fresh data folder: server ready (`/readyz`) after {fr['server_ready_s']:.1f} s, demo recording "
         f"ready after {fr['demo_ready_s']:.1f} s, first frame after {fr['first_frame_s']:.1f} s.\n"
     )
 
