@@ -87,7 +87,7 @@ def cmd_warmup(args: argparse.Namespace) -> int:
     from workers import warmup
 
     print(f"sweepcast: compiling into {os.environ['NUMBA_CACHE_DIR']}", file=sys.stderr)
-    return warmup.main([*args.engines, "--jobs", str(args.jobs)])
+    return warmup.main([*args.engines, *(["--jobs", str(args.jobs)] if args.jobs is not None else [])])
 
 
 def cmd_openapi(args: argparse.Namespace) -> int:
@@ -176,8 +176,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("warmup", help="compile every engine's kernels into the kernel cache ahead of the first "
                                       "request (the service also does it at start-up)")
     p.add_argument("engines", nargs="*", help="sweep, demo, drone, dense, depth, faces (default: all)")
-    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
-                   help="processes compiling at once (default: one per core)")
+    p.add_argument("--jobs", type=int, help="processes compiling at once (default: one per core)")
     p.add_argument("--data-dir", type=Path, help="data folder whose cache/numba is used (default ./sweepcast-data; "
                                                  "SWEEPCAST_NUMBA_CACHE_DIR or NUMBA_CACHE_DIR instead when set)")
     p.set_defaults(func=cmd_warmup)

@@ -51,7 +51,7 @@ def start_connecting(settings: Settings) -> None:
     """Begin :func:`connect_for` on a thread now, so that Ray's start (seconds of waiting for its
     processes) overlaps the service's own imports; the lifespan's :func:`connect_for` then waits for it."""
     global _early
-    _early = (settings, _connector.submit(connect, settings.ray_address, settings.ray_num_cpus, worker_env(settings)))
+    _early = (settings, _connector.submit(_connect_as, settings))
 
 
 def connect_for(settings: Settings) -> bool:
@@ -59,6 +59,10 @@ def connect_for(settings: Settings) -> bool:
     :func:`start_connecting` when it was called for these settings). Blocking."""
     if _early is not None and _early[0] is settings:
         return _early[1].result()
+    return _connect_as(settings)
+
+
+def _connect_as(settings: Settings) -> bool:
     return connect(settings.ray_address, settings.ray_num_cpus, worker_env(settings))
 
 

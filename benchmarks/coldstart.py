@@ -87,7 +87,7 @@ def kernels(tmp: Path) -> dict:
 
 
 _RAY_START = r"""
-import json, sys, tempfile, time
+import json, sys, time
 t0 = time.monotonic()
 import ray
 t1 = time.monotonic()

@@ -74,7 +74,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._report import md_table, publish  # noqa: E402
-from tests.servers import exit_on_sigterm, serve_app  # noqa: E402
+from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app  # noqa: E402
 from workers.common.datasets import data_root, dataset  # noqa: E402
 from workers.orientation.decode import decode_gray  # noqa: E402
 from workers.orientation.detect import (Decision, DetectorConfig, OrientationDetector, PaperDetector,  # noqa: E402
@@ -535,7 +535,7 @@ def run_http_speed(large: list[bytes], yunet: Path | None, clients: int | list[i
     with tempfile.TemporaryDirectory(prefix="sweepcast-bench-") as tmp:
         # fetching stays off (serve_app): the paper run must not pick up a fetched model
         env = {"SWEEPCAST_DATA_DIR": tmp, "SWEEPCAST_ORIENTATION_YUNET_MODEL": str(yunet) if yunet else None,
-               "SWEEPCAST_NUMBA_CACHE_DIR": str(ROOT / "sweepcast-data" / "cache" / "numba")}
+               "SWEEPCAST_NUMBA_CACHE_DIR": str(CHECKOUT_KERNEL_CACHE)}
         if not text:
             env["SWEEPCAST_ORIENTATION_TEXT"] = "false"
         try:

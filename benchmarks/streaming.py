@@ -60,7 +60,7 @@ import websockets
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._report import md_table, publish  # noqa: E402
-from tests.servers import exit_on_sigterm, serve_app  # noqa: E402
+from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app  # noqa: E402
 from workers.streaming.framing import unpack_message  # noqa: E402
 from workers.streaming.params import Viewpoint  # noqa: E402
 from workers.streaming.recording import RecordingArchive  # noqa: E402
@@ -269,7 +269,7 @@ def main() -> int:
                   or args.planes != PLANES)
         env = {"SWEEPCAST_DATA_DIR": str(data_dir)}
         if subset:  # steady state only (its own section): kernels from the checkout's cache, not compiled first
-            env["SWEEPCAST_NUMBA_CACHE_DIR"] = str(Path(__file__).resolve().parents[1] / "sweepcast-data" / "cache" / "numba")
+            env["SWEEPCAST_NUMBA_CACHE_DIR"] = str(CHECKOUT_KERNEL_CACHE)
         with serve_app(env, log=log, wait=False) as app:
             proc = app.proc
             app.wait_ready(120)
@@ -722,7 +722,7 @@ def live(seconds: float, viewers: int) -> int:
         log = Path(tmp) / "server.log"
         # steady state: the checkout's kernel cache (make's install filled it), not compiled on the clock
         env = {"SWEEPCAST_DATA_DIR": str(Path(tmp) / "data"), "SWEEPCAST_DEMO_RIG": "false",
-               "SWEEPCAST_NUMBA_CACHE_DIR": str(Path(__file__).resolve().parents[1] / "sweepcast-data" / "cache" / "numba")}
+               "SWEEPCAST_NUMBA_CACHE_DIR": str(CHECKOUT_KERNEL_CACHE)}
         with serve_app(env, log=log) as app:
             with httpx.Client(base_url=app.base, timeout=60) as http:
                 rig_id = http.post("/v1/rigs", files={"files": ("rig.json", json.dumps(rig_to_dict(rig)).encode())}

@@ -10,7 +10,7 @@ os.environ.setdefault("AWS_ACCESS_KEY_ID", "sweepcast-test")
 os.environ.setdefault("AWS_SECRET_ACCESS_KEY", "sweepcast-test")
 # One kernel cache for the run, its servers and their Ray workers (a server's default is inside its fresh
 # data folder: every server test would compile from scratch): the checkout's default data folder's, which
-# `make`'s install filled (`sweepcast warmup`); no background warm-up competing for the CPU.
+# the first `make serve` also warms (`sweepcast warmup`); no background warm-up competing for the CPU.
 os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                                                       "sweepcast-data", "cache", "numba"))
 os.environ.setdefault("SWEEPCAST_WARM_KERNELS", "false")

@@ -156,10 +156,10 @@ def shares(engines: list[str], jobs: int) -> list[list[str]]:
     first, each to the least loaded group), every group in :data:`ENGINES` order."""
     groups: list[list[str]] = [[] for _ in range(max(1, min(jobs, len(engines))))]
     load = [0.0] * len(groups)
-    for name in sorted(engines, key=lambda e: -COMPILE_SECONDS.get(e, 1.0)):
+    for name in sorted(engines, key=lambda e: -COMPILE_SECONDS[e]):
         k = load.index(min(load))
         groups[k].append(name)
-        load[k] += COMPILE_SECONDS.get(name, 1.0)
+        load[k] += COMPILE_SECONDS[name]
     order = list(ENGINES)
     return [sorted(g, key=order.index) for g in groups if g]
 
