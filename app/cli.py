@@ -84,10 +84,15 @@ def cmd_worker(args: argparse.Namespace) -> int:
 
 def cmd_warmup(args: argparse.Namespace) -> int:
     """Compile the engines' kernels into the service's cache (``sweepcast warmup [ENGINE ...]``)."""
+    from app.settings import Settings
     from workers import warmup
 
+    settings = Settings(**({"data_dir": args.data_dir} if args.data_dir is not None else {}))
+    # the demo's recording too (the viewer's first frame waits for it otherwise), unless the demo is off
+    demo = settings.demo_rig and (not args.engines or "demo" in args.engines)
     print(f"sweepcast: compiling into {os.environ['NUMBA_CACHE_DIR']}", file=sys.stderr)
-    return warmup.main([*args.engines, *(["--jobs", str(args.jobs)] if args.jobs is not None else [])])
+    return warmup.main([*args.engines, *(["--jobs", str(args.jobs)] if args.jobs is not None else []),
+                        *(["--demo-cache", str(settings.resolved_demo_cache_dir)] if demo else [])])
 
 
 def cmd_openapi(args: argparse.Namespace) -> int:
@@ -174,7 +179,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_models)
 
     p = sub.add_parser("warmup", help="compile every engine's kernels into the kernel cache ahead of the first "
-                                      "request (the service also does it at start-up)")
+                                      "request (the service also does it at start-up), and render the demo's "
+                                      "recording into cache/demo (with 'demo' or all engines, unless "
+                                      "SWEEPCAST_DEMO_RIG=0)")
     p.add_argument("engines", nargs="*", help="sweep, demo, drone, dense, depth, faces (default: all)")
     p.add_argument("--jobs", type=int, help="processes compiling at once (default: one per core)")
     p.add_argument("--data-dir", type=Path, help="data folder whose cache/numba is used (default ./sweepcast-data; "

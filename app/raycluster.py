@@ -70,6 +70,7 @@ def worker_env(settings: Settings) -> dict[str, str]:
     """Settings the engines read on the workers, passed to every Ray worker of this service."""
     values = settings.model_dump(include=set(WorkerSettings.model_fields))
     values["models_dir"] = models_dir(settings.data_dir)  # models fetched later are found too
+    values["demo_cache_dir"] = settings.resolved_demo_cache_dir
     env = {f"SWEEPCAST_{name.upper()}": _env_value(value) for name, value in values.items() if value is not None}
     # OpenCV's own guard, read once when a fresh worker imports cv2: a second line behind the header check
     env["OPENCV_IO_MAX_IMAGE_PIXELS"] = str(settings.max_image_pixels)

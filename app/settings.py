@@ -103,6 +103,11 @@ class Settings(WorkerSettings):
             return Path(os.environ["NUMBA_CACHE_DIR"]).resolve()
         return (self.data_dir / "cache" / "numba").resolve()
 
+    @property
+    def resolved_demo_cache_dir(self) -> Path:
+        """Where the rendered demo recording is kept: the setting, else ``<data_dir>/cache/demo``."""
+        return (self.demo_cache_dir or self.data_dir / "cache" / "demo").resolve()
+
     @cached_property
     def resolved_storage_url(self) -> str:
         return self.storage_url or (self.data_dir / "blobs").resolve().as_uri()

@@ -32,6 +32,9 @@ class WorkerSettings(BaseSettings):
                                  description="Largest compression ratio of a zip member (of 1 MiB or more).")
     models_dir: Path | None = Field(None, description="Workers: the folder of the installed optional models (the "
                                                       "service always passes <data_dir>/models).")
+    demo_cache_dir: Path | None = Field(None, description="Where the rendered demo recording is kept, so that a new "
+                                                          "data folder's demo job copies it instead of rendering it "
+                                                          "(the service passes <data_dir>/cache/demo; none: render).")
     orientation_yunet_model: Path | None = Field(
         None, description="YuNet ONNX model for the stronger face detector; default: the one "
                           "installed in <data_dir>/models (fetch_models, 'sweepcast models fetch'), if any.")

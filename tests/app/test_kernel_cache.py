@@ -30,6 +30,7 @@ def test_the_cache_is_the_setting_else_numba_cache_dir_else_inside_the_data_fold
     chosen = Settings(data_dir=tmp_path, numba_cache_dir=tmp_path / "chosen")
     assert chosen.resolved_numba_cache_dir == (tmp_path / "chosen").resolve()
     assert worker_env(chosen)["NUMBA_CACHE_DIR"] == str((tmp_path / "chosen").resolve())  # its Ray workers too
+    assert worker_env(chosen)["SWEEPCAST_DEMO_CACHE_DIR"] == str((tmp_path / "cache" / "demo").resolve())
 
 
 def test_sweepcast_warmup_compiles_into_the_data_folders_cache(tmp_path):
@@ -39,6 +40,7 @@ def test_sweepcast_warmup_compiles_into_the_data_folders_cache(tmp_path):
     assert done.returncode == 0, done.stderr
     assert '"faces"' in done.stdout.splitlines()[-1]
     assert _index_files(tmp_path / "cache" / "numba", "preview._rasterise")  # the face preview's kernel
+    assert not (tmp_path / "cache" / "demo").exists()  # the demo's recording only with the demo's kernels
 
 
 def test_an_unknown_engine_is_refused():

@@ -1,13 +1,18 @@
-"""The first-run demo: its photographic studio, the lens model of the synthetic cameras and the
-recording built by casting only what the moving ball changes."""
+"""The first-run demo: its photographic studio, the lens model of the synthetic cameras, the
+recording built by casting only what the moving ball changes, and the cache that renders it once."""
 import dataclasses
+import json
 
 import numpy as np
 import pytest
 
+from app.rig_access import rig_json_bytes
 from workers.camera import Camera
-from workers.streaming.demo import DEMO_SIZE, build_demo_recording, demo_rig, demo_scene
+from workers.streaming import demo as demo_module
+from workers.streaming.demo import (DEMO_SIZE, build_demo_recording, demo_recording, demo_recording_key, demo_rig,
+                                    demo_scene)
 from workers.streaming.recording import RecordingArchive
+from workers.sweep.rig_io import rig_from_dict
 from workers.synth import (BoxPicture, Material, Planks, Scene, Sphere, SpherePicture, render, render_views,
                            sample_image, sample_photo, studio_scene)
 
@@ -81,3 +86,47 @@ def test_the_ball_casts_a_soft_shadow_on_the_stage(phase):
     shaded, lit = with_ball.image[24, 32].astype(float).sum(), without.image[24, 32].astype(float).sum()
     ambient_share = scene.ambient / (scene.ambient + scene.diffuse * light[2])  # the top face, n = z
     assert shaded < 0.7 * lit and shaded > 0.9 * ambient_share * lit
+
+
+def _no_render(*args, **kwargs):
+    raise AssertionError("rendered although the cache holds the recording")
+
+
+def test_the_demo_recording_is_rendered_once_then_copied_from_the_cache(tmp_path, monkeypatch):
+    rig, cache = demo_rig(2, (32, 24)), tmp_path / "cache"
+    first = demo_recording(rig, tmp_path / "a.zip", 2, 6.0, cache)
+    assert [p.name for p in cache.iterdir()] == [f"{demo_recording_key(rig, 2, 6.0)}.zip"]
+    monkeypatch.setattr(demo_module, "build_demo_recording", _no_render)
+    steps = []
+    again = demo_recording(rig, tmp_path / "b.zip", 2, 6.0, cache, lambda f, s: steps.append((f, s)))
+    assert again == first and steps == [(1.0, "demo recording copied from the cache")]
+    assert (tmp_path / "a.zip").read_bytes() == (tmp_path / "b.zip").read_bytes()
+
+
+def test_the_cache_key_follows_rig_length_and_rate_and_survives_the_stored_rig_json():
+    """The key the warm-up renders under is the one the demo job looks up: the job reads the rig back from
+    the JSON the service stored."""
+    rig = demo_rig()
+    key = demo_recording_key(rig, 12, 6.0)
+    assert demo_recording_key(rig_from_dict(json.loads(rig_json_bytes(rig))), 12, 6.0) == key
+    assert len({key, demo_recording_key(rig, 13, 6.0), demo_recording_key(rig, 12, 5.0),
+                demo_recording_key(demo_rig(9), 12, 6.0)}) == 4
+
+
+def test_a_damaged_cached_recording_is_rendered_again_and_replaced(tmp_path):
+    rig, cache = demo_rig(2, (32, 24)), tmp_path / "cache"
+    cache.mkdir()
+    cached = cache / f"{demo_recording_key(rig, 2, 6.0)}.zip"
+    cached.write_bytes(b"PK\x03\x04 half a zip")
+    (cache / "an-older-renderers-key.zip").write_bytes(b"old")
+    info = demo_recording(rig, tmp_path / "a.zip", 2, 6.0, cache)
+    assert info.frames == 2 and RecordingArchive(tmp_path / "a.zip").info == info
+    assert sorted(p.name for p in cache.iterdir()) == [cached.name]  # replaced; the older one deleted
+    assert cached.read_bytes() == (tmp_path / "a.zip").read_bytes()
+
+
+def test_an_unwritable_cache_only_costs_the_copy(tmp_path):
+    rig, blocked = demo_rig(2, (32, 24)), tmp_path / "a-file-not-a-folder"
+    blocked.write_bytes(b"")
+    info = demo_recording(rig, tmp_path / "a.zip", 2, 6.0, blocked)
+    assert info.frames == 2 and RecordingArchive(tmp_path / "a.zip").info == info

@@ -96,3 +96,12 @@ def test_demo_job_renders_the_procedural_studio(tmp_path):
     first, second = archive.frame_set(0), archive.frame_set(1)
     assert np.abs(first[1].astype(int) - second[1]).max() > 50  # the small sphere moved
     np.testing.assert_array_equal(first[0], render(demo_scene(0.0), rig[0]).image)
+
+
+def test_the_demo_job_keeps_its_recording_in_the_services_demo_cache(tmp_path, monkeypatch):
+    """The service passes <data_dir>/cache/demo to its workers: the next data folder's demo job copies it."""
+    monkeypatch.setenv("SWEEPCAST_DEMO_CACHE_DIR", str(tmp_path / "cache"))
+    rig = demo_rig(2, (32, 24))
+    ctx = FakeContext(tmp_path / "job", {"frames": 2, "fps": 4.0}, {"rig": rig_json(rig)})
+    run_demo_recording(ctx)
+    assert [p.read_bytes() for p in (tmp_path / "cache").iterdir()] == [ctx.result_path("frames.zip").read_bytes()]

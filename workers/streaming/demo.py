@@ -1,9 +1,20 @@
 """The first-run demo: the photographic studio (:func:`workers.synth.studio_scene`: a lit plank stage in
 a green-screen studio, objects wrapped in photographs, soft shadows) seen by a 10-camera 640x480 arc rig, with a
-short recording of a small ball circling the object group."""
+short recording of a small ball circling the object group.
+
+The recording is the same for the same rig, length and renderer, and takes about 20 s of two cores to
+render: :func:`demo_recording` keeps one rendered copy in a cache folder (``sweepcast warmup`` fills it
+before the first start, the demo job on the first start otherwise) and copies it from there.
+"""
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
+import logging
+import os
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Callable
 
@@ -11,13 +22,20 @@ import numpy as np
 
 from workers.synth import Scene, Sphere, default_arc_rig, render_moved, render_views, studio_scene
 from workers.sweep.rig import Rig
+from workers.sweep.rig_io import rig_to_dict
 
-from .recording import ArchiveWriter, RecordingInfo
+from .recording import ArchiveWriter, RecordingArchive, RecordingError, RecordingInfo
+
+log = logging.getLogger("sweepcast.demo")
 
 DEMO_NAME = "Demo: photographic studio"
 DEMO_CAMERAS = 10
 DEMO_SIZE = (640, 480)
 ORBIT_RADIUS = 0.5
+_WORKERS = Path(__file__).resolve().parents[1]
+RENDERER_SOURCES = (*sorted((_WORKERS / "synth").glob("*.py")), Path(__file__).resolve(),
+                    _WORKERS / "streaming" / "recording.py", _WORKERS / "common" / "images.py")
+"""The files whose code decides the recording's pixels and archive: a change to any of them renders it anew."""
 
 
 def demo_rig(cameras: int = DEMO_CAMERAS, size: tuple[int, int] = DEMO_SIZE) -> Rig:
@@ -67,3 +85,56 @@ def build_demo_recording(rig: Rig, out: str | Path, frames: int, fps: float,
     except BaseException:
         writer.abort()
         raise
+
+
+def demo_recording_key(rig: Rig, frames: int, fps: float) -> str:
+    """Hex SHA-256 of everything the demo recording is made of: the rig's calibration, ``frames``, ``fps``
+    and the source of :data:`RENDERER_SOURCES` (the cache's key)."""
+    h = hashlib.sha256(json.dumps([rig_to_dict(rig), frames, float(fps)], sort_keys=True).encode())
+    for source in RENDERER_SOURCES:
+        h.update(source.read_bytes())
+    return h.hexdigest()
+
+
+def demo_recording(rig: Rig, out: str | Path, frames: int, fps: float, cache_dir: Path | None,
+                   progress: Callable[[float, str], None] | None = None) -> RecordingInfo:
+    """:func:`build_demo_recording` into ``out``, by way of ``cache_dir`` (None: no cache): a copy of the
+    cached recording of the same :func:`demo_recording_key` when there is one; else rendered, and then
+    kept there as the folder's only recording. The cache is only ever a shortcut: an unreadable or
+    unwritable one is logged and the recording rendered."""
+    cached = None if cache_dir is None else Path(cache_dir) / f"{demo_recording_key(rig, frames, fps)}.zip"
+    if cached is not None and cached.is_file():
+        try:
+            shutil.copyfile(cached, out)
+            archive = RecordingArchive(out)
+            archive.close()
+            if archive.info.frames == frames and archive.info.cameras == tuple(rig.names):
+                if progress is not None:
+                    progress(1.0, "demo recording copied from the cache")
+                return archive.info
+            log.warning("the cached demo recording %s does not match its key; rendering it", cached)
+        except (OSError, RecordingError) as exc:
+            log.warning("the cached demo recording %s is unusable (%s); rendering it", cached, exc)
+    info = build_demo_recording(rig, out, frames, fps, progress)
+    if cached is not None:
+        _keep(Path(out), cached)
+    return info
+
+
+def _keep(recording: Path, cached: Path) -> None:
+    """Copy ``recording`` to ``cached`` atomically (a reader never sees half of it) and delete the folder's
+    other recordings (those of an earlier renderer or rig)."""
+    try:
+        cached.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=cached.parent, suffix=".part", delete=False) as part:
+            pass
+        try:
+            shutil.copyfile(recording, part.name)
+            os.replace(part.name, cached)
+        finally:
+            Path(part.name).unlink(missing_ok=True)
+        for old in cached.parent.glob("*.zip"):
+            if old != cached:
+                old.unlink(missing_ok=True)
+    except OSError as exc:
+        log.warning("could not keep the demo recording in %s: %s", cached.parent, exc)

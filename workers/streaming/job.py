@@ -17,11 +17,12 @@ import numpy as np
 from workers.camera import CameraError
 from workers.common.jobctx import JobContext, JobInputError
 from workers.registry import JobKind
+from workers.settings import worker_settings
 from workers.sweep.rig import Rig, RigError
 from workers.sweep.rig_io import rig_from_dict
 
 from .batch import render_path
-from .demo import build_demo_recording
+from .demo import demo_recording
 from .images import ImageError, decode_image
 from .params import BatchRenderParams, DemoParams, RecordingImportParams
 from .recording import RecordingArchive, RecordingError, check_videos, import_image_zip, import_videos
@@ -101,7 +102,8 @@ def run_batch_render(ctx: JobContext) -> dict[str, Any]:
 def run_demo_recording(ctx: JobContext) -> dict[str, Any]:
     p = DemoParams.model_validate(ctx.params)
     rig = _rig(ctx)
-    info = build_demo_recording(rig, ctx.result_path(ARCHIVE_NAME), p.frames, p.fps, ctx.progress)
+    info = demo_recording(rig, ctx.result_path(ARCHIVE_NAME), p.frames, p.fps, worker_settings().demo_cache_dir,
+                          ctx.progress)
     return {"frames": info.frames, "fps": info.fps, "cameras": len(rig), "background": info.background}
 
 
