@@ -21,7 +21,7 @@ from workers.streaming.params import Viewpoint
 
 log = logging.getLogger("sweepcast.demo")
 
-POLL_SECONDS = 1.0
+POLL_SECONDS = 0.25  # while the demo recording is made: a few seconds after a first start
 PRESTART_VIEWER = "prestart"
 
 

@@ -109,6 +109,7 @@ class _Structure:
     rows: np.ndarray           # assembled entries (free unknowns only): row, col
     cols: np.ndarray
     take: np.ndarray           # indices into the flattened block data
+    flat: np.ndarray           # rows * n_free + cols: the entries' positions in the dense reduced matrix
     free_index: np.ndarray     # (C * p,) position among free unknowns, -1 when fixed
     n_free: int
     pair_block: np.ndarray     # per point, per ordered pair of its observations: block id, -1 if below the diagonal
@@ -149,6 +150,7 @@ def _structure(n_cams: int, n_pts: int, p: int, cam_idx: np.ndarray, pt_idx: np.
         order=order.astype(np.int64), point_start=point_start.astype(np.int64),
         blk_indptr=cov.indptr.astype(np.int64), blk_indices=blk_cols.astype(np.int64),
         rows=free_index[rows[keep]], cols=free_index[cols[keep]],
+        flat=free_index[rows[keep]] * int(free_flat.sum()) + free_index[cols[keep]],
         take=np.concatenate([np.arange(n_blk * p * p), _transposed_take(off, p)])[keep],
         free_index=free_index, n_free=int(free_flat.sum()), pair_block=pair_block, pair_start=pair_start,
     )
@@ -384,12 +386,15 @@ def _solve_reduced(struct: _Structure, blocks: np.ndarray, rhs: np.ndarray, dens
     n = struct.n_free
     if n == 0:
         return np.zeros(0)
-    S = sp.coo_matrix((blocks.ravel()[struct.take], (struct.rows, struct.cols)), shape=(n, n))
+    values = blocks.ravel()[struct.take]
     b = rhs.ravel()[struct.free_index >= 0]
     try:
-        if n <= dense_limit:
-            return scipy.linalg.cho_solve(scipy.linalg.cho_factor(S.toarray(), check_finite=False), b,
+        if n <= dense_limit:  # every (row, col) appears once: written straight into the dense matrix
+            dense = np.zeros((n, n))
+            dense.ravel()[struct.flat] = values
+            return scipy.linalg.cho_solve(scipy.linalg.cho_factor(dense, overwrite_a=True, check_finite=False), b,
                                           check_finite=False)
+        S = sp.coo_matrix((values, (struct.rows, struct.cols)), shape=(n, n))
         x = spla.splu(S.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(b)
     except (np.linalg.LinAlgError, RuntimeError):
         return None
