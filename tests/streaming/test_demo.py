@@ -130,3 +130,10 @@ def test_an_unwritable_cache_only_costs_the_copy(tmp_path):
     blocked.write_bytes(b"")
     info = demo_recording(rig, tmp_path / "a.zip", 2, 6.0, blocked)
     assert info.frames == 2 and RecordingArchive(tmp_path / "a.zip").info == info
+
+
+def test_the_cached_recording_is_readable_by_others_as_any_new_file(tmp_path):
+    rig, cache = demo_rig(2, (32, 24)), tmp_path / "cache"
+    demo_recording(rig, tmp_path / "a.zip", 2, 6.0, cache)
+    (cached,) = cache.iterdir()
+    assert cached.stat().st_mode & 0o777 == (tmp_path / "a.zip").stat().st_mode & 0o777

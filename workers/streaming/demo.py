@@ -8,13 +8,14 @@ before the first start, the demo job on the first start otherwise) and copies it
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
 import logging
 import os
 import shutil
-import tempfile
+import uuid
 from pathlib import Path
 from typing import Callable
 
@@ -124,17 +125,16 @@ def demo_recording(rig: Rig, out: str | Path, frames: int, fps: float, cache_dir
 def _keep(recording: Path, cached: Path) -> None:
     """Copy ``recording`` to ``cached`` atomically (a reader never sees half of it) and delete the folder's
     other recordings (those of an earlier renderer or rig)."""
+    part = cached.with_name(f"{cached.name}.{uuid.uuid4().hex}.part")
     try:
         cached.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=cached.parent, suffix=".part", delete=False) as part:
-            pass
-        try:
-            shutil.copyfile(recording, part.name)
-            os.replace(part.name, cached)
-        finally:
-            Path(part.name).unlink(missing_ok=True)
+        shutil.copyfile(recording, part)
+        os.replace(part, cached)
         for old in cached.parent.glob("*.zip"):
             if old != cached:
                 old.unlink(missing_ok=True)
     except OSError as exc:
         log.warning("could not keep the demo recording in %s: %s", cached.parent, exc)
+    finally:
+        with contextlib.suppress(OSError):
+            part.unlink(missing_ok=True)
