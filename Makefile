@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 # Every engine's kernels compiled once, before the first serve, into ./sweepcast-data/cache/numba (the cache
 # serve and the tests use): no first request waits for a compile. Kernels changed since are compiled by
 # serve's background warm-up. Then the demo's recording, rendered into ./sweepcast-data/cache/demo: the first
-# start's demo job copies it, and the first viewer does not wait for it.
+# start publishes it as the demo's recording, and the first viewer does not wait for it.
 $(KERNELS): $(STAMP)
 	$(BIN)/sweepcast warmup
 	touch $(KERNELS)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import ipaddress
 import json
+import logging
 import os
 import shutil
 import socket
@@ -31,6 +32,17 @@ def _is_loopback(host: str) -> bool:
             return False
 
 
+def _log_to_stderr(level: str) -> None:
+    """The service's own log (``sweepcast.*``: Ray's start, the demo, jobs, kernels) on stderr beside uvicorn's, at
+    ``level``; without a handler Python only prints its warnings."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    logger = logging.getLogger("sweepcast")
+    logger.addHandler(handler)
+    logger.setLevel(level.upper())
+    logger.propagate = False
+
+
 def cmd_serve(args: argparse.Namespace) -> int:
     from app import raycluster
     from app.settings import Settings
@@ -44,6 +56,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    _log_to_stderr(args.log_level)
     raycluster.start_connecting(settings)  # Ray's start overlaps the imports below (readyz sooner)
     import uvicorn
 

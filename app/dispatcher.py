@@ -14,10 +14,13 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
+import shutil
 import socket
+import tempfile
 import time
 import uuid
 from dataclasses import asdict
+from pathlib import Path
 from typing import Any
 
 import ray
@@ -27,7 +30,8 @@ from app.events import EventHub
 from app.jobstore import Job, JobState, JobStore, job_public
 from app.settings import Settings
 from workers.registry import get_kind
-from workers.runtime import JobSpec
+from workers.runtime import JobSpec, publish_results
+from workers.storage import check_key, open_store
 
 log = logging.getLogger("sweepcast.dispatcher")
 
@@ -72,6 +76,15 @@ def _schedulable(options: dict[str, Any]) -> bool:
         if all(have.get(k, 0.0) >= v for k, v in need.items() if v > 0):
             return True
     return False
+
+
+def _publish_files(store_url: str, job_id: str, results: dict[str, Path], summary: dict[str, Any]) -> dict[str, Any]:
+    """``results`` (name -> local file) published as the job's results, as a worker publishes them; the manifest."""
+    with tempfile.TemporaryDirectory(prefix=f"sweepcast-{job_id[:8]}-") as name:
+        staging = Path(name)
+        for result, path in results.items():
+            shutil.copyfile(path, staging / check_key(result))
+        return publish_results(open_store(store_url), job_id, staging, summary)
 
 
 class Dispatcher:
@@ -146,6 +159,26 @@ class Dispatcher:
         await asyncio.gather(*[t for t in list(self._tasks.values())], return_exceptions=True)
         for job_id in held:
             await asyncio.to_thread(self.jobs.release, job_id, self.owner)
+
+    async def finish_here(self, job_id: str, results: dict[str, Path], summary: dict[str, Any]) -> bool:
+        """Complete a committed job this dispatcher holds, not yet submitted, in this process, as one attempt whose
+        results are the files ``results`` (result name -> local file), without Ray: for a job whose result is
+        already at hand (the demo recording, kept from an earlier render). False when that failed: nothing was
+        published and the job is still queued (submit it)."""
+        job = await asyncio.to_thread(self.jobs.begin_attempt, job_id, self.owner, self.lease_s)
+        if job is None:
+            return False
+        try:
+            await asyncio.to_thread(self.jobs.mark_running, job_id, self.owner)
+            manifest = await asyncio.to_thread(_publish_files, self.store_url, job_id, results, summary)
+        except Exception:  # noqa: BLE001 - the job is still ours and active: the caller submits it
+            log.exception("could not complete job %s in the service", job_id)
+            return False
+        result = {**manifest, "attempt": job.attempts, "worker": {"node_id": None, "pid": os.getpid()}}
+        if not await asyncio.to_thread(self.jobs.finish, job_id, self.owner, JobState.succeeded, result, None):
+            return False
+        await self._publish_final(job_id)
+        return True
 
     async def _renew_loop(self) -> None:
         while True:

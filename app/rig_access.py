@@ -7,6 +7,7 @@ import asyncio
 import json
 import logging
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from app.errors import ApiError
@@ -15,9 +16,11 @@ from app.services import Services, Upload, create_job, delete_job_and_files
 from app.settings import Settings
 from workers.streaming import store as rigstore
 from workers.streaming.actor import LIVE, SessionConfig
-from workers.streaming.demo import DEMO_NAME, demo_rig
+from workers.streaming.demo import DEMO_NAME, cached_demo_recording, demo_rig, demo_summary
 from workers.streaming.job import DEMO_JOB, RECORDING_JOB
 from workers.streaming.params import DemoParams
+from workers.streaming.recording import RecordingArchive, RecordingInfo
+from workers.streaming.store import ARCHIVE_NAME
 from workers.streaming.session import SessionLimits
 from workers.streaming.viewpoint import orbit_frame
 from workers.sweep.rig import Rig
@@ -162,6 +165,12 @@ def session_config(svc: Services, rig_id: str, source: str) -> SessionConfig:
 
 # --- jobs over stored blobs -----------------------------------------------------------------------
 # --- the first-run demo ---------------------------------------------------------------------------
+def _recording_info(path: Path) -> RecordingInfo:
+    archive = RecordingArchive(path)
+    archive.close()
+    return archive.info
+
+
 async def ensure_demo_rig(svc: Services) -> None:
     """At start-up (when ``demo_rig`` is on): store the procedural arc rig when there is no demo rig,
     and start the job that renders its recording when it has none ready or under way (a first
@@ -180,10 +189,20 @@ async def ensure_demo_rig(svc: Services) -> None:
             rig_id = rigstore.new_rig_id()
             await asyncio.to_thread(rigstore.save_rig, svc.store, rig_id, rig,
                                     {"name": DEMO_NAME, "format": "json", "demo": True})
-        job = await create_job(svc, DEMO_JOB, DemoParams(),
-                               [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})])
+        params = DemoParams()
+        kept = await asyncio.to_thread(cached_demo_recording, svc.settings.resolved_demo_cache_dir, rig,
+                                       params.frames, params.fps)
+        job = await create_job(svc, DEMO_JOB, params, [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})],
+                               submit=False)
         await asyncio.to_thread(rigstore.save_recording_meta, svc.store, rig_id, job.id,
                                 {"name": "demo recording", "kind": "demo"})
+        # The recording kept by `sweepcast warmup` (or an earlier data folder's demo job) is the job's result as
+        # it is: published here, before Ray is even up, so that the demo's viewer session can start with Ray.
+        if kept is not None and await svc.dispatcher.finish_here(
+                job.id, {ARCHIVE_NAME: kept}, demo_summary(await asyncio.to_thread(_recording_info, kept))):
+            log.info("demo rig %s: its recording %s is the one kept in %s", rig_id, job.id, kept.parent)
+            return
+        svc.dispatcher.submit(job.id)
         log.info("demo rig %s: its recording is being rendered by job %s", rig_id, job.id)
     except Exception:  # noqa: BLE001 - the service is useful without the demo
         log.exception("could not create the demo rig")

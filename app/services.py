@@ -98,13 +98,14 @@ def parse_params(model: type[M], text: str | None) -> M:
 
 
 async def create_job(svc: Services, kind: JobKind, params: BaseModel, uploads: list[Upload],
-                     stored: dict[str, str] | None = None) -> Job:
+                     stored: dict[str, str] | None = None, submit: bool = True) -> Job:
     """Store the inputs, commit the row, then submit: the row exists before Ray hears of the job.
 
     ``kind``: the engine's job constant (``workers/<engine>/job.py``); ``params``: the request already
     parsed into the kind's model (stored as JSON; the worker validates the row once more, as it may
     outlive this version). ``stored`` (input name -> key) names inputs already in the blob store (a
-    recording's archive), which the job reads in place instead of a copy.
+    recording's archive), which the job reads in place instead of a copy. ``submit`` False: the caller runs it
+    (``svc.dispatcher.finish_here``, else ``submit``).
     """
     if not isinstance(params, kind.params):
         raise TypeError(f"{kind.name} takes {kind.params.__name__}, not {type(params).__name__}")
@@ -125,5 +126,6 @@ async def create_job(svc: Services, kind: JobKind, params: BaseModel, uploads: l
     except BaseException:
         await asyncio.to_thread(svc.store.delete_prefix, prefix)
         raise
-    svc.dispatcher.submit(job.id)
+    if submit:
+        svc.dispatcher.submit(job.id)
     return job

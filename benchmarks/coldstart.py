@@ -244,12 +244,15 @@ def markdown(r: dict) -> str:
               "its recording); seconds.", "",
               md_table(["", "first start after the warm-up", "restart", "first start, empty cache", "goal"], rows), ""]
     first, again = sv["first_start"], sv["restart"]
-    if first["first_frame_after_ready_s"] > GOALS["first_frame_after_ready_s"]:
+    if max(first["first_frame_after_ready_s"], again["first_frame_after_ready_s"]) > GOALS["first_frame_after_ready_s"]:
         parts += [f"First viewer frame on the first start: {first['first_frame_after_ready_s']:.1f} s after ready, of "
-                  f"which {first['demo_ready_s'] - first['ready_s']:.1f} s wait for the demo recording (10 cameras x 12 "
-                  "frames of the studio, copied from the warm-up's cache by a job on Ray), then "
-                  f"{first['first_frame_s']:.1f} s for the frame; a restart keeps the recording and shows its first frame "
-                  f"{again['first_frame_after_ready_s']:.1f} s after ready.", ""]
+                  f"which {max(first['demo_ready_s'] - first['ready_s'], 0.0):.1f} s wait for the demo recording (10 "
+                  "cameras x 12 frames of the studio: the service publishes the one the warm-up kept, before Ray is "
+                  f"up; a job on Ray renders it when none was kept), then {first['first_frame_s']:.1f} s for the frame: "
+                  "the viewer's session actor, a new Ray worker process that imports the renderer, loads its "
+                  "kernels from the cache (numba sets up its CPU target on the first) and renders. A restart keeps "
+                  f"the recording and shows its first frame {again['first_frame_after_ready_s']:.1f} s after ready.",
+                  ""]
     if max(sv["first_start"]["ready_s"], sv["restart"]["ready_s"]) > GOALS["ready_s"]:
         ray = r["ray_start"]
         parts += [f"Readiness waits for Ray: the API answers {sv['restart']['answering_s']:.1f} s after a restart, and "

@@ -121,6 +121,13 @@ def _publish(store: BlobStore, job_id: str, staging: Path) -> None:
         store.delete_prefix(tmp_prefix)
 
 
+def publish_results(store: BlobStore, job_id: str, staging: Path, summary: dict[str, Any]) -> dict[str, Any]:
+    """Publish the files in ``staging`` as the results of ``job_id``; the manifest the job row records."""
+    manifest = _manifest(staging, summary)
+    _publish(store, job_id, staging)
+    return manifest
+
+
 def _node_id() -> str | None:
     try:
         import ray
@@ -145,8 +152,7 @@ def execute_job(spec: JobSpec) -> Iterator[dict[str, Any]]:
             store = open_store(spec.store_url)
             ctx = StoreJobContext(spec, kind.validate(spec.params), store, staging, events.put)
             summary = kind.entry(ctx) or {}
-            manifest = _manifest(staging, summary)
-            _publish(store, spec.job_id, staging)
+            manifest = publish_results(store, spec.job_id, staging, summary)
             outcome["event"] = {"type": "succeeded", "manifest": manifest}
         except JobInputError as exc:
             outcome["event"] = {"type": "failed", "error": str(exc), "user_error": True}

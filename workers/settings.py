@@ -33,7 +33,7 @@ class WorkerSettings(BaseSettings):
     models_dir: Path | None = Field(None, description="Workers: the folder of the installed optional models (the "
                                                       "service always passes <data_dir>/models).")
     demo_cache_dir: Path | None = Field(None, description="Where the rendered demo recording is kept, so that a new "
-                                                          "data folder's demo job copies it instead of rendering it "
+                                                          "data folder's demo gets it instead of rendering it again "
                                                           "(the service passes <data_dir>/cache/demo; none: render).")
     orientation_yunet_model: Path | None = Field(
         None, description="YuNet ONNX model for the stronger face detector; default: the one "

@@ -206,7 +206,7 @@ def warm_in_processes(engines: list[str], jobs: int, log: Callable[[str], None] 
 
 def render_demo_recording(cache_dir: Path) -> float:
     """Render the first-run demo recording (the demo rig, the demo job's default length) into ``cache_dir``,
-    where the demo job of a new data folder copies it from instead of rendering it (about 20 s of two
+    which a new data folder's demo gets without rendering it (about 20 s of two
     cores); seconds taken (a copy already there: none to speak of)."""
     from workers.streaming.demo import demo_recording, demo_rig
     from workers.streaming.params import DemoParams
@@ -225,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
                     help="processes compiling at once (default: one per core)")
     ap.add_argument("--demo-cache", type=Path, metavar="DIR",
-                    help="then render the first-run demo recording into DIR (the demo job copies it from there)")
+                    help="then render the first-run demo recording into DIR (a new data folder's demo then gets it without rendering it)")
     args = ap.parse_args(argv)
     unknown = sorted(set(args.engines) - set(ENGINES))
     if unknown:

@@ -84,3 +84,22 @@ def test_serve_refuses_a_public_host_without_keys(capsys, monkeypatch):
     monkeypatch.delenv("SWEEPCAST_API_KEYS", raising=False)
     assert main(["serve", "--host", "0.0.0.0"]) == 2
     assert "--insecure" in capsys.readouterr().err
+
+
+def test_serve_logs_the_services_own_messages_at_the_chosen_level(capsys):
+    """Without a handler Python drops the service's INFO lines (Ray's start, the demo, the kernels)."""
+    import logging
+
+    from app.cli import _log_to_stderr
+
+    logger = logging.getLogger("sweepcast")
+    before = list(logger.handlers), logger.level, logger.propagate
+    try:
+        _log_to_stderr("info")
+        logging.getLogger("sweepcast.demo").info("demo session warm")
+        logging.getLogger("sweepcast.demo").debug("not shown at info")
+        err = capsys.readouterr().err
+        assert "INFO sweepcast.demo: demo session warm" in err and "not shown" not in err
+    finally:
+        logger.handlers[:], logger.propagate = before[0], before[2]
+        logger.setLevel(before[1])

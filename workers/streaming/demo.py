@@ -97,28 +97,48 @@ def demo_recording_key(rig: Rig, frames: int, fps: float) -> str:
     return h.hexdigest()
 
 
+def cached_demo_recording(cache_dir: Path | None, rig: Rig, frames: int, fps: float) -> Path | None:
+    """The kept recording of ``rig`` (``frames`` at ``fps``) in ``cache_dir`` when it is there and readable
+    as a recording of that length and rig, else None."""
+    if cache_dir is None:
+        return None
+    cached = Path(cache_dir) / f"{demo_recording_key(rig, frames, fps)}.zip"
+    try:
+        archive = RecordingArchive(cached)
+    except (OSError, RecordingError):
+        return None
+    archive.close()
+    if archive.info.frames == frames and archive.info.cameras == tuple(rig.names):
+        return cached
+    log.warning("the cached demo recording %s does not match its key; it will be rendered anew", cached)
+    return None
+
+
+def demo_summary(info: RecordingInfo) -> dict:
+    """The demo job's result summary for the recording ``info``."""
+    return {"frames": info.frames, "fps": info.fps, "cameras": len(info.cameras), "background": info.background}
+
+
 def demo_recording(rig: Rig, out: str | Path, frames: int, fps: float, cache_dir: Path | None,
                    progress: Callable[[float, str], None] | None = None) -> RecordingInfo:
     """:func:`build_demo_recording` into ``out``, by way of ``cache_dir`` (None: no cache): a copy of the
     cached recording of the same :func:`demo_recording_key` when there is one; else rendered, and then
     kept there as the folder's only recording. The cache is only ever a shortcut: an unreadable or
     unwritable one is logged and the recording rendered."""
-    cached = None if cache_dir is None else Path(cache_dir) / f"{demo_recording_key(rig, frames, fps)}.zip"
-    if cached is not None and cached.is_file():
+    cached = cached_demo_recording(cache_dir, rig, frames, fps)
+    if cached is not None:
         try:
             shutil.copyfile(cached, out)
             archive = RecordingArchive(out)
             archive.close()
-            if archive.info.frames == frames and archive.info.cameras == tuple(rig.names):
-                if progress is not None:
-                    progress(1.0, "demo recording copied from the cache")
-                return archive.info
-            log.warning("the cached demo recording %s does not match its key; rendering it", cached)
+            if progress is not None:
+                progress(1.0, "demo recording copied from the cache")
+            return archive.info
         except (OSError, RecordingError) as exc:
             log.warning("the cached demo recording %s is unusable (%s); rendering it", cached, exc)
     info = build_demo_recording(rig, out, frames, fps, progress)
-    if cached is not None:
-        _keep(Path(out), cached)
+    if cache_dir is not None:
+        _keep(Path(out), Path(cache_dir) / f"{demo_recording_key(rig, frames, fps)}.zip")
     return info
 
 
