@@ -41,11 +41,19 @@ class KernelWarmup:
     started: float = field(default_factory=time.monotonic)
     seconds: dict[str, float] | None = None
     error: str | None = None
+    current: bool = False  # the cache was already warm for this code and CPU: nothing started
 
     @classmethod
     def start(cls, cache_dir: Path, report: bool = True, engines: tuple[str, ...] = ()) -> "KernelWarmup":
         """Start ``python -m workers.warmup [engines]`` (default: all) with ``cache_dir`` as its numba cache,
-        at lower priority; ``report``: read its result for :meth:`status` (else its output is discarded)."""
+        at lower priority; ``report``: read its result for :meth:`status` (else its output is discarded). Nothing
+        to start when a warm-up of every engine stamped the cache for this very code and CPU
+        (:func:`workers.warmup.is_current`): it would only load every kernel, seconds of CPU at every start."""
+        from workers.warmup import is_current
+
+        if not engines and is_current(cache_dir):
+            log.info("the kernels in %s are current for this code and CPU: no warm-up", cache_dir)
+            return cls(current=True)
         env = {**os.environ, "NUMBA_CACHE_DIR": str(cache_dir)}
         out = subprocess.PIPE if report else subprocess.DEVNULL
         # its own process group: it compiles in one process per core, and stop() ends them all
@@ -58,7 +66,7 @@ class KernelWarmup:
     @property
     def state(self) -> str:
         if self.proc is None:
-            return "off"
+            return "done" if self.current else "off"
         if self.proc.poll() is None:
             return "warming"
         if self.seconds is None and self.error is None:
@@ -80,6 +88,8 @@ class KernelWarmup:
         report: dict[str, object] = {"ok": True, "state": state}
         if state == "warming":
             report["detail"] = f"compiling for {time.monotonic() - self.started:.0f} s"
+        elif state == "done" and self.current:
+            report["detail"] = "the cache is current for this code and CPU (stamped by the last full warm-up)"
         elif state == "done":
             report["seconds"] = self.seconds
         elif state == "failed":

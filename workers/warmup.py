@@ -16,6 +16,8 @@ Where the cache lives: ``NUMBA_CACHE_DIR`` when set, which the service sets from
 from __future__ import annotations
 
 import argparse
+import contextlib
+import hashlib
 import json
 import os
 import subprocess
@@ -166,6 +168,41 @@ def shares(engines: list[str], jobs: int) -> list[list[str]]:
     return [sorted(g, key=order.index) for g in groups if g]
 
 
+STAMP_NAME = "warmed.json"
+"""Written into the cache by a warm-up of every engine that succeeded: the :func:`fingerprint` it warmed."""
+_WORKERS = Path(__file__).resolve().parent
+
+
+def fingerprint() -> str:
+    """Hex SHA-256 of what every cached kernel depends on, as numba keys its entries: each engine source file
+    (path, size and modification time), numba's and Python's versions, and this CPU (name and features)."""
+    import numba
+    from numba.core.codegen import get_host_cpu_features
+    import llvmlite.binding as llvm
+
+    h = hashlib.sha256(f"{numba.__version__}|{sys.version}|{llvm.get_host_cpu_name()}|{get_host_cpu_features()}".encode())
+    for path in sorted(_WORKERS.rglob("*.py")):
+        st = path.stat()
+        h.update(f"\n{path.relative_to(_WORKERS).as_posix()}|{st.st_size}|{st.st_mtime_ns}".encode())
+    return h.hexdigest()
+
+
+def is_current(cache_dir: Path) -> bool:
+    """Whether ``cache_dir`` holds every engine's kernels for this code, numba and CPU (a warm-up of all of them
+    stamped it since nothing changed): then a warm-up would only load them."""
+    try:
+        return json.loads((Path(cache_dir) / STAMP_NAME).read_text()).get("fingerprint") == fingerprint()
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _stamp(cache_dir: Path) -> None:
+    with contextlib.suppress(OSError):  # without the stamp the next start only warms again
+        part = Path(cache_dir) / f"{STAMP_NAME}.{os.getpid()}.part"
+        part.write_text(json.dumps({"fingerprint": fingerprint()}))
+        os.replace(part, Path(cache_dir) / STAMP_NAME)
+
+
 def warm(engines: list[str] | None = None, log: Callable[[str], None] | None = None) -> dict[str, float]:
     """Compile (or load from numba's cache) the kernels of ``engines`` (default: all, in
     :data:`ENGINES` order); returns seconds per engine. An engine that fails is logged and skipped:
@@ -234,6 +271,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--jobs must be at least 1")
     log = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
     seconds = warm_in_processes(args.engines or list(ENGINES), args.jobs, log)
+    if set(seconds) == set(ENGINES) and os.environ.get("NUMBA_CACHE_DIR"):  # every engine warmed: stamp the cache
+        _stamp(Path(os.environ["NUMBA_CACHE_DIR"]))
     if args.demo_cache is not None:
         seconds["demo_recording"] = render_demo_recording(args.demo_cache)
         log(f"rendered the demo recording into {args.demo_cache} in {seconds['demo_recording']:.1f} s")

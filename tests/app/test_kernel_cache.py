@@ -107,3 +107,30 @@ def test_the_warmup_yields_the_cpu_to_rays_workers(tmp_path):
     finally:
         warm.stop()
     assert nice > 15  # Ray's worker processes run at nice 15
+
+
+def _fake_engines(monkeypatch, tmp_path):
+    from workers import warmup
+
+    monkeypatch.setattr(warmup, "ENGINES", {name: (lambda: None) for name in warmup.ENGINES})
+    sources = tmp_path / "sources"
+    sources.mkdir()
+    (sources / "kernels.py").write_text("x = 1\n")
+    monkeypatch.setattr(warmup, "_WORKERS", sources)
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    (tmp_path / "cache").mkdir()
+    return warmup, sources / "kernels.py"
+
+
+def test_a_full_warmup_stamps_the_cache_and_the_next_start_only_checks_it(tmp_path, monkeypatch, capsys):
+    warmup, source = _fake_engines(monkeypatch, tmp_path)
+    cache = tmp_path / "cache"
+    assert warmup.main(["--jobs", "1", "faces", "depth"]) == 0 and not warmup.is_current(cache)  # not every engine
+    assert warmup.main(["--jobs", "1"]) == 0 and warmup.is_current(cache)
+    started = KernelWarmup.start(cache)
+    assert started.proc is None and started.state == "done" and "current" in started.status()["detail"]
+    os.utime(source, ns=(source.stat().st_atime_ns, source.stat().st_mtime_ns + 1_000_000))  # an edited source
+    assert not warmup.is_current(cache)
+    warm = KernelWarmup.start(cache, engines=("faces",))  # a warm-up of some engines always runs
+    warm.stop()
+    assert warm.proc is not None
