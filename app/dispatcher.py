@@ -164,7 +164,7 @@ class Dispatcher:
         """Complete a committed job this dispatcher holds, not yet submitted, in this process, as one attempt whose
         results are the files ``results`` (result name -> local file), without Ray: for a job whose result is
         already at hand (the demo recording, kept from an earlier render). False when that failed: nothing was
-        published and the job is still queued (submit it)."""
+        published and the job is still active and ours (submit it)."""
         job = await asyncio.to_thread(self.jobs.begin_attempt, job_id, self.owner, self.lease_s)
         if job is None:
             return False

@@ -20,8 +20,8 @@ from workers.streaming.demo import DEMO_NAME, cached_demo_recording, demo_rig, d
 from workers.streaming.job import DEMO_JOB, RECORDING_JOB
 from workers.streaming.params import DemoParams
 from workers.streaming.recording import RecordingArchive, RecordingInfo
-from workers.streaming.store import ARCHIVE_NAME
 from workers.streaming.session import SessionLimits
+from workers.streaming.store import ARCHIVE_NAME
 from workers.streaming.viewpoint import orbit_frame
 from workers.sweep.rig import Rig
 from workers.sweep.rig_io import rig_to_dict

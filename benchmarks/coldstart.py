@@ -171,6 +171,8 @@ def service_start(data_dir: Path, log: Path, photo: bytes, flight: tuple[Path, d
         app.wait_ready(300)
         ready = time.monotonic() - t0
         out = {"answering_s": answering, "ready_s": ready, "cpu_at_ready_s": cpu_seconds(app.proc.pid)}
+        if httpx.get(f"{app.base}/readyz", timeout=10).json()["checks"]["kernels"]["state"] != "warming":
+            out["kernels_warm_s"] = ready  # no warm-up to wait for (a stamped cache) or already over
         with httpx.Client(base_url=app.base, timeout=120) as http:
             rig_id, recording = wait_for(lambda: demo_recording(http), 900, "the demo recording", app.proc, log)
             out["demo_ready_s"] = time.monotonic() - t0
@@ -189,7 +191,7 @@ def service_start(data_dir: Path, log: Path, photo: bytes, flight: tuple[Path, d
             out["first_reconstruction_s"] = time.monotonic() - t
             kernels = wait_for(lambda: (k := http.get("/readyz").json()["checks"]["kernels"])["state"] != "warming"
                                and k, 900, "the kernel warm-up", app.proc, log)
-            out["kernels_warm_s"] = time.monotonic() - t0
+            out.setdefault("kernels_warm_s", time.monotonic() - t0)  # an upper bound: checked after the work above
             out["kernels"] = kernels
     return out
 
@@ -226,7 +228,7 @@ def markdown(r: dict) -> str:
     parts += ["First calls in a fresh worker process (synthetic BA 6 cameras x 250 points; drone pipeline on a "
               "36-frame 320x240 generated flight): empty cache, warm cache, and the second call.", "",
               md_table(["work", "cold (s)", "warm start (s)", "steady (s)"], rows), ""]
-    keys = [("answering_s", "`/healthz` 200 after start (the API answers)"), ("ready_s", "`/readyz` 200 after start"), ("kernels_warm_s", "kernel warm-up done after start"),
+    keys = [("answering_s", "`/healthz` 200 after start (the API answers)"), ("ready_s", "`/readyz` 200 after start"), ("kernels_warm_s", "kernel warm-up done after start (at ready: none needed; else seen after the work below)"),
             ("demo_ready_s", "demo recording ready after start"),
             ("first_frame_after_ready_s", "first viewer frame after ready (includes waiting for the demo recording)"),
             ("first_frame_s", "first viewer frame after the recording is ready"),
@@ -237,7 +239,8 @@ def markdown(r: dict) -> str:
              f"<= {GOALS[k]:.0f}" if k in GOALS else ""] for k, label in keys]
     parts += [f"`python -m app serve` as a new user starts it: on a fresh data folder (no demo rig) whose kernel "
               f"cache the first `make serve` filled before starting it (`sweepcast warmup`, kernels in one process "
-              f"per core, then the demo recording into the folder's `cache/demo`, which the demo job copies: "
+              f"per core, then the demo recording into the folder's `cache/demo`, which the service publishes as "
+              f"the demo's recording: "
               f"**{sv['install_warmup_s']:.1f} s**, of it {sv['install_demo_recording_s']:.1f} s the recording), "
               "then restarted on the same folder; and on a fresh folder with empty caches (`sweepcast serve` "
               "without that warm-up: kernels compile in the background while requests come, the demo job renders "
@@ -261,7 +264,7 @@ def markdown(r: dict) -> str:
                   "GCS, raylet and their agents are processes that start and register one after the other. The "
                   "service starts Ray first and imports itself meanwhile (`raycluster.start_connecting`). Limit: "
                   f"CPU. By `/readyz` 200 the service's processes (the API's imports, Ray's processes, most of them "
-                  f"Python importing ray, the warm-up's start) had used {again['cpu_at_ready_s']:.1f} CPU-seconds on a "
+                  f"Python importing ray, and the kernel warm-up where the cache was not stamped current) had used {again['cpu_at_ready_s']:.1f} CPU-seconds on a "
                   f"restart ({first['cpu_at_ready_s']:.1f} on the first start): on {os.cpu_count()} cores no less "
                   f"than {again['cpu_at_ready_s'] / (os.cpu_count() or 1):.1f} s.", ""]
     return "\n".join(parts)
