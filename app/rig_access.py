@@ -7,7 +7,6 @@ import asyncio
 import json
 import logging
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from app.errors import ApiError
@@ -16,10 +15,9 @@ from app.services import Services, Upload, create_job, delete_job_and_files
 from app.settings import Settings
 from workers.streaming import store as rigstore
 from workers.streaming.actor import LIVE, SessionConfig
-from workers.streaming.demo import DEMO_NAME, cached_demo_recording, demo_rig, demo_summary
+from workers.streaming.demo import DEMO_NAME, cached_demo_recording, demo_rig
 from workers.streaming.job import DEMO_JOB, RECORDING_JOB
 from workers.streaming.params import DemoParams
-from workers.streaming.recording import RecordingArchive, RecordingInfo
 from workers.streaming.session import SessionLimits
 from workers.streaming.store import ARCHIVE_NAME
 from workers.streaming.viewpoint import orbit_frame
@@ -165,12 +163,6 @@ def session_config(svc: Services, rig_id: str, source: str) -> SessionConfig:
 
 # --- jobs over stored blobs -----------------------------------------------------------------------
 # --- the first-run demo ---------------------------------------------------------------------------
-def _recording_info(path: Path) -> RecordingInfo:
-    archive = RecordingArchive(path)
-    archive.close()
-    return archive.info
-
-
 async def ensure_demo_rig(svc: Services) -> None:
     """At start-up (when ``demo_rig`` is on): store the procedural arc rig when there is no demo rig,
     and start the job that renders its recording when it has none ready or under way (a first
@@ -198,9 +190,8 @@ async def ensure_demo_rig(svc: Services) -> None:
                                 {"name": "demo recording", "kind": "demo"})
         # The recording kept by `sweepcast warmup` (or an earlier data folder's demo job) is the job's result as
         # it is: published here, before Ray is even up, so that the demo's viewer session can start with Ray.
-        if kept is not None and await svc.dispatcher.finish_here(
-                job.id, {ARCHIVE_NAME: kept}, demo_summary(await asyncio.to_thread(_recording_info, kept))):
-            log.info("demo rig %s: its recording %s is the one kept in %s", rig_id, job.id, kept.parent)
+        if kept is not None and await svc.dispatcher.finish_here(job.id, {ARCHIVE_NAME: kept[0]}, kept[1].summary()):
+            log.info("demo rig %s: its recording %s is the one kept in %s", rig_id, job.id, kept[0].parent)
             return
         svc.dispatcher.submit(job.id)
         log.info("demo rig %s: its recording is being rendered by job %s", rig_id, job.id)

@@ -141,6 +141,8 @@ def _structure(n_cams: int, n_pts: int, p: int, cam_idx: np.ndarray, pt_idx: np.
     free_flat = ~fixed.ravel()
     free_index[free_flat] = np.arange(int(free_flat.sum()))
     keep = (free_index[rows] >= 0) & (free_index[cols] >= 0)
+    n_free = int(free_flat.sum())
+    free_rows, free_cols = free_index[rows[keep]], free_index[cols[keep]]
     counts = counts.astype(np.int64)
     pair_start = np.concatenate([[0], np.cumsum(counts * counts)]).astype(np.int64)
     indptr, indices = cov.indptr.astype(np.int64), blk_cols.astype(np.int64)
@@ -149,10 +151,9 @@ def _structure(n_cams: int, n_pts: int, p: int, cam_idx: np.ndarray, pt_idx: np.
     return _Structure(
         order=order.astype(np.int64), point_start=point_start.astype(np.int64),
         blk_indptr=cov.indptr.astype(np.int64), blk_indices=blk_cols.astype(np.int64),
-        rows=free_index[rows[keep]], cols=free_index[cols[keep]],
-        flat=free_index[rows[keep]] * int(free_flat.sum()) + free_index[cols[keep]],
+        rows=free_rows, cols=free_cols, flat=free_rows * n_free + free_cols,
         take=np.concatenate([np.arange(n_blk * p * p), _transposed_take(off, p)])[keep],
-        free_index=free_index, n_free=int(free_flat.sum()), pair_block=pair_block, pair_start=pair_start,
+        free_index=free_index, n_free=n_free, pair_block=pair_block, pair_start=pair_start,
     )
 
 

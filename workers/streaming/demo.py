@@ -97,26 +97,32 @@ def demo_recording_key(rig: Rig, frames: int, fps: float) -> str:
     return h.hexdigest()
 
 
-def cached_demo_recording(cache_dir: Path | None, rig: Rig, frames: int, fps: float) -> Path | None:
-    """The kept recording of ``rig`` (``frames`` at ``fps``) in ``cache_dir`` when it is there and readable
-    as a recording of that length and rig, else None."""
-    if cache_dir is None:
-        return None
-    cached = Path(cache_dir) / f"{demo_recording_key(rig, frames, fps)}.zip"
+def _cache_file(cache_dir: Path, rig: Rig, frames: int, fps: float) -> Path:
+    return Path(cache_dir) / f"{demo_recording_key(rig, frames, fps)}.zip"
+
+
+def _read_kept(cached: Path, rig: Rig, frames: int) -> RecordingInfo | None:
+    """The info of the kept recording ``cached`` when it is readable as a recording of ``rig`` with ``frames``."""
     try:
         archive = RecordingArchive(cached)
     except (OSError, RecordingError):
         return None
     archive.close()
     if archive.info.frames == frames and archive.info.cameras == tuple(rig.names):
-        return cached
+        return archive.info
     log.warning("the cached demo recording %s does not match its key; it will be rendered anew", cached)
     return None
 
 
-def demo_summary(info: RecordingInfo) -> dict:
-    """The demo job's result summary for the recording ``info``."""
-    return {"frames": info.frames, "fps": info.fps, "cameras": len(info.cameras), "background": info.background}
+def cached_demo_recording(cache_dir: Path | None, rig: Rig, frames: int, fps: float
+                          ) -> tuple[Path, RecordingInfo] | None:
+    """The kept recording of ``rig`` (``frames`` at ``fps``) in ``cache_dir`` and its info, when it is there and
+    readable as a recording of that length and rig, else None."""
+    if cache_dir is None:
+        return None
+    cached = _cache_file(cache_dir, rig, frames, fps)
+    info = _read_kept(cached, rig, frames)
+    return None if info is None else (cached, info)
 
 
 def demo_recording(rig: Rig, out: str | Path, frames: int, fps: float, cache_dir: Path | None,
@@ -125,20 +131,19 @@ def demo_recording(rig: Rig, out: str | Path, frames: int, fps: float, cache_dir
     cached recording of the same :func:`demo_recording_key` when there is one; else rendered, and then
     kept there as the folder's only recording. The cache is only ever a shortcut: an unreadable or
     unwritable one is logged and the recording rendered."""
-    cached = cached_demo_recording(cache_dir, rig, frames, fps)
-    if cached is not None:
+    cached = None if cache_dir is None else _cache_file(cache_dir, rig, frames, fps)
+    info = None if cached is None else _read_kept(cached, rig, frames)
+    if info is not None:
         try:
             shutil.copyfile(cached, out)
-            archive = RecordingArchive(out)
-            archive.close()
             if progress is not None:
                 progress(1.0, "demo recording copied from the cache")
-            return archive.info
-        except (OSError, RecordingError) as exc:
-            log.warning("the cached demo recording %s is unusable (%s); rendering it", cached, exc)
+            return info
+        except OSError as exc:
+            log.warning("the cached demo recording %s could not be copied (%s); rendering it", cached, exc)
     info = build_demo_recording(rig, out, frames, fps, progress)
-    if cache_dir is not None:
-        _keep(Path(out), Path(cache_dir) / f"{demo_recording_key(rig, frames, fps)}.zip")
+    if cached is not None:
+        _keep(Path(out), cached)
     return info
 
 

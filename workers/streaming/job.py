@@ -22,7 +22,7 @@ from workers.sweep.rig import Rig, RigError
 from workers.sweep.rig_io import rig_from_dict
 
 from .batch import render_path
-from .demo import demo_recording, demo_summary
+from .demo import demo_recording
 from .images import ImageError, decode_image
 from .params import BatchRenderParams, DemoParams, RecordingImportParams
 from .recording import RecordingArchive, RecordingError, check_videos, import_image_zip, import_videos
@@ -61,7 +61,7 @@ def run_recording_import(ctx: JobContext) -> dict[str, Any]:
                                     backgrounds, ctx.progress)
     except _USER_ERRORS as exc:
         raise JobInputError(str(exc)) from None
-    return demo_summary(info)
+    return info.summary()
 
 
 def _backgrounds(ctx: JobContext, p: RecordingImportParams, rig: Rig) -> dict[int, np.ndarray] | None:
@@ -104,7 +104,7 @@ def run_demo_recording(ctx: JobContext) -> dict[str, Any]:
     rig = _rig(ctx)
     info = demo_recording(rig, ctx.result_path(ARCHIVE_NAME), p.frames, p.fps, worker_settings().demo_cache_dir,
                           ctx.progress)
-    return demo_summary(info)
+    return info.summary()
 
 
 RECORDING_JOB = JobKind("streaming.recording", run_recording_import, RecordingImportParams)

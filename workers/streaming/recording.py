@@ -61,6 +61,10 @@ class RecordingInfo:
     def to_dict(self) -> dict:
         return {"version": ARCHIVE_VERSION, **asdict(self)}
 
+    def summary(self) -> dict:
+        """The result summary of the job that made the recording (an import or the demo)."""
+        return {"frames": self.frames, "fps": self.fps, "cameras": len(self.cameras), "background": self.background}
+
     @classmethod
     def from_dict(cls, d: dict) -> "RecordingInfo":
         return cls(int(d["frames"]), float(d["fps"]), tuple(d["cameras"]),
