@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 
 # distinct BGR colours for cameras' one-camera regions (cycled when there are more cameras)
-_PALETTE = np.array([
+PALETTE = np.array([
     (80, 220, 250), (200, 130, 255), (255, 180, 90), (120, 230, 120), (90, 120, 255),
     (230, 230, 100), (255, 120, 200), (160, 160, 255), (100, 200, 200), (200, 200, 200),
 ], np.uint8)
@@ -21,7 +21,7 @@ def regions_image(regions: np.ndarray, primary: np.ndarray) -> np.ndarray:
     without a surface white.
 
     regions (h, w) uint8 and primary (h, w) int16 as in :class:`RenderResult`."""
-    out = _PALETTE[np.maximum(primary, 0) % len(_PALETTE)].copy()
+    out = PALETTE[np.maximum(primary, 0) % len(PALETTE)].copy()
     out[regions == 2] = BLEND_COLOR
     out[regions >= 3] = BLEND3_COLOR
     out[regions == 0] = EMPTY_COLOR

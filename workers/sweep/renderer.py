@@ -17,7 +17,6 @@ from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
 from typing import Literal, Sequence
 
-import cv2
 import numba
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -29,7 +28,8 @@ from . import costs, kernels
 from .lanes import lane_cost_volume
 from .occlusion import background_fill, confirmed_views, fill_along_rows
 from .rig import Rig, RigError
-from .silhouette import dilate, silhouette_box, silhouette_from_background
+from .silhouette import BG_THRESHOLD, HULL_DILATE_PX, dilate, silhouette_box, silhouette_from_background
+from .undistort import undistort_maps, undistorted
 from .visibility import ZBufferStore, surface_zbuffers
 from .weighting import METHOD_CODES, global_camera, neighbour_angle, suggest_d_bnd
 
@@ -192,11 +192,12 @@ class SweepRenderer:
     def __init__(
         self, rig: Rig | Sequence[Camera], images: Sequence[np.ndarray], *,
         silhouettes: Sequence[np.ndarray] | None = None, backgrounds: Sequence[np.ndarray] | None = None,
-        bg_threshold: float = 20.0, hull_dilate: int = 2, device: Literal["auto", "cpu", "cuda"] | None = None,
+        bg_threshold: float = BG_THRESHOLD, hull_dilate: int = HULL_DILATE_PX,
+        device: Literal["auto", "cpu", "cuda"] | None = None,
     ) -> None:
         self.rig = rig if isinstance(rig, Rig) else Rig(tuple(rig))
         self.cameras = [Camera(c.name, c.K, c.R, c.t, c.width, c.height) for c in self.rig.cameras]
-        self._undistort = [self._undistort_maps(c) for c in self.rig.cameras]
+        self._undistort = [undistort_maps(c) for c in self.rig.cameras]
         self.bg_threshold = float(bg_threshold)
         self.hull_dilate = int(hull_dilate)
         self.backgrounds = None
@@ -533,18 +534,8 @@ class SweepRenderer:
             out.append(a)
         return out
 
-    @staticmethod
-    def _undistort_maps(cam: Camera) -> tuple[np.ndarray, np.ndarray] | None:
-        if not cam.has_distortion:
-            return None
-        return cv2.initUndistortRectifyMap(cam.K, cam.dist, None, cam.K, (cam.width, cam.height), cv2.CV_32FC1)
-
     def _undistorted(self, i: int, img: np.ndarray, nearest: bool = False) -> np.ndarray:
-        maps = self._undistort[i]
-        if maps is None:
-            return img
-        interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
-        return cv2.remap(img, maps[0], maps[1], interp, borderMode=cv2.BORDER_CONSTANT)
+        return undistorted(self._undistort[i], img, nearest)
 
 
 def search_bits(opt: RenderOptions) -> int:

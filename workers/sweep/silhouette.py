@@ -5,8 +5,18 @@ import cv2
 import numpy as np
 
 
+BG_THRESHOLD = 20.0  # largest channel difference (0..255) from the empty scene that still counts as background
+CLEAN_PX = 2  # radius of the disk that cleans a silhouette (opening, then closing)
+HULL_DILATE_PX = 2  # margin added around each silhouette before it culls the visual hull
+
+
+def cleaning_disk(clean_px: int = CLEAN_PX) -> np.ndarray:
+    """The structuring element of the cleaning: (2 clean_px + 1)^2 uint8, OpenCV's ellipse (1 inside)."""
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * clean_px + 1, 2 * clean_px + 1))
+
+
 def silhouette_from_background(
-    image: np.ndarray, background: np.ndarray, threshold: float = 20.0, clean_px: int = 2,
+    image: np.ndarray, background: np.ndarray, threshold: float = BG_THRESHOLD, clean_px: int = CLEAN_PX,
 ) -> np.ndarray:
     """Foreground mask of ``image`` against the empty-scene ``background``.
 
@@ -22,7 +32,7 @@ def silhouette_from_background(
     else:
         mask = _foreground(image, background, int(threshold))
     if clean_px > 0:
-        disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * clean_px + 1, 2 * clean_px + 1))
+        disk = cleaning_disk(clean_px)
         mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, disk)
         mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, disk)
     return mask.astype(bool)

@@ -1,0 +1,128 @@
+// A frame set on the GPU: every camera's frame as one layer of an RGBA8 array texture, the empty-scene images
+// likewise, and the silhouettes made from them (workers/sweep/silhouette.py): foreground where the largest
+// channel difference exceeds the threshold, cleaned by an opening and a closing with the server's disk, then
+// dilated by the hull margin (a square). Frame sets arrive as one image, an atlas of the cameras' frames in
+// rig order, ``columns`` cells per row, each cell the size of the largest camera image.
+import { bindTextures, drawFullscreen, framebuffer, program, release, textureArray } from "./gl.js";
+
+export const SHADERS = ["fullscreen.vert", "silhouette.frag"];
+
+/** The cell (column, row) of camera ``i`` in an atlas of ``columns`` cells per row. */
+export function atlasCell(i, columns) {
+  return [i % columns, Math.floor(i / columns)];
+}
+
+export class FrameSet {
+  /** sizes: [[w, h]] per camera (at the source factor); silhouettes: {threshold, clean: [[dx, dy]], dilate}. */
+  constructor(gl, sizes, silhouettes) {
+    this.gl = gl;
+    this.sizes = sizes;
+    this.width = Math.max(...sizes.map((s) => s[0]));
+    this.height = Math.max(...sizes.map((s) => s[1]));
+    this.layers = sizes.length;
+    this.params = silhouettes;
+    this.images = textureArray(gl, "rgba8", this.width, this.height, this.layers);
+    this.backgrounds = null;
+    this.silhouettes = textureArray(gl, "r8", this.width, this.height, this.layers);
+    this.scratch = textureArray(gl, "r8", this.width, this.height, this.layers);
+    this.hasSilhouettes = false;
+    this.maxTaps = Math.max(this.params.clean.length, (2 * this.params.dilate + 1) ** 2, 1);
+    this.prog = program(gl, "fullscreen.vert", "silhouette.frag", { MAX_TAPS: this.maxTaps });
+    this.fill(this.silhouettes, 1);
+  }
+
+  /** Upload an atlas (ImageBitmap, canvas or image) of the frames; ``columns`` cells per row. */
+  setFrames(atlas, columns) {
+    this.upload(this.images, atlas, columns);
+    if (this.backgrounds) this.makeSilhouettes();
+  }
+
+  /** Upload an atlas of the empty-scene images (then every frame set gets silhouettes). */
+  setBackgrounds(atlas, columns) {
+    if (!this.backgrounds) this.backgrounds = textureArray(this.gl, "rgba8", this.width, this.height, this.layers);
+    this.upload(this.backgrounds, atlas, columns);
+  }
+
+  /** Upload one camera's frame (an ImageBitmap of its size) into layer ``i`` (the live stream's path). */
+  setCamera(i, bitmap, target = this.images) {
+    const gl = this.gl;
+    gl.bindTexture(gl.TEXTURE_2D_ARRAY, target.texture);
+    unpackDefaults(gl);
+    gl.texSubImage3D(gl.TEXTURE_2D_ARRAY, 0, 0, 0, i, bitmap.width, bitmap.height, 1, gl.RGBA, gl.UNSIGNED_BYTE, bitmap);
+  }
+
+  upload(target, atlas, columns) {
+    const gl = this.gl;
+    gl.bindTexture(gl.TEXTURE_2D_ARRAY, target.texture);
+    unpackDefaults(gl);
+    gl.pixelStorei(gl.UNPACK_ROW_LENGTH, atlas.width);
+    this.sizes.forEach(([w, h], i) => {
+      const [col, row] = atlasCell(i, columns);
+      gl.pixelStorei(gl.UNPACK_SKIP_PIXELS, col * this.width);
+      gl.pixelStorei(gl.UNPACK_SKIP_ROWS, row * this.height);
+      gl.texSubImage3D(gl.TEXTURE_2D_ARRAY, 0, 0, 0, i, w, h, 1, gl.RGBA, gl.UNSIGNED_BYTE, atlas);
+    });
+    unpackDefaults(gl);
+  }
+
+  /** Silhouettes of the current frames against the backgrounds (six passes per camera). */
+  makeSilhouettes() {
+    const { threshold, clean, dilate } = this.params;
+    const square = [];
+    for (let dy = -dilate; dy <= dilate; dy++) for (let dx = -dilate; dx <= dilate; dx++) square.push([dx, dy]);
+    const steps = [[0, []]];
+    if (clean.length) steps.push([1, clean], [2, clean], [2, clean], [1, clean]); // opening, then closing
+    if (dilate > 0) steps.push([2, square]);
+    // ping-pong between the two mask arrays so that the last step writes the silhouettes
+    let dst = steps.length % 2 === 1 ? this.silhouettes : this.scratch;
+    let src = dst === this.silhouettes ? this.scratch : this.silhouettes;
+    for (const [mode, kernel] of steps) {
+      this.morph(mode, kernel, src, dst);
+      [src, dst] = [dst, src];
+    }
+    this.hasSilhouettes = true;
+  }
+
+  morph(mode, kernel, src, dst) {
+    const gl = this.gl;
+    gl.useProgram(this.prog.program);
+    bindTextures(gl, this.prog, { uImages: this.images, uBackgrounds: this.backgrounds, uMask: src });
+    const u = this.prog.uniforms;
+    gl.uniform1i(u.uMode, mode);
+    gl.uniform1f(u.uThreshold, this.params.threshold);
+    gl.uniform1i(u.uTaps, kernel.length);
+    if (kernel.length) gl.uniform2iv(u["uKernel[0]"], Int32Array.from(kernel.flat()));
+    this.sizes.forEach(([w, h], i) => {
+      const fb = framebuffer(gl, [{ tex: dst, layer: i }]);
+      gl.uniform1i(u.uLayer, i);
+      gl.uniform2i(u.uSize, w, h);
+      drawFullscreen(gl, fb);
+      gl.deleteFramebuffer(fb.fb);
+    });
+  }
+
+  /** Set every layer of a mask array to ``value`` (1: no hull culling anywhere). */
+  fill(tex, value) {
+    const gl = this.gl;
+    for (let i = 0; i < this.layers; i++) {
+      const fb = framebuffer(gl, [{ tex, layer: i }]);
+      gl.clearBufferfv(gl.COLOR, 0, [value, value, value, value]);
+      gl.deleteFramebuffer(fb.fb);
+    }
+  }
+
+  dispose() {
+    release(this.gl, this.images, this.backgrounds, this.silhouettes, this.scratch);
+    this.gl.deleteProgram(this.prog.program);
+  }
+}
+
+function unpackDefaults(gl) {
+  gl.pixelStorei(gl.UNPACK_FLIP_Y_WEBGL, false);
+  gl.pixelStorei(gl.UNPACK_PREMULTIPLY_ALPHA_WEBGL, false);
+  gl.pixelStorei(gl.UNPACK_COLORSPACE_CONVERSION_WEBGL, gl.NONE);
+  gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
+  gl.pixelStorei(gl.UNPACK_ROW_LENGTH, 0);
+  gl.pixelStorei(gl.UNPACK_SKIP_PIXELS, 0);
+  gl.pixelStorei(gl.UNPACK_SKIP_ROWS, 0);
+}

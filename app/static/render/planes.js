@@ -1,0 +1,43 @@
+// Depth planes and the per-camera geometry of a sweep (workers/sweep/renderer.py _geometry, kernels.py):
+// planes are uniform in inverse depth between near and far along the virtual axis, plane 0 nearest; for
+// virtual pixel (x, y) and inverse depth s camera i sees Q_i (x, y, 1) + s B_i, with Q_i = M_i G,
+// B_i = M_i C_v + p_i for P_i = K_i [R_i | t_i] = [M_i | p_i], G = R_v^T K_v^-1 and C_v the virtual centre.
+import { mat3 } from "./camera.js";
+
+/** Planes between ``near`` and ``far`` (metres): { s0, ds, count } with inverse depth s_j = s0 + j ds. */
+export function inversePlanes(near, far, count) {
+  if (!(near > 0 && near < far)) throw new Error(`needs 0 < near < far, got ${near} and ${far}`);
+  return { s0: 1 / near, ds: (1 / far - 1 / near) / (count - 1), count, near, far };
+}
+
+/** Q (row-major 3x3 per camera), B (3 per camera) and G (row-major 3x3) of ``virtual`` against ``cameras``. */
+export function sweepGeometry(virtual, cameras) {
+  const G = mat3.mul(mat3.transpose(virtual.R), mat3.inverse(virtual.K));
+  const C = virtual.center;
+  const Q = [];
+  const B = [];
+  for (const cam of cameras) {
+    const M = mat3.mul(cam.K, cam.R);
+    const p = mat3.vec(cam.K, cam.t);
+    Q.push(mat3.mul(M, G));
+    const mc = mat3.vec(M, C);
+    B.push([mc[0] + p[0], mc[1] + p[1], mc[2] + p[2]]);
+  }
+  return { Q, B, G };
+}
+
+/** Column-major Float32Array of row-major 3x3 matrices, as uniformMatrix3fv wants them. */
+export function glMatrices(rows) {
+  const out = new Float32Array(9 * rows.length);
+  rows.forEach((m, k) => out.set(mat3.transpose(m), 9 * k));
+  return out;
+}
+
+/** Upload the rig uniforms of rig.glsl for ``geometry`` and ``cameras`` to program ``prog``. */
+export function setRigUniforms(gl, prog, geometry, cameras, hull) {
+  const u = prog.uniforms;
+  gl.uniformMatrix3fv(u["uQ[0]"], false, glMatrices(geometry.Q));
+  gl.uniform3fv(u["uB[0]"], Float32Array.from(geometry.B.flat()));
+  gl.uniform2fv(u["uLast[0]"], Float32Array.from(cameras.flatMap((c) => [c.width - 1, c.height - 1])));
+  gl.uniform1i(u.uHull, hull ? 1 : 0);
+}

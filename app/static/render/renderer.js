@@ -1,0 +1,242 @@
+// The browser renderer: the server's plane sweep and view-dependent weighting (workers/sweep/renderer.py) as
+// WebGL2 passes, from frame sets the server ships once. One instance per rig and canvas.
+//
+//   const r = await BrowserRenderer.create(gl, hello.render);   // the viewer socket's hello, render block
+//   r.useFactor(r.rig.sourceFactor(w, h));                       // frames at the size the view needs
+//   r.frames.setBackgrounds(bitmap, columns); r.frames.setFrames(bitmap, columns);
+//   const info = r.render(r.rig.orbitCamera(orbit, 50, w, h), { method: "kojima", planes: 48 });
+//   r.present("none");                                           // to the canvas
+//
+// Options are the server's RenderOptions (same names and defaults); what the browser does not implement
+// (semi-global aggregation, the occlusion fill, visibility-aware colour, the truncated cost) raises an
+// Unsupported error so that a viewer can ask the server instead.
+import { windowedWinner, SHADERS as AGGREGATION_SHADERS } from "./aggregation.js";
+import { searchPixels, SHADERS as COST_SHADERS } from "./cost.js";
+import { FrameSet, SHADERS as FRAME_SHADERS } from "./frames.js";
+import { bindTextures, drawFullscreen, framebuffer, loadShaders, program, readBytes, readFloat, release, texture2d } from "./gl.js";
+import { colourMapTexture, present, SHADERS as OVERLAY_SHADERS } from "./overlays.js";
+import { inversePlanes, sweepGeometry } from "./planes.js";
+import { median, Rig } from "./rig.js";
+import { shade, SHADERS as WEIGHTING_SHADERS } from "./weighting.js";
+
+export const DEFAULTS = {
+  method: "kojima", d_bnd: null, k: 3, planes: 48, near: null, far: null, visual_hull: null,
+  coarse_to_fine: false, refine_margin: 2, consistency: "variance", min_views: 2, aggregation: "window",
+  window: 2, subplane: true, fill: [0, 0, 0], visibility: null, occlusions: "keep", subpixel_bits: 0,
+};
+const SAMPLES = 320 * 240; // depth samples read back for the statistics (every pixel up to this size)
+
+export class Unsupported extends Error {}
+
+/** Which options the browser cannot render (null when it can): the viewer then asks the server. */
+export function unsupported(options) {
+  const o = { ...DEFAULTS, ...options };
+  if (o.aggregation === "sgm") return "semi-global aggregation runs on the server";
+  if (o.occlusions !== "keep") return "the occlusion fill runs on the server";
+  if (o.visibility) return "visibility-aware colour runs on the server";
+  if (o.consistency !== "variance") return "the truncated cost runs on the server";
+  if (o.subpixel_bits && o.subpixel_bits !== 6) return "the browser samples the depth search at 1/64 px only";
+  return null;
+}
+
+class Workspace {
+  /** The textures and framebuffers of the passes at w x h. */
+  constructor(gl, w, h) {
+    Object.assign(this, { gl, width: w, height: h });
+    const f = () => texture2d(gl, "rgba32f", w, h);
+    this.ssd = f(); this.votes = f(); this.ssdRows = f(); this.votesRows = f();
+    this.stateA = [f(), f()]; this.stateB = [f(), f()];
+    this.depth = f();
+    this.colour = texture2d(gl, "rgba8", w, h);
+    this.regions = texture2d(gl, "rgba8", w, h);
+    this.final = texture2d(gl, "rgba8", w, h);
+    this.sumsTarget = framebuffer(gl, [this.ssd, this.votes]);
+    this.rowsTarget = framebuffer(gl, [this.ssdRows, this.votesRows]);
+    this.stateTargets = [0, 1].map((i) => framebuffer(gl, [this.stateA[i], this.stateB[i]]));
+    this.depthTarget = framebuffer(gl, [this.depth]);
+    this.shadeTarget = framebuffer(gl, [this.colour, this.regions]);
+    this.finalTarget = framebuffer(gl, [this.final]);
+    this.stride = Math.max(1, Math.ceil(Math.sqrt((w * h) / SAMPLES)));
+    this.samples = texture2d(gl, "rgba32f", Math.ceil(w / this.stride), Math.ceil(h / this.stride));
+    this.samplesTarget = framebuffer(gl, [this.samples]);
+  }
+
+  dispose() {
+    const { gl } = this;
+    release(gl, this.ssd, this.votes, this.ssdRows, this.votesRows, ...this.stateA, ...this.stateB, this.depth,
+      this.colour, this.regions, this.final, this.samples, this.sumsTarget, this.rowsTarget, ...this.stateTargets,
+      this.depthTarget, this.shadeTarget, this.finalTarget, this.samplesTarget);
+  }
+}
+
+export class BrowserRenderer {
+  /** A renderer for the hello's ``render`` block (rig geometry, silhouette settings, overlay style). */
+  static async create(gl, spec) {
+    await loadShaders([...new Set([...COST_SHADERS, ...AGGREGATION_SHADERS, ...WEIGHTING_SHADERS, ...OVERLAY_SHADERS,
+      ...FRAME_SHADERS, "sample.frag"])]);
+    return new BrowserRenderer(gl, spec);
+  }
+
+  constructor(gl, spec) {
+    this.gl = gl;
+    this.spec = spec;
+    this.rig = new Rig(spec);
+    const defines = { N_CAM: this.rig.size, PALETTE: spec.style.palette.length };
+    this.programs = {
+      sweep: program(gl, "fullscreen.vert", "sweep.frag", defines),
+      boxrows: program(gl, "fullscreen.vert", "boxrows.frag", defines),
+      winner: program(gl, "fullscreen.vert", "winner.frag", defines),
+      resolve: program(gl, "fullscreen.vert", "resolve.frag", defines),
+      search: program(gl, "fullscreen.vert", "search.frag", defines),
+      shade: program(gl, "fullscreen.vert", "shade.frag", defines),
+      present: program(gl, "fullscreen.vert", "present.frag", defines),
+      sample: program(gl, "fullscreen.vert", "sample.frag", defines),
+    };
+    this.style = { ...spec.style, colourMap: colourMapTexture(gl, spec.style.colour_map) };
+    this.placeholder = texture2d(gl, "rgba32f", 1, 1);
+    this.factor = null;
+    this.frames = null;
+    this.work = null;
+    this.coarse = null;
+    this.last = null;
+  }
+
+  /** Work at frames shrunk by ``factor`` (Rig.sourceFactor); true when that changed (upload frames again). */
+  useFactor(factor) {
+    if (factor === this.factor) return false;
+    this.factor = factor;
+    this.cameras = this.rig.camerasAt(factor);
+    if (this.frames) this.frames.dispose();
+    this.frames = new FrameSet(this.gl, this.cameras.map((c) => [c.width, c.height]), this.spec.silhouettes);
+    return true;
+  }
+
+  workspace(w, h, coarse = false) {
+    const key = coarse ? "coarse" : "work";
+    if (!this[key] || this[key].width !== w || this[key].height !== h) {
+      if (this[key]) this[key].dispose();
+      this[key] = new Workspace(this.gl, w, h);
+    }
+    return this[key];
+  }
+
+  /**
+   * Render ``virtual`` (a Camera) with ``options`` (RenderOptions' fields): the view in work.colour, its
+   * depth in work.depth. Returns { ms, d_bnd, depth_range, depth_found, coverage, planes, visual_hull }.
+   */
+  render(virtual, options = {}) {
+    const why = unsupported(options);
+    if (why) throw new Unsupported(why);
+    if (!this.frames) throw new Error("no frames yet: call useFactor and upload a frame set first");
+    const t0 = performance.now();
+    const o = { ...DEFAULTS, ...options };
+    const gl = this.gl;
+    const [near, far] = this.depthRange(virtual, o);
+    const planes = inversePlanes(near, far, o.planes);
+    const hull = o.visual_hull ?? this.frames.hasSilhouettes;
+    if (hull && !this.frames.hasSilhouettes) throw new Error("visual_hull requested, but there are no backgrounds");
+    const sweep = { cameras: this.cameras, planes, hull, minViews: o.min_views, frames: this.frames };
+    const work = this.workspace(virtual.width, virtual.height);
+    gl.disable(gl.BLEND);
+    if (o.coarse_to_fine && Math.min(virtual.width, virtual.height) >= 8) {
+      const half = virtual.scaled(0.5);
+      const coarse = this.workspace(half.width, half.height, true);
+      const coarseSweep = { ...sweep, geometry: sweepGeometry(half, this.cameras) };
+      this.choose(coarseSweep, o, coarse, coarse.depthTarget);
+      searchPixels(gl, this.programs.search, { ...sweep, geometry: sweepGeometry(virtual, this.cameras) },
+        coarse.depth, o.refine_margin, work.depthTarget, this.placeholder);
+    } else {
+      this.choose({ ...sweep, geometry: sweepGeometry(virtual, this.cameras) }, o, work, work.depthTarget);
+    }
+    const stats = this.depthStats(work);
+    const dBnd = ["kojima", "kojima_k"].includes(o.method) ? (o.d_bnd ?? this.rig.autoDBnd(virtual, stats.median)) : null;
+    shade(gl, this.programs.shade, { ...sweep, geometry: sweepGeometry(virtual, this.cameras) }, virtual,
+      this.rig.centres, work.depth, { method: o.method, dBnd, k: o.k, globalCamera: this.rig.globalCamera(virtual),
+        fill: [o.fill[2], o.fill[1], o.fill[0]] }, work.shadeTarget);
+    this.last = { virtual, stats };
+    const ms = performance.now() - t0;
+    return {
+      ms, d_bnd: dBnd, depth_range: [planes.near, planes.far], planes: o.planes, visual_hull: hull,
+      depth_found: stats.found ? [1 / stats.maxInverse, 1 / stats.minInverse] : null, coverage: stats.coverage,
+    };
+  }
+
+  /** Plane choice by the options' aggregation into ``target`` (a depth framebuffer of ``work``'s size). */
+  choose(sweep, o, work, target) {
+    if (o.aggregation === "none") {
+      searchPixels(this.gl, this.programs.search, sweep, null, 0, target, this.placeholder);
+    } else {
+      windowedWinner(this.gl, this.programs, sweep, o.window, o.subplane, work, target);
+    }
+  }
+
+  depthRange(virtual, o) {
+    let near = o.near;
+    let far = o.far;
+    if (near === null || far === null) {
+      const [autoNear, autoFar] = this.rig.autoDepthRange(virtual);
+      near = near ?? autoNear;
+      far = far ?? autoFar;
+    }
+    if (!(near < far)) throw new Error(`needs near < far, got ${near} and ${far}`);
+    return [near, far];
+  }
+
+  /** Median depth (m), inverse-depth range and coverage of the chosen depths (every pixel up to 320x240,
+   * else an even grid of about that many): a readback, and the only sync point of a render. */
+  depthStats(work) {
+    const gl = this.gl;
+    let values;
+    if (work.stride === 1) {
+      values = readFloat(gl, work.depth, 4);
+    } else {
+      const prog = this.programs.sample;
+      gl.useProgram(prog.program);
+      bindTextures(gl, prog, { uDepth: work.depth });
+      gl.uniform1i(prog.uniforms.uStride, work.stride);
+      drawFullscreen(gl, work.samplesTarget);
+      values = readFloat(gl, work.samples, 4);
+    }
+    const depths = [];
+    let minInverse = Infinity;
+    let maxInverse = -Infinity;
+    const n = values.length / 4;
+    for (let i = 0; i < n; i++) {
+      const s = values[4 * i];
+      if (s > 0) {
+        depths.push(Math.fround(1 / s));
+        minInverse = Math.min(minInverse, s);
+        maxInverse = Math.max(maxInverse, s);
+      }
+    }
+    return { median: depths.length ? median(depths) : NaN, minInverse, maxInverse, found: depths.length > 0,
+      coverage: depths.length / n };
+  }
+
+  /** Draw the last render with ``overlay`` ("none", "regions", "depth") to the canvas, and keep it in work.final. */
+  present(overlay = "none", toCanvas = true) {
+    const work = this.work;
+    const stats = this.last.stats;
+    const range = stats.found ? [stats.minInverse, stats.maxInverse] : [0, 1];
+    present(this.gl, this.programs.present, work, this.style, overlay, range, work.finalTarget);
+    if (toCanvas) present(this.gl, this.programs.present, work, this.style, overlay, range, null);
+  }
+
+  /** The presented picture: Uint8Array RGBA, width * height * 4, top row first. */
+  readImage() {
+    return readBytes(this.gl, this.work.final);
+  }
+
+  /** The chosen depth: Float32Array (inverse depth or 0, plane or -1, sub-plane offset, cost) per pixel. */
+  readDepth() {
+    return readFloat(this.gl, this.work.depth, 4);
+  }
+
+  dispose() {
+    for (const w of [this.work, this.coarse]) if (w) w.dispose();
+    if (this.frames) this.frames.dispose();
+    release(this.gl, this.placeholder, this.style.colourMap);
+    for (const p of Object.values(this.programs)) this.gl.deleteProgram(p.program);
+  }
+}
+

@@ -1,0 +1,124 @@
+#version 300 es
+// The colour of each virtual pixel at its chosen depth, by one of the five weightings
+// (workers/sweep/kernels.py shade, workers/sweep/weighting.py): cameras are compared by the cosine of the
+// angle between their ray to the surface point and the virtual ray to it (the paper's Fig. 1).
+//   0 global: one camera for the whole view (uGlobal), the nearest one where it cannot see the point
+//   1 nearest: the camera of largest cosine (the primary)
+//   2 ulr: the k nearest by angle, w_i = 1 - theta_i / theta_(k+1), normalised
+//   3 kojima: primary and secondary, eqs. 1-6: D12 = cos1 - cos2 >= D_bnd: primary alone, else
+//     w1 = (1 + D12 / D_bnd) / 2, w2 = 1 - w1
+//   4 kojima_k: every camera i with D_1i < D_bnd, weight rho(D_1i) = (D_bnd - D) / (D_bnd + D), normalised
+// Writes the colour and (regions = cameras with a non-zero weight, primary camera + 1) for the overlays.
+precision highp float;
+precision highp int;
+precision highp sampler2DArray;
+#include "rig.glsl"
+uniform highp sampler2D uDepth;  // resolve/search output: .x inverse depth (0: no surface)
+uniform mat3 uG;                 // virtual ray of pixel (x, y) at unit depth: uG (x, y, 1) = R^T K^-1 (x, y, 1)
+uniform vec3 uEye;               // virtual camera centre
+uniform vec3 uCentres[N_CAM];    // rig camera centres
+uniform int uMethod;
+uniform float uDBnd;
+uniform int uK;
+uniform int uGlobal;
+uniform vec3 uFill;              // colour where there is no surface (0..255, RGB)
+layout(location = 0) out vec4 oColour;
+layout(location = 1) out vec4 oRegions;  // r: regions / 255, g: (primary + 1) / 255
+
+const int GLOBAL = 0;
+const int NEAREST = 1;
+const int ULR = 2;
+const int KOJIMA = 3;
+const int KOJIMA_K = 4;
+
+void main() {
+  vec2 xy = gl_FragCoord.xy - 0.5;
+  float s = texelFetch(uDepth, ivec2(gl_FragCoord.xy), 0).x;
+  float cosv[N_CAM];
+  float theta[N_CAM];
+  vec2 uvs[N_CAM];
+  int cam[N_CAM];
+  int m = 0;
+  if (s > 0.0) {
+    vec3 ray = uG * vec3(xy, 1.0) / s;  // from the virtual centre to the surface point
+    vec3 toEye = normalize(ray);
+    for (int i = 0; i < N_CAM; i++) {
+      vec2 uv;
+      if (!projected(i, xy, s, uv)) continue;
+      if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, uLast[i]))) continue;
+      if (uHull && !inSilhouette(i, uv)) continue;
+      vec3 d = normalize(uEye + ray - uCentres[i]);
+      cosv[m] = dot(d, toEye);
+      theta[m] = atan(length(cross(d, toEye)), cosv[m]);
+      uvs[m] = uv;
+      cam[m] = i;
+      m++;
+    }
+  }
+  if (m == 0) {
+    oColour = vec4(uFill / 255.0, 1.0);
+    oRegions = vec4(0.0);
+    return;
+  }
+  // the cameras of largest cosine first (a partial selection sort; ties keep camera order)
+  int order[N_CAM];
+  for (int a = 0; a < N_CAM; a++) order[a] = a;
+  int ranked = uMethod == KOJIMA ? 2 : (uMethod == ULR ? min(uK + 1, N_CAM) : 1);
+  int r = min(ranked, m);
+  for (int a = 0; a < r; a++) {
+    int bi = a;
+    for (int b = a + 1; b < m; b++) {
+      if (cosv[order[b]] > cosv[order[bi]]) bi = b;
+    }
+    int t = order[a];
+    order[a] = order[bi];
+    order[bi] = t;
+  }
+  int primary = cam[order[0]];
+  float w[N_CAM];
+  w[0] = 1.0;
+  int n = 1;
+  if (uMethod == KOJIMA && m >= 2) {
+    float d12 = cosv[order[0]] - cosv[order[1]];
+    float w1 = d12 >= uDBnd ? 1.0 : 0.5 * (1.0 + d12 / uDBnd);
+    w[0] = w1;
+    w[1] = 1.0 - w1;
+    n = 2;
+  } else if (uMethod == ULR && m >= 2) {
+    // the threshold is the angle of the (k+1)-th nearest camera, or of the farthest when there are fewer
+    n = m > uK ? uK : m;
+    float th = m > uK ? theta[order[uK]] : theta[order[m - 1]];
+    float total = 0.0;
+    for (int a = 0; a < n; a++) {
+      w[a] = th > 0.0 ? max(1.0 - theta[order[a]] / th, 0.0) : 0.0;
+      total += w[a];
+    }
+    for (int a = 0; a < n; a++) w[a] = total > 0.0 ? w[a] / total : 1.0 / float(n);
+  } else if (uMethod == KOJIMA_K && m >= 2) {
+    float cmax = cosv[0];
+    for (int a = 1; a < m; a++) cmax = max(cmax, cosv[a]);
+    float total = 0.0;
+    for (int a = 0; a < m; a++) {
+      float d = cmax - cosv[a];
+      w[a] = d < uDBnd ? (uDBnd - d) / (uDBnd + d) : 0.0;
+      total += w[a];
+      order[a] = a;
+    }
+    for (int a = 0; a < m; a++) w[a] /= total;
+    n = m;
+  } else if (uMethod == GLOBAL) {
+    for (int a = 0; a < m; a++) {
+      if (cam[a] == uGlobal) order[0] = a;
+    }
+  }
+  vec3 colour = vec3(0.0);
+  int regions = 0;
+  for (int a = 0; a < n; a++) {
+    if (w[a] <= 0.0) continue;
+    regions++;
+    int o = order[a];
+    colour += w[a] * bilinear(cam[o], uvs[o]);
+  }
+  oColour = vec4(clamp(floor(colour + 0.5), 0.0, 255.0) / 255.0, 1.0);
+  oRegions = vec4(float(regions) / 255.0, float(primary + 1) / 255.0, 0.0, 1.0);
+}

@@ -1,0 +1,26 @@
+// The colour pass: each pixel coloured from the rig cameras at its chosen depth by one of the five weightings
+// (workers/sweep/weighting.py; the formulas are in shaders/shade.frag), D_bnd derived from the rig when not given.
+import { bindTextures, drawFullscreen } from "./gl.js";
+import { glMatrices, setRigUniforms } from "./planes.js";
+
+export const SHADERS = ["fullscreen.vert", "rig.glsl", "shade.frag"];
+export const METHODS = ["global", "nearest", "ulr", "kojima", "kojima_k"];
+
+/** Shade ``depth`` (a resolve output) of ``virtual`` into work.shadeTarget (colour, regions). */
+export function shade(gl, prog, sweep, virtual, centres, depth, weighting, target) {
+  gl.useProgram(prog.program);
+  setRigUniforms(gl, prog, sweep.geometry, sweep.cameras, sweep.hull);
+  bindTextures(gl, prog, { uImages: sweep.frames.images, uSilhouettes: sweep.frames.silhouettes, uDepth: depth });
+  const u = prog.uniforms;
+  gl.uniformMatrix3fv(u.uG, false, glMatrices([sweep.geometry.G]));
+  gl.uniform3fv(u.uEye, Float32Array.from(virtual.center));
+  gl.uniform3fv(u["uCentres[0]"], Float32Array.from(centres.flat()));
+  const code = METHODS.indexOf(weighting.method);
+  if (code < 0) throw new Error(`unknown method ${weighting.method}`);
+  gl.uniform1i(u.uMethod, code);
+  gl.uniform1f(u.uDBnd, weighting.dBnd ?? 1.0);
+  gl.uniform1i(u.uK, weighting.k);
+  gl.uniform1i(u.uGlobal, weighting.globalCamera);
+  gl.uniform3fv(u.uFill, Float32Array.from(weighting.fill));
+  drawFullscreen(gl, target);
+}

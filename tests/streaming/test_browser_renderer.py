@@ -1,0 +1,115 @@
+"""The browser renderer (app/static/render, WebGL2) against the server's renderer (workers/sweep) on the same
+frames and viewpoint: headless Chromium with SwiftShader, so it runs without a GPU.
+
+Why a pixel may differ at all: the browser computes in float32 where the server uses float64 and exact integer
+sums, so a projected position within about 1e-4 px of a 1/128 px rounding boundary can round to the neighbouring
+1/64 px sample, and a cost within float32 rounding of another plane's can pick that plane instead; the colour
+pass then samples at float32 positions (a level at most on a few pixels)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.browser import chromium, have_chromium, render_in_browser, static_site
+from workers.camera import Camera
+from workers.common.imagemetrics import psnr
+from workers.streaming.browser import frame_atlas, render_spec
+from workers.streaming.demo import demo_rig, demo_scene
+from workers.streaming.params import Orbit
+from workers.streaming.session import _composed, shrunk_images, shrunk_rig, source_factor
+from workers.streaming.viewpoint import orbit_camera, orbit_frame
+from workers.sweep.renderer import RenderOptions, SweepRenderer
+from workers.sweep.rig import Rig
+from workers.synth import render_views
+
+pytest.importorskip("playwright.sync_api", reason="playwright is not installed (the test extra)")
+pytestmark = pytest.mark.skipif(not have_chromium(), reason="Debian's chromium is not installed")
+
+VIEW = (96, 72)
+MIN_PSNR = 35.0
+MIN_SAME_PLANE = 0.95
+
+
+@pytest.fixture(scope="module")
+def studio():
+    """The demo rig (10 cameras, small) with one frame set of the demo studio and its empty-scene images."""
+    rig = demo_rig(10, (192, 144))
+    views = render_views(demo_scene(0.25), list(rig.cameras))
+    return rig, [v.image for v in views], [v.background for v in views]
+
+
+@pytest.fixture(scope="module")
+def page():
+    with static_site() as base, chromium() as browser:
+        p = browser.new_page()
+        p.goto(f"{base}/render/renderer.js")  # any page of the site: the modules import from its origin
+        yield p
+
+
+def both(page, rig: Rig, frames, backgrounds, camera: Camera, overlay: str = "none", **options):
+    """The server's render (RenderResult) and the browser's (render_in_browser's dict) of one view."""
+    factor = source_factor(rig, camera.width, camera.height)
+    small = shrunk_rig(rig, factor)
+    server = SweepRenderer(small, shrunk_images(frames, small), device="cpu",
+                           backgrounds=None if backgrounds is None else shrunk_images(backgrounds, small))
+    result = server.render(camera, RenderOptions(**options))
+    browser = render_in_browser(page, render_spec(rig), frame_atlas(frames, rig, factor),
+                                None if backgrounds is None else frame_atlas(backgrounds, rig, factor), camera,
+                                factor, options, overlay)
+    return result, browser
+
+
+def assert_same_view(result, browser, picture=None):
+    image = result.image if picture is None else picture
+    assert psnr(image, browser["image"]) >= MIN_PSNR
+    same = browser["depth"][:, :, 1].astype(np.int32) == result.plane_index
+    assert same.mean() >= MIN_SAME_PLANE, f"the same plane on {same.mean():.1%} of the pixels"
+
+
+@pytest.mark.parametrize("azimuth, options", [
+    (10.0, {}),  # the server's defaults: kojima, automatic D_bnd, window aggregation, sub-plane, hull
+    (-25.0, {"method": "kojima_k"}),
+    (30.0, {"method": "ulr", "k": 3}),
+    (0.0, {"method": "nearest", "planes": 32}),
+    (-40.0, {"method": "global"}),
+    (20.0, {"method": "kojima", "d_bnd": 0.02}),
+    (-10.0, {"coarse_to_fine": True}),  # the viewer's default: the coarse level aggregated, the fine one per pixel
+    (15.0, {"aggregation": "none"}),
+    (5.0, {"visual_hull": False, "planes": 24, "near": 1.5, "far": 4.0}),
+])
+def test_browser_view_equals_the_servers(page, studio, azimuth, options):
+    rig, frames, backgrounds = studio
+    camera = orbit_camera(orbit_frame(rig), Orbit(azimuth=azimuth), 50.0, VIEW)
+    result, browser = both(page, rig, frames, backgrounds, camera, **options)
+    assert_same_view(result, browser)
+    if result.d_bnd is None:
+        assert browser["info"]["d_bnd"] is None
+    else:
+        assert browser["info"]["d_bnd"] == pytest.approx(result.d_bnd, rel=1e-5)
+    assert browser["info"]["depth_range"] == pytest.approx([result.planes.min(), result.planes.max()], rel=1e-9)
+    assert browser["info"]["visual_hull"] == result.visual_hull
+
+
+@pytest.mark.parametrize("overlay", ["regions", "depth"])
+def test_overlays_equal_the_servers(page, studio, overlay):
+    rig, frames, backgrounds = studio
+    camera = orbit_camera(orbit_frame(rig), Orbit(azimuth=12.0), 50.0, VIEW)
+    result, browser = both(page, rig, frames, backgrounds, camera, overlay, method="kojima_k")
+    assert_same_view(result, browser, _composed(result, overlay))
+
+
+def test_distorted_cameras_are_undistorted_before_the_browser_sees_them(page, studio):
+    rig, frames, backgrounds = studio
+    dist = np.array([-0.12, 0.03, 0.0, 0.0, 0.0])
+    distorted = Rig(tuple(Camera(c.name, c.K, c.R, c.t, c.width, c.height, dist) for c in rig.cameras))
+    camera = orbit_camera(orbit_frame(rig), Orbit(azimuth=-5.0), 50.0, VIEW)
+    result, browser = both(page, distorted, frames, backgrounds, camera)
+    assert_same_view(result, browser)
+
+
+def test_options_the_browser_does_not_render_are_refused(page, studio):
+    rig, frames, backgrounds = studio
+    camera = orbit_camera(orbit_frame(rig), Orbit(), 50.0, VIEW)
+    with pytest.raises(Exception, match="semi-global aggregation runs on the server"):
+        render_in_browser(page, render_spec(rig), frame_atlas(frames, rig, 2), frame_atlas(backgrounds, rig, 2), camera,
+                          2, {"aggregation": "sgm"})

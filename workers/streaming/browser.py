@@ -1,0 +1,71 @@
+"""What a viewer that renders in its own browser (app/static/render, WebGL2) needs from the server: the rig's
+geometry once (:func:`render_spec`), then frame sets as images the browser decodes itself (:func:`frame_atlas`).
+
+A frame set travels as one image, an atlas of every camera's frame in rig order, ``atlas_columns(n)`` cells per
+row, each cell the size of the largest camera image (smaller images at its top left, black around them),
+undistorted (the spec's calibration then has no distortion) and shrunk by the session's source factor
+(:func:`workers.streaming.session.source_factor`), so that the browser sweeps exactly the pixels the server's
+renderer would. The empty-scene images travel the same way.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import cv2
+import numpy as np
+
+from workers.sweep.overlays import BLEND3_COLOR, BLEND_COLOR, PALETTE
+from workers.sweep.rig import Rig
+from workers.sweep.silhouette import BG_THRESHOLD, HULL_DILATE_PX, cleaning_disk
+from workers.sweep.undistort import undistort_maps, undistorted
+
+from .session import OVERLAY_WEIGHT, shrunk_images, shrunk_rig
+from .viewpoint import orbit_frame
+
+
+def atlas_columns(cameras: int) -> int:
+    """Cells per row of a frame-set atlas of ``cameras`` images: about square for equal cells."""
+    return max(1, math.ceil(math.sqrt(cameras)))
+
+
+def frame_atlas(images: Sequence[np.ndarray], rig: Rig, factor: int) -> np.ndarray:
+    """The atlas (H, W, 3) uint8 BGR of one frame set: ``images`` ((h, w, 3) uint8 per camera, at the recorded
+    size of ``rig``'s cameras) shrunk by ``factor`` (area averaging, as a recording session does) and undistorted
+    with the shrunk calibration, placed in cells of the largest shrunk size (module docstring)."""
+    small = shrunk_rig(rig, factor)
+    shrunk = shrunk_images(images, small)
+    cell_w = max(c.width for c in small.cameras)
+    cell_h = max(c.height for c in small.cameras)
+    columns = atlas_columns(len(small.cameras))
+    rows = -(-len(small.cameras) // columns)
+    atlas = np.zeros((rows * cell_h, columns * cell_w, 3), np.uint8)
+    for i, (cam, img) in enumerate(zip(small.cameras, shrunk)):
+        y, x = (i // columns) * cell_h, (i % columns) * cell_w
+        atlas[y:y + cam.height, x:x + cam.width] = undistorted(undistort_maps(cam), img)
+    return atlas
+
+
+def render_spec(rig: Rig) -> dict[str, Any]:
+    """The rig as app/static/render/rig.js takes it (JSON-able): the cameras' pinhole calibration at the recorded
+    size (frames arrive undistorted), the focus point and radius behind the automatic depth range, the rig's
+    depth range if it has one, the orbit frame, how silhouettes are made, and the overlay colours (RGB)."""
+    focus = rig.focus_point()
+    disk = cleaning_disk()
+    ramp = cv2.applyColorMap(np.arange(256, dtype=np.uint8)[:, None], cv2.COLORMAP_TURBO)[:, 0, ::-1]
+    return {
+        "cameras": [{"name": c.name, "K": c.K.tolist(), "R": c.R.tolist(), "t": c.t.tolist(), "width": c.width,
+                     "height": c.height} for c in rig.cameras],
+        "focus": focus.tolist(), "radius": rig.radius(),
+        "depth_range": list(rig.depth_range) if rig.depth_range else None,
+        "orbit": orbit_frame(rig).to_dict(),
+        "atlas_columns": atlas_columns(len(rig)),
+        "silhouettes": {
+            "threshold": BG_THRESHOLD, "dilate": HULL_DILATE_PX,
+            "clean": [[int(dx) - disk.shape[1] // 2, int(dy) - disk.shape[0] // 2] for dy, dx in np.argwhere(disk)],
+        },
+        "style": {
+            "palette": [[int(v) for v in bgr[::-1]] for bgr in PALETTE], "blend2": list(BLEND_COLOR[::-1]),
+            "blend3": list(BLEND3_COLOR[::-1]), "weight": OVERLAY_WEIGHT, "colour_map": ramp.tolist(),
+        },
+    }
