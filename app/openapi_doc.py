@@ -59,6 +59,9 @@ OPERATION_STATUSES: dict[tuple[str, str], dict[int, str]] = {
         410: "the model's files are no longer stored",
     },
     ("post", "/v1/rigs/{rig_id}/renders"): {409: "the recording is still being imported, or its import failed"},
+    ("get", "/v1/rigs/{rig_id}/recordings/{recording_id}/frames/{frame}"): {
+        409: "the recording is still being imported, or its import failed",
+    },
     ("post", "/v1/depth/filter"): {415: "an upload is not an image in a format this route reads"},
     ("post", "/v1/depth/synthesize"): {415: "an upload is not an image in a format this route reads"},
     ("post", "/v1/depth/videos"): {415: "input_format video: the depth is no 8-bit H.264/HEVC video this route reads"},

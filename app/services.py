@@ -15,8 +15,10 @@ from pydantic import BaseModel, ValidationError
 from app.dispatcher import Dispatcher
 from app.errors import ApiError
 from app.events import EventHub
+from app.frame_atlases import AtlasCache
 from app.jobstore import Job, JobStore
 from app.kernelcache import KernelWarmup
+from app.live_relay import LiveRelay
 from app.settings import Settings
 from workers.common.validation import describe_errors
 from workers.registry import JobKind
@@ -42,6 +44,10 @@ class Services:
     ray_error: str | None = None
     warmup: KernelWarmup = field(default_factory=KernelWarmup)
     """The background compile of the engines' kernels started with the service (state "off" when not)."""
+    atlases: AtlasCache = field(default_factory=lambda: AtlasCache(0))
+    """Encoded frame sets of recordings for browser-rendering viewers (:mod:`app.frame_atlases`)."""
+    live_relay: LiveRelay = field(default_factory=LiveRelay)
+    """Live frame sets fanned out to browser-rendering viewers (:mod:`app.live_relay`)."""
 
 
 def build_services(settings: Settings) -> Services:
@@ -50,7 +56,8 @@ def build_services(settings: Settings) -> Services:
     store = open_store(settings.resolved_storage_url)
     hub = EventHub()
     compute = ThreadPoolExecutor(settings.request_threads or os.cpu_count() or 1, thread_name_prefix="compute")
-    return Services(settings, jobs, store, hub, Dispatcher(settings, jobs, hub, store.url), compute)
+    return Services(settings, jobs, store, hub, Dispatcher(settings, jobs, hub, store.url), compute,
+                    atlases=AtlasCache(int(settings.viewer_frame_cache_mb * 2**20)))
 
 
 async def run_compute(svc: Services, fn: Callable[..., R], *args: Any) -> R:

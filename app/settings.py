@@ -66,6 +66,11 @@ class Settings(WorkerSettings):
                              description="The view size (WIDTHxHEIGHT px) the browser viewer starts at (sent in the "
                                          "view socket's hello): the largest at which one viewer of the demo rig gets "
                                          ">= 20 fps on 2 cores (benchmarks/streaming.py --viewer-sizes).")
+    viewer_frame_cache_mb: float = Field(256.0, ge=0, description="Encoded frame sets of recordings kept in each API "
+                                         "process for viewers that render in their browser (megabytes).")
+    viewer_target_fps: float = Field(15.0, gt=0, le=240, description="The frame rate a browser must hold at the chosen "
+                                     "view size to render itself (sent in the view socket's hello); below it the "
+                                     "viewer falls back to server rendering.")
 
     @field_validator("api_keys", mode="before")
     @classmethod

@@ -8,17 +8,20 @@ from __future__ import annotations
 import asyncio
 from typing import Any, Literal
 
-from fastapi import APIRouter, Depends, File, Form, UploadFile
+from fastapi import APIRouter, Depends, File, Form, Query, Request, UploadFile
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 
 from app.auth import require_key
 from app.errors import ApiError
+from app.frame_atlases import AtlasKey, build_atlas
 from app.rig_access import (delete_recording_data, load_rig, recording_or_404, recording_views, require_ready,
                             rig_json_bytes, rig_meta_or_404, view_limits)
 from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, parse_params, run_compute, services
 from workers.streaming import actor
+from workers.streaming.browser import ATLAS_FORMATS
+from workers.streaming.session import MAX_SOURCE_FACTOR
 from workers.streaming import store as rigstore
 from workers.streaming.job import RECORDING_JOB, RENDER_JOB
 from workers.streaming.params import BatchRenderParams, RecordingImportParams, RecordingRequest
@@ -130,6 +133,39 @@ async def delete_recording(rig_id: str, recording_id: str, svc: Services = Depen
     await asyncio.to_thread(actor.end_sessions, rig_id, recording_id)
     await delete_recording_data(svc, rig_id, recording)
     return Response(status_code=204)
+
+
+@router.get("/{rig_id}/recordings/{recording_id}/frames/{frame}", response_class=Response,
+            summary="One frame set of a recording as one image, for viewers that render in their browser",
+            description="Every camera's frame `frame` (an index, or `background` for the empty-scene images) in rig "
+                        "order, tiled `render.atlas_columns` per row in cells of the largest camera image, shrunk by "
+                        "`factor` (the integer source factor of the view size, as the server's renderer uses) and "
+                        "undistorted. The URL never changes what it answers: `Cache-Control: immutable` and an "
+                        "ETag (`If-None-Match` gets 304) let the browser and proxies keep it. JPEG (`quality`) is "
+                        "what the viewer takes; PNG is lossless (the equivalence tests use it).",
+            responses={200: {"content": {"image/jpeg": {}, "image/png": {}}}, 304: {"description": "not modified"}})
+async def get_frame_set(
+    request: Request, rig_id: str, recording_id: str, frame: str,
+    factor: int = Query(1, ge=1, le=MAX_SOURCE_FACTOR, description="integer shrink factor of every camera image"),
+    format: Literal["jpeg", "png"] = Query("jpeg", description="image format of the atlas"),
+    quality: int = Query(90, ge=50, le=100, description="JPEG quality"),
+    svc: Services = Depends(services),
+) -> Response:
+    await rig_meta_or_404(svc, rig_id)
+    recording = await recording_or_404(svc, rig_id, recording_id)
+    require_ready(recording)
+    if frame != "background" and not (frame.isdigit() and int(frame) < recording["frames"]):
+        raise ApiError(404, f"recording {recording_id} has no frame {frame!r}: frames are 0..{recording['frames'] - 1} "
+                            f"or 'background'", "frame_not_found")
+    key = AtlasKey(recording_id, frame if frame == "background" else int(frame), factor, format,
+                   quality if format == "jpeg" else 0)
+    headers = {"ETag": key.etag, "Cache-Control": f"{'private' if svc.settings.api_keys else 'public'}, "
+                                                  "max-age=31536000, immutable"}
+    if request.headers.get("if-none-match") == key.etag:
+        return Response(status_code=304, headers=headers)
+    rig = await load_rig(svc, rig_id)
+    data = await svc.atlases.get(key, lambda: run_compute(svc, build_atlas, svc.store, rig, key))
+    return Response(data, media_type=ATLAS_FORMATS[format][1], headers=headers)
 
 
 # --- batch renders --------------------------------------------------------------------------------

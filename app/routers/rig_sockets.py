@@ -11,6 +11,16 @@ viewpoint gets ``{"type": "error", "error", "detail", "id"}`` and the socket sta
 text message over ``MAX_TEXT_CHARS`` characters (``message_too_large``, not parsed at all) or one
 that is not JSON or nests too deeply to parse (``bad_json``). A binary message closes it with 1003.
 
+A viewer that renders in its own browser (WebGL2; the viewer page's default where it can) opens the socket
+with ``?render=browser`` and sends no viewpoints. Its hello adds ``"render_mode": "browser"``, ``"render"``
+(the rig's geometry, silhouette settings and overlay colours: :func:`workers.streaming.browser.render_spec`) and
+``"target_fps"``; for a recording, ``"frame_sets": {"url": ".../frames/{frame}", "format", "quality"}`` (one
+atlas per frame set over HTTP, immutable, cached by the browser: no session is started and nothing more comes
+on the socket), for the live stream ``"live": {"background_url", "background_rate"}`` and then every frame set
+the live session applies, as the live client sent it (binary: header ``{"type": "frame_set", "seq", "sizes",
+"background", "resync", "dropped"}``, then one JPEG per camera; :mod:`app.live_relay`). Such a client sends only
+``{"type": "ping"}``; a viewpoint gets the error ``client_renders``, a binary message closes with 1003.
+
 A failure costs one viewpoint, never the socket or the session: an exception in the renderer is
 answered with ``render_failed``; when the session's process is lost during a render (it restarts
 and reloads its frames) the viewpoint gets ``session_restarting`` and is not rendered again (it
@@ -35,7 +45,7 @@ import json
 import logging
 import time
 import uuid
-from typing import Any, Awaitable, Callable
+from typing import Any, Awaitable, Callable, Literal
 
 import ray.exceptions
 from fastapi import APIRouter, WebSocket
@@ -44,10 +54,12 @@ from starlette.websockets import WebSocketDisconnect
 
 from app.auth import websocket_key_ok
 from app.errors import ApiError
+from app.live_relay import LiveSet
 from app.rig_access import Source, resolve_source, session_config, view_limits
 from app.services import Services
 from workers.common.validation import describe_errors
 from workers.streaming.actor import LIVE, SessionClient, SessionInterrupted
+from workers.streaming.browser import render_spec
 from workers.streaming.framing import FramingError, pack_message, unpack_frame_set
 from workers.streaming.params import Viewpoint
 from workers.streaming.session import ViewError
@@ -58,6 +70,9 @@ ws_router = APIRouter(prefix="/v1/rigs", tags=["rigs"])
 UNSUPPORTED_DATA = 1003
 POLICY_VIOLATION = 1008
 INTERNAL_ERROR = 1011
+BROWSER_JPEG_QUALITY = 90
+"""JPEG quality of the frame sets a browser-rendering viewer is pointed at (benchmarks/RESULTS.md,
+streaming_browser_quality: the view against the held-out real one, by the quality of the frames shipped)."""
 MAX_TEXT_CHARS = 8192
 """Longest text message parsed: a viewpoint or a ping is a few hundred characters. The cap also
 bounds the work of a hostile message before json.loads sees it."""
@@ -198,13 +213,18 @@ async def _serve(websocket: WebSocket, channel: Channel, client: SessionClient, 
 
 # --- viewers --------------------------------------------------------------------------------------
 @ws_router.websocket("/{rig_id}/view")
-async def view_socket(websocket: WebSocket, rig_id: str, source: str | None = None) -> None:
-    """Viewpoints in (JSON text), JPEG frames out (binary: header + JPEG); see the module docstring."""
+async def view_socket(websocket: WebSocket, rig_id: str, source: str | None = None,
+                      render: Literal["server", "browser"] = "server") -> None:
+    """Viewpoints in (JSON text), JPEG frames out (binary: header + JPEG); with ``render=browser``, what the
+    browser needs to render itself. See the module docstring."""
     opened = await _open(websocket, rig_id, source)
     if opened is None:
         return
     channel, target = opened
     svc: Services = websocket.app.state.services
+    if render == "browser":
+        await _browser_viewer(websocket, channel, target, svc)
+        return
     client = SessionClient(session_config(svc, rig_id, target.source), svc.settings.session_resources)
     viewer = uuid.uuid4().hex
     mailbox = Latest()
@@ -250,6 +270,78 @@ async def view_socket(websocket: WebSocket, rig_id: str, source: str | None = No
             await channel.binary(pack_message(header, [reply["jpeg"]]))
 
     await _serve(websocket, channel, client, viewer, read, render)
+
+
+async def _browser_viewer(websocket: WebSocket, channel: Channel, target: Source, svc: Services) -> None:
+    """A viewer that renders in its browser: one hello with the rig's geometry and where its frame sets are
+    (a recording's: immutable HTTP URLs; the live stream's: pushed on this socket, see :mod:`app.live_relay`),
+    then only pings. No session is started for a recording: such a viewer costs the server its downloads."""
+    hello = {**target.hello(), "render_mode": "browser", "render": render_spec(target.rig),
+             "target_fps": svc.settings.viewer_target_fps}
+    if target.recording is not None:
+        hello["frame_sets"] = {"url": f"/v1/rigs/{target.rig_id}/recordings/{target.source}/frames/{{frame}}",
+                           "format": "jpeg", "quality": BROWSER_JPEG_QUALITY}
+    else:
+        hello["live"] = {"background_url": f"/v1/rigs/{target.rig_id}/live/background",
+                         "background_rate": session_config(svc, target.rig_id, LIVE).bg_rate}
+    await channel.json(hello)
+    if target.recording is None:
+        await _browser_live(websocket, channel, target, svc)
+        return
+    await channel.json({"type": "ready", "session": None})
+    try:
+        while True:
+            message = await websocket.receive()
+            if message["type"] == "websocket.disconnect":
+                return
+            if not await _browser_message(channel, message):
+                return
+    except WebSocketDisconnect:
+        return
+
+
+async def _browser_live(websocket: WebSocket, channel: Channel, target: Source, svc: Services) -> None:
+    """The live stream for a browser-rendering viewer: every frame set the live session applies, as the live
+    client sent it (binary: header ``{"type": "frame_set", "seq", "sizes", "background", "resync", "dropped"}``,
+    then one JPEG per camera in rig order). ``resync``: a background set was skipped, fetch the model again."""
+    config = session_config(svc, target.rig_id, LIVE)
+    client = SessionClient(config, svc.settings.session_resources)
+    viewer = uuid.uuid4().hex
+    sub = svc.live_relay.subscribe(target.rig_id, lambda: SessionClient(config, svc.settings.session_resources))
+
+    async def read() -> None:
+        while True:
+            message = await websocket.receive()
+            if message["type"] == "websocket.disconnect" or not await _browser_message(channel, message):
+                return
+
+    async def send() -> None:
+        await channel.json({"type": "ready", "session": None})
+        while True:
+            item, resync = await sub.take()
+            header = {"type": "frame_set", "seq": item.seq, "sizes": [len(j) for j in item.jpegs],
+                      "background": item.background, "resync": resync, "dropped": sub.dropped}
+            await channel.binary(pack_message(header, item.jpegs))
+
+    try:
+        await _serve(websocket, channel, client, viewer, read, send)
+    finally:
+        await svc.live_relay.unsubscribe(sub)
+
+
+async def _browser_message(channel: Channel, message: dict[str, Any]) -> bool:
+    """Answer a browser-rendering viewer's message (a ping, or an error for anything else); False when the
+    socket was closed for it."""
+    if message.get("text") is None:
+        await channel.close(UNSUPPORTED_DATA, "a browser-rendering viewer sends only JSON text pings")
+        return False
+    if _is_ping(message["text"]):
+        await channel.json({"type": "pong"})
+    else:
+        await channel.error("client_renders", "this socket was opened with render=browser: the browser renders "
+                                              "every view itself and sends no viewpoints (open it without "
+                                              "render=browser to have the server render)")
+    return True
 
 
 async def _viewpoint(channel: Channel, text: str, svc: Services) -> Viewpoint | None:
@@ -326,6 +418,7 @@ async def live_socket(websocket: WebSocket, rig_id: str) -> None:
                 await channel.error(reply["error"], reply["detail"], seq=frame_set.seq)
                 continue
             live_seq = reply.pop("seq")
+            svc.live_relay.publish(rig_id, LiveSet(live_seq, frame_set.jpegs, frame_set.background))
             await channel.json({"type": "ack", "seq": frame_set.seq, "live_seq": live_seq,
                                 "dropped": mailbox.replaced, **reply})
 

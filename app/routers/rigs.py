@@ -15,7 +15,7 @@ from pydantic import BaseModel, Field
 
 from app.auth import require_key
 from app.errors import ApiError
-from app.rig_access import delete_recording_data, load_rig, recording_views, rig_meta_or_404
+from app.rig_access import delete_recording_data, load_rig, recording_views, rig_meta_or_404, session_config
 from app.routers.recordings import RecordingOut
 from app.services import Services, run_compute, services
 from app.uploads import check_size
@@ -23,6 +23,7 @@ from workers.camera import CameraError
 from workers.storage import safe_name
 from workers.streaming import actor
 from workers.streaming import store as rigstore
+from workers.streaming.browser import live_background_atlas
 from workers.streaming.viewpoint import orbit_frame
 from workers.sweep.rig import Rig, RigError
 from workers.sweep.rig_io import CAMERA_LIST, load_uploaded_rig, metres_per_unit, rig_to_dict
@@ -119,6 +120,26 @@ async def list_rigs(svc: Services = Depends(services)) -> dict[str, Any]:
 async def get_rig(rig_id: str, svc: Services = Depends(services)) -> dict[str, Any]:
     meta = await rig_meta_or_404(svc, rig_id)
     return await _rig_out(svc, meta, await load_rig(svc, rig_id))
+
+
+@router.get("/{rig_id}/live/background", response_class=Response,
+            summary="The live stream's background model, for viewers that render in their browser",
+            description="Every camera's empty-scene image as the rig's live session models it now, at the cameras' "
+                        "calibrated size, as one lossless PNG atlas (the layout of a recording's frame sets, "
+                        "`render.atlas_columns` per row). A browser-rendering viewer of the live stream starts its own "
+                        "model from it and then follows the frame sets flagged as background. 404 while the session "
+                        "has no model (no background set has arrived).",
+            responses={200: {"content": {"image/png": {}}}})
+async def get_live_background(rig_id: str, svc: Services = Depends(services)) -> Response:
+    await rig_meta_or_404(svc, rig_id)
+    rig = await load_rig(svc, rig_id)
+    client = actor.SessionClient(session_config(svc, rig_id, actor.LIVE), svc.settings.session_resources)
+    pngs = await client.background_pngs()
+    if pngs is None:
+        raise ApiError(404, f"rig {rig_id}'s live stream has no background model yet: send a frame set flagged "
+                            f"\"background\" (the empty scene)", "no_background")
+    data = await run_compute(svc, live_background_atlas, pngs, rig)
+    return Response(data, media_type="image/png", headers={"Cache-Control": "no-store"})
 
 
 @router.delete("/{rig_id}", status_code=204, response_class=Response,

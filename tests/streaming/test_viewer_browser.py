@@ -190,3 +190,94 @@ def test_the_first_run_demo_looks_like_a_studio_at_the_default_size(demo_server,
     assert surface.mean() > 0.3
     assert channel_agreement(view, surface) > 0.5
     assert surface[2 * height // 3:].mean() > 0.6  # the stage floor fills the lower third
+
+
+# --- rendering in the browser ---------------------------------------------------------------------
+def drawn(page, after: int) -> None:
+    """Wait until the browser renderer has drawn a view after the first ``after`` and nothing is pending."""
+    page.wait_for_function(
+        f"() => {{ const s = window.viewerState; return s.mode === 'browser' && s.received > {after} && !s.drawing "
+        f"&& !s.dirty; }}", timeout=120_000)
+
+
+def gl_canvas(page) -> np.ndarray:
+    url = page.evaluate("document.getElementById('glview').toDataURL('image/png')")
+    return cv2.imdecode(np.frombuffer(base64.b64decode(url.split(",", 1)[1]), np.uint8), cv2.IMREAD_COLOR)
+
+
+def atlas_cells(data: bytes, rig) -> list[np.ndarray]:
+    """The camera images of a frame-set atlas (factor 1)."""
+    from workers.streaming.browser import atlas_columns
+
+    atlas = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    w, h, cols = rig.cameras[0].width, rig.cameras[0].height, atlas_columns(len(rig))
+    return [atlas[(i // cols) * h:(i // cols + 1) * h, (i % cols) * w:(i % cols + 1) * w].copy() for i in range(len(rig))]
+
+
+def test_the_viewer_renders_in_the_browser_from_cached_frame_sets(server, take):
+    """?render=browser on a machine without a GPU (SwiftShader): the page says so, draws the server's picture of
+    the same viewpoint (from JPEG frame sets), fetches each frame set once, keeps the orbit on the cameras' arc
+    unless freed, starts no session on the server, and switches to server rendering on request."""
+    from tests.browser import chromium
+    from workers.common.imagemetrics import psnr
+    from workers.streaming.params import Orbit
+    from workers.streaming.viewpoint import orbit_camera, orbit_frame
+    from workers.sweep.renderer import SweepRenderer
+
+    base, rig_id = server
+    with chromium("swiftshader") as browser:
+        page = browser.new_page(viewport={"width": 1280, "height": 900})
+        page.goto(f"{base}/viewer/?rig={rig_id}&render=browser")
+        drawn(page, 0)
+        assert "SwiftShader" in page.locator("#mode").inner_text()
+        assert page.locator("#render-choice").input_value() == "browser"
+        state = page.evaluate("({az: viewerState.azimuth, el: viewerState.elevation, d: viewerState.distance,"
+                              " sets: viewerState.local.bytes.sets, dbnd: viewerState.lastInfo.d_bnd})")
+        assert state["sets"] == 2  # the background and frame 0, nothing per view
+        camera = orbit_camera(orbit_frame(take.rig), Orbit(azimuth=state["az"], elevation=state["el"],
+                                                            distance=state["d"]), 50.0, (320, 240))
+        with httpx.Client(base_url=base, timeout=30) as http:
+            assert not [s for s in http.get("/v1/sessions").json()["sessions"] if s["rig_id"] == rig_id]
+            recording = http.get(f"/v1/rigs/{rig_id}").json()["recordings"][0]["id"]
+            sent = [atlas_cells(http.get(f"/v1/rigs/{rig_id}/recordings/{recording}/frames/{f}").content, take.rig)
+                    for f in (0, "background")]
+        # the server's renderer on the frames the browser was sent (JPEG, decoded here) draws the same picture
+        expected = SweepRenderer(take.rig, sent[0], backgrounds=sent[1], device="cpu").render(camera, coarse_to_fine=True)
+        first = gl_canvas(page)
+        assert psnr(expected.image, first) > 35
+        assert state["dbnd"] == pytest.approx(expected.d_bnd, rel=1e-3)
+
+        received = page.evaluate("viewerState.received")
+        box = page.locator("#glview").bounding_box()
+        x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+        page.mouse.move(x, y)
+        page.mouse.down()
+        page.mouse.move(x + 600, y, steps=6)  # 180 degrees: far past the cameras' 90-degree arc
+        page.mouse.up()
+        drawn(page, received)
+        coverage = page.evaluate("viewerState.coverage")
+        assert page.evaluate("viewerState.azimuth") == pytest.approx(coverage["azimuth"][0])
+        assert np.abs(gl_canvas(page).astype(int) - first).mean() > 2
+        assert page.locator("#coverage").is_hidden() and page.evaluate("viewerState.latencies.length") > 0
+
+        page.check("#free-orbit")
+        received = page.evaluate("viewerState.received")
+        page.mouse.move(x, y)
+        page.mouse.down()
+        page.mouse.move(x + 150, y, steps=3)
+        page.mouse.up()
+        drawn(page, received)
+        assert page.locator("#coverage").is_visible()
+
+        received = page.evaluate("viewerState.received")
+        page.locator("#frame").fill("1")
+        drawn(page, received)
+        page.locator("#frame").fill("0")
+        drawn(page, received + 1)
+        assert page.evaluate("viewerState.local.bytes.sets") == 3  # frame 1 fetched once, frame 0 kept
+        assert page.evaluate("viewerState.errors.length") == 0
+
+        page.select_option("#render-choice", "server")
+        settled(page, 0)
+        assert page.evaluate("viewerState.mode") == "server" and page.locator("#view").is_visible()
+        assert page.locator("#mode").inner_text() == "the server"

@@ -35,6 +35,7 @@ import ray
 import ray.exceptions
 from pydantic import ValidationError
 
+from workers.common.images import encode_png
 from workers.common.validation import describe_errors
 from workers.storage import open_store
 
@@ -206,6 +207,32 @@ class SessionHost:
                 return
             save_live(self.store, self.config.rig_id, seq, jpegs, backgrounds)
             self.persisted_seq = max(self.persisted_seq, seq)
+
+    def frame_set_after(self, seq: int) -> dict[str, Any] | None:
+        """The latest live frame set when it is newer than ``seq``: ``{"seq", "jpegs", "background"}`` (the JPEGs
+        as the live client sent them, rig order); None when there is none newer (or this shows a recording). For
+        the API processes that relay live sets to browser-rendering viewers (app/live_relay.py)."""
+        self._touch(None)
+        session = self.session
+        if not isinstance(session, LiveSession):
+            return None
+        self._frames.acquire_read()
+        try:
+            if session.seq <= seq or not session.latest_jpegs:
+                return None
+            return {"seq": session.seq, "jpegs": list(session.latest_jpegs), "background": session.latest_background}
+        finally:
+            self._frames.release_read()
+
+    def background_pngs(self) -> list[bytes] | None:
+        """The live background model as one PNG per camera (rig order, at the size the session works at), or
+        None while there is none (no background set has arrived)."""
+        session = self.session
+        if not isinstance(session, LiveSession) or not session.background.ready:
+            return None
+        with self._frames.writing():
+            images = session.background.images()
+        return [encode_png(i) for i in images]
 
     def touch(self, viewer: str | None = None) -> None:
         """Keep the session alive (sockets call this while they are open)."""
@@ -399,6 +426,12 @@ class SessionClient:
 
     async def touch(self, viewer: str | None = None) -> None:
         await self._call(lambda actor: actor.touch.remote(viewer))
+
+    async def frame_set_after(self, seq: int) -> dict[str, Any] | None:
+        return await self._call(lambda actor: actor.frame_set_after.remote(seq))
+
+    async def background_pngs(self) -> list[bytes] | None:
+        return await self._call(lambda actor: actor.background_pngs.remote())
 
     async def leave(self, viewer: str, timeout_s: float = 5.0) -> None:
         """Tell the actor ``viewer`` left, if this client has reached it; never creates one, never raises."""

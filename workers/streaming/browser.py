@@ -20,6 +20,7 @@ from workers.sweep.rig import Rig
 from workers.sweep.silhouette import BG_THRESHOLD, HULL_DILATE_PX, cleaning_disk
 from workers.sweep.undistort import undistort_maps, undistorted
 
+from .images import decode_stored
 from .session import OVERLAY_WEIGHT, shrunk_images, shrunk_rig
 from .viewpoint import orbit_frame
 
@@ -69,3 +70,30 @@ def render_spec(rig: Rig) -> dict[str, Any]:
             "blend3": list(BLEND3_COLOR[::-1]), "weight": OVERLAY_WEIGHT, "colour_map": ramp.tolist(),
         },
     }
+
+
+ATLAS_FORMATS = {"jpeg": (".jpg", "image/jpeg"), "png": (".png", "image/png")}
+
+
+def encode_atlas(atlas: np.ndarray, image_format: str, quality: int) -> bytes:
+    """An atlas (H, W, 3) uint8 BGR as the bytes of a ``jpeg`` (``quality`` 1..100, 4:2:0) or lossless ``png``
+    file (PNG at OpenCV's fastest level: a frame set is encoded once and then cached)."""
+    ext, _ = ATLAS_FORMATS[image_format]
+    params = [cv2.IMWRITE_JPEG_QUALITY, int(quality)] if image_format == "jpeg" else [cv2.IMWRITE_PNG_COMPRESSION, 1]
+    ok, data = cv2.imencode(ext, atlas, params)
+    if not ok:
+        raise ValueError(f"could not encode the atlas as {image_format}")
+    return data.tobytes()
+
+
+def live_background_atlas(pngs: Sequence[bytes], rig: Rig) -> bytes:
+    """A live session's background model (one PNG per camera, at the size the session works at, at most the
+    camera's) as a lossless PNG atlas at the cameras' calibrated size (bilinear where the model is smaller, as
+    the session's own model grows: :meth:`BackgroundModel.resize`), undistorted like the frames."""
+    images = []
+    for cam, data in zip(rig.cameras, pngs):
+        image = decode_stored(data, (cam.width, cam.height))
+        if image.shape[:2] != (cam.height, cam.width):
+            image = cv2.resize(image, (cam.width, cam.height), interpolation=cv2.INTER_LINEAR)
+        images.append(image)
+    return encode_atlas(frame_atlas(images, rig, 1), "png", 0)

@@ -336,6 +336,8 @@ class LiveSession(Session):
         self.background = BackgroundModel(len(rig), rate=bg_rate)
         self.seq = 0
         self.latest_jpegs: list[bytes] = []
+        self.latest_background = False
+        """Whether the latest set was flagged as background (the empty studio)."""
         self.received_at: float | None = None
         start = Viewpoint()
         self.default_factor = source_factor(rig, start.width, start.height)
@@ -375,6 +377,7 @@ class LiveSession(Session):
         self.seq += 1
         self.frame_key = ("live", self.seq, factor)
         self.latest_jpegs = list(jpegs)
+        self.latest_background = bool(is_background)
         self.received_at = time.time()
 
     def push(self, jpegs: Sequence[bytes], is_background: bool = False) -> dict[str, Any]:

@@ -5,7 +5,7 @@
 // rig order, ``columns`` cells per row, each cell the size of the largest camera image.
 import { bindTextures, drawFullscreen, framebuffer, program, release, textureArray } from "./gl.js";
 
-export const SHADERS = ["fullscreen.vert", "silhouette.frag"];
+export const SHADERS = ["fullscreen.vert", "silhouette.frag", "background.frag"];
 
 /** The cell (column, row) of camera ``i`` in an atlas of ``columns`` cells per row. */
 export function atlasCell(i, columns) {
@@ -28,6 +28,9 @@ export class FrameSet {
     this.hasSilhouettes = false;
     this.maxTaps = Math.max(this.params.clean.length, (2 * this.params.dilate + 1) ** 2, 1);
     this.prog = program(gl, "fullscreen.vert", "silhouette.frag", { MAX_TAPS: this.maxTaps });
+    this.modelProg = program(gl, "fullscreen.vert", "background.frag");
+    this.model = null; // live: the float background model, two arrays (ping-pong)
+    this.flaggedRun = 0;
     this.fill(this.silhouettes, 1);
   }
 
@@ -65,22 +68,80 @@ export class FrameSet {
     unpackDefaults(gl);
   }
 
-  /** Silhouettes of the current frames against the backgrounds (six passes per camera). */
-  makeSilhouettes() {
+  /** Silhouettes of the current frames against the backgrounds (six passes per camera). ``cleaned`` (optional)
+   * is called with the mask array holding the cleaned silhouettes before the hull's dilation. */
+  makeSilhouettes(cleaned = null) {
     const { threshold, clean, dilate } = this.params;
     const square = [];
     for (let dy = -dilate; dy <= dilate; dy++) for (let dx = -dilate; dx <= dilate; dx++) square.push([dx, dy]);
     const steps = [[0, []]];
     if (clean.length) steps.push([1, clean], [2, clean], [2, clean], [1, clean]); // opening, then closing
+    const cleanSteps = steps.length;
     if (dilate > 0) steps.push([2, square]);
     // ping-pong between the two mask arrays so that the last step writes the silhouettes
     let dst = steps.length % 2 === 1 ? this.silhouettes : this.scratch;
     let src = dst === this.silhouettes ? this.scratch : this.silhouettes;
-    for (const [mode, kernel] of steps) {
+    steps.forEach(([mode, kernel], k) => {
       this.morph(mode, kernel, src, dst);
+      if (k === cleanSteps - 1 && cleaned) cleaned(dst);
       [src, dst] = [dst, src];
-    }
+    });
     this.hasSilhouettes = true;
+  }
+
+  /** Start the live background model from an atlas of the server's model (PNG, the frames' layout). */
+  setLiveModel(atlas, columns) {
+    this.setBackgrounds(atlas, columns);
+    const gl = this.gl;
+    if (!this.model) this.model = [0, 1].map(() => textureArray(gl, "rgba32f", this.width, this.height, this.layers));
+    this.modelPass(2, this.backgrounds, this.model[0], 0, this.backgrounds); // a float copy of the 8-bit model
+    this.flaggedRun = 0;
+  }
+
+  /** A live frame set was uploaded (setCamera per camera): follow the server's BackgroundModel.observe. A set
+   * flagged as background joins the model and shows nothing (all silhouettes empty); a normal one gets
+   * silhouettes against the model (none while there is no model), then updates the model outside them. */
+  observeLive(isBackground, rate) {
+    const gl = this.gl;
+    if (isBackground) {
+      this.flaggedRun += 1;
+      if (!this.model) {
+        this.model = [0, 1].map(() => textureArray(gl, "rgba32f", this.width, this.height, this.layers));
+        this.backgrounds = this.backgrounds || textureArray(gl, "rgba8", this.width, this.height, this.layers);
+      }
+      this.modelPass(0, this.model[0], this.model[1], this.flaggedRun === 1 ? 1 : 1 / this.flaggedRun, this.scratch);
+      this.model.reverse();
+      this.modelPass(2, this.model[0], this.backgrounds, 0, this.scratch);
+      this.fill(this.silhouettes, 0);
+      this.hasSilhouettes = true;
+      return;
+    }
+    this.flaggedRun = 0;
+    if (!this.model) {
+      this.fill(this.silhouettes, 1);
+      this.hasSilhouettes = false;
+      return;
+    }
+    this.makeSilhouettes((mask) => {
+      this.modelPass(1, this.model[0], this.model[1], rate, mask);
+      this.model.reverse();
+    });
+    this.modelPass(2, this.model[0], this.backgrounds, 0, this.scratch);
+  }
+
+  modelPass(mode, src, dst, weight, mask) {
+    const gl = this.gl;
+    const prog = this.modelProg;
+    gl.useProgram(prog.program);
+    bindTextures(gl, prog, { uImages: this.images, uModel: src, uMask: mask });
+    gl.uniform1i(prog.uniforms.uMode, mode);
+    gl.uniform1f(prog.uniforms.uWeight, weight);
+    for (let i = 0; i < this.layers; i++) {
+      const fb = framebuffer(gl, [{ tex: dst, layer: i }]);
+      gl.uniform1i(prog.uniforms.uLayer, i);
+      drawFullscreen(gl, fb);
+      gl.deleteFramebuffer(fb.fb);
+    }
   }
 
   morph(mode, kernel, src, dst) {
@@ -112,8 +173,9 @@ export class FrameSet {
   }
 
   dispose() {
-    release(this.gl, this.images, this.backgrounds, this.silhouettes, this.scratch);
+    release(this.gl, this.images, this.backgrounds, this.silhouettes, this.scratch, ...(this.model || []));
     this.gl.deleteProgram(this.prog.program);
+    this.gl.deleteProgram(this.modelProg.program);
   }
 }
 

@@ -222,6 +222,13 @@ export class BrowserRenderer {
     if (toCanvas) present(this.gl, this.programs.present, work, this.style, overlay, range, null);
   }
 
+  /** Wait until the GPU has drawn everything asked of it so far (a one-pixel readback of the presented view). */
+  finish() {
+    const gl = this.gl;
+    gl.bindFramebuffer(gl.FRAMEBUFFER, this.work.finalTarget.fb);
+    gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, new Uint8Array(4));
+  }
+
   /** The presented picture: Uint8Array RGBA, width * height * 4, top row first. */
   readImage() {
     return readBytes(this.gl, this.work.final);

@@ -112,3 +112,34 @@ export function median(values) {
   if (!n) return NaN;
   return n % 2 ? a[(n - 1) / 2] : 0.5 * (a[n / 2 - 1] + a[n / 2]);
 }
+
+/**
+ * The orbit range the rig's cameras cover (degrees): { azimuth: [lo, hi] | null (cameras all around),
+ * elevation: [lo, hi] }, each side widened by ``margin`` (default: half the median azimuth spacing of
+ * neighbouring cameras, at least 5 degrees). orbit: the hello's orbit frame (camera_azimuths, camera_elevations).
+ */
+export function orbitCoverage(orbit, margin = null) {
+  const az = [...orbit.camera_azimuths].sort((a, b) => a - b);
+  const n = az.length;
+  const gaps = az.map((a, i) => (i + 1 < n ? az[i + 1] - a : az[0] + 360 - a));
+  const widest = gaps.indexOf(Math.max(...gaps));
+  const spacing = median(gaps.filter((_, i) => i !== widest));
+  const m = margin ?? Math.max(5, 0.5 * (Number.isFinite(spacing) ? spacing : 10));
+  const el = orbit.camera_elevations;
+  const elevation = [Math.max(-89, Math.min(...el) - 3 * m), Math.min(89, Math.max(...el) + 3 * m)];
+  if (gaps[widest] <= 2 * m + 1e-9) return { azimuth: null, elevation, margin: m };
+  const lo = az[(widest + 1) % n];
+  const hi = widest + 1 < n ? az[widest] + 360 : az[widest];
+  return { azimuth: [lo - m, hi + m], elevation, margin: m };
+}
+
+/** ``azimuth`` (degrees, any turn) kept within ``range`` ([lo, hi] in some turn; null: any azimuth): returns
+ * { azimuth, inside }, the azimuth moved to the range's nearer end (in the caller's turn) when it was outside. */
+export function clampAzimuth(azimuth, range) {
+  if (!range) return { azimuth, inside: true };
+  const centre = 0.5 * (range[0] + range[1]);
+  const half = 0.5 * (range[1] - range[0]);
+  const d = ((((azimuth - centre) % 360) + 540) % 360) - 180; // [-180, 180) from the centre
+  const inside = Math.abs(d) <= half;
+  return { azimuth: inside ? azimuth : azimuth + (Math.max(-half, Math.min(half, d)) - d), inside };
+}
