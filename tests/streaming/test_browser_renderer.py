@@ -7,11 +7,13 @@ sums, so a projected position within about 1e-4 px of a 1/128 px rounding bounda
 pass then samples at float32 positions (a level at most on a few pixels)."""
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
 from tests.browser import chromium, have_chromium, render_in_browser, static_site
 from workers.camera import Camera
+from workers.common.datasets import dataset
 from workers.common.imagemetrics import psnr
 from workers.streaming.browser import frame_atlas, render_spec
 from workers.streaming.demo import demo_rig, demo_scene
@@ -20,6 +22,7 @@ from workers.streaming.session import _composed, shrunk_images, shrunk_rig, sour
 from workers.streaming.viewpoint import orbit_camera, orbit_frame
 from workers.sweep.renderer import RenderOptions, SweepRenderer
 from workers.sweep.rig import Rig
+from workers.sweep.rig_io import rectified_rig
 from workers.synth import render_views
 
 pytest.importorskip("playwright.sync_api", reason="playwright is not installed (the test extra)")
@@ -60,6 +63,7 @@ def both(page, rig: Rig, frames, backgrounds, camera: Camera, overlay: str = "no
 
 
 def assert_same_view(result, browser, picture=None):
+    assert (result.plane_index >= 0).mean() > 0.3  # a view with a surface to compare (a blank one would pass)
     image = result.image if picture is None else picture
     assert psnr(image, browser["image"]) >= MIN_PSNR
     same = browser["depth"][:, :, 1].astype(np.int32) == result.plane_index
@@ -113,3 +117,26 @@ def test_options_the_browser_does_not_render_are_refused(page, studio):
     with pytest.raises(Exception, match="semi-global aggregation runs on the server"):
         render_in_browser(page, render_spec(rig), frame_atlas(frames, rig, 2), frame_atlas(backgrounds, rig, 2), camera,
                           2, {"aggregation": "sgm"})
+
+
+TEDDY = dataset("multiview", "teddy")
+
+
+@pytest.mark.data
+@pytest.mark.skipif(TEDDY is None, reason="Middlebury Teddy not in $SWEEPCAST_DATA")
+@pytest.mark.parametrize("sources", [[2, 6], [0, 1, 2, 3, 5, 6, 7, 8]])
+def test_a_middlebury_leave_one_out_view_equals_the_servers(page, sources):
+    """Teddy's view 4 held out, synthesised from two and from all eight others at half size (real photographs: no
+    backgrounds, no hull), the depth range from the ground-truth disparity as the benchmark takes it."""
+    images = {k: cv2.imread(str(TEDDY / f"im{k}.png")) for k in [*sources, 4]}
+    h, w = images[4].shape[:2]
+    views = sorted([*sources, 4])
+    full = rectified_rig([f"im{k}.png" for k in views], w, h, positions=views)
+    rig = Rig(tuple(c for c, k in zip(full.cameras, views) if k != 4))
+    virtual = full.cameras[views.index(4)].scaled(0.5)
+    disparities = cv2.imread(str(TEDDY / "disp2.pgm"), cv2.IMREAD_UNCHANGED).astype(np.float64) / 4.0
+    lo, hi = np.percentile(disparities[disparities > 0], [0.5, 99.5])
+    result, browser = both(page, rig, [images[k] for k in sources], None, virtual, near=w / (hi * 1.1),
+                           far=w / (lo * 0.9))
+    assert_same_view(result, browser)
+    assert browser["info"]["coverage"] > 0.8  # two views leave the frame edge unseen
