@@ -4,7 +4,7 @@ from __future__ import annotations
 import os
 from functools import cached_property
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, field_validator
 from pydantic_settings import NoDecode, SettingsConfigDict
@@ -68,6 +68,11 @@ class Settings(WorkerSettings):
                                          ">= 20 fps on 2 cores (benchmarks/streaming.py --viewer-sizes).")
     viewer_frame_cache_mb: float = Field(256.0, ge=0, description="Encoded frame sets of recordings kept in each API "
                                          "process for viewers that render in their browser (megabytes).")
+    viewer_frame_format: Literal["png", "jpeg"] = Field(
+        "png", description="How recordings' frame sets travel to browser-rendering viewers: png (lossless: the view "
+                           "matches the server's) or jpeg (about 5x fewer bytes, at viewer_frame_quality; costs "
+                           "0-14 dB against the held-out view, benchmarks/RESULTS.md streaming_browser_quality).")
+    viewer_frame_quality: int = Field(90, ge=50, le=100, description="JPEG quality when viewer_frame_format is jpeg.")
     viewer_target_fps: float = Field(15.0, gt=0, le=240, description="The frame rate a browser must hold at the chosen "
                                      "view size to render itself (sent in the view socket's hello); below it the "
                                      "viewer falls back to server rendering.")

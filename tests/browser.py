@@ -94,9 +94,11 @@ _RENDER = """async ({spec, atlas, background, camera, factor, options, overlay, 
   let info;
   const times = [];
   for (let i = 0; i < repeat; i++) {
+    const t0 = performance.now();
     info = r.render(view, options);
     r.present(overlay);
-    times.push(info.ms);
+    r.finish();
+    times.push(performance.now() - t0);
   }
   const b64 = (array) => { let s = ""; const u = new Uint8Array(array.buffer);
     for (let i = 0; i < u.length; i += 8192) s += String.fromCharCode(...u.subarray(i, i + 8192)); return btoa(s); };
@@ -112,8 +114,9 @@ def render_in_browser(page: Any, spec: dict, atlas: np.ndarray, background: np.n
     """Render ``camera``'s view with the browser renderer in ``page`` (on a page of a site serving app/static):
     spec from :func:`workers.streaming.browser.render_spec`, frame and background atlases (BGR) from
     :func:`workers.streaming.browser.frame_atlas` at ``factor``. Returns the renderer's info, ``times`` (ms per
-    render, ``repeat`` of them), ``gpu`` (the WebGL renderer string), ``image`` (h, w, 3) uint8 BGR as presented
-    and ``depth`` (h, w, 4) float32 (inverse depth or 0, plane or -1, sub-plane offset, cost)."""
+    render until the GPU has drawn it, ``repeat`` of them), ``gpu`` (the WebGL renderer string), ``image``
+    (h, w, 3) uint8 BGR as presented and ``depth`` (h, w, 4) float32 (inverse depth or 0, plane or -1, sub-plane
+    offset, cost)."""
     out = page.evaluate(_RENDER, {
         "spec": spec, "atlas": png_b64(atlas), "background": None if background is None else png_b64(background),
         "camera": {"K": camera.K.tolist(), "R": camera.R.tolist(), "t": camera.t.tolist(), "width": camera.width,

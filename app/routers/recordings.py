@@ -141,13 +141,14 @@ async def delete_recording(rig_id: str, recording_id: str, svc: Services = Depen
                         "order, tiled `render.atlas_columns` per row in cells of the largest camera image, shrunk by "
                         "`factor` (the integer source factor of the view size, as the server's renderer uses) and "
                         "undistorted. The URL never changes what it answers: `Cache-Control: immutable` and an "
-                        "ETag (`If-None-Match` gets 304) let the browser and proxies keep it. JPEG (`quality`) is "
-                        "what the viewer takes; PNG is lossless (the equivalence tests use it).",
+                        "ETag (`If-None-Match` gets 304) let the browser and proxies keep it. PNG is lossless (the "
+                        "viewer's default: its view then matches the server's); JPEG (`quality`) is about 5x "
+                        "smaller.",
             responses={200: {"content": {"image/jpeg": {}, "image/png": {}}}, 304: {"description": "not modified"}})
 async def get_frame_set(
     request: Request, rig_id: str, recording_id: str, frame: str,
     factor: int = Query(1, ge=1, le=MAX_SOURCE_FACTOR, description="integer shrink factor of every camera image"),
-    format: Literal["jpeg", "png"] = Query("jpeg", description="image format of the atlas"),
+    format: Literal["png", "jpeg"] = Query("png", description="image format of the atlas: png is lossless"),
     quality: int = Query(90, ge=50, le=100, description="JPEG quality"),
     svc: Services = Depends(services),
 ) -> Response:

@@ -70,9 +70,6 @@ ws_router = APIRouter(prefix="/v1/rigs", tags=["rigs"])
 UNSUPPORTED_DATA = 1003
 POLICY_VIOLATION = 1008
 INTERNAL_ERROR = 1011
-BROWSER_JPEG_QUALITY = 90
-"""JPEG quality of the frame sets a browser-rendering viewer is pointed at (benchmarks/RESULTS.md,
-streaming_browser_quality: the view against the held-out real one, by the quality of the frames shipped)."""
 MAX_TEXT_CHARS = 8192
 """Longest text message parsed: a viewpoint or a ping is a few hundred characters. The cap also
 bounds the work of a hostile message before json.loads sees it."""
@@ -280,7 +277,7 @@ async def _browser_viewer(websocket: WebSocket, channel: Channel, target: Source
              "target_fps": svc.settings.viewer_target_fps}
     if target.recording is not None:
         hello["frame_sets"] = {"url": f"/v1/rigs/{target.rig_id}/recordings/{target.source}/frames/{{frame}}",
-                           "format": "jpeg", "quality": BROWSER_JPEG_QUALITY}
+                           "format": svc.settings.viewer_frame_format, "quality": svc.settings.viewer_frame_quality}
     else:
         hello["live"] = {"background_url": f"/v1/rigs/{target.rig_id}/live/background",
                          "background_rate": session_config(svc, target.rig_id, LIVE).bg_rate}

@@ -42,7 +42,7 @@ def test_frame_sets_come_as_immutable_cacheable_atlases(recorded, take):
     encoded = services.atlases.encoded
     assert client.get(f"{url}/1", params={"format": "png"}).content == r.content
     assert services.atlases.encoded == encoded  # the second viewer's request cost no encode
-    half = client.get(f"{url}/0", params={"factor": 2, "quality": 95})
+    half = client.get(f"{url}/0", params={"factor": 2, "format": "jpeg", "quality": 95})
     assert half.headers["content-type"] == "image/jpeg" and half.headers["etag"] != r.headers["etag"]
     small = decode(half.content)
     assert small.shape == (2 * 36, 2 * 48, 3)  # 96x72 cameras shrunk by 2, two rows of two

@@ -134,7 +134,8 @@ def test_a_middlebury_leave_one_out_view_equals_the_servers(page, sources):
     full = rectified_rig([f"im{k}.png" for k in views], w, h, positions=views)
     rig = Rig(tuple(c for c, k in zip(full.cameras, views) if k != 4))
     virtual = full.cameras[views.index(4)].scaled(0.5)
-    disparities = cv2.imread(str(TEDDY / "disp2.pgm"), cv2.IMREAD_UNCHANGED).astype(np.float64) / 4.0
+    # quarter pixels, over the 4 view spacings between im2 and im6: per view spacing (the rig's unit baseline)
+    disparities = cv2.imread(str(TEDDY / "disp2.pgm"), cv2.IMREAD_UNCHANGED).astype(np.float64) / 4.0 / 4.0
     lo, hi = np.percentile(disparities[disparities > 0], [0.5, 99.5])
     result, browser = both(page, rig, [images[k] for k in sources], None, virtual, near=w / (hi * 1.1),
                            far=w / (lo * 0.9))

@@ -1,6 +1,7 @@
 """The browser viewer end to end in headless Chromium (Debian's package, driven by Playwright)."""
 import base64
 import contextlib
+import json
 import os
 import shutil
 import socket
@@ -281,3 +282,33 @@ def test_the_viewer_renders_in_the_browser_from_cached_frame_sets(server, take):
         settled(page, 0)
         assert page.evaluate("viewerState.mode") == "server" and page.locator("#view").is_visible()
         assert page.locator("#mode").inner_text() == "the server"
+
+
+def test_the_browser_renders_the_live_stream_from_relayed_frame_sets(server, take):
+    """A live client pushes the empty studio (background) and then frames; a browser-rendering viewer of the live
+    source draws each new set with silhouettes from its own background model (started from the server's)."""
+    import websockets.sync.client as wsclient
+
+    from tests.browser import chromium
+    from tests.streaming.capture import frame_set, jpeg
+
+    base, rig_id = server
+    with wsclient.connect(f"{base.replace('http', 'ws')}/v1/rigs/{rig_id}/live", max_size=None) as live:
+        live.recv()  # hello
+        live.send(frame_set([jpeg(b, 98) for b in take.backgrounds], background=True, seq=1))
+        assert json.loads(live.recv())["type"] == "ack"
+        live.send(frame_set([jpeg(i, 98) for i in take.frames[0]], seq=2))
+        assert json.loads(live.recv())["type"] == "ack"
+        with chromium("swiftshader") as browser:
+            page = browser.new_page(viewport={"width": 1280, "height": 900})
+            page.goto(f"{base}/viewer/?rig={rig_id}&source=live&render=browser")
+            page.wait_for_function("() => viewerState.ready", timeout=120_000)
+            live.send(frame_set([jpeg(i, 98) for i in take.frames[1]], seq=3))
+            assert json.loads(live.recv())["type"] == "ack"
+            page.wait_for_function("() => viewerState.liveSeq !== null && !viewerState.drawing && !viewerState.dirty"
+                                   " && viewerState.received > 0", timeout=120_000)
+            view = gl_canvas(page)
+            assert page.evaluate("viewerState.local.renderer.frames.hasSilhouettes")
+            surface = view.max(axis=2) > 8
+            assert 0.05 < surface.mean() < 0.9  # the studio's objects, the empty scene around them culled
+            assert page.evaluate("viewerState.errors.length") == 0
