@@ -18,6 +18,10 @@ Also recorded: the first-run times (server ready, demo recording ready, first fr
 
 Run: ``python benchmarks/streaming.py [--quick]`` from the repository root.
 
+Client mode (the virtual view rendered in the viewer's browser, WebGL2, headless Chromium):
+``python benchmarks/streaming.py --browser quality|fps|cost|latency [...]`` runs :mod:`benchmarks.streaming_browser`
+(its own options follow the section).
+
 Two more sections, each its own run:
 
 - ``--viewer-sizes [--quiet 1.5]``: one viewer of the demo rig at each of CANDIDATE_SIZES (4:3, 320x240 ..
@@ -237,6 +241,11 @@ async def first_frame(url: str) -> None:
 
 
 def main() -> int:
+    if "--browser" in sys.argv:  # client mode: the browser renders (benchmarks/streaming_browser.py)
+        from benchmarks import streaming_browser
+
+        sys.argv.remove("--browser")
+        return streaming_browser.main()
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="5 s per configuration instead of 15")
     ap.add_argument("--seconds", type=float, help="measurement time per configuration")
