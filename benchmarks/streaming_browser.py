@@ -351,8 +351,8 @@ async def measure_live(base: str, pid: int, rig_id: str, sets, background, n: in
 
 
 def chromium_recording(base: str, pid: int, rig_id: str, rec: dict, n: int, seconds: float) -> dict:
-    """``n`` viewer pages in browser mode (SwiftShader) that play the recording through once (every frame set
-    fetched, drawn), then stay open: server CPU while they load and play, and afterwards."""
+    """``n`` viewer pages in browser mode (SwiftShader) that step through the recording once (every frame set
+    fetched and drawn), then stay open: server CPU while they load and step, and afterwards."""
     from benchmarks.streaming import cpu_seconds
 
     with chromium("swiftshader") as browser:
@@ -364,10 +364,12 @@ def chromium_recording(base: str, pid: int, rig_id: str, rec: dict, n: int, seco
             pages.append(page)
         for page in pages:
             page.wait_for_function("() => viewerState.ready && viewerState.received > 0", timeout=600_000)
-            page.click("#play")
-        for page in pages:
-            page.wait_for_function(f"() => viewerState.local.bytes.sets >= {rec['frames'] + 1}", timeout=600_000)
-            page.click("#play")
+        for frame in range(1, rec["frames"]):  # every page steps through the recording, each frame drawn
+            for page in pages:
+                page.locator("#frame").fill(str(frame))
+            for page in pages:
+                page.wait_for_function(f"() => viewerState.frame === {frame} && viewerState.local.shown?.endsWith"
+                                       f"('/{frame}') && !viewerState.drawing && !viewerState.dirty", timeout=600_000)
         load_cpu, load_s = cpu_seconds(pid) - cpu0, time.perf_counter() - t0
         fetched = [page.evaluate("viewerState.local.bytes.fetched") for page in pages]
         cpu1, t1 = cpu_seconds(pid), time.perf_counter()
@@ -397,6 +399,7 @@ def cost(quick: bool, chromium_viewers: list[int]) -> int:
             factor = source_factor(rig, 640, 480)
             settled = settle(app.base, pid)
             idle = asyncio.run(measure_recording(app.base, pid, rig_id, rec, 0, factor, seconds))["steady_cores"]
+            print(json.dumps({"idle_cores": idle}), flush=True)
             recording = [asyncio.run(measure_recording(app.base, pid, rig_id, rec, n, factor, seconds))
                          for n in COST_VIEWERS]
             for row in recording:
@@ -424,9 +427,9 @@ def cost(quick: bool, chromium_viewers: list[int]) -> int:
                        [[r["viewers"], r["load_cpu_s"], r["load_s"], r["bytes_per_viewer"] / 1e6,
                          100 * r["steady_cores"]] for r in recording])]
     if pages:
-        md += ["", "Recording, viewer pages in headless Chromium (SwiftShader; each plays the recording through once, "
-                   "then stays open):", "",
-               md_table(["pages", "server CPU-s while they load and play", "wall s", "MB per page",
+        md += ["", "Recording, viewer pages in headless Chromium (SwiftShader; each steps through the recording once, "
+                   "every frame drawn, then stays open):", "",
+               md_table(["pages", "server CPU-s while they load and step through", "wall s", "MB per page",
                          "steady server % of a core", "page errors"],
                         [[r["viewers"], r["load_cpu_s"], r["load_s"], r["bytes_per_viewer"] / 1e6,
                           100 * r["steady_cores"], r["errors"]] for r in pages])]
@@ -438,9 +441,10 @@ def cost(quick: bool, chromium_viewers: list[int]) -> int:
            md_table(["viewers", "server % of a core", "CPU ms per set", "sets per viewer", "kB/s per viewer"],
                     [[r["viewers"], 100 * r["server_cores"], r["cpu_ms_per_set"], r["sets_per_viewer"],
                       r["bytes_per_viewer_per_s"] / 1e3] for r in live_rows])]
-    steady32 = next(r for r in recording if r["viewers"] == 32)["steady_cores"]
+    extra32 = next(r for r in recording if r["viewers"] == 32)["steady_cores"] - idle
     md.append(f"\nGoal: 32 browser viewers of a cached recording cost the server < 5 % of one core: "
-              f"{100 * steady32:.2f} % ({'met' if steady32 < 0.05 else 'missed'}).")
+              f"{100 * extra32:.2f} % over the idle server's {100 * idle:.2f} % (Ray's own processes) "
+              f"({'met' if extra32 < 0.05 else 'missed'}).")
     publish("streaming_browser_cost", {"load_before": load_before, "settle": settled, "idle_cores": idle, "recording": recording,
                                        "pages": pages, "server_viewer": server_view, "live": live_rows,
                                        "set_bytes": set_bytes}, "\n".join(md))
