@@ -48,7 +48,7 @@ from benchmarks._report import md_table, publish  # noqa: E402
 from tests.browser import chromium, render_in_browser, static_site  # noqa: E402
 from workers.common.datasets import dataset  # noqa: E402
 from workers.common.imagemetrics import psnr  # noqa: E402
-from workers.streaming.browser import frame_atlas, render_spec  # noqa: E402
+from workers.streaming.browser import encode_atlas, frame_atlas, render_spec  # noqa: E402
 from workers.streaming.demo import demo_rig, demo_scene  # noqa: E402
 from workers.streaming.params import Orbit  # noqa: E402
 from workers.streaming.session import shrunk_images, shrunk_rig, source_factor  # noqa: E402
@@ -183,7 +183,7 @@ def fps(quick: bool, webgl: str) -> int:
     views = render_views(demo_scene(0.25), list(rig.cameras))
     frames, backgrounds = [v.image for v in views], [v.background for v in views]
     spec = render_spec(rig)
-    rows, results = [], []
+    rows, results, wire = [], [], []
     gpu = None
     with static_site() as base, chromium(webgl) as browser:
         page = browser.new_page()
@@ -194,6 +194,8 @@ def fps(quick: bool, webgl: str) -> int:
             server = SweepRenderer(small, shrunk_images(frames, small), backgrounds=shrunk_images(backgrounds, small),
                                    device="cpu")
             atlas, bg_atlas = frame_atlas(frames, rig, factor), frame_atlas(backgrounds, rig, factor)
+            wire.append([f"{w}x{h}", factor, f"{atlas.shape[1]}x{atlas.shape[0]}",
+                         len(encode_atlas(atlas, "png", 0)) / 1e6, len(encode_atlas(atlas, "jpeg", 90)) / 1e6])
             camera = orbit_camera(orbit_frame(rig), Orbit(azimuth=10.0), 50.0, (w, h))
             for planes in FPS_PLANES:
                 for config, extra in FPS_CONFIGS.items():
@@ -221,7 +223,10 @@ def fps(quick: bool, webgl: str) -> int:
           "10 cameras, 640x480 frames (the demo rig; a 320x240 view sweeps them shrunk by 2, as the server does). "
           "Browser: render, present and a one-pixel readback that waits for the GPU, median of the renders after "
           "the first (which compiles the shaders). Server: `SweepRenderer.render` in this process, same view, same "
-          "options, median of 3."]
+          "options, median of 3.", "",
+          "Bytes of one frame set on the wire (every camera's frame in one atlas, as the service ships it for a view "
+          "of that size):", "",
+          md_table(["view", "source factor", "atlas", "MB, PNG (default)", "MB, JPEG q90"], wire)]
     if goal:
         best = max(goal, key=lambda r: r["browser_fps"])
         md.append(f"\nGoal on a GPU: 1280x720, 64 planes, 10 cameras >= 60 fps; here {best['browser_fps']:.2f} fps "
@@ -229,7 +234,7 @@ def fps(quick: bool, webgl: str) -> int:
                   + (": a CPU floor, not the GPU figure (no GPU machine was lent to this run)." if webgl == "swiftshader"
                      else "."))
     name = "streaming_browser_fps" + ("" if webgl == "swiftshader" else "_gpu")
-    publish(name, {"webgl": webgl, "gpu": gpu, "rows": results}, "\n".join(md))
+    publish(name, {"webgl": webgl, "gpu": gpu, "rows": results, "wire": wire}, "\n".join(md))
     return 0
 
 
