@@ -34,6 +34,13 @@ and streams results back.
 
 Every `/v1` route and socket needs `Authorization: Bearer <key>` when the service has API keys.
 Errors are JSON: `{"error": "<code>", "detail": "<what was wrong>"}`.
+
+Virtual views stream over two WebSockets (not listed below; see docs/viewer.md): `/v1/rigs/{rig_id}/view` for
+viewers and `/v1/rigs/{rig_id}/live` for live camera frame sets. A viewer either sends viewpoints and gets JPEG
+frames rendered by the server, or, opened with `?render=browser`, renders every view itself (WebGL2, as the viewer
+page at `/viewer/` does where it can): it sends no viewpoints; the socket's hello carries the rig's geometry, and
+frame sets come from `GET /v1/rigs/{rig_id}/recordings/{recording_id}/frames/{frame}` (immutable, cacheable) or,
+for the live stream, over the socket as they arrive (the background model from `GET /v1/rigs/{rig_id}/live/background`).
 """
 
 
