@@ -70,8 +70,8 @@ class Settings(WorkerSettings):
                                          "process for viewers that render in their browser (megabytes).")
     viewer_frame_format: Literal["png", "jpeg"] = Field(
         "png", description="How recordings' frame sets travel to browser-rendering viewers: png (lossless: the view "
-                           "matches the server's) or jpeg (about 5x fewer bytes, at viewer_frame_quality; costs "
-                           "0-14 dB against the held-out view, benchmarks/RESULTS.md streaming_browser_quality).")
+                           "matches the server's) or jpeg (far fewer bytes at viewer_frame_quality, a worse view: "
+                           "benchmarks/RESULTS.md, streaming_browser_quality).")
     viewer_frame_quality: int = Field(90, ge=50, le=100, description="JPEG quality when viewer_frame_format is jpeg.")
     viewer_target_fps: float = Field(15.0, gt=0, le=240, description="The frame rate a browser must hold at the chosen "
                                      "view size to render itself (sent in the view socket's hello); below it the "
