@@ -64,7 +64,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     print(f"sweepcast: serving on http://{settings.host}:{settings.port} (data in {settings.data_dir.resolve()})",
           file=sys.stderr)
-    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level=args.log_level)
+    # no permessage-deflate on the sockets: what they carry is JPEG (frames, live sets), which deflate cannot
+    # shrink, so compressing it for every viewer only spent the API process's CPU
+    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level=args.log_level,
+                ws_per_message_deflate=False)
     return 0
 
 

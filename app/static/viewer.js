@@ -29,7 +29,7 @@ const state = {
   received: 0, arrivals: [], latencies: [], lastHeader: null, errors: [], sizeChosen: false,
   // browser rendering
   renderChoice: ["browser", "server"].includes(query.get("render")) ? query.get("render") : "auto",
-  mode: null, why: "", gpu: null, local: null, drawing: false, renderTimes: [], lastInfo: null, liveSeq: null,
+  mode: null, why: "", forOptions: false, gpu: null, local: null, drawing: false, renderTimes: [], lastInfo: null, liveSeq: null,
 };
 window.viewerState = state; // read by the browser tests and handy in the console
 
@@ -137,6 +137,7 @@ function connect(source, mode = null, why = null) {
     state.local = null;
   }
   [state.mode, state.why] = mode ? [mode, why] : chooseMode();
+  state.forOptions = state.mode === "server" && state.why === unsupported(renderOptions());
   Object.assign(state, { source, ready: false, inFlight: null, dirty: false, hello: null, renderTimes: [],
     liveSeq: null });
   state.sentAt.clear();
@@ -432,7 +433,7 @@ for (const id of ["aggregation", "occlusions"]) {
   $(id).addEventListener("change", () => {
     const why = unsupported(renderOptions());
     if (state.mode === "browser" && why) fallBack(why);
-    else if (state.mode === "server" && state.why !== "chosen" && chooseMode()[0] === "browser") connect(state.source);
+    else if (state.mode === "server" && state.forOptions && !why) connect(state.source); // back to the browser
     else requestView();
   });
 }
