@@ -4,8 +4,9 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.sweepcast-installed
 KERNELS := sweepcast-data/cache/numba/.warmed
+DOCS_STAMP := $(VENV)/.sweepcast-docs
 
-.PHONY: serve test bench openapi clean
+.PHONY: serve test docs bench openapi clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -27,8 +28,16 @@ serve: $(KERNELS)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
+# The user documentation (docs/, mkdocs.yml) as a site in ./site: --strict fails on a broken link or anchor.
+$(DOCS_STAMP): $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[docs]'
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
 openapi: $(STAMP)
 	$(BIN)/sweepcast openapi
 
 clean:
-	rm -rf $(VENV) sweepcast-data .pytest_cache
+	rm -rf $(VENV) sweepcast-data .pytest_cache site
