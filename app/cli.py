@@ -34,10 +34,12 @@ def _is_loopback(host: str) -> bool:
 
 def _log_to_stderr(level: str) -> None:
     """The service's own log (``sweepcast.*``: Ray's start, the demo, jobs, kernels) on stderr beside uvicorn's, at
-    ``level``; without a handler Python only prints its warnings."""
+    ``level``; without a handler Python only prints its warnings. Called again, it replaces its handler."""
+    logger = logging.getLogger("sweepcast")
+    logger.handlers[:] = [h for h in logger.handlers if not getattr(h, "sweepcast_stderr", False)]
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
-    logger = logging.getLogger("sweepcast")
+    handler.sweepcast_stderr = True  # type: ignore[attr-defined]
     logger.addHandler(handler)
     logger.setLevel(level.upper())
     logger.propagate = False
@@ -45,6 +47,7 @@ def _log_to_stderr(level: str) -> None:
 
 def cmd_serve(args: argparse.Namespace) -> int:
     from app import raycluster
+    from app.kernelcache import log_prebuilt
     from app.settings import Settings
 
     overrides = {k: v for k, v in {"host": args.host, "port": args.port, "data_dir": args.data_dir}.items() if v is not None}
@@ -57,6 +60,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         )
         return 2
     _log_to_stderr(args.log_level)
+    log_prebuilt()
     raycluster.start_connecting(settings)  # Ray's start overlaps the imports below (readyz sooner)
     import uvicorn
 
@@ -90,9 +94,11 @@ def cmd_worker(args: argparse.Namespace) -> int:
             return 2
         argv += ["--resources", args.resources]
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    from app.kernelcache import KernelWarmup
+    from app.kernelcache import KernelWarmup, log_prebuilt
     from app.settings import Settings
 
+    _log_to_stderr("info")
+    log_prebuilt()
     if Settings().warm_kernels:  # this node's kernels, compiled while it joins (the process outlives the exec)
         KernelWarmup.start(Path(os.environ["NUMBA_CACHE_DIR"]), report=False)
     os.execv(ray_bin, argv)
@@ -108,6 +114,7 @@ def cmd_warmup(args: argparse.Namespace) -> int:
     demo = settings.demo_rig and (not args.engines or "demo" in args.engines)
     print(f"sweepcast: compiling into {os.environ['NUMBA_CACHE_DIR']}", file=sys.stderr)
     return warmup.main([*args.engines, *(["--jobs", str(args.jobs)] if args.jobs is not None else []),
+                        *(["--target", args.target] if args.target is not None else []),
                         *(["--demo-cache", str(settings.resolved_demo_cache_dir)] if demo else [])])
 
 
@@ -200,6 +207,8 @@ def build_parser() -> argparse.ArgumentParser:
                                       "SWEEPCAST_DEMO_RIG=0)")
     p.add_argument("engines", nargs="*", help="sweep, demo, drone, dense, depth, faces (default: all)")
     p.add_argument("--jobs", type=int, help="processes compiling at once (default: one per core)")
+    p.add_argument("--target", help="compile for this portable CPU baseline (x86-64-v3) instead of this CPU: a "
+                                    "cache for other machines, e.g. SWEEPCAST_PREBUILT_KERNELS in an image")
     p.add_argument("--data-dir", type=Path, help="data folder whose cache/numba is used (default ./sweepcast-data; "
                                                  "SWEEPCAST_NUMBA_CACHE_DIR or NUMBA_CACHE_DIR instead when set)")
     p.set_defaults(func=cmd_warmup)
@@ -221,13 +230,16 @@ def _use_service_kernel_cache(argv: list[str]) -> None:
     command = next((a for a in argv if not a.startswith("-")), None)
     if command not in SERVICE_COMMANDS:
         return
-    from app.kernelcache import use_cache_dir
+    from app.kernelcache import use_cache_dir, use_prebuilt
     from app.settings import Settings
 
     pre = argparse.ArgumentParser(add_help=False)
     pre.add_argument("--data-dir", type=Path)
     data_dir = pre.parse_known_args(argv)[0].data_dir
-    use_cache_dir(Settings(**({"data_dir": data_dir} if data_dir is not None else {})).resolved_numba_cache_dir)
+    settings = Settings(**({"data_dir": data_dir} if data_dir is not None else {}))
+    cache = use_cache_dir(settings.resolved_numba_cache_dir)
+    if command != "warmup":  # kernels compiled ahead: their CPU target and a copy in the cache, before numba loads
+        use_prebuilt(settings.prebuilt_kernels, cache)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -51,6 +51,11 @@ class Settings(WorkerSettings):
         None, description="Where the compiled numba kernels are kept (the service and its workers): default "
                           "NUMBA_CACHE_DIR when set, else <data_dir>/cache/numba. numba keys each entry by source "
                           "file, argument types and CPU, so one directory serves every CPU kind that shares it.")
+    prebuilt_kernels: Path | None = Field(
+        None, description="A kernel cache compiled ahead for a portable CPU target (`sweepcast warmup --target "
+                          "x86-64-v3`, e.g. in the Docker image; read-only is fine): when this CPU runs that target, "
+                          "the service and its workers compile for it and copy the kernels into their cache, so "
+                          "nothing is compiled; else they compile for this CPU, and the log and /readyz say why.")
     warm_kernels: bool = Field(True, description="At start-up, compile every engine's kernels into the cache in a "
                                                  "background process (`sweepcast warmup`), so that no request waits "
                                                  "for a compile; a warm cache makes it take seconds.")

@@ -3,8 +3,11 @@
 The kernels are ``@njit(cache=True)``: the first process that calls one compiles it (seconds to tens
 of seconds each on two cores: 19 s for the bundle adjuster alone) and writes the machine code to
 numba's cache; every later process loads it in milliseconds. numba keys each cached entry by the
-function's source file (its modification time), the argument types and the CPU (name and features),
-so one cache directory serves every CPU kind that uses it and a changed source recompiles.
+SHA-256 of the function's source file, the argument types and the CPU target (name and features), so one
+cache directory serves every CPU kind that uses it and a changed source recompiles; and our kernels are filed
+by their path inside the project (:mod:`workers.portable_cache`), so a cache compiled ahead serves any install
+of the same sources. ``--target x86-64-v3`` compiles for a portable CPU baseline instead of this CPU (an image
+build does, for the machines that will run the image).
 
 :func:`warm` runs each engine's real entry points on tiny generated inputs, so that exactly the
 specialisations a request uses are compiled (the same dtypes, dimensions and array layouts), and
@@ -28,6 +31,8 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+
+from workers.portable_cache import TARGETS, configured_target, host_supports, target_env
 
 
 def _sweep() -> None:
@@ -169,37 +174,45 @@ def shares(engines: list[str], jobs: int) -> list[list[str]]:
 
 
 STAMP_NAME = "warmed.json"
-"""Written into the cache by a warm-up of every engine that succeeded: the :func:`fingerprint` it warmed."""
+"""Written into the cache by a warm-up of every engine that succeeded: the :func:`fingerprint` it warmed and the
+CPU target it compiled for (``cpu_name``, ``cpu_features``)."""
 _WORKERS = Path(__file__).resolve().parent
 
 
-def fingerprint() -> str:
+def fingerprint(target: tuple[str, str] | None = None) -> str:
     """Hex SHA-256 of what every cached kernel depends on, as numba keys its entries: each engine source file
-    (path, size and modification time), numba's and Python's versions, and this CPU (name and features)."""
-    import numba
-    from numba.core.codegen import get_host_cpu_features
-    import llvmlite.binding as llvm
+    (path in the package and SHA-256 of its bytes), numba's and Python's versions, and the CPU target
+    (``target`` = (LLVM CPU name, feature string); default: the one numba uses in this process)."""
+    from importlib.metadata import version
 
-    h = hashlib.sha256(f"{numba.__version__}|{sys.version}|{llvm.get_host_cpu_name()}|{get_host_cpu_features()}".encode())
+    name, features = target or configured_target()
+    h = hashlib.sha256(f"{version('numba')}|{sys.version}|{name}|{features}".encode())
     for path in sorted(_WORKERS.rglob("*.py")):
-        st = path.stat()
-        h.update(f"\n{path.relative_to(_WORKERS).as_posix()}|{st.st_size}|{st.st_mtime_ns}".encode())
+        h.update(f"\n{path.relative_to(_WORKERS).as_posix()}|{hashlib.sha256(path.read_bytes()).hexdigest()}".encode())
     return h.hexdigest()
 
 
-def is_current(cache_dir: Path) -> bool:
-    """Whether ``cache_dir`` holds every engine's kernels for this code, numba and CPU (a warm-up of all of them
-    stamped it since nothing changed): then a warm-up would only load them."""
+def read_stamp(cache_dir: Path) -> dict | None:
+    """The stamp of ``cache_dir`` (:data:`STAMP_NAME`), or None when there is none or it is unreadable."""
     try:
-        return json.loads((Path(cache_dir) / STAMP_NAME).read_text()).get("fingerprint") == fingerprint()
-    except (OSError, ValueError, AttributeError):
-        return False
+        stamp = json.loads((Path(cache_dir) / STAMP_NAME).read_text())
+    except (OSError, ValueError):
+        return None
+    return stamp if isinstance(stamp, dict) else None
+
+
+def is_current(cache_dir: Path, target: tuple[str, str] | None = None) -> bool:
+    """Whether ``cache_dir`` holds every engine's kernels for this code, numba and CPU target (default: this
+    process's; a warm-up of all of them stamped it since nothing changed): then a warm-up would only load them."""
+    stamp = read_stamp(cache_dir)
+    return stamp is not None and stamp.get("fingerprint") == fingerprint(target)
 
 
 def _stamp(cache_dir: Path) -> None:
     with contextlib.suppress(OSError):  # without the stamp the next start only warms again
+        name, features = configured_target()
         part = Path(cache_dir) / f"{STAMP_NAME}.{os.getpid()}.part"
-        part.write_text(json.dumps({"fingerprint": fingerprint()}))
+        part.write_text(json.dumps({"fingerprint": fingerprint(), "cpu_name": name, "cpu_features": features}))
         os.replace(part, Path(cache_dir) / STAMP_NAME)
 
 
@@ -261,6 +274,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("engines", nargs="*", metavar="ENGINE", help=f"any of {', '.join(ENGINES)} (default: all)")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
                     help="processes compiling at once (default: one per core)")
+    ap.add_argument("--target", choices=sorted(TARGETS),
+                    help="compile for this portable CPU baseline instead of this CPU (a cache for other machines)")
     ap.add_argument("--demo-cache", type=Path, metavar="DIR",
                     help="then render the first-run demo recording into DIR (a new data folder's demo then gets it without rendering it)")
     args = ap.parse_args(argv)
@@ -269,6 +284,13 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"unknown engine(s) {', '.join(unknown)}; expected any of {', '.join(ENGINES)}")
     if args.jobs < 1:
         ap.error("--jobs must be at least 1")
+    if args.target is not None:
+        if "numba" in sys.modules:  # numba reads its CPU target once, when imported
+            ap.error("--target must be given before numba is imported")
+        missing = host_supports(args.target)
+        if missing:  # the warm-up runs what it compiles
+            ap.error(f"this CPU lacks {', '.join(missing)}: it cannot build kernels for {args.target}")
+        os.environ.update(target_env(args.target))  # this process and the compiling ones
     log = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
     seconds = warm_in_processes(args.engines or list(ENGINES), args.jobs, log)
     if set(seconds) == set(ENGINES) and os.environ.get("NUMBA_CACHE_DIR"):  # every engine warmed: stamp the cache

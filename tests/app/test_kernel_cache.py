@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from fastapi.testclient import TestClient
 
 from app.kernelcache import KernelWarmup
@@ -129,8 +130,98 @@ def test_a_full_warmup_stamps_the_cache_and_the_next_start_only_checks_it(tmp_pa
     assert warmup.main(["--jobs", "1"]) == 0 and warmup.is_current(cache)
     started = KernelWarmup.start(cache)
     assert started.proc is None and started.state == "done" and "current" in started.status()["detail"]
-    os.utime(source, ns=(source.stat().st_atime_ns, source.stat().st_mtime_ns + 1_000_000))  # an edited source
+    os.utime(source, ns=(source.stat().st_atime_ns, source.stat().st_mtime_ns + 1_000_000))  # touched: same code
+    assert warmup.is_current(cache)
+    source.write_text("x = 2\n")  # an edited source
     assert not warmup.is_current(cache)
     warm = KernelWarmup.start(cache, engines=("faces",))  # a warm-up of some engines always runs
     warm.stop()
     assert warm.proc is not None
+
+
+_FACES_IN_A_COPY = """
+import json, sys
+from workers import warmup
+from workers.faces.preview import _rasterise
+warmup.warm(["faces"])
+print(json.dumps({"file": _rasterise.py_func.__code__.co_filename, "hits": sum(_rasterise.stats.cache_hits.values()),
+                  "misses": sum(_rasterise.stats.cache_misses.values())}))
+"""
+
+
+def test_kernels_compiled_in_one_install_load_in_another_at_another_path(tmp_path):
+    """numba files kernels by a hash of the source's absolute folder; ours go by their path in the project, so a
+    cache compiled ahead (an image build, another checkout) serves any install of the same sources."""
+    import shutil
+
+    cache = tmp_path / "cache"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    subprocess.run([sys.executable, "-m", "workers.warmup", "--jobs", "1", "faces"], cwd=ROOT, env=env, check=True,
+                   capture_output=True)
+    assert [p.name for p in cache.iterdir()] == ["workers_faces"]
+    other = tmp_path / "elsewhere"
+    shutil.copytree(ROOT / "workers", other / "workers", ignore=shutil.ignore_patterns("__pycache__"))
+    done = subprocess.run([sys.executable, "-c", _FACES_IN_A_COPY], cwd=other, env={**env, "PYTHONPATH": str(other)},
+                          check=True, capture_output=True, text=True)
+    loaded = json.loads(done.stdout.strip().splitlines()[-1])
+    assert loaded["file"].startswith(str(other)) and loaded["hits"] >= 1 and loaded["misses"] == 0
+
+
+def _prebuilt(tmp_path: Path, fingerprint: str | None = None) -> Path:
+    """A read-only kernel cache stamped as ``sweepcast warmup --target x86-64-v3`` stamps it (one kernel file)."""
+    from workers.portable_cache import target_features
+    from workers.warmup import STAMP_NAME, fingerprint as code_fingerprint
+
+    features = target_features("x86-64-v3")
+    prebuilt = tmp_path / "prebuilt"
+    (prebuilt / "workers_faces").mkdir(parents=True)
+    (prebuilt / "workers_faces" / "preview._rasterise-20.py311.nbi").write_bytes(b"index")
+    (prebuilt / STAMP_NAME).write_text(json.dumps({"fingerprint": fingerprint or code_fingerprint(("x86-64-v3", features)),
+                                                   "cpu_name": "x86-64-v3", "cpu_features": features}))
+    for path in (prebuilt / "workers_faces" / "preview._rasterise-20.py311.nbi", prebuilt / STAMP_NAME,
+                 prebuilt / "workers_faces", prebuilt):
+        path.chmod(0o555 if path.is_dir() else 0o444)
+    return prebuilt
+
+
+_USE_PREBUILT = """
+import json, os, sys
+from pathlib import Path
+from app.kernelcache import use_prebuilt
+state = use_prebuilt(Path(sys.argv[1]), Path(sys.argv[2]))
+print(json.dumps({**state, "cpu": os.environ.get("NUMBA_CPU_NAME"), "numba": "numba" in sys.modules}))
+"""
+
+
+def test_kernels_compiled_ahead_for_a_baseline_this_cpu_runs_are_copied_and_their_target_set(tmp_path):
+    from workers.portable_cache import host_supports
+    from workers.warmup import is_current
+
+    if host_supports("x86-64-v3"):
+        pytest.skip("this CPU does not run x86-64-v3 code")
+    prebuilt, cache = _prebuilt(tmp_path), tmp_path / "cache"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_CPU_")}
+    done = subprocess.run([sys.executable, "-c", _USE_PREBUILT, str(prebuilt), str(cache)], cwd=ROOT, env=env,
+                          check=True, capture_output=True, text=True)
+    state = json.loads(done.stdout.strip().splitlines()[-1])
+    assert state["state"] == "used" and state["cpu"] == "x86-64-v3" and not state["numba"], state
+    assert (cache / "workers_faces" / "preview._rasterise-20.py311.nbi").read_bytes() == b"index"
+    assert is_current(cache, ("x86-64-v3", json.loads((cache / "warmed.json").read_text())["cpu_features"]))
+    assert "(2 files copied into" in state["detail"]
+
+
+def test_kernels_compiled_ahead_are_not_used_for_other_code_or_on_a_cpu_without_the_baseline(tmp_path, monkeypatch):
+    from app import kernelcache
+    from workers import portable_cache
+
+    cache = tmp_path / "cache"
+    stale = _prebuilt(tmp_path / "a", fingerprint="0" * 64)
+    monkeypatch.delenv("NUMBA_CPU_NAME", raising=False)
+    state = kernelcache.use_prebuilt(stale, cache)
+    assert state["state"] == "not used" and "other sources" in state["detail"] and "NUMBA_CPU_NAME" not in os.environ
+    monkeypatch.setattr(portable_cache, "host_supports", lambda name: ["avx2", "fma"])
+    state = kernelcache.use_prebuilt(_prebuilt(tmp_path / "b"), cache)
+    assert state["state"] == "not used" and "lacks avx2, fma of the x86-64-v3 target" in state["detail"]
+    assert "NUMBA_CPU_NAME" not in os.environ and not (cache / "workers_faces").exists()
+    assert KernelWarmup(current=True).status()["prebuilt"] == state  # /readyz says so
+    assert kernelcache.use_prebuilt(None, cache) == {} and "prebuilt" not in KernelWarmup(current=True).status()
