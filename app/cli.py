@@ -118,6 +118,22 @@ def cmd_warmup(args: argparse.Namespace) -> int:
                         *(["--demo-cache", str(settings.resolved_demo_cache_dir)] if demo else [])])
 
 
+def cmd_kernel_env(args: argparse.Namespace) -> int:
+    """Print, as shell ``export`` lines, the environment that points numba at the service's kernel cache and, where
+    the kernels compiled ahead are used, at their CPU target; ``eval "$(sweepcast kernel-env)"`` before any other
+    process starts (the image's entrypoint) gives every Ray process of the container the same kernels."""
+    import shlex
+
+    from app.kernelcache import log_prebuilt
+
+    _log_to_stderr("info")
+    log_prebuilt()
+    for name in ("NUMBA_CACHE_DIR", "NUMBA_CPU_NAME", "NUMBA_CPU_FEATURES"):
+        if name in os.environ:
+            print(f"export {name}={shlex.quote(os.environ[name])}")
+    return 0
+
+
 def cmd_openapi(args: argparse.Namespace) -> int:
     from app.openapi_doc import render_openapi
 
@@ -213,6 +229,10 @@ def build_parser() -> argparse.ArgumentParser:
                                                  "SWEEPCAST_NUMBA_CACHE_DIR or NUMBA_CACHE_DIR instead when set)")
     p.set_defaults(func=cmd_warmup)
 
+    p = sub.add_parser("kernel-env", help="print the kernel cache's environment as shell exports (image entrypoint)")
+    p.add_argument("--data-dir", type=Path, help="data folder whose cache/numba is used (default ./sweepcast-data)")
+    p.set_defaults(func=cmd_kernel_env)
+
     import importlib
 
     for module in ENGINE_CLIS:
@@ -220,7 +240,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-SERVICE_COMMANDS = ("serve", "worker", "warmup")
+SERVICE_COMMANDS = ("serve", "worker", "warmup", "kernel-env")
 """Commands that use the service's kernel cache (``Settings.resolved_numba_cache_dir``); the one-shot engine
 commands keep numba's default (beside the sources, or ``NUMBA_CACHE_DIR``)."""
 

@@ -8,6 +8,10 @@ yunet=/opt/sweepcast/models/face_detection_yunet_2023mar.onnx
 if [ -z "${SWEEPCAST_ORIENTATION_YUNET_MODEL:-}" ] && [ -f "$yunet" ]; then
   export SWEEPCAST_ORIENTATION_YUNET_MODEL="$yunet"
 fi
+# The kernels compiled into the image (SWEEPCAST_PREBUILT_KERNELS, for x86-64-v3): copied into /data's cache and
+# numba's CPU target set to theirs, for every process of this container (Ray's included); on a CPU without that
+# baseline, nothing set: they compile for this CPU into /data instead (the log says why, and /readyz).
+case "$role" in api|standalone|ray-head|ray-worker) eval "$(sweepcast kernel-env)" ;; esac
 case "$role" in
   api)
     if [ -n "${SWEEPCAST_RAY_ADDRESS:-}" ]; then
