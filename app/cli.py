@@ -255,10 +255,16 @@ def _use_service_kernel_cache(argv: list[str]) -> None:
 
     pre = argparse.ArgumentParser(add_help=False)
     pre.add_argument("--data-dir", type=Path)
-    data_dir = pre.parse_known_args(argv)[0].data_dir
-    settings = Settings(**({"data_dir": data_dir} if data_dir is not None else {}))
+    pre.add_argument("--target")
+    known = pre.parse_known_args(argv)[0]
+    settings = Settings(**({"data_dir": known.data_dir} if known.data_dir is not None else {}))
     cache = use_cache_dir(settings.resolved_numba_cache_dir)
-    if command != "warmup":  # kernels compiled ahead: their CPU target and a copy in the cache, before numba loads
+    if command == "warmup" and known.target is not None:  # compile for a portable CPU target (before numba loads)
+        from workers.portable_cache import TARGETS, target_env
+
+        if known.target in TARGETS:  # (an unknown one: warmup's parser says so)
+            os.environ.update(target_env(known.target))
+    elif command != "warmup":  # kernels compiled ahead: their CPU target and a copy in the cache, before numba loads
         use_prebuilt(settings.prebuilt_kernels, cache)
 
 

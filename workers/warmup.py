@@ -285,8 +285,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.jobs < 1:
         ap.error("--jobs must be at least 1")
     if args.target is not None:
-        if "numba" in sys.modules:  # numba reads its CPU target once, when imported
-            ap.error("--target must be given before numba is imported")
+        if "numba" in sys.modules and os.environ.get("NUMBA_CPU_NAME") != args.target:
+            ap.error("--target must be set before numba is imported")  # numba reads its CPU target only then
         missing = host_supports(args.target)
         if missing:  # the warm-up runs what it compiles
             ap.error(f"this CPU lacks {', '.join(missing)}: it cannot build kernels for {args.target}")
