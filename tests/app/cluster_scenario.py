@@ -20,7 +20,7 @@ from ray.cluster_utils import Cluster  # noqa: E402
 
 from app.main import create_app  # noqa: E402
 from app.settings import Settings  # noqa: E402
-from tests.app.photos import batch_files  # noqa: E402
+from tests.app.photos import FACES_ONLY, batch_files  # noqa: E402
 
 
 def main() -> int:
@@ -29,7 +29,8 @@ def main() -> int:
     cluster.wait_for_nodes()
     try:
         with tempfile.TemporaryDirectory() as tmp:
-            settings = Settings(data_dir=Path(tmp), ray_address=cluster.address,
+            # no demo rig (its recording would be rendered on node 2 first) and no model download: only the job
+            settings = Settings(data_dir=Path(tmp), ray_address=cluster.address, demo_rig=False, fetch_models=False,
                                 job_resources={"sweepcast_second_node": 1})
             with TestClient(create_app(settings)) as client:
                 deadline = time.monotonic() + 60
@@ -37,7 +38,7 @@ def main() -> int:
                     if time.monotonic() > deadline:
                         raise SystemExit("not ready")
                     time.sleep(0.1)
-                job = client.post("/v1/photos/batches", files=batch_files(2)).json()
+                job = client.post("/v1/photos/batches", files=batch_files(2), data=FACES_ONLY).json()
                 while (state := client.get(f"/v1/jobs/{job['id']}").json())["state"] not in ("succeeded", "failed"):
                     if time.monotonic() > deadline:
                         raise SystemExit(f"job stuck: {state}")

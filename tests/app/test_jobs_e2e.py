@@ -74,7 +74,9 @@ def test_cancel_then_delete(client_factory):
 
 def test_worker_killed_mid_batch_is_retried_and_nothing_is_lost(client_factory):
     client = client_factory()
-    job = client.post("/v1/photos/batches", files=batch_files(40, width=1600, height=1200), data=FACES_ONLY).json()
+    # enough photos that the job is still running when its worker is killed after the first one, small ones so
+    # that both attempts take seconds
+    job = client.post("/v1/photos/batches", files=batch_files(16, width=800, height=600), data=FACES_ONLY).json()
     with client.websocket_connect(f"/v1/jobs/{job['id']}/events") as ws:
         while True:
             event = ws.receive_json()
@@ -89,7 +91,7 @@ def test_worker_killed_mid_batch_is_retried_and_nothing_is_lost(client_factory):
     assert final["attempts"] >= 2
     assert final["worker_losses"] >= 1 and final["service_restarts"] == 0
     entries = client.get(f"/v1/jobs/{job['id']}/results/report.json").json()
-    assert len(entries) == 40 and not any(e.get("error") for e in entries)
+    assert len(entries) == 16 and not any(e.get("error") for e in entries)
 
 
 def test_jobs_queued_when_the_service_stops_complete_after_restart(ray_local, settings_factory):
@@ -100,7 +102,7 @@ def test_jobs_queued_when_the_service_stops_complete_after_restart(ray_local, se
 
     with TestClient(create_app(settings_factory())) as first:
         _wait_ready(first)
-        files = batch_files(12, width=1600, height=1200)
+        files = batch_files(12, width=800, height=600)
         ids = [first.post("/v1/photos/batches", files=files, data=FACES_ONLY).json()["id"] for _ in range(4)]
         states = [first.get(f"/v1/jobs/{i}").json()["state"] for i in ids]
     # Leaving the block stopped the service; with 2 CPUs some jobs were still queued or running.
