@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.sweepcast-installed
-KERNELS := sweepcast-data/cache/numba/.warmed
+KERNELS := $(VENV)/.sweepcast-warmed
 DOCS_STAMP := $(VENV)/.sweepcast-docs
 
 .PHONY: serve test docs bench openapi clean
@@ -14,10 +14,11 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
-# Every engine's kernels compiled once, before the first serve, into ./sweepcast-data/cache/numba (the cache
-# serve and the tests use): no first request waits for a compile. Kernels changed since are compiled by
-# serve's background warm-up. Then the demo's recording, rendered into ./sweepcast-data/cache/demo: the first
-# start publishes it as the demo's recording, and the first viewer does not wait for it.
+# Every engine's kernels compiled once, before the first serve, into this user's kernel cache
+# (~/.cache/sweepcast/kernels, which serve uses for any data folder): no first request waits for a compile.
+# Kernels changed since are compiled by serve's background warm-up. Then the demo's recording, rendered into
+# ~/.cache/sweepcast/demo: the first start publishes it as the demo's recording, and the first viewer does not
+# wait for it.
 $(KERNELS): $(STAMP)
 	$(BIN)/sweepcast warmup
 	touch $(KERNELS)

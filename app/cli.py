@@ -219,18 +219,19 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("warmup", help="compile every engine's kernels into the kernel cache ahead of the first "
                                       "request (the service also does it at start-up), and render the demo's "
-                                      "recording into cache/demo (with 'demo' or all engines, unless "
+                                      "recording into the demo cache (with 'demo' or all engines, unless "
                                       "SWEEPCAST_DEMO_RIG=0)")
     p.add_argument("engines", nargs="*", help="sweep, demo, drone, dense, depth, faces (default: all)")
     p.add_argument("--jobs", type=int, help="processes compiling at once (default: one per core)")
     p.add_argument("--target", help="compile for this portable CPU baseline (x86-64-v3) instead of this CPU: a "
                                     "cache for other machines, e.g. SWEEPCAST_PREBUILT_KERNELS in an image")
-    p.add_argument("--data-dir", type=Path, help="data folder whose cache/numba is used (default ./sweepcast-data; "
-                                                 "SWEEPCAST_NUMBA_CACHE_DIR or NUMBA_CACHE_DIR instead when set)")
+    p.add_argument("--data-dir", type=Path, help="data folder whose settings apply (default ./sweepcast-data; "
+                                                 "the kernels go to SWEEPCAST_NUMBA_CACHE_DIR, else NUMBA_CACHE_DIR, "
+                                                 "else ~/.cache/sweepcast/kernels)")
     p.set_defaults(func=cmd_warmup)
 
     p = sub.add_parser("kernel-env", help="print the kernel cache's environment as shell exports (image entrypoint)")
-    p.add_argument("--data-dir", type=Path, help="data folder whose cache/numba is used (default ./sweepcast-data)")
+    p.add_argument("--data-dir", type=Path, help="data folder whose settings apply (default ./sweepcast-data)")
     p.set_defaults(func=cmd_kernel_env)
 
     import importlib

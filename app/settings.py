@@ -14,6 +14,12 @@ from workers.common.safezip import ZipLimits
 from workers.settings import WorkerSettings
 
 MiB = 1 << 20
+
+
+def user_cache_dir() -> Path:
+    """This user's cache of what the service builds once per machine and code, whatever the data folder:
+    ``$XDG_CACHE_HOME/sweepcast``, else ``~/.cache/sweepcast``."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "sweepcast"
 DEFAULT_VIEWER_SIZE = "400x300"
 """The browser viewer's starting size (benchmarks/RESULTS.md, streaming_viewer_size: one viewer of the demo
 rig at 20 fps or more on 2 cores)."""
@@ -49,8 +55,10 @@ class Settings(WorkerSettings):
                                                  "into <data_dir>/models, checked by SHA-256; offline, log it and go on.")
     numba_cache_dir: Path | None = Field(
         None, description="Where the compiled numba kernels are kept (the service and its workers): default "
-                          "NUMBA_CACHE_DIR when set, else <data_dir>/cache/numba. numba keys each entry by source "
-                          "file, argument types and CPU, so one directory serves every CPU kind that shares it.")
+                          "NUMBA_CACHE_DIR when set, else this user's cache (~/.cache/sweepcast/kernels), shared by "
+                          "every data folder and every install of the same sources. numba keys each entry by the "
+                          "source's hash, argument types and CPU, so one directory serves every CPU kind that shares "
+                          "it.")
     prebuilt_kernels: Path | None = Field(
         None, description="A kernel cache compiled ahead for a portable CPU target (`sweepcast warmup --target "
                           "x86-64-v3`, e.g. in the Docker image; read-only is fine): when this CPU runs that target, "
@@ -111,17 +119,19 @@ class Settings(WorkerSettings):
 
     @property
     def resolved_numba_cache_dir(self) -> Path:
-        """The kernel cache: the setting, else ``NUMBA_CACHE_DIR``, else ``<data_dir>/cache/numba``."""
+        """The kernel cache: the setting, else ``NUMBA_CACHE_DIR``, else :func:`user_cache_dir` ``/kernels`` (a new
+        data folder needs no compiling: the kernels depend on the code and the CPU, not on the data)."""
         if self.numba_cache_dir is not None:
             return self.numba_cache_dir.resolve()
         if os.environ.get("NUMBA_CACHE_DIR"):
             return Path(os.environ["NUMBA_CACHE_DIR"]).resolve()
-        return (self.data_dir / "cache" / "numba").resolve()
+        return (user_cache_dir() / "kernels").resolve()
 
     @property
     def resolved_demo_cache_dir(self) -> Path:
-        """Where the rendered demo recording is kept: the setting, else ``<data_dir>/cache/demo``."""
-        return (self.demo_cache_dir or self.data_dir / "cache" / "demo").resolve()
+        """Where the rendered demo recording is kept: the setting, else :func:`user_cache_dir` ``/demo`` (a new data
+        folder's demo gets it without rendering it)."""
+        return (self.demo_cache_dir or user_cache_dir() / "demo").resolve()
 
     @cached_property
     def resolved_storage_url(self) -> str:

@@ -8,14 +8,21 @@ os.environ.setdefault("RAY_AUTH_MODE", "disabled")
 # The loopback S3 server takes any credentials; set them before Ray starts so its workers see them too.
 os.environ.setdefault("AWS_ACCESS_KEY_ID", "sweepcast-test")
 os.environ.setdefault("AWS_SECRET_ACCESS_KEY", "sweepcast-test")
-# One kernel cache for the run, its servers and their Ray workers (a server's default is inside its fresh
-# data folder: every server test would compile from scratch): the checkout's default data folder's, which
-# the first `make serve` also warms (`sweepcast warmup`); no background warm-up competing for the CPU.
+# One kernel cache for the run, its servers and their Ray workers: the checkout's (a fresh clone compiles its
+# kernels once, as CI does, and never reads or fills the user's cache the service defaults to); no background
+# warm-up competing for the CPU.
 os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                                                       "sweepcast-data", "cache", "numba"))
 os.environ.setdefault("SWEEPCAST_WARM_KERNELS", "false")
 
 import pytest  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def _user_cache_in_tmp(tmp_path, monkeypatch):
+    """Each test's own user cache (the service keeps its demo recording there by default): tests never write into
+    the home folder, and no test sees a recording another test kept."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "user-cache"))
 
 
 @pytest.fixture(scope="session")

@@ -39,8 +39,8 @@ class Unavailable(RuntimeError):
 # --- cleanup whatever ends the starter ---------------------------------------------------------------
 ROOT = Path(__file__).resolve().parents[1]
 CHECKOUT_KERNEL_CACHE = ROOT / "sweepcast-data" / "cache" / "numba"
-"""The checkout's kernel cache (the default data folder's): the first ``make serve`` warms it and the tests use it,
-so servers started from here load their kernels instead of compiling them."""
+"""The checkout's kernel cache: the tests use it (conftest), so servers started from here load the kernels an
+earlier test compiled instead of compiling them."""
 PR_SET_PDEATHSIG = 1
 WATCH_PERIOD_S = 0.2
 

@@ -34,7 +34,8 @@ class WorkerSettings(BaseSettings):
                                                       "service always passes <data_dir>/models).")
     demo_cache_dir: Path | None = Field(None, description="Where the rendered demo recording is kept, so that a new "
                                                           "data folder's demo gets it instead of rendering it again "
-                                                          "(the service passes <data_dir>/cache/demo; none: render).")
+                                                          "(the service passes its own, by default "
+                                                          "~/.cache/sweepcast/demo; none: render).")
     orientation_yunet_model: Path | None = Field(
         None, description="YuNet ONNX model for the stronger face detector; default: the one "
                           "installed in <data_dir>/models (fetch_models, 'sweepcast models fetch'), if any.")

@@ -14,7 +14,7 @@ specialisations a request uses are compiled (the same dtypes, dimensions and arr
 returns how long each engine took. ``sweepcast serve`` runs it in a background process at start-up
 (``SWEEPCAST_WARM_KERNELS``); ``sweepcast warmup`` runs it by hand (e.g. when building an image).
 Where the cache lives: ``NUMBA_CACHE_DIR`` when set, which the service sets from
-``SWEEPCAST_NUMBA_CACHE_DIR`` (default ``<data_dir>/cache/numba``) for itself and its workers.
+``SWEEPCAST_NUMBA_CACHE_DIR`` (default ``~/.cache/sweepcast/kernels``) for itself and its workers.
 """
 from __future__ import annotations
 

@@ -23,25 +23,31 @@ def _index_files(cache: Path, module: str) -> list[Path]:
     return [p for p in cache.rglob("*.nbi") if p.name.startswith(module)]
 
 
-def test_the_cache_is_the_setting_else_numba_cache_dir_else_inside_the_data_folder(tmp_path, monkeypatch):
+def test_the_cache_is_the_setting_else_numba_cache_dir_else_the_users_for_every_data_folder(tmp_path, monkeypatch):
     monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
-    assert Settings(data_dir=tmp_path).resolved_numba_cache_dir == (tmp_path / "cache" / "numba").resolve()
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    for data in ("a", "b"):  # kernels and the demo recording depend on the code, not on the data folder
+        settings = Settings(data_dir=tmp_path / data)
+        assert settings.resolved_numba_cache_dir == (tmp_path / "xdg" / "sweepcast" / "kernels").resolve()
+        assert settings.resolved_demo_cache_dir == (tmp_path / "xdg" / "sweepcast" / "demo").resolve()
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba-env"))
     assert Settings(data_dir=tmp_path).resolved_numba_cache_dir == (tmp_path / "numba-env").resolve()
     chosen = Settings(data_dir=tmp_path, numba_cache_dir=tmp_path / "chosen")
     assert chosen.resolved_numba_cache_dir == (tmp_path / "chosen").resolve()
     assert worker_env(chosen)["NUMBA_CACHE_DIR"] == str((tmp_path / "chosen").resolve())  # its Ray workers too
-    assert worker_env(chosen)["SWEEPCAST_DEMO_CACHE_DIR"] == str((tmp_path / "cache" / "demo").resolve())
+    assert worker_env(chosen)["SWEEPCAST_DEMO_CACHE_DIR"] == str((tmp_path / "xdg" / "sweepcast" / "demo").resolve())
 
 
-def test_sweepcast_warmup_compiles_into_the_data_folders_cache(tmp_path):
+def test_sweepcast_warmup_compiles_into_the_users_cache(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
-    done = subprocess.run([sys.executable, "-m", "app", "warmup", "faces", "--data-dir", str(tmp_path)], cwd=ROOT,
-                          env=env, capture_output=True, text=True, timeout=300)
+    env["XDG_CACHE_HOME"] = str(tmp_path / "xdg")
+    done = subprocess.run([sys.executable, "-m", "app", "warmup", "faces", "--data-dir", str(tmp_path / "data")],
+                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert '"faces"' in done.stdout.splitlines()[-1]
-    assert _index_files(tmp_path / "cache" / "numba", "preview._rasterise")  # the face preview's kernel
-    assert not (tmp_path / "cache" / "demo").exists()  # the demo's recording only with the demo's kernels
+    user = tmp_path / "xdg" / "sweepcast"
+    assert _index_files(user / "kernels", "preview._rasterise")  # the face preview's kernel
+    assert not (user / "demo").exists()  # the demo's recording only with the demo's kernels
 
 
 def test_an_unknown_engine_is_refused():

@@ -99,7 +99,7 @@ def test_demo_job_renders_the_procedural_studio(tmp_path):
 
 
 def test_the_demo_job_keeps_its_recording_in_the_services_demo_cache(tmp_path, monkeypatch):
-    """The service passes <data_dir>/cache/demo to its workers: the next data folder's demo job copies it."""
+    """The service passes its demo cache to its workers: the next data folder's demo job copies it."""
     monkeypatch.setenv("SWEEPCAST_DEMO_CACHE_DIR", str(tmp_path / "cache"))
     rig = demo_rig(2, (32, 24))
     ctx = FakeContext(tmp_path / "job", {"frames": 2, "fps": 4.0}, {"rig": rig_json(rig)})
