@@ -160,6 +160,10 @@ def jobs(stack: Stack, tmp: Path) -> dict:
     assert report["frames"]["registered"] >= 20 and ply.startswith(b"ply"), report
     out["reconstruction"] = {"id": job["id"], "seconds": s, "registered": report["frames"]["registered"],
                              "points": report["points"]}
+    job, s = timed_job(stack, 0, lambda h: h.post(  # the same again: the warm time the first is compared with
+        "/v1/reconstructions", files={"media": ("flight.mp4", video.read_bytes(), "video/mp4")},
+        data={"params": json.dumps({**intrinsics, "max_features": 1000})}))
+    out["second_reconstruction"] = {"id": job["id"], "seconds": s}
     return out
 
 
@@ -337,6 +341,7 @@ def markdown(r: dict) -> str:
         [f"depth video, {j['depth_video']['frames']} frames 128x128 -> 256x256", j["depth_video"]["seconds"]],
         [f"reconstruction, 36-frame 320x240 flight ({j['reconstruction']['registered']} registered, "
          f"{j['reconstruction']['points']} points)", j["reconstruction"]["seconds"]],
+        ["the same reconstruction again (warm)", j["second_reconstruction"]["seconds"]],
         ["demo recording ready (waited after the jobs above)", v["demo_ready_wait_s"]],
         ["first viewer frame (320x240, socket on replica 2)", v["first_frame_s"]],
         [f"40-photo batch, worker `{kw['killed']}` killed {kw['killed_after_s']:.0f} s in "
