@@ -203,12 +203,14 @@ def viewer(stack: Stack, frames: int = 10) -> dict:
 
 
 def container_of(stack: Stack, pid: int) -> str:
-    """The Ray worker container whose process ``pid`` (in its own PID namespace) is running a task."""
+    """The Ray worker container whose process ``pid`` (in its own PID namespace) is running a job's task. Only the
+    task's title tells: containers that start alike number their processes alike, and another container's process
+    of that number may be busy too (the viewers' session actor, say)."""
     found = []
     for name in stack.containers("ray-worker"):
         cmd = subprocess.run(["podman", "exec", name, "cat", f"/proc/{pid}/cmdline"], capture_output=True)
         title = cmd.stdout.replace(b"\0", b" ").decode(errors="replace")
-        if cmd.returncode == 0 and title.startswith("ray::") and "IDLE" not in title:
+        if cmd.returncode == 0 and title.startswith("ray::run_job_task"):
             found.append(name)
     if len(found) != 1:
         raise SystemExit(f"cannot tell which worker container runs pid {pid}: {found}")

@@ -18,6 +18,40 @@ os.environ.setdefault("SWEEPCAST_WARM_KERNELS", "false")
 import pytest  # noqa: E402
 
 
+WARM_BESIDE_THE_TESTS_MIN_ITEMS = 100
+"""A run of at least this many tests compiles the kernels beside them (below); a few selected tests do not."""
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _kernels_compiled_beside_the_tests(request):
+    """Every engine's kernels compiled into the run's cache by one low-priority process while the tests run, unless
+    a full warm-up already stamped it for this code. Many tests wait on Ray, servers and subprocesses and leave a
+    core idle; without this, each kernel is compiled on the tests' critical path by the first test (or its Ray
+    worker) that needs it: minutes of a fresh clone's run. A test that needs a kernel still compiling compiles it
+    itself, as before."""
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from workers.warmup import is_current
+
+    cache = Path(os.environ["NUMBA_CACHE_DIR"])
+    if len(request.session.items) < WARM_BESIDE_THE_TESTS_MIN_ITEMS or is_current(cache):
+        yield
+        return
+    cache.mkdir(parents=True, exist_ok=True)
+    proc = subprocess.Popen([sys.executable, "-m", "workers.warmup", "--jobs", "1"], stdin=subprocess.DEVNULL,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+                            preexec_fn=lambda: os.nice(19))
+    try:
+        yield
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
 @pytest.fixture(autouse=True)
 def _user_cache_in_tmp(tmp_path, monkeypatch):
     """Each test's own user cache (the service keeps its demo recording there by default): tests never write into
