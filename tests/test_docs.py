@@ -67,3 +67,11 @@ def test_the_site_lists_every_page_and_only_existing_ones():
 def test_the_readme_links_every_page():
     linked = {Path(link.partition("#")[0]).name for link in links(ROOT / "README.md") if link.startswith("docs/")}
     assert linked >= {p.name for p in PAGES}
+
+
+def test_the_settings_page_lists_every_setting():
+    from app.settings import Settings
+
+    page = (DOCS / "settings.md").read_text()
+    missing = [f"SWEEPCAST_{name.upper()}" for name in Settings.model_fields if f"SWEEPCAST_{name.upper()}" not in page]
+    assert missing == []
