@@ -41,7 +41,8 @@ def use_prebuilt(prebuilt: Path | None, cache_dir: Path) -> dict[str, str]:
     CPU runs the target T and the stamp matches this code, numba and Python, set numba's CPU target to T for this
     process and its children (Ray's local workers; must run before numba is imported) and copy the kernels into
     ``cache_dir`` where missing (``prebuilt`` may be read-only: numba writes only into ``cache_dir``). Otherwise leave
-    numba on this CPU and say why: its kernels compile into ``cache_dir`` (the background warm-up). Returned as ``{"state": "used" | "not used", "detail": ...}`` (also kept in :data:`PREBUILT_STATE`)."""
+    numba on this CPU and say why: its kernels compile into ``cache_dir`` (the background warm-up). Returned as
+    ``{"state": "used" | "not used", "detail": ...}`` (also kept in :data:`PREBUILT_STATE`)."""
     from workers.portable_cache import TARGETS, host_supports, target_env, target_features
     from workers.warmup import STAMP_NAME, fingerprint, read_stamp
 

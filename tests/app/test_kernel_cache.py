@@ -231,3 +231,18 @@ def test_kernels_compiled_ahead_are_not_used_for_other_code_or_on_a_cpu_without_
     assert "NUMBA_CPU_NAME" not in os.environ and not (cache / "workers_faces").exists()
     assert KernelWarmup(current=True).status()["prebuilt"] == state  # /readyz says so
     assert kernelcache.use_prebuilt(None, cache) == {} and "prebuilt" not in KernelWarmup(current=True).status()
+
+
+def test_kernel_env_exports_the_cache_and_the_prebuilt_target_for_a_containers_processes(tmp_path):
+    from workers.portable_cache import host_supports
+
+    if host_supports("x86-64-v3"):
+        pytest.skip("this CPU does not run x86-64-v3 code")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_CPU_") and k != "NUMBA_CACHE_DIR"}
+    env.update(XDG_CACHE_HOME=str(tmp_path / "xdg"), SWEEPCAST_PREBUILT_KERNELS=str(_prebuilt(tmp_path)))
+    done = subprocess.run([sys.executable, "-m", "app", "kernel-env", "--data-dir", str(tmp_path / "data")], cwd=ROOT,
+                          env=env, check=True, capture_output=True, text=True)
+    exports = dict(line.removeprefix("export ").split("=", 1) for line in done.stdout.splitlines())
+    assert exports["NUMBA_CACHE_DIR"] == str((tmp_path / "xdg" / "sweepcast" / "kernels").resolve())
+    assert exports["NUMBA_CPU_NAME"] == "x86-64-v3" and "+avx2" in exports["NUMBA_CPU_FEATURES"]
+    assert "using the kernels compiled ahead for x86-64-v3" in done.stderr  # the container's log says so
