@@ -120,7 +120,7 @@ class KernelWarmup:
         at lower priority; ``report``: read its result for :meth:`status` (else its output is discarded). Nothing
         to start when a warm-up of every engine stamped the cache for this very code and CPU
         (:func:`workers.warmup.is_current`): it would only load every kernel, seconds of CPU at every start."""
-        from workers.warmup import is_current
+        from workers.warmup import ENGINES, is_current
 
         if not engines and is_current(cache_dir):
             log.info("the kernels in %s are current for this code and CPU: no warm-up", cache_dir)
@@ -131,7 +131,8 @@ class KernelWarmup:
         proc = subprocess.Popen([sys.executable, "-m", "workers.warmup", *engines], env=env, stdout=out,
                                 stdin=subprocess.DEVNULL, preexec_fn=lambda: os.nice(WARMUP_NICENESS),
                                 start_new_session=True)
-        log.info("compiling the engines' kernels in the background (pid %d) into %s", proc.pid, cache_dir)
+        log.info("compiling the kernels of %s in the background (pid %d; each engine logs when it is done) into %s",
+                 ", ".join(engines or ENGINES), proc.pid, cache_dir)
         warmup = cls(proc)
         if report:  # the log says when it is over, and how long each engine took
             threading.Thread(target=warmup._log_when_done, name="kernel-warmup", daemon=True).start()
