@@ -202,18 +202,20 @@ def viewer(stack: Stack, frames: int = 10) -> dict:
     return {"demo_ready_wait_s": demo_s, "first_frame_s": first, "frames": count}
 
 
-def container_of(stack: Stack, pid: int) -> str:
-    """The Ray worker container whose process ``pid`` (in its own PID namespace) is running a job's task. Only the
-    task's title tells: containers that start alike number their processes alike, and another container's process
-    of that number may be busy too (the viewers' session actor, say)."""
+def container_running_a_job(stack: Stack) -> str:
+    """The Ray worker container that runs a job's task (``ray::run_job_task``; one job runs at that moment). Found by
+    its processes' titles: the job's ``started`` event (which names the pid) comes before a client can subscribe
+    when the job starts at once, and containers that start alike number their processes alike."""
     found = []
     for name in stack.containers("ray-worker"):
-        cmd = subprocess.run(["podman", "exec", name, "cat", f"/proc/{pid}/cmdline"], capture_output=True)
-        title = cmd.stdout.replace(b"\0", b" ").decode(errors="replace")
-        if cmd.returncode == 0 and title.startswith("ray::run_job_task"):
+        cmd = subprocess.run(["podman", "exec", name, "sh", "-c",
+                              'for f in /proc/[0-9]*/cmdline; do tr "\\0" " " < "$f"; echo; done'],
+                             capture_output=True)
+        titles = cmd.stdout.decode(errors="replace").splitlines()
+        if cmd.returncode == 0 and any(title.startswith("ray::run_job_task") for title in titles):
             found.append(name)
     if len(found) != 1:
-        raise SystemExit(f"cannot tell which worker container runs pid {pid}: {found}")
+        raise SystemExit(f"cannot tell which worker container runs the job: {found}")
     return found[0]
 
 
@@ -226,7 +228,6 @@ def kill_worker(stack: Stack) -> dict:
     t = time.monotonic()
     sockets = [stack.ws(r, f"/v1/jobs/{job['id']}/events") for r in (0, 1)]
     try:
-        pid = None
         victim = killed_at = final = None
         deadline = time.monotonic() + 1200
         while final is None:
@@ -237,10 +238,8 @@ def kill_worker(stack: Stack) -> dict:
                     event = json.loads(ws.recv(timeout=0.2))
                 except TimeoutError:
                     continue
-                if event["type"] == "started" and pid is None:
-                    pid = event["pid"]
-                elif event["type"] == "progress" and pid is not None and victim is None:
-                    victim = container_of(stack, pid)
+                if event["type"] == "progress" and victim is None:
+                    victim = container_running_a_job(stack)
                     subprocess.run(["podman", "kill", victim], check=True, capture_output=True)
                     killed_at = time.monotonic() - t
                 elif event["type"] == "final":
