@@ -109,7 +109,8 @@ def markdown(r: dict) -> str:
     load = r["load_average_before"]
     return "\n".join([
         f"Load average before the run {load:.2f} on {os.cpu_count()} cores"
-        + (" (other work shared the CPU: the ratios are the figures to read)" if load > 0.5 else "") + ".", "",
+        + (" (other work shared the CPU: the ratios are the figures to read" + (", and only roughly: more work than "
+           "cores" if load > (os.cpu_count() or 1) else "") + ")" if load > 0.5 else "") + ".", "",
         f"This CPU: `{r['host_cpu']}`; the baseline: `{BASELINE}` (the Docker image's kernels). Fastest ms per call "
         f"of {r['repeats']} after one that loads the kernels, in each of {r['rounds']} rounds; each target in its own "
         "fresh process, the targets alternating.", "",
