@@ -266,6 +266,11 @@ class JobStore:
             values["progress"] = 1.0
         return self._conditional_update(job_id, conditions, **values)
 
+    def replace_result(self, job_id: str, result: dict) -> bool:
+        """Replace a succeeded job's result manifest (a person's review adds files and counts); False when the job
+        is not (or no longer) succeeded."""
+        return self._conditional_update(job_id, [Job.state == JobState.succeeded.value], result=result)
+
     def delete(self, job_id: str) -> bool:
         with self._session.begin() as s:
             job = s.get(Job, job_id)

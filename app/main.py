@@ -89,8 +89,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(BodyLimitMiddleware, limit_for=RouteBodyLimits(limits, BATCH_UPLOAD_ROUTES))
     app.add_middleware(ApiKeyMiddleware, keys=settings.api_keys)  # added last: runs first, before any body is read
 
-    from app.routers import (depth, faces, jobs, photos, reconstructions, recordings, rig_sockets, rigs, sessions,
-                             system)
+    from app.routers import (depth, faces, jobs, photos, reconstructions, recordings, review, rig_sockets, rigs,
+                             sessions, system)
     from app.demo_session import keep_demo_session_warm
     from app.rig_access import ensure_demo_rig
 
@@ -98,6 +98,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(jobs.router)
     app.include_router(jobs.ws_router)
     app.include_router(photos.router)
+    app.include_router(review.router)
+    app.include_router(review.page_router)
     app.include_router(depth.router)
     app.include_router(faces.router)
     app.include_router(reconstructions.router)
@@ -106,6 +108,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(sessions.router)
     app.include_router(rig_sockets.ws_router)
     app.mount("/viewer", StaticFiles(directory=Path(__file__).parent / "static", html=True), name="viewer")
+    app.mount("/review/assets", StaticFiles(directory=review.PAGE), name="review-assets")
     return app
 
 

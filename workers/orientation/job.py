@@ -5,7 +5,11 @@ original file name. Results:
 
 - ``report.json``: a list with one entry per photo, in input order:
   ``{"index", "input", "filename", "report": OrientationReport | null, "error": {"code", "message"} | null,
-  "fixed_file": "fixed/0003-IMG_1234.jpg" | null, "note": str | null}``;
+  "fixed_file": "fixed/0003-IMG_1234.jpg" | null, "note": str | null, "thumbnail": "review/0003.jpg" | null,
+  "review": null}`` (``review``: a person's decision, added by the review page's API:
+  :func:`record_review`);
+- ``review/<index>.jpg``: a small thumbnail of each photo that needs a person (rejected, or orientations that
+  conflict: :func:`workers.orientation.review.needs_review`), for the review page (``/review/<job id>``);
 - ``fixed/<index>-<sanitised name>.<ext>``: each photo (JPEG, WebP, TIFF, PNG) whose tag was written;
 - ``fixed/<index>-<sanitised name>.<ext>.xmp``: the XMP sidecar of each HEIF, AVIF or RAW photo (or of
   every photo with ``sidecar``) whose orientation was written.
@@ -30,6 +34,7 @@ from workers.orientation.detect import DetectorConfig, Method, OrientationDetect
 from workers.orientation.errors import OrientationInputError
 from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
 from workers.orientation.headers import sniff_format
+from workers.orientation.review import ChoiceWrite, needs_review, thumbnail
 from workers.orientation.service import analyze, orient_file
 from workers.orientation.text import text_settings_from_env
 from workers.registry import JobKind
@@ -88,13 +93,13 @@ def run_orientation_batch(ctx: JobContext) -> dict[str, Any]:
         outcome = _outcome(entry)
         ctx.progress((index + 1) / len(names), f"photo {index + 1}/{len(names)} {filename}: {outcome}")
     ctx.write_result("report.json", json.dumps(entries, indent=2).encode())
-    return _summary(entries)
+    return summary_of(entries)
 
 
 def _process(ctx: JobContext, index: int, name: str, filename: str, detector: OrientationDetector,
              params: OrientationBatchParams, max_pixels: int) -> dict[str, Any]:
-    entry: dict[str, Any] = {"index": index, "input": name, "filename": filename,
-                             "report": None, "error": None, "fixed_file": None, "note": None}
+    entry: dict[str, Any] = {"index": index, "input": name, "filename": filename, "report": None, "error": None,
+                             "fixed_file": None, "note": None, "thumbnail": None, "review": None}
     try:
         data = ctx.read_input(name)
         fmt = sniff_format(data, filename)
@@ -102,7 +107,7 @@ def _process(ctx: JobContext, index: int, name: str, filename: str, detector: Or
         if params.write:
             outcome = orient_file(data, detector, params.force, max_pixels, filename, mode=mode)
             report = outcome.report
-            stem = f"fixed/{index:04d}-{sanitize_filename(filename)}.{_EXT[fmt]}"
+            stem = fixed_name(index, filename, fmt)
             if outcome.photo is not None:
                 entry["fixed_file"] = stem
                 ctx.write_result(stem, outcome.photo)
@@ -114,11 +119,34 @@ def _process(ctx: JobContext, index: int, name: str, filename: str, detector: Or
         else:
             report = analyze(data, detector, max_pixels, filename, mode=mode)
         entry["report"] = report.model_dump(mode="json")
+        if needs_review(entry["report"]):
+            entry["thumbnail"] = review_thumbnail_name(index)
+            ctx.write_result(entry["thumbnail"], thumbnail(data, filename, max_pixels))
     except OrientationInputError as exc:
         entry["error"] = {"code": exc.code, "message": str(exc)}
     except (ExifToolUnavailable, ExifToolError) as exc:
         entry["error"] = {"code": "metadata_tool", "message": str(exc)}
     return entry
+
+
+def review_thumbnail_name(index: int) -> str:
+    return f"review/{index:04d}.jpg"
+
+
+def fixed_name(index: int, filename: str, fmt: str) -> str:
+    """The result name of photo ``index``'s fixed file (its sidecar adds ``.xmp``)."""
+    return f"fixed/{index:04d}-{sanitize_filename(filename)}.{_EXT[fmt]}"
+
+
+def record_review(entry: dict[str, Any], rotation: int | None, reviewer: str, at: str,
+                  written: ChoiceWrite | None, fixed_file: str | None) -> dict[str, Any]:
+    """``entry`` (a report.json entry) with a person's decision: the turn (None: left as it is), who, when, what was
+    written where. The engine's own report stays as it was, beside it."""
+    review = {"decided_by": "person", "reviewer": reviewer, "at": at, "rotation_degrees": rotation,
+              "action": "left_as_is" if written is None else "written",
+              "orientation": written.orientation if written else None,
+              "target": written.target if written else "none", "fixed_file": fixed_file}
+    return {**entry, "review": review, "fixed_file": fixed_file if written else entry.get("fixed_file")}
 
 
 _EXT = {"jpeg": "jpg", "webp": "webp", "tiff": "tif", "png": "png", "heif": "heic", "avif": "avif", "raw": "raw"}
@@ -142,7 +170,8 @@ def sanitize_filename(filename: str, limit: int = 80) -> str:
     return safe[:limit] or "photo"
 
 
-def _summary(entries: list[dict[str, Any]]) -> dict[str, Any]:
+def summary_of(entries: list[dict[str, Any]]) -> dict[str, Any]:
+    """The job's summary over its entries: the engine's decisions, and how many need a person and were reviewed."""
     decisions = [e["report"]["decision"] for e in entries if e["report"]]
     cues = [e["report"]["cue"] for e in entries if e["report"]]
     return {
@@ -154,6 +183,8 @@ def _summary(entries: list[dict[str, Any]]) -> dict[str, Any]:
         "decided_by_text": cues.count("text"),
         "errors": sum(e["error"] is not None for e in entries),
         "written": sum(e["fixed_file"] is not None for e in entries),
+        "needs_review": sum(needs_review(e["report"]) for e in entries),
+        "reviewed": sum(e.get("review") is not None for e in entries),
     }
 
 

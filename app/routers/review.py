@@ -1,0 +1,176 @@
+"""The review queue of a photo batch: the photos the engine left for a person, and what that person decides.
+
+``/review/{job id}`` serves the page (``app/static/review/``, like the viewer: not under ``/v1``, the page sends the
+API key it is given); its data comes from ``/v1/photos/batches/{job id}/review`` and its thumbnails from the job's
+results (``review/NNNN.jpg``, made by the job). A decision is written with the engine's lossless writers into a new
+fixed file of the job and recorded in its ``report.json`` as a person's decision.
+"""
+from __future__ import annotations
+
+import asyncio
+import datetime as dt
+import json
+import mimetypes
+import threading
+from pathlib import Path
+from typing import Any, Literal
+
+from fastapi import APIRouter, Depends
+from fastapi.responses import FileResponse
+from pydantic import BaseModel, Field
+
+from app.auth import require_key
+from app.errors import ApiError
+from app.jobstore import JobState
+from app.routers.jobs import load_job
+from app.services import Services, run_compute, services
+from workers.orientation import errors
+from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
+from workers.orientation.job import BATCH_JOB, fixed_name, record_review, summary_of
+from workers.orientation.review import ReviewChoice, needs_review, write_choice
+from workers.runtime import results_prefix
+
+PAGE = Path(__file__).resolve().parents[1] / "static" / "review"
+REPORT = "report.json"
+
+router = APIRouter(prefix="/v1/photos/batches", tags=["photos"], dependencies=[Depends(require_key)])
+page_router = APIRouter()
+_locks: dict[str, threading.Lock] = {}
+_locks_guard = threading.Lock()
+
+
+class ReviewDecision(BaseModel):
+    """A person's decision on one photo, as recorded in the job's report."""
+
+    decided_by: Literal["person"]
+    reviewer: str
+    at: str = Field(description="when (UTC, ISO 8601)")
+    rotation_degrees: int | None = Field(description="the turn chosen; null: left as it is")
+    action: Literal["written", "left_as_is"]
+    orientation: int | None = Field(description="the Orientation value written (1-8)")
+    target: Literal["exif-ifd0", "png-exif", "xmp-sidecar", "none"]
+    fixed_file: str | None = Field(description="the job's result file written (the photo or its sidecar)")
+
+
+class ReviewItem(BaseModel):
+    """One photo that needs a person."""
+
+    index: int
+    filename: str
+    thumbnail: str | None = Field(description="the thumbnail's result name (GET /v1/jobs/{id}/results/{name}): the "
+                                              "stored pixels, EXIF ignored, at most 320 px long")
+    reason: str | None = Field(description="why the engine left it: no_cue, conflicting_rotations, low_confidence, "
+                                           "or conflicting_metadata (the file's own orientations disagree)")
+    message: str = Field(description="the engine's own words")
+    engine_rotation_degrees: int | None = Field(description="the turn the engine decided, if it decided one")
+    accepted_rotations: list[int] = Field(description="the views in which faces were accepted")
+    text_rotation_degrees: int | None = Field(description="the turn the text cue pointed to, if any")
+    existing_orientation: int | None
+    review: ReviewDecision | None = Field(description="a person's decision, once made")
+
+
+class ReviewQueue(BaseModel):
+    job_id: str
+    photos: int = Field(description="photos in the batch")
+    items: list[ReviewItem]
+    reviewed: int
+
+
+def _lock(job_id: str) -> threading.Lock:
+    with _locks_guard:
+        return _locks.setdefault(job_id, threading.Lock())
+
+
+async def _batch(job_id: str, svc: Services) -> Any:
+    job = await load_job(job_id, svc)
+    if job.kind != BATCH_JOB.name:
+        raise ApiError(404, f"job {job_id} is not a photo batch (it is {job.kind})", "not_a_photo_batch")
+    if job.state != JobState.succeeded.value:
+        raise ApiError(409, f"job {job_id} has nothing to review yet: it is {job.state}", "job_not_succeeded")
+    return job
+
+
+def _entries(svc: Services, job_id: str) -> list[dict[str, Any]]:
+    return json.loads(svc.store.read(f"{results_prefix(job_id)}/{REPORT}"))
+
+
+def _item(entry: dict[str, Any]) -> ReviewItem:
+    report = entry["report"]
+    reason = report.get("reject_reason") or ("conflicting_metadata" if report.get("conflicts") else None)
+    return ReviewItem(index=entry["index"], filename=entry["filename"], thumbnail=entry.get("thumbnail"), reason=reason,
+                      message=report.get("message", ""), engine_rotation_degrees=report.get("rotation_degrees"),
+                      accepted_rotations=report.get("accepted_rotations", []),
+                      text_rotation_degrees=(report.get("text") or {}).get("rotation_degrees"),
+                      existing_orientation=report.get("existing_orientation"), review=entry.get("review"))
+
+
+@router.get("/{job_id}/review", response_model=ReviewQueue,
+            summary="The photos of a finished batch that need a person (rejected, or orientations that conflict), "
+                    "with the engine's reasons and any decision already made")
+async def review_queue(job_id: str, svc: Services = Depends(services)) -> ReviewQueue:
+    await _batch(job_id, svc)
+    entries = await asyncio.to_thread(_entries, svc, job_id)
+    items = [_item(e) for e in entries if needs_review(e.get("report"))]
+    return ReviewQueue(job_id=job_id, photos=len(entries), items=items,
+                       reviewed=sum(i.review is not None for i in items))
+
+
+@router.post("/{job_id}/review/{index}", response_model=ReviewItem,
+             summary="A person's decision on one photo of the queue: the upright turn (written with the lossless "
+                     "writers into a new fixed file of the job, or its XMP sidecar) or null to leave it as it is; "
+                     "recorded in report.json as decided by that person")
+async def decide_photo(job_id: str, index: int, choice: ReviewChoice,
+                       svc: Services = Depends(services)) -> ReviewItem:
+    job = await _batch(job_id, svc)
+    mode = "sidecar" if (job.params or {}).get("sidecar") else "file"
+    try:
+        return await run_compute(svc, _decide, svc, job, index, choice, mode)
+    except errors.OrientationInputError as exc:
+        raise ApiError(422, f"photo {index}: {exc}", exc.code) from None
+    except ExifToolUnavailable as exc:
+        raise ApiError(503, f"photo {index}: {exc}", "metadata_tool_unavailable") from None
+    except ExifToolError as exc:
+        raise ApiError(422, f"photo {index}: exiftool could not write it: {exc}", "unwritable_metadata") from None
+
+
+def _decide(svc: Services, job: Any, index: int, choice: ReviewChoice, mode: str) -> ReviewItem:
+    """Write the choice and record it (one decision of a job at a time: report.json is read, changed, replaced)."""
+    with _lock(job.id):
+        job = svc.jobs.get(job.id) or job  # the manifest as the last decision left it
+        entries = _entries(svc, job.id)
+        entry = next((e for e in entries if e["index"] == index), None)
+        if entry is None:
+            raise ApiError(404, f"batch {job.id} has no photo {index} (it has {len(entries)})", "photo_not_found")
+        if not needs_review(entry.get("report")):
+            raise ApiError(409, f"photo {index} of batch {job.id} is not in the review queue (the engine decided it"
+                                " or could not read it)", "not_for_review")
+        written, fixed = None, None
+        prefix = results_prefix(job.id)
+        if choice.rotation_degrees is not None:
+            data = svc.store.read(job.inputs[entry["input"]])
+            written = write_choice(data, choice.rotation_degrees, entry["filename"], mode)
+            fixed = fixed_name(index, entry["filename"], entry["report"]["format"])
+            if written.sidecar is not None:
+                fixed += ".xmp"
+            svc.store.put(f"{prefix}/{fixed}", written.photo if written.photo is not None else written.sidecar)
+        at = dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")
+        entries = [record_review(e, choice.rotation_degrees, choice.reviewer.strip(), at, written, fixed)
+                   if e["index"] == index else e for e in entries]
+        report = json.dumps(entries, indent=2).encode()
+        svc.store.put(f"{prefix}/{REPORT}", report)
+        result = dict(job.result or {})
+        files = {f["name"]: f for f in result.get("files", [])}
+        files[REPORT] = {**files.get(REPORT, {"name": REPORT, "content_type": "application/json"}), "size": len(report)}
+        if fixed is not None:
+            files[fixed] = {"name": fixed, "size": svc.store.size(f"{prefix}/{fixed}"),
+                            "content_type": mimetypes.guess_type(fixed)[0] or "application/octet-stream"}
+        result.update(files=sorted(files.values(), key=lambda f: f["name"]), summary=summary_of(entries))
+        if not svc.jobs.replace_result(job.id, result):
+            raise ApiError(409, f"job {job.id} changed while the decision was written", "job_changed")
+        return _item(next(e for e in entries if e["index"] == index))
+
+
+@page_router.get("/review/{job_id}", include_in_schema=False)
+async def review_page(job_id: str) -> FileResponse:
+    """The review page (the job id is read by the page from its own address)."""
+    return FileResponse(PAGE / "index.html", media_type="text/html")
