@@ -80,6 +80,7 @@ from workers.orientation.decode import decode_gray  # noqa: E402
 from workers.orientation.detect import (Decision, DetectorConfig, OrientationDetector, PaperDetector,  # noqa: E402
                                         YuNetDetector, get_detector)
 from workers.orientation.geometry import ROTATIONS, rotate_view  # noqa: E402
+from workers.orientation.faces import LongSideScan, ShortSideScan  # noqa: E402
 from workers.orientation.parts import PartSpec  # noqa: E402
 from workers.orientation.service import analyze, combine_cues  # noqa: E402
 from workers.orientation.detect import Engine  # noqa: E402
@@ -698,7 +699,7 @@ class _HealthProbe:
 
 
 THROUGHPUT_CLIENTS = (4, 50)
-PREV_HAAR = {"scan_size": 320, "scale_factor": 1.2, "min_face": 20, "min_neighbors": 3}
+PREV_HAAR = {"scan": LongSideScan(320, 20), "scale_factor": 1.2, "min_neighbors": 3}
 """The paper detector's Haar face search before issue 21's speed-up (same decisions on the dev photos)."""
 
 
@@ -741,7 +742,7 @@ def run_throughput(photos: list[Path], yunet: Path | None, repeats: int) -> int:
     for name, e in results["engine"].items():
         if not isinstance(e, dict):
             continue
-        label = (f"engine paper, previous face search ({PREV_HAAR['scan_size']} px, step {PREV_HAAR['scale_factor']}, "
+        label = (f"engine paper, previous face search ({PREV_HAAR['scan'].scan_size} px, step {PREV_HAAR['scale_factor']}, "
                  f"{PREV_HAAR['min_neighbors']} neighbours)" if name == "paper_prev_search" else f"engine {name}")
         rows.append([label, e["photos_per_s_1thread_cv1"], e["photos_per_s_2thread_cv1"],
                      f"{e['cpu_ms_per_photo']:.0f} ms CPU/photo one at a time (2 idle cores: "
@@ -819,6 +820,97 @@ def throughput_goals(results: dict) -> str:
         lines.append(f"- /healthz p99 < 100 ms meanwhile: worst p99 {worst:.0f} ms: "
                      f"**{'met' if worst < 100 else 'not met'}**.")
     return "\nGoals (issue 21):\n\n" + "\n".join(lines) + "\n"
+
+
+FACE_SIZE_TURNS = (0, 270)
+"""Turns of each face-size variant tried (upright and a quarter turn: a landscape scanned as a portrait too; the
+Haar search sees all four views in every trial)."""
+
+
+def face_size_configs() -> dict[str, tuple]:
+    """The Haar scans compared on faces of every size: the releases' fixed long sides and the rule (short side)."""
+    from workers.orientation.detect import HAAR_FACE_PX, HAAR_MIN_NEIGHBORS, HAAR_SCALE_FACTOR, HAAR_SMALLEST_FACE
+
+    return {
+        "400 px long side (two releases ago)": (LongSideScan(400, 20), 1.2, 3),
+        "320 px long side (the regression)": (LongSideScan(320, 20), 1.2, 3),
+        "360 px long side (previous release)": (LongSideScan(360, 22), HAAR_SCALE_FACTOR, HAAR_MIN_NEIGHBORS),
+        "rule: 1/10 of the short side at 30 px (300 px short side)": (ShortSideScan(0.1, 30), HAAR_SCALE_FACTOR,
+                                                                       HAAR_MIN_NEIGHBORS),
+        "rule: 1/12 of the short side at 30 px (360 px short side)": (ShortSideScan(1 / 12, 30), HAAR_SCALE_FACTOR,
+                                                                       HAAR_MIN_NEIGHBORS),
+        f"rule: 1/{round(1 / HAAR_SMALLEST_FACE)} of the short side at {HAAR_FACE_PX} px "
+        f"({round(HAAR_FACE_PX / HAAR_SMALLEST_FACE)} px short side; engine)": (
+            ShortSideScan(HAAR_SMALLEST_FACE, HAAR_FACE_PX), HAAR_SCALE_FACTOR, HAAR_MIN_NEIGHBORS),
+        "rule: 1/16 of the short side at 24 px (384 px short side)": (ShortSideScan(1 / 16, 24), HAAR_SCALE_FACTOR,
+                                                                       HAAR_MIN_NEIGHBORS),
+    }
+
+
+def run_face_sizes(photos: list[Path], yunet: Path) -> dict:
+    """Section orientation_face_sizes: every Haar scan on the face-size set (:mod:`benchmarks._face_sizes`), the
+    paper's detector alone (Haar face + parts; text off): decided / wrong per face share, CPU ms per photo."""
+    from benchmarks._face_sizes import CANVAS, FACE_SHARES, face_size_set
+
+    load_before = os.getloadavg()[0]
+    cv2.setNumThreads(1)
+    configs = {name: PaperDetector(PartSpec.opencv(), name=name, scan=scan, scale_factor=step, min_neighbors=n)
+               for name, (scan, step, n) in face_size_configs().items()}
+    cells: dict = {name: {str(sh): {"trials": 0, "decided": 0, "wrong": 0} for sh in FACE_SHARES} for name in configs}
+    cpu: dict = {name: [] for name in configs}
+    photos_used: set = set()
+    for name_photo, share, image in face_size_set([p for p in photos if p.name not in NEGATIVES], yunet):
+        photos_used.add(name_photo)
+        for turn in FACE_SIZE_TURNS:
+            ok, buf = cv2.imencode(".jpg", rotate_view(image, (360 - turn) % 360), [cv2.IMWRITE_JPEG_QUALITY, 90])
+            data = buf.tobytes()
+            marks = ""
+            for name, detector in configs.items():
+                start = time.thread_time()
+                report = analyze(data, detector)
+                cpu[name].append(1000 * (time.thread_time() - start))
+                cell = cells[name][str(share)]
+                cell["trials"] += 1
+                cell["decided"] += report.rotation_degrees == turn
+                cell["wrong"] += report.rotation_degrees not in (None, turn)
+                marks += "+" if report.rotation_degrees == turn else "." if report.rotation_degrees is None else "X"
+            print(f"{name_photo[:36]:36s} share {share:.2f} turn {turn:3d} {marks}", flush=True)
+    return {"canvas": list(CANVAS), "shares": list(FACE_SHARES), "turns": list(FACE_SIZE_TURNS),
+            "photos": len(photos_used), "cells": cells,
+            "cpu_ms_per_photo": {n: statistics.median(v) for n, v in cpu.items()},
+            "load_average_before": load_before, "load_average_after": os.getloadavg()[0]}
+
+
+def face_sizes_markdown(result: dict) -> str:
+    shares = [str(s) for s in result["shares"]]
+    h = min(result["canvas"])
+    rows = []
+    for name, by_share in result["cells"].items():
+        total = sum(c["decided"] for c in by_share.values())
+        trials = sum(c["trials"] for c in by_share.values())
+        wrong = sum(c["wrong"] for c in by_share.values())
+        rows.append([name, *[f"{by_share[s]['decided']}/{by_share[s]['trials']}" for s in shares],
+                     f"{total}/{trials} ({100 * total / max(trials, 1):.1f}%)", wrong,
+                     f"{result['cpu_ms_per_photo'][name]:.0f}"])
+    names = list(result["cells"])
+    engine = next(n for n in names if n.endswith("engine)"))
+    previous = next(n for n in names if "previous release" in n)
+    worse = [s for s in shares if result["cells"][engine][s]["decided"] < result["cells"][previous][s]["decided"]]
+    verdict = ("the rule decides at least as many trials as the previous release at every face size: **met**"
+               if not worse else "the rule decides fewer trials than the previous release at face shares "
+               + ", ".join(worse) + ": **not met**")
+    return "\n".join([
+        f"The paper's detector alone (Haar face + OpenCV's part cascades, text cue off) on faces of every size: the "
+        f"{result['photos']} dev face photos with a YuNet face, each scaled so that its largest face is a given share "
+        f"of the short side of a {result['canvas'][1]} x {h} photo (cut around the face, edge pixels repeated at the borders; "
+        f"never enlarged more than 3x), turned {', '.join(map(str, result['turns']))} degrees, JPEG q90 (the engine "
+        f"decodes it to <= 900 px). Cells: trials decided right / trials per face share (face width in the photo = "
+        f"share x {h} px). CPU: median ms per photo (one thread, OpenCV single-threaded, decode included), measured "
+        f"under load from other work (load average {result['load_average_before']:.1f} before, "
+        f"{result['load_average_after']:.1f} after): compare within the table.", "",
+        md_table(["Haar scan", *[f"{float(s):.2f} ({round(float(s) * h)} px)" for s in shares], "all", "wrong",
+                  "CPU ms/photo"], rows), "",
+        f"Faces never below the previous release: {verdict}."])
 
 
 def markdown(results: dict) -> str:
@@ -1125,6 +1217,8 @@ def main() -> int:
     parser.add_argument("--throughput", action="store_true",
                         help="only: 12 MP photos/s, engine vs HTTP at 4 and 50 clients with /healthz latency "
                              "(section orientation_throughput)")
+    parser.add_argument("--face-sizes", action="store_true",
+                        help="only the Haar scans on faces of every size (section orientation_face_sizes)")
     parser.add_argument("--quick", action="store_true", help="a third of the photos, fewer speed repeats")
     parser.add_argument("--no-http", action="store_true", help="skip the end-to-end HTTP measurement")
     parser.add_argument("--no-speed", action="store_true", help="accuracy only")
@@ -1145,6 +1239,16 @@ def main() -> int:
         yunet_model = data_root().parent / "models" / "yunet" / "face_detection_yunet_2023mar.onnx"
         return run_throughput(find_photos(faces), yunet_model if yunet_model.is_file() else None,
                               2 if args.quick else 4)
+    if args.face_sizes:
+        faces = dataset("faces", "dev")
+        yunet_model = data_root().parent / "models" / "yunet" / "face_detection_yunet_2023mar.onnx"
+        if faces is None or not yunet_model.is_file():
+            print("skipped: the face-size set needs $SWEEPCAST_DATA/faces/dev and the YuNet model beside the data")
+            return 0
+        photos = find_photos(faces)
+        result = run_face_sizes(photos[::3] if args.quick else photos, yunet_model)
+        publish("orientation_face_sizes", result, face_sizes_markdown(result))
+        return 0
     if args.writers:
         result = run_writers(args.quick)
         publish("orientation_writers", result, writers_markdown(result))

@@ -106,12 +106,12 @@ def test_parts_confirm_a_real_face_upright_and_not_upside_down():
     their places, and the same face upside down is not accepted."""
     import cv2
 
-    from workers.orientation.detect import HAAR_MIN_FACE, HAAR_MIN_NEIGHBORS, HAAR_SCALE_FACTOR, HAAR_SCAN_SIZE
+    from workers.orientation.detect import HAAR_MIN_NEIGHBORS, HAAR_SCALE_FACTOR, HAAR_SCAN
     from workers.orientation.faces import HaarFaceFinder
     from workers.orientation.parts import face_crop
 
     gray = cv2.imread(str(FACES / REAL[0]), cv2.IMREAD_GRAYSCALE)
-    finder = HaarFaceFinder(HAAR_SCAN_SIZE, HAAR_SCALE_FACTOR, HAAR_MIN_NEIGHBORS, HAAR_MIN_FACE)
+    finder = HaarFaceFinder(HAAR_SCAN, HAAR_SCALE_FACTOR, HAAR_MIN_NEIGHBORS)
     (face,) = finder.find(gray)
     crop = face_crop(gray, face.box)
     verifier = PartVerifier(PartSpec.opencv())
@@ -160,3 +160,17 @@ def test_detected_orientation_matches_the_real_tag_of_a_turned_portrait(value):
     for config in _configs():
         report = analyze(data, get_detector(config))
         assert report.existing_orientation == value and report.orientation == value
+
+
+def test_the_haar_scan_follows_the_photos_short_side():
+    """The smallest face searched is a share of the short side, scanned at a fixed size: a 3:2 view, a 4:3 one and a
+    panorama all get a 364 px short side; faces from 26 px up to the whole short side. A small view is not enlarged."""
+    from workers.orientation.detect import HAAR_SCAN
+    from workers.orientation.faces import LongSideScan
+
+    assert HAAR_SCAN.plan(600, 900) == (pytest.approx(364 / 600), 26, 364)
+    assert HAAR_SCAN.plan(900, 675) == (pytest.approx(364 / 675), 26, 364)
+    assert HAAR_SCAN.plan(300, 900) == (1.0, 26, 300)  # a panorama's faces keep their size
+    assert HAAR_SCAN.plan(240, 320) == (1.0, 26, 240)
+    # the previous release shrank the long side to 360 px: the panorama's faces to 0.4x
+    assert LongSideScan(360, 22).plan(300, 900) == (pytest.approx(0.4), 22, 0)

@@ -37,7 +37,7 @@ from typing import Callable, Generic, Literal, Protocol, Sequence, TypeVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from workers.orientation.faces import Candidate, HaarFaceFinder, YuNetFaceFinder
+from workers.orientation.faces import Candidate, HaarFaceFinder, LongSideScan, ShortSideScan, YuNetFaceFinder
 from workers.orientation.geometry import ROTATIONS, Box, iou, rotate_view, view_box_to_image
 from workers.orientation.parts import PartSpec, PartVerifier, face_crop
 from workers.orientation.text import DEFAULT_TESSERACT, RejectReason, TesseractOsd, get_text_detector, text_status
@@ -57,10 +57,18 @@ previous one accepted no face at all. YuNet was trained on faces of about 10 to 
 copy suits portraits (and is four times cheaper) and the large one finds the faces of group photos.
 On the dev photos (combined detector) 640 alone decided 97.7% of the trials, 320 alone and 320 then 640
 100%, all with no wrong turn; 320 then 640 took 43 ms per 12 MP photo against 81 ms for 640 alone."""
-HAAR_SCAN_SIZE = 360
-"""Long side (px) of the copy of each view the Haar face cascade searches."""
-HAAR_MIN_FACE = 22
-"""Smallest face (px) searched in that copy: 1/16 of the photo's long side, as 20 px at 320 before."""
+HAAR_SMALLEST_FACE = 1 / 14
+"""Smallest face the Haar face search looks for, as a fraction of the view's short side (:class:`ShortSideScan`)."""
+HAAR_FACE_PX = 26
+"""... and its size (px) in the scan, which sets the scan's scale: the scan's short side is 364 px (a 3:2 photo is
+scanned at 546 x 364, a 4:3 one at 485 x 364). The previous release scanned a fixed 360 px long side (faces from
+22 px), the one before 320 px (from 20 px); at 320 px a face 280 px wide in a 2048 x 1365 photo measured 44 px in
+the scan and was lost. Chosen on faces of every size (``benchmarks/orientation.py --face-sizes``, section
+orientation_face_sizes; 15 of the dev photos, each face scaled to 5-45 % of the short side, 2 turns): 84 of 160
+trials decided against 61 for the previous release's scan (at least as many at every face size) and 85 for the
+400 px scan two releases ago (step 1.2, 3 neighbours), at 74 ms CPU per photo against 44 and 106 under the same
+load; 1/10 at 30 px (a 300 px short side) decided 74, 1/12 at 30 px 79, 1/16 at 24 px 84 at 73 ms."""
+HAAR_SCAN = ShortSideScan(HAAR_SMALLEST_FACE, HAAR_FACE_PX)
 HAAR_SCALE_FACTOR = 1.35
 """Pyramid step of the Haar face search. OpenCV slides the window by 2 px below twice the smallest face
 size and by 1 px above, so the cost is set by how many steps fall above: at 1.35 from 22 px, 4 of 9."""
@@ -73,6 +81,8 @@ is the same count with 1 to 3 more or fewer trials decided by any change, so rea
 3 neighbours did, at 0.56x the scan's CPU time (102 against 171 ms per 12 MP photo in all). Cheaper
 settings lost decisions: 1.3 with 3 neighbours 154 and 146, 1.4 with 2 neighbours 140 and 140, 1.25 or
 1.3 from 24 px 143-150 and 142-145, a coarser position step (octaves scanned at half size) 131 at 12 MP."""
+PREVIOUS_HAAR_SCAN = LongSideScan(360, 22)
+"""The previous release's Haar scan (a fixed long side), kept for the benchmarks' comparison."""
 MAX_PART_CHECKS = 16
 """Most faces whose parts are checked per photo (the highest-scoring first)."""
 _SAME_FACE_IOU = 0.3
@@ -168,12 +178,10 @@ class _PerThread(Generic[T]):
 class PaperDetector:
     """The paper: Haar whole face + Haar facial parts in a plausible arrangement, per view."""
 
-    def __init__(self, parts: PartSpec, name: str = "paper", scan_size: int = HAAR_SCAN_SIZE,
-                 scale_factor: float = HAAR_SCALE_FACTOR, min_face: int = HAAR_MIN_FACE,
-                 min_neighbors: int = HAAR_MIN_NEIGHBORS) -> None:
+    def __init__(self, parts: PartSpec, name: str = "paper", scan: ShortSideScan | LongSideScan = HAAR_SCAN,
+                 scale_factor: float = HAAR_SCALE_FACTOR, min_neighbors: int = HAAR_MIN_NEIGHBORS) -> None:
         self.name = name
-        self._finder = _PerThread(lambda: HaarFaceFinder(scan_size=scan_size, scale_factor=scale_factor,
-                                                         min_neighbors=min_neighbors, min_size=min_face))
+        self._finder = _PerThread(lambda: HaarFaceFinder(scan, scale_factor, min_neighbors))
         self._verifier = _PerThread(lambda: PartVerifier(parts))
         self._finder.get()  # load (and check) the cascades now, not on the first photo
         self._verifier.get()

@@ -1,8 +1,8 @@
 """Whole-face detectors run on one view: Haar (the paper's) and YuNet (optional, stronger).
 
-Both search a copy of the view shrunk to ``scan_size`` on its long side (faces smaller than the
-search's smallest window there are lost; the facial parts are searched later in the full-resolution view) and return
-candidates in view pixels. Instances hold OpenCV state and are not thread-safe.
+Both search a shrunk copy of the view (faces smaller than the search's smallest window there are lost; the facial
+parts are searched later in the full-resolution view) and return candidates in view pixels: YuNet a copy
+``scan_size`` px on its long side, Haar a copy whose short side follows the photo (:class:`ShortSideScan`). Instances hold OpenCV state and are not thread-safe.
 """
 from __future__ import annotations
 
@@ -36,23 +36,61 @@ def _shrink(view: np.ndarray, scan_size: int) -> tuple[np.ndarray, float]:
     return cv2.resize(view, size, interpolation=cv2.INTER_AREA), s
 
 
+@dataclass(frozen=True)
+class ShortSideScan:
+    """The Haar face search's scan that follows the photo: the smallest face searched is ``smallest_face`` of the
+    view's short side, and the scan is scaled so that this face measures ``face_px`` in it (never enlarged). The
+    pyramid runs from ``face_px`` up to the scan's short side (a face filling the photo).
+
+    So the scan's short side is ``face_px / smallest_face`` whatever the photo's size and shape (a panorama keeps its
+    faces' size, where a long-side scan shrank them), and a face keeps its share of the photo's short side in pixels
+    of the scan."""
+
+    smallest_face: float
+    face_px: int
+
+    def plan(self, height: int, width: int) -> tuple[float, int, int]:
+        """(scale of the scan, smallest and largest face searched in scan px) for a ``height`` x ``width`` view."""
+        short = min(height, width)
+        s = min(1.0, self.face_px / (self.smallest_face * short))
+        return s, self.face_px, max(self.face_px, int(short * s))
+
+
+@dataclass(frozen=True)
+class LongSideScan:
+    """The previous releases' scan: the view shrunk to ``scan_size`` on its long side, faces from ``min_size`` px
+    up (benchmarks compare the rule above with it)."""
+
+    scan_size: int
+    min_size: int
+
+    def plan(self, height: int, width: int) -> tuple[float, int, int]:
+        s = min(1.0, self.scan_size / max(height, width))
+        return s, self.min_size, 0
+
+
 class HaarFaceFinder:
     """Viola-Jones frontal-face detection (``detectMultiScale`` on the histogram-equalised scan)."""
 
-    def __init__(self, scan_size: int, scale_factor: float, min_neighbors: int, min_size: int,
+    def __init__(self, scan: ShortSideScan | LongSideScan, scale_factor: float, min_neighbors: int,
                  cascade: Path = HAAR_FACE_CASCADE) -> None:
         self._cascade = load_cascade(cascade)
-        self.scan_size = scan_size
+        self.scan = scan
         self.scale_factor = scale_factor
         self.min_neighbors = min_neighbors
-        self.min_size = min_size
 
     def find(self, view: np.ndarray) -> list[Candidate]:
         """Faces in ``view`` ((H, W) uint8 grey), boxes in view px."""
-        scan, s = _shrink(view, self.scan_size)
+        s, smallest, largest = self.scan.plan(*view.shape[:2])
+        if s < 1.0:
+            size = (max(1, round(view.shape[1] * s)), max(1, round(view.shape[0] * s)))
+            scan = cv2.resize(view, size, interpolation=cv2.INTER_AREA)
+            s = size[0] / view.shape[1]
+        else:
+            scan = view
         boxes = self._cascade.detectMultiScale(cv2.equalizeHist(scan), scaleFactor=self.scale_factor,
-                                               minNeighbors=self.min_neighbors,
-                                               minSize=(self.min_size, self.min_size))
+                                               minNeighbors=self.min_neighbors, minSize=(smallest, smallest),
+                                               maxSize=(largest, largest))
         return [Candidate((x / s, y / s, w / s, h / s), None) for x, y, w, h in boxes]
 
 
