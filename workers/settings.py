@@ -44,6 +44,10 @@ class WorkerSettings(BaseSettings):
                                                      "tesseract-ocr-osd packages; without them: faces only).")
     orientation_tesseract: str = Field("tesseract", description="The tesseract binary for the orientation text cue: "
                                                                 "a name on PATH or a path.")
+    orientation_wordlists: Path = Field(
+        Path("/usr/share/dict"), description="Orientation: the folder of word lists (one word a line) whose words the "
+                                             "text cue accepts as real (Debian wamerican, wngerman, wfrench, ...); "
+                                             "Tesseract's own dictionary counts too.")
     exiftool: str = Field("exiftool", description="The exiftool binary the orientation engine uses for PNG eXIf, "
                                                   "XMP sidecars and RAW previews: a name on PATH or a path.")
 

@@ -73,7 +73,7 @@ def test_batch_with_one_corrupt_photo_among_good_ones(tmp_path, fake_detector):
     summary = run_orientation_batch(ctx)
 
     assert {k: v for k, v in summary.items() if k not in ("written", "rotated", "decided_by_faces", "errors")} == {
-        "photos": 4, "upright": 0, "rejected": 0, "decided_by_text": 0}
+        "photos": 4, "upright": 0, "rejected": 0, "decided_by_text": 0, "needs_review": 0, "reviewed": 0}
     assert summary["rotated"] == summary["decided_by_faces"] == (3 if HAS_EXIFTOOL else 2)
     assert summary["written"] == (2 if HAS_EXIFTOOL else 1) and summary["errors"] == (1 if HAS_EXIFTOOL else 2)
     assert [round(f, 2) for f, _ in ctx.events] == [0.25, 0.5, 0.75, 1.0]  # one event per photo
@@ -202,3 +202,24 @@ def test_workers_use_the_named_model_else_the_installed_one(tmp_path, monkeypatc
     assert job.detector_config_from_env().yunet_model == tmp_path / YUNET.filename
     monkeypatch.setenv(job.YUNET_MODEL_ENV, "/elsewhere/yunet.onnx")
     assert job.detector_config_from_env().yunet_model == Path("/elsewhere/yunet.onnx")
+
+
+def test_photos_left_for_review_get_a_thumbnail_of_their_stored_pixels(tmp_path, monkeypatch):
+    import cv2
+    import numpy as np
+
+    detector = FakeDetector(())  # nothing decides: every photo needs a person
+    monkeypatch.setattr(job, "get_detector", lambda config: detector)
+    ctx = FakeContext(tmp_path, {"text": False})
+    ctx.add("photo-0000", "wide.jpg", jpeg(asymmetric_image(600, 900)))
+    ctx.add("photo-0001", "small.png", encode(asymmetric_image(120, 200), ".png"))
+    summary = run_orientation_batch(ctx)
+    assert summary["rejected"] == summary["needs_review"] == 2 and summary["reviewed"] == 0
+    entries = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert [e["thumbnail"] for e in entries] == ["review/0000.jpg", "review/0001.jpg"]
+    assert all(e["review"] is None for e in entries)
+    sizes = [cv2.imread(str(tmp_path / "out" / e["thumbnail"]), cv2.IMREAD_COLOR).shape for e in entries]
+    assert sizes == [(213, 320, 3), (120, 200, 3)]  # 320 px long at most, never enlarged, in colour
+    thumb = cv2.imread(str(tmp_path / "out" / "review" / "0000.jpg"))
+    expected = cv2.resize(asymmetric_image(600, 900), (320, 213), interpolation=cv2.INTER_AREA)
+    assert np.abs(thumb.astype(int) - expected).mean() < 6  # the stored pixels, as stored

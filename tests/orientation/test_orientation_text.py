@@ -12,9 +12,10 @@ from workers.orientation.geometry import ROTATIONS, rotate_view
 from workers.orientation.service import analyze, combine_cues
 from workers.common.datasets import dataset
 from workers.orientation.text import (LetterCount, OsdView, TesseractOsd, TextResult, TextUnavailable, WordCount,
-                                      count_letters, count_words, decide_text, get_text_detector, ocr_pages,
-                                      osd_candidate, parse_osd, parse_tsv_words, prepare, scene_language, scene_turn,
-                                      text_decision, text_status, tesserocr)
+                                      decide_text, get_text_detector, ocr_pages, osd_candidate, parse_osd,
+                                      parse_tsv_words, prepare, scene_language, scene_turn, text_decision, text_status,
+                                      tesserocr)
+from workers.orientation.words import Evidence, OcrWord
 
 TESSERACT = get_text_detector()
 
@@ -90,28 +91,55 @@ def test_parse_osd_too_few_characters_casts_no_vote():
 
 
 def _rule(views, words=(), conf=2.0, agree=3):
-    rotation, reason, _ = text_decision(views, words, conf, agree, 8, 3.0)
+    rotation, reason, _ = text_decision(views, words, conf, agree, 8, 3.0, 3, 2)
     return rotation, reason
 
 
-def _words(candidate: int, here: int, there: int, variant: str = "gray") -> tuple[WordCount, ...]:
-    return (WordCount(variant, candidate, here), WordCount(variant, (candidate + 180) % 360, there))
+def _ev(words: int, real: int | None = None, regions=()) -> Evidence:
+    """A reading of ``words`` confident words, ``real`` of them real (all by default), 5 letters each."""
+    real = words if real is None else real
+    return Evidence(words, 5 * words, real, 5 * real, tuple(regions))
+
+
+def _words(candidate: int, here: int, there: int, variant: str = "gray", real_here: int | None = None,
+           real_there: int | None = None) -> tuple[WordCount, ...]:
+    return (WordCount(variant, candidate, _ev(here, real_here)),
+            WordCount(variant, (candidate + 180) % 360, _ev(there, real_there)))
+
+
+READ = _words(0, 3, 0)  # a few real words read the candidate way (0) up: what OSD alone needs besides its votes
 
 
 def test_text_rule_needs_agreeing_confident_views():
-    assert _rule([_view(r, 90) for r in ROTATIONS]) == (90, None)
-    assert _rule([_view(0, 90), _view(90, 90), _view(180, 90), _view(270, None)]) == (90, None)
-    assert _rule([_view(0, 90), _view(90, 90), _view(180, None), _view(270, None)]) == (None, "no_cue")
-    assert _rule([_view(0, 90), _view(90, None), _view(180, 90), _view(270, None)], agree=2) == (90, None)
-    assert _rule([_view(0, 90), _view(90, None), _view(180, None), _view(270, None)], agree=2) == (None, "no_cue")
-    assert _rule([_view(r, None) for r in ROTATIONS]) == (None, "no_cue")
+    def rule(views, conf=2.0, agree=3):
+        candidate = next((v.rotation for v in views if v.ran), 0)
+        return _rule(views, _words(candidate, 3, 0), conf, agree)
+
+    assert rule([_view(r, 90) for r in ROTATIONS]) == (90, None)
+    assert rule([_view(0, 90), _view(90, 90), _view(180, 90), _view(270, None)]) == (90, None)
+    assert rule([_view(0, 90), _view(90, 90), _view(180, None), _view(270, None)]) == (None, "no_cue")
+    assert rule([_view(0, 90), _view(90, None), _view(180, 90), _view(270, None)], agree=2) == (90, None)
+    assert rule([_view(0, 90), _view(90, None), _view(180, None), _view(270, None)], agree=2) == (None, "no_cue")
+    assert rule([_view(r, None) for r in ROTATIONS]) == (None, "no_cue")
     # the 180-degree confusion: one view reads the page upside down, however weakly
-    assert _rule([_view(0, 0), _view(90, 0), _view(180, 180, 0.3), _view(270, 0)], agree=2) == (
+    assert rule([_view(0, 0), _view(90, 0), _view(180, 180, 0.3), _view(270, 0)], agree=2) == (
         None, "conflicting_rotations")
     # agreeing but weak on average
-    assert _rule([_view(0, 0, 3.0), _view(90, 0, 0.5), _view(180, 0, 1.0), _view(270, 0, 0.5)], agree=2) == (
+    assert rule([_view(0, 0, 3.0), _view(90, 0, 0.5), _view(180, 0, 1.0), _view(270, 0, 0.5)], agree=2) == (
         None, "low_confidence")
-    assert _rule([_view(0, 0, 3.0), _view(90, 0, 1.5), _view(180, 0, 2.0), _view(270, 0, 2.0)], agree=2) == (0, None)
+    assert rule([_view(0, 0, 3.0), _view(90, 0, 1.5), _view(180, 0, 2.0), _view(270, 0, 2.0)], agree=2) == (0, None)
+
+
+def test_osd_alone_needs_real_words_read_its_way_up():
+    """OSD classifies character shapes: stripes or a texture can vote for one axis in every view, confidently. It
+    decides only when OCR reads real words the candidate way up, and more than the other way up."""
+    confident = [_view(r, 0, 9.0) for r in ROTATIONS]
+    assert _rule(confident) == (None, "low_confidence")  # no OCR at all
+    assert _rule(confident, _words(0, 5, 0, real_here=0)) == (None, "low_confidence")  # words, none real
+    assert _rule(confident, _words(0, 5, 0, real_here=1)) == (None, "low_confidence")  # one real word
+    assert _rule(confident, _words(0, 5, 2, real_here=2, real_there=2)) == (None, "low_confidence")  # both ways
+    assert text_decision(confident, _words(0, 5, 1, real_here=2, real_there=1), 2.5, 2, 8, 3.0, 3, 2) == (
+        0, None, "osd")
 
 
 def test_votes_on_both_axes_are_a_texture_whatever_ocr_says():
@@ -123,7 +151,7 @@ def test_votes_on_both_axes_are_a_texture_whatever_ocr_says():
 def test_ocr_settles_opposite_votes_and_weak_agreement():
     split = [_view(0, 0, 1.3), _view(90, 180, 1.2), _view(180, 0, 1.6), _view(270, 180, 0.7)]
     assert osd_candidate(split, 2) == (0, None)
-    assert text_decision(split, _words(0, 40, 1), 2.5, 2, 8, 3.0) == (0, None, "ocr")
+    assert text_decision(split, _words(0, 40, 1), 2.5, 2, 8, 3.0, 3, 2) == (0, None, "ocr")
     assert _rule(split, _words(0, 40, 20), agree=2) == (None, "conflicting_rotations")  # not 3x the other way
     assert _rule(split, _words(0, 5, 0), agree=2) == (None, "conflicting_rotations")  # too few words
     weak = [_view(r, 90, 1.0) for r in ROTATIONS]
@@ -133,44 +161,64 @@ def test_ocr_settles_opposite_votes_and_weak_agreement():
     assert _rule(weak, _words(90, 0, 0) + _words(90, 30, 2, "binary"), agree=2) == (90, None)
 
 
+def test_ocr_verifies_only_with_real_words_not_read_the_same_places_upside_down():
+    weak = [_view(r, 90, 1.0) for r in ROTATIONS]
+    assert _rule(weak, _words(90, 30, 2, real_here=2), agree=2) == (None, "low_confidence")  # confident, not real
+    box = (0.1, 0.1, 0.3, 0.05)
+    here = WordCount("gray", 90, _ev(30, 4, [box] * 4))
+    there_elsewhere = WordCount("gray", 270, _ev(2, 2, [(0.6, 0.8, 0.2, 0.05)] * 2))
+    there_same = WordCount("gray", 270, _ev(2, 2, [box] * 2))
+    assert _rule(weak, (here, there_elsewhere), agree=2) == (90, None)
+    assert _rule(weak, (here, there_same), agree=2) == (None, "low_confidence")  # the same places read both ways
+
+
 def test_ocr_reading_the_other_way_up_turns_the_candidate_round_or_vetoes_it():
     confident = [_view(r, 0, 9.0) for r in ROTATIONS]
-    assert text_decision(confident, _words(0, 3, 2), 2.5, 2, 8, 3.0) == (0, None, "osd")  # OCR unclear
+    assert text_decision(confident, _words(0, 3, 2), 2.5, 2, 8, 3.0, 3, 2) == (0, None, "osd")  # OCR unclear
     # OSD's 180-degree confusion: the page reads clearly the other way up
-    assert text_decision(confident, _words(0, 2, 30), 2.5, 2, 8, 3.0) == (180, None, "ocr")
+    assert text_decision(confident, _words(0, 2, 30), 2.5, 2, 8, 3.0, 3, 2) == (180, None, "ocr")
     # the other way up reads more, but not clearly: neither OCR nor OSD may decide
     assert _rule(confident, _words(0, 10, 20), agree=2) == (None, "conflicting_rotations")
 
 
-def test_words_count_only_confident_letters():
-    assert count_words([("Receipt", 95.0), ("TOTAL", 81.0), ("12.50", 96.0), ("ab", 99.0), ("Tax", 40.0),
-                        ("x1y2z3", 90.0), ("mm-", 85.0), ("Steuer:", 88.0)]) == 3
+def test_tsv_words_keep_their_boxes():
     tsv = ("level\tpage_num\tblock_num\tpar_num\tline_num\tword_num\tleft\ttop\twidth\theight\tconf\ttext\n"
            "1\t1\t0\t0\t0\t0\t0\t0\t100\t50\t-1\t\n"
            "5\t1\t1\t1\t1\t1\t3\t4\t20\t10\t91.5\tHello\n"
            "5\t1\t1\t1\t1\t2\t30\t4\t20\t10\t12\t\n")
-    assert parse_tsv_words(tsv) == [("Hello", 91.5)]
+    assert parse_tsv_words(tsv) == [OcrWord("Hello", 91.5, (3.0, 4.0, 20.0, 10.0), None)]
 
 
-def test_letters_count_confident_words_of_any_script():
-    words = [("Seoul", 91.0), ("서울", 96.0), ("禁止", 85.0), ("S", 95.0), ("205Km", 91.0), ("Tax", 40.0),
-             ("np", 96.0), ("x1y2z3", 90.0)]
-    assert count_letters(words) == 5 + 2 + 2 + 2  # single letters, mostly digits and unsure words do not count
-    assert count_letters(words, min_letters=3) == 5
-    assert count_letters([]) == 0
-
-
-def _scene(**letters: int) -> tuple[LetterCount, ...]:
-    return tuple(LetterCount(int(k[1:]), n) for k, n in letters.items())
+def _scene(**real: int) -> tuple[LetterCount, ...]:
+    """Scene readings per view (``r90=26``: 26 real letters in 5-letter real words at view 90)."""
+    return tuple(LetterCount(int(k[1:]), Evidence(n // 5, n, n // 5, n)) for k, n in real.items())
 
 
 def test_scene_reading_decides_the_view_that_reads_clearly_best():
-    assert scene_turn(_scene(r0=0, r90=26, r180=0, r270=1), 12, 3.0) == 90
-    assert scene_turn(_scene(r0=19, r90=1, r180=10, r270=3), 12, 3.0) is None  # upside down reads too well
-    assert scene_turn(_scene(r0=19, r90=1, r180=6, r270=3), 12, 3.0) == 0
-    assert scene_turn(_scene(r0=11, r90=0, r180=0, r270=0), 12, 3.0) is None  # too few letters
-    assert scene_turn(_scene(r0=40, r180=0), 12, 3.0) is None  # not every view read
-    assert scene_turn((), 12, 3.0) is None
+    assert scene_turn(_scene(r0=0, r90=26, r180=0, r270=1), 2, 12, 3.0) == 90
+    assert scene_turn(_scene(r0=19, r90=1, r180=10, r270=3), 2, 12, 3.0) is None  # upside down reads too well
+    assert scene_turn(_scene(r0=19, r90=1, r180=6, r270=3), 2, 12, 3.0) == 0
+    assert scene_turn(_scene(r0=11, r90=0, r180=0, r270=0), 2, 12, 3.0) is None  # too few letters
+    assert scene_turn(_scene(r0=40, r180=0), 2, 12, 3.0) is None  # not every view read
+    assert scene_turn((), 2, 12, 3.0) is None
+
+
+def test_scene_reading_decides_on_real_words_not_letters():
+    """The false decision of issue 33: a nadir satellite photo of fields read as letters in one view. Letters that
+    make no real word decide nothing; nor does one long word alone, nor words the opposite view reads in the same
+    places."""
+    letters_only = tuple(LetterCount(r, Evidence(6, 30, 0, 0) if r == 90 else Evidence(0, 2)) for r in ROTATIONS)
+    assert scene_turn(letters_only, 2, 8, 3.0) is None
+    one_word = tuple(LetterCount(r, Evidence(1, 12, 1, 12) if r == 90 else Evidence()) for r in ROTATIONS)
+    assert scene_turn(one_word, 2, 8, 3.0) is None
+    box = (0.2, 0.3, 0.2, 0.05)
+    upright = Evidence(6, 30, 6, 30, (box,) * 6)
+    both_ways = tuple(LetterCount(r, upright if r == 90 else Evidence(3, 9, 3, 9, (box,) * 3) if r == 270 else
+                                  Evidence()) for r in ROTATIONS)
+    assert scene_turn(both_ways, 2, 8, 3.0) is None
+    elsewhere = tuple(LetterCount(r, upright if r == 90 else Evidence(3, 9, 3, 9, ((0.7, 0.8, 0.1, 0.05),) * 3)
+                                  if r == 270 else Evidence()) for r in ROTATIONS)
+    assert scene_turn(elsewhere, 2, 8, 3.0) == 90
 
 
 def test_scene_reading_adds_the_script_model_osd_saw():
@@ -189,13 +237,15 @@ def test_the_scene_reading_decides_only_what_osd_and_ocr_did_not():
     agreeing = [_view(r, 90, 5.0) for r in ROTATIONS]
     none = [_view(r, None) for r in ROTATIONS]
     sign = _scene(r0=30, r90=0, r180=2, r270=0)
-    assert decide_text(agreeing, (), sign, 2.5, 2, 8, 3.0, 12, 3.0) == (90, None, "osd")  # the first stage first
-    assert decide_text(none, (), sign, 2.5, 2, 8, 3.0, 12, 3.0) == (0, None, "scene")
-    assert decide_text(none, (), (), 2.5, 2, 8, 3.0, 12, 3.0) == (None, "no_cue", None)
+    read = _words(90, 3, 0)
+    assert decide_text(agreeing, read, sign, 2.5, 2, 8, 3.0, 12, 3.0, 3, 2, 2) == (90, None, "osd")  # first stage
+    assert decide_text(none, (), sign, 2.5, 2, 8, 3.0, 12, 3.0, 3, 2, 2) == (0, None, "scene")
+    assert decide_text(none, (), (), 2.5, 2, 8, 3.0, 12, 3.0, 3, 2, 2) == (None, "no_cue", None)
     unclear = _scene(r0=30, r90=0, r180=20, r270=0)
-    assert decide_text(none, (), unclear, 2.5, 2, 8, 3.0, 12, 3.0) == (None, "low_confidence", None)
+    assert decide_text(none, (), unclear, 2.5, 2, 8, 3.0, 12, 3.0, 3, 2, 2) == (None, "low_confidence", None)
     scattered = [_view(0, 0, 3.0), _view(90, 90, 2.0), _view(180, 0, 3.0), _view(270, None)]
-    assert decide_text(scattered, (), unclear, 2.5, 2, 8, 3.0, 12, 3.0) == (None, "conflicting_rotations", None)
+    assert decide_text(scattered, (), unclear, 2.5, 2, 8, 3.0, 12, 3.0, 3, 2, 2) == (None, "conflicting_rotations",
+                                                                                       None)
 
 
 def test_ocr_reads_a_window_where_the_ink_is():
@@ -345,13 +395,13 @@ SIGNS = dataset("orientation", "text")
 
 
 @needs_tesseract
-@pytest.mark.skipif(SIGNS is None or not (SIGNS / "easyocr__korean.png").is_file(),
+@pytest.mark.skipif(SIGNS is None or not (SIGNS / "easyocr__french.jpg").is_file(),
                     reason="no $SWEEPCAST_DATA/orientation/text (real sign photos)")
 def test_a_real_road_sign_is_decided_by_reading_it():
-    """A Korean/English road sign (EasyOCR's example): OSD runs in no view, the scene reading decides."""
+    """Paris signposts (EasyOCR's example): the block OCR finds no lines, the scene reading reads real words."""
     if not TESSERACT.ocr:
         pytest.skip("no English OCR data (tesseract-ocr-eng)")
-    photo = cv2.imread(str(SIGNS / "easyocr__korean.png"), cv2.IMREAD_COLOR)
+    photo = cv2.imread(str(SIGNS / "easyocr__french.jpg"), cv2.IMREAD_COLOR)
     report = analyze(jpeg(turned(photo, 270)), Engine(FakeDetector(), TESSERACT, text_status()))
     assert report.rotation_degrees == 270 and report.cue == "text" and not report.needs_review
 

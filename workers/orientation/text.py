@@ -43,7 +43,11 @@ and what guards each:
   ``tesseract-ocr-script-hang``, ``-jpan``, ...), and decides the view that reads at least
   ``TEXT_SCENE_MIN_LETTERS`` confident letters and ``TEXT_SCENE_RATIO`` times as many as every other
   view (:func:`scene_turn`). Text read sideways or upside down gives few confident letters; a texture
-  gives a few single letters, which do not count (:func:`count_letters`).
+  gives a few single letters, which do not count;
+- *patterns read as letters* (a nadir satellite photo of fields was decided by the scene reading, which counted
+  letters): every stage decides only on *real words* (:mod:`workers.orientation.words`: confident, accepted by the
+  language's dictionary, horizontal, on lines of one letter size), a minimum of them, read the winning way up and
+  not in the same places the other way up. OSD alone (character shapes) no longer decides without them.
 
 The thresholds were calibrated on real text photos and textures (``benchmarks/orientation.py``,
 ``$SWEEPCAST_DATA/orientation``, with held-out figures by image and by source): see their docstrings.
@@ -56,6 +60,7 @@ import shutil
 import subprocess
 import threading
 from dataclasses import dataclass
+from pathlib import Path
 from functools import lru_cache
 from typing import Iterable, Literal, Sequence
 
@@ -63,6 +68,7 @@ import cv2
 import numpy as np
 
 from workers.orientation.geometry import ROTATIONS, rotate_view
+from workers.orientation.words import Evidence, OcrWord, evidence, overlapping, word_lists
 from workers.settings import worker_settings
 
 try:  # the optional in-process binding (pip install tesserocr); the command line otherwise
@@ -92,7 +98,7 @@ TEXT_MIN_AGREE = 2
 upright-or-upside-down views (OSD finds too few characters when their lines run vertically), so 3
 rejected many of them and gained no safety on the calibration photos."""
 TEXT_VERIFY_MIN_WORDS = 8
-"""Least confident words (:func:`count_words`) OCR must read on the page turned the candidate way for
+"""Least confident words (:class:`workers.orientation.words.Evidence`) OCR must read on the page turned the candidate way for
 an OCR-verified decision. On the calibration photos a real page reads 8 to 630 of them upright and at
 most 12 upside down or sideways; no texture read more than 1. On the benchmark grid (RESULTS.md,
 orientation_text) every value from 3 to 30 made no wrong turn and 5 to 15 decided the most; 8 is inside
@@ -101,13 +107,13 @@ TEXT_VERIFY_RATIO = 3.0
 """The candidate must read this many times as many confident words as the page turned the other way
 up (at least 1 counted there). Calibrated like ``TEXT_VERIFY_MIN_WORDS``: verified pages read 4x to
 100x more words upright; every ratio from 1.5 to 6 was safe and decided the same on the photos, 3 is kept."""
-TEXT_WORD_MIN_CONFIDENCE = 80.0
-"""A word counts when Tesseract's word confidence (0-100) reaches this (chosen a priori: Tesseract's
-own "good word" region; not tuned)."""
-TEXT_WORD_MIN_LETTERS = 3
-"""... and it has at least this many letters, which make up at least ``TEXT_WORD_LETTER_SHARE`` of it
-(a priori: numbers and punctuation read from noise are not words)."""
-TEXT_WORD_LETTER_SHARE = 0.6
+TEXT_VERIFY_MIN_REAL = 3
+"""... and at least this many real words (:func:`workers.orientation.words.real_words`: in the dictionary, along
+lines of one size), ``TEXT_VERIFY_RATIO`` times as many as the page turned the other way reads in the same places.
+Chosen on the tuning split of the text photos (``benchmarks/orientation.py``, section orientation_text)."""
+TEXT_OSD_MIN_REAL = 2
+"""OSD alone decides only when OCR reads at least this many real words the candidate way up and fewer the other way
+up: OSD's votes are character shapes, not text, and lines or stripes in a texture can agree on one axis."""
 TEXT_MIN_CHARACTERS = 50
 """OSD's ``min_characters_to_try``: a view with fewer character blobs does not run (Tesseract's default)."""
 TEXT_MIN_SIDE = 1600
@@ -130,24 +136,19 @@ OSD_TIMEOUT_S = 60.0
 OCR_VARIANTS: tuple[Variant, ...] = ("gray", "binary")
 """The pages OCR reads, in order, until one verifies: the grey page (posters, photos: white-on-colour text
 that a local threshold breaks), then the binarised one (faint thermal receipts)."""
+TEXT_SCENE_MIN_WORDS = 2
+"""Least real words (:func:`workers.orientation.words.real_words`) the scene reading (:meth:`TesseractOsd.read_scene`)
+must find in its best view to decide: words, not letters. Before, 8 confident *letters* decided, and a nadir
+satellite photo of fields read as letters in one view was decided."""
 TEXT_SCENE_MIN_LETTERS = 8
-"""Least confident letters (:func:`count_letters`) the scene reading (:meth:`TesseractOsd.read_scene`) must find
-in its best view to decide: about two words, what a road sign holds. Set from single readings of the real photos
-before the benchmark run (``benchmarks/orientation.py``): signs read 10 (a Korean/English sign, English model) to
-52 (French signposts) letters upright, a generated two-line sign 26; textures and aerial views at most 2 to 4 in any
-view (their single letters do not count). The benchmark's grid and held-out selection check it (RESULTS.md,
-orientation_text)."""
+"""... holding at least this many letters between them (about two words, what a road sign holds)."""
 TEXT_SCENE_RATIO = 3.0
-"""... and this many times as many as the best of the other three views (at least 1 counted there): upside-down
-capitals read as letters too (a Japanese/English sign read 33 upright, 10 upside down); the same ratio as the
-verifying OCR's ``TEXT_VERIFY_RATIO``."""
+"""... and this many times the real letters of the best of the other three views (at least 1 counted there), with
+the opposite view reading at most 1/ratio as many real words in the same places: text read upright reads as
+nonsense upside down (the same ratio as the verifying OCR's ``TEXT_VERIFY_RATIO``)."""
 TEXT_SCENE_PSM = 11
 """Tesseract's page segmentation for the scene reading: sparse text (find as much text as possible in no particular
 order): signs and posters are scattered lines that the block mode of the verifying OCR does not find."""
-TEXT_LETTER_MIN_LETTERS = 2
-"""A word's letters count (:func:`count_letters`) when it has at least this many, making up at least
-``TEXT_WORD_LETTER_SHARE`` of it, at ``TEXT_WORD_MIN_CONFIDENCE`` (a priori: single letters are what noise reads;
-two keeps CJK words, often one or two characters long)."""
 LATIN_SCRIPTS = frozenset({"Latin", "Common"})
 """OSD scripts the English model reads already: no script model added for them."""
 SCRIPT_MODELS = {"Han": "HanS"}
@@ -178,24 +179,32 @@ class OsdView:
 
 @dataclass(frozen=True)
 class WordCount:
-    """OCR of the page turned one way: how many confident words it read."""
+    """OCR of the page turned one way (:meth:`TesseractOsd.verify`): what it read, summed up."""
 
     variant: Variant
     """Which page was read: the grey one or the binarised one."""
     rotation: int
     """Clockwise degrees the stored image was turned before reading (the turn this reading tests)."""
-    words: int
-    """Confident, letter-made words read (:func:`count_words`)."""
+    evidence: Evidence = Evidence()
+
+    @property
+    def words(self) -> int:
+        """Confident, letter-made words read."""
+        return self.evidence.words
 
 
 @dataclass(frozen=True)
 class LetterCount:
-    """The scene reading of the page turned one way: how many confident letters it read."""
+    """The scene reading of the page turned one way (:meth:`TesseractOsd.read_scene`), summed up."""
 
     rotation: int
     """Clockwise degrees the stored image was turned before reading."""
-    letters: int
-    """Letters of the confident words read (:func:`count_letters`)."""
+    evidence: Evidence = Evidence()
+
+    @property
+    def letters(self) -> int:
+        """Letters of the confident words read (real words or not)."""
+        return self.evidence.letters
 
 
 @dataclass(frozen=True)
@@ -224,49 +233,34 @@ class TextResult:
         agreeing = sum(v.ran and v.rotation == self.rotation for v in self.views)
         osd = f"OSD in {agreeing} of {len(self.views)} views"
         if self.how == "scene":
-            best = max((c.letters for c in self.scene if c.rotation == self.rotation), default=0)
-            other = max((c.letters for c in self.scene if c.rotation != self.rotation), default=0)
-            return (f"scene text read ({self.scene_language}): {best} confident letters this way up, at most {other} "
-                    "turned any other way")
+            best = next((c.evidence for c in self.scene if c.rotation == self.rotation), Evidence())
+            other = max((c.evidence.real for c in self.scene if c.rotation != self.rotation), default=0)
+            return (f"scene text read ({self.scene_language}): {best.real} dictionary words ({best.real_letters} "
+                    f"letters) this way up, at most {other} turned any other way")
+        c, o = _best_pair(self.words, self.rotation)
         if self.how != "ocr":
-            return f"{osd} (OSD alone)"
-        var = next((v for v in OCR_VARIANTS if ocr_turn(self.rotation, self.words, v) == self.rotation), None)
-        c, o = _pair(self.words, self.rotation, var)
-        return f"{osd}, confirmed by OCR ({c} confident words read this way up, {o} the other way up)"
+            return f"{osd} (OSD, with {c.real} dictionary words read this way up and {o.real} the other way up)"
+        return (f"{osd}, confirmed by OCR ({c.words} confident words, {c.real} in the dictionary, read this way up; "
+                f"{o.words} the other way up)")
 
 
-def count_words(words: Iterable[tuple[str, float]], min_confidence: float = TEXT_WORD_MIN_CONFIDENCE,
-                min_letters: int = TEXT_WORD_MIN_LETTERS, letter_share: float = TEXT_WORD_LETTER_SHARE) -> int:
-    """How many (text, confidence 0-100) OCR words are confident and made of letters."""
-    n = 0
-    for text, conf in words:
-        letters = sum(ch.isalpha() for ch in text)
-        n += conf >= min_confidence and letters >= min_letters and letters >= letter_share * len(text)
-    return n
-
-
-def count_letters(words: Iterable[tuple[str, float]], min_confidence: float = TEXT_WORD_MIN_CONFIDENCE,
-                  min_letters: int = TEXT_LETTER_MIN_LETTERS, letter_share: float = TEXT_WORD_LETTER_SHARE) -> int:
-    """The letters of the (text, confidence 0-100) OCR words that are confident and made of letters (any script:
-    a CJK character counts one)."""
-    n = 0
-    for text, conf in words:
-        letters = sum(ch.isalpha() for ch in text)
-        if conf >= min_confidence and letters >= min_letters and letters >= letter_share * len(text):
-            n += letters
-    return n
-
-
-def scene_turn(counts: Sequence[LetterCount], min_letters: int = TEXT_SCENE_MIN_LETTERS,
-               ratio: float = TEXT_SCENE_RATIO) -> int | None:
-    """The view the scene reading decides: the one with the most letters when it has at least ``min_letters`` and
-    ``ratio`` times as many as every other view (at least 1 counted there); None otherwise (or when not every one
-    of the four views was read)."""
+def scene_turn(counts: Sequence[LetterCount], min_words: int = TEXT_SCENE_MIN_WORDS,
+               min_letters: int = TEXT_SCENE_MIN_LETTERS, ratio: float = TEXT_SCENE_RATIO) -> int | None:
+    """The view the scene reading decides: the one with the most real letters when it holds at least ``min_words``
+    real words with ``min_letters`` letters, ``ratio`` times the real letters of every other view (at least 1
+    counted there), and the opposite view reads at most 1/``ratio`` as many real words in the same places; None
+    otherwise (or when not every one of the four views was read)."""
     if sorted(c.rotation for c in counts) != list(ROTATIONS):
         return None
-    best = max(counts, key=lambda c: c.letters)
-    other = max(c.letters for c in counts if c is not best)
-    return best.rotation if best.letters >= min_letters and best.letters >= ratio * max(other, 1) else None
+    by_view = {c.rotation: c.evidence for c in counts}
+    best_view = max(ROTATIONS, key=lambda r: (by_view[r].real_letters, by_view[r].real))
+    best = by_view[best_view]
+    other = max(e.real_letters for r, e in by_view.items() if r != best_view)
+    same_places = overlapping(by_view[(best_view + 180) % 360].regions, best.regions)
+    if (best.real >= min_words and best.real_letters >= min_letters and best.real_letters >= ratio * max(other, 1)
+            and same_places * ratio <= best.real):
+        return best_view
+    return None
 
 
 def scene_language(views: Sequence[OsdView], installed: Iterable[str]) -> str:
@@ -288,19 +282,22 @@ def decide_text(views: Sequence[OsdView], words: Sequence[WordCount] = (), scene
                 min_confidence: float = TEXT_MIN_CONFIDENCE, min_agree: int = TEXT_MIN_AGREE,
                 min_words: int = TEXT_VERIFY_MIN_WORDS, ratio: float = TEXT_VERIFY_RATIO,
                 scene_letters: int = TEXT_SCENE_MIN_LETTERS, scene_ratio: float = TEXT_SCENE_RATIO,
+                min_real: int = TEXT_VERIFY_MIN_REAL, scene_words: int = TEXT_SCENE_MIN_WORDS,
+                osd_real: int = TEXT_OSD_MIN_REAL,
                 ) -> tuple[int | None, RejectReason | None, Literal["ocr", "osd", "scene"] | None]:
     """The text cue's whole rule: OSD proposes and OCR verifies (:func:`osd_candidate`, :func:`text_decision`);
     when that decides nothing, the scene reading of the four views (:func:`scene_turn`). A rejection keeps the
     first stage's reason, except that a scene read clearly in some view is not "no_cue" but "low_confidence"."""
     candidate, why = osd_candidate(views, min_agree)
     if candidate is not None:
-        rotation, why, how = text_decision(views, words, min_confidence, min_agree, min_words, ratio)
+        rotation, why, how = text_decision(views, words, min_confidence, min_agree, min_words, ratio, min_real,
+                                           osd_real)
         if rotation is not None:
             return rotation, None, how
-    turn = scene_turn(scene, scene_letters, scene_ratio)
+    turn = scene_turn(scene, scene_words, scene_letters, scene_ratio)
     if turn is not None:
         return turn, None, "scene"
-    if why == "no_cue" and any(c.letters >= scene_letters for c in scene):
+    if why == "no_cue" and any(c.evidence.real_letters >= scene_letters for c in scene):
         why = "low_confidence"
     return None, why, None
 
@@ -321,37 +318,48 @@ def osd_candidate(views: Sequence[OsdView], min_agree: int = TEXT_MIN_AGREE) -> 
     return candidate, None
 
 
-def _pair(words: Sequence[WordCount], rotation: int | None, variant: Variant | None = None) -> tuple[int, int]:
-    """(words read at ``rotation``, at its opposite) of the first variant (or ``variant``) read at both."""
+def _pair(words: Sequence[WordCount], rotation: int | None, variant: Variant) -> tuple[Evidence, Evidence] | None:
+    """(the reading at ``rotation``, at its opposite) of ``variant``, or None when it was not read both ways."""
     if rotation is None:
-        return 0, 0
-    for var in ([variant] if variant else OCR_VARIANTS):
-        got = {w.rotation: w.words for w in words if w.variant == var}
-        if rotation in got and (rotation + 180) % 360 in got:
-            return got[rotation], got[(rotation + 180) % 360]
-    return 0, 0
+        return None
+    got = {w.rotation: w.evidence for w in words if w.variant == variant}
+    opposite = (rotation + 180) % 360
+    return (got[rotation], got[opposite]) if rotation in got and opposite in got else None
+
+
+def _best_pair(words: Sequence[WordCount], rotation: int | None) -> tuple[Evidence, Evidence]:
+    """The variant's pair with the most real words read at ``rotation`` (empty evidence when none was read)."""
+    pairs = [p for var in OCR_VARIANTS if (p := _pair(words, rotation, var)) is not None]
+    return max(pairs, key=lambda p: (p[0].real, p[0].words), default=(Evidence(), Evidence()))
 
 
 def ocr_verdict(candidate: int, words: Sequence[WordCount], variant: Variant, min_words: int = TEXT_VERIFY_MIN_WORDS,
-                ratio: float = TEXT_VERIFY_RATIO) -> Literal["for", "against", "unclear"]:
-    """What the OCR of ``variant`` says about ``candidate``: for (enough words, ``ratio`` times the other way up),
-    against (the other way up reads at least ``min_words`` and more words than the candidate), else unclear."""
-    c, o = _pair(words, candidate, variant)
-    if c >= min_words and c >= ratio * max(o, 1):
+                ratio: float = TEXT_VERIFY_RATIO, min_real: int = TEXT_VERIFY_MIN_REAL
+                ) -> Literal["for", "against", "unclear"]:
+    """What the OCR of ``variant`` says about ``candidate``: for (at least ``min_words`` confident words and
+    ``min_real`` real ones, each ``ratio`` times what the other way up reads: the real words counted in the same
+    places), against (the other way up reads at least ``min_words`` and more words than the candidate), else unclear."""
+    pair = _pair(words, candidate, variant)
+    if pair is None:
+        return "unclear"
+    c, o = pair
+    same_places = overlapping(o.regions, c.regions)
+    if (c.words >= min_words and c.words >= ratio * max(o.words, 1) and c.real >= min_real
+            and c.real >= ratio * max(same_places, 1)):
         return "for"
-    if o >= min_words and o > c:
+    if o.words >= min_words and o.words > c.words:
         return "against"
     return "unclear"
 
 
 def ocr_turn(candidate: int, words: Sequence[WordCount], variant: Variant, min_words: int = TEXT_VERIFY_MIN_WORDS,
-             ratio: float = TEXT_VERIFY_RATIO) -> int | None:
+             ratio: float = TEXT_VERIFY_RATIO, min_real: int = TEXT_VERIFY_MIN_REAL) -> int | None:
     """The turn on the candidate's axis that the OCR of ``variant`` verifies: the candidate or its opposite
     (OSD's 180-degree confusion, settled by reading), or None when neither reads clearly better."""
     opposite = (candidate + 180) % 360
-    if ocr_verdict(candidate, words, variant, min_words, ratio) == "for":
+    if ocr_verdict(candidate, words, variant, min_words, ratio, min_real) == "for":
         return candidate
-    if ocr_verdict(opposite, words, variant, min_words, ratio) == "for":
+    if ocr_verdict(opposite, words, variant, min_words, ratio, min_real) == "for":
         return opposite
     return None
 
@@ -359,26 +367,31 @@ def ocr_turn(candidate: int, words: Sequence[WordCount], variant: Variant, min_w
 def text_decision(views: Sequence[OsdView], words: Sequence[WordCount] = (),
                   min_confidence: float = TEXT_MIN_CONFIDENCE, min_agree: int = TEXT_MIN_AGREE,
                   min_words: int = TEXT_VERIFY_MIN_WORDS, ratio: float = TEXT_VERIFY_RATIO,
+                  min_real: int = TEXT_VERIFY_MIN_REAL, osd_real: int = TEXT_OSD_MIN_REAL,
                   ) -> tuple[int | None, RejectReason | None, Literal["ocr", "osd"] | None]:
     """(turn, None, how) or (None, why, None) for the OSD ``views`` and the OCR ``words`` of the candidate.
 
     The first OCR variant (``OCR_VARIANTS`` order; a variant not read is skipped) that verifies a turn on the
     candidate's axis (:func:`ocr_turn`: the candidate, or its opposite when OSD confused the page with its
-    upside-down self) decides it. Otherwise OSD decides alone when every vote agrees with a mean confidence
-    of at least ``min_confidence`` and no OCR variant says "against" the candidate."""
+    upside-down self) decides it. Otherwise OSD decides when every vote agrees with a mean confidence of at least
+    ``min_confidence``, no OCR variant says "against" the candidate, and OCR read at least ``osd_real`` real words
+    the candidate way up and fewer the other way up (OSD classifies shapes; the words say they are text)."""
     candidate, why = osd_candidate(views, min_agree)
     if candidate is None:
         return None, why, None
     read = [var for var in OCR_VARIANTS if any(w.variant == var for w in words)]
     for var in read:
-        turn = ocr_turn(candidate, words, var, min_words, ratio)
+        turn = ocr_turn(candidate, words, var, min_words, ratio, min_real)
         if turn is not None:
             return turn, None, "ocr"
     ran = [v for v in views if v.ran and v.rotation is not None]
-    if any(ocr_verdict(candidate, words, var, min_words, ratio) == "against" for var in read) or any(
+    if any(ocr_verdict(candidate, words, var, min_words, ratio, min_real) == "against" for var in read) or any(
             v.rotation != candidate for v in ran):
         return None, "conflicting_rotations", None
     if sum(v.confidence for v in ran) / len(ran) < min_confidence:
+        return None, "low_confidence", None
+    c, o = _best_pair(words, candidate)
+    if c.real < osd_real or o.real >= c.real:
         return None, "low_confidence", None
     return candidate, None, "osd"
 
@@ -404,14 +417,16 @@ def parse_osd(view: int, stdout: str, stderr: str = "") -> OsdView:
                    script.group(1) if script else None, float(script_conf.group(1)) if script_conf else 0.0)
 
 
-def parse_tsv_words(tsv: str) -> list[tuple[str, float]]:
-    """(text, confidence) of the words (level 5 rows) in Tesseract's ``tsv`` output."""
+def parse_tsv_words(tsv: str) -> list[OcrWord]:
+    """The words (level 5 rows) of Tesseract's ``tsv`` output, with their boxes; the command line cannot say whether
+    the dictionary accepts a word (``dictionary`` None)."""
     out = []
     for line in tsv.splitlines()[1:]:
         cols = line.split("\t")
         if len(cols) >= 12 and cols[0] == "5" and cols[11].strip():
             try:
-                out.append((cols[11].strip(), float(cols[10])))
+                box = tuple(float(v) for v in cols[6:10])
+                out.append(OcrWord(cols[11].strip(), float(cols[10]), box))
             except ValueError:
                 continue
     return out
@@ -477,7 +492,8 @@ class TesseractOsd:
 
     def __init__(self, binary: str = DEFAULT_TESSERACT, min_confidence: float = TEXT_MIN_CONFIDENCE,
                  min_agree: int = TEXT_MIN_AGREE, min_characters: int = TEXT_MIN_CHARACTERS,
-                 timeout_s: float = OSD_TIMEOUT_S, use_api: bool | None = None, exhaustive: bool = False) -> None:
+                 timeout_s: float = OSD_TIMEOUT_S, use_api: bool | None = None, exhaustive: bool = False,
+                 wordlists: Path | str | None = None) -> None:
         path = shutil.which(binary)
         if path is None:
             raise TextUnavailable(f"the tesseract binary {binary!r} was not found (install the Debian packages "
@@ -491,6 +507,9 @@ class TesseractOsd:
         alone."""
         self.script_models = tuple(sorted(lang for lang in langs if lang[:1].isupper()))
         """The installed script models (``Hangul``, ``Japanese``, ...) the scene reading can add to English."""
+        self.wordlists = worker_settings().orientation_wordlists if wordlists is None else Path(wordlists)
+        self.vocabulary = word_lists(self.wordlists)
+        """The words the word lists know (lower case; :func:`workers.orientation.words.real_words`)."""
         self.min_confidence = min_confidence
         self.min_agree = min_agree
         self.min_characters = min_characters
@@ -556,9 +575,10 @@ class TesseractOsd:
             return OsdView(view, False, detail=out)
         return parse_osd(view, *out)
 
-    def words(self, page: np.ndarray, lang: str = "eng", psm: int = 6) -> list[tuple[str, float]]:
-        """(text, confidence 0-100) of every word OCR in ``lang`` reads on ``page`` ((H, W) uint8) with Tesseract's
-        page segmentation ``psm`` (6: one block, the verifying OCR; 11: sparse text, the scene reading)."""
+    def words(self, page: np.ndarray, lang: str = "eng", psm: int = 6) -> list[OcrWord]:
+        """Every word OCR in ``lang`` reads on ``page`` ((H, W) uint8) with Tesseract's page segmentation ``psm``
+        (6: one block, the verifying OCR; 11: sparse text, the scene reading): text, confidence 0-100, box in
+        ``page`` px, and whether the language's dictionary accepts it (tesserocr only)."""
         if self.backend == "tesserocr":
             from PIL import Image
 
@@ -573,7 +593,10 @@ class TesseractOsd:
             for word in tesserocr.iterate_level(iterator, level):
                 try:
                     text = word.GetUTF8Text(level)
-                    out.append((text, float(word.Confidence(level))))
+                    x0, y0, x1, y1 = word.BoundingBox(level)
+                    out.append(OcrWord(text, float(word.Confidence(level)), (float(x0), float(y0), float(x1 - x0),
+                                                                             float(y1 - y0)),
+                                       bool(word.WordIsFromDictionary())))
                 except RuntimeError:  # an empty word
                     continue
             return out
@@ -594,8 +617,10 @@ class TesseractOsd:
             return ()
         out: list[WordCount] = []
         for variant, page in ocr_pages(gray).items():
+            height, width = page.shape[:2]
             for r in (candidate, (candidate + 180) % 360):
-                out.append(WordCount(variant, r, count_words(self.words(rotate_view(page, r)))))
+                out.append(WordCount(variant, r, evidence(self.words(rotate_view(page, r)), r, width, height,
+                                                          self.vocabulary)))
             if not self.exhaustive and ocr_turn(candidate, out, variant) is not None:
                 break
         return tuple(out)
@@ -604,8 +629,9 @@ class TesseractOsd:
         """The scene reading: sparse-text OCR (``TEXT_SCENE_PSM``) in ``lang`` of ``gray`` ((H, W) uint8, stored
         orientation) sized like the verifying OCR's page (whole, no window), in each of the four views."""
         page = _resize_long_side(gray, TEXT_MIN_SIDE, TEXT_OCR_MAX_SIDE, TEXT_MAX_UPSCALE)
-        return tuple(LetterCount(r, count_letters(self.words(rotate_view(page, r), lang, TEXT_SCENE_PSM)))
-                     for r in ROTATIONS)
+        height, width = page.shape[:2]
+        return tuple(LetterCount(r, evidence(self.words(rotate_view(page, r), lang, TEXT_SCENE_PSM), r, width, height,
+                                             self.vocabulary)) for r in ROTATIONS)
 
     def upright(self, gray: np.ndarray) -> TextResult:
         """The turn that shows ``gray``'s text upright, or a rejection with its reason: OSD proposes, OCR verifies;
@@ -667,6 +693,7 @@ def text_status(binary: str = DEFAULT_TESSERACT, enabled: bool = True) -> dict[s
     return {"available": True, "enabled": True, "path": found.path, "version": found.version,
             "backend": found.backend, "ocr_verification": found.ocr, "scene_reading": found.ocr,
             "script_models": list(found.script_models),
+            "wordlists": str(found.wordlists), "wordlist_words": len(found.vocabulary),
             "min_confidence": found.min_confidence, "min_agree": found.min_agree}
 
 

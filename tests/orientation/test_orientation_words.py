@@ -1,0 +1,59 @@
+"""Which OCR words are real words (issue 33: the text cue decides only on evidence that is text)."""
+from __future__ import annotations
+
+import pytest
+
+from workers.orientation.words import Evidence, OcrWord, evidence, known, overlapping, real_words, word_lists
+
+VOCABULARY = frozenset({"receipt", "total", "paris", "louvre", "lilt", "tilt"})
+
+
+def w(text: str, conf: float = 92.0, box=(10, 10, 80, 20), dictionary: bool | None = None) -> OcrWord:
+    return OcrWord(text, conf, tuple(float(v) for v in box), dictionary)
+
+
+def test_real_words_are_confident_known_horizontal_and_of_one_size():
+    found = real_words([w("Receipt"), w("TOTAL:"), w("Paris", 70.0),  # not confident
+                        w("xqzv"),  # known to no dictionary
+                        w("tot"),  # too short
+                        w("lilt"), w("tilt"),  # strokes only: what lines read as
+                        w("Louvre", box=(0, 0, 20, 80)),  # taller than wide: not along the reading direction
+                        w("Paris", box=(0, 0, 400, 200))],  # ten times the others' height: not on their lines
+                       VOCABULARY)
+    assert [x.text for x in found] == ["Receipt", "TOTAL:"]
+
+
+def test_dense_scripts_are_known_by_tesseracts_dictionary_from_two_characters():
+    assert known(w("禁止", dictionary=True), VOCABULARY) and not known(w("禁止", dictionary=False), VOCABULARY)
+    assert [x.text for x in real_words([w("禁止", dictionary=True, box=(0, 0, 40, 20)), w("禁", dictionary=True)])] \
+        == ["禁止"]
+    # Tesseract's flag alone does not make a Latin word known: it flags strings read from textures
+    assert not known(w("RTA", dictionary=True), VOCABULARY)
+
+
+def test_evidence_maps_real_words_back_onto_the_stored_page():
+    # a 200 x 100 page read turned 90 degrees clockwise (the view is 100 x 200): a word at the view's top left
+    ev = evidence([w("Receipt", box=(0, 0, 50, 10)), w("lll")], 90, 200, 100, VOCABULARY)
+    assert ev == Evidence(words=2, letters=10, real=1, real_letters=7, regions=((0.0, 0.5, 0.05, 0.5),))
+
+
+def test_overlapping_counts_regions_that_share_area():
+    a = [(0.0, 0.0, 0.2, 0.1), (0.5, 0.5, 0.2, 0.1)]
+    assert overlapping(a, [(0.1, 0.0, 0.2, 0.1)]) == 1
+    assert overlapping(a, [(0.9, 0.9, 0.05, 0.05)]) == 0
+    assert overlapping([], a) == 0
+
+
+def test_word_lists_are_read_from_a_folder(tmp_path):
+    (tmp_path / "english").write_text("Receipt\nTotal\n\n")
+    (tmp_path / "README.select-wordlist").write_text("not words\n")
+    (tmp_path / "words").symlink_to(tmp_path / "english")
+    assert word_lists(tmp_path) == frozenset({"receipt", "total"})
+    assert word_lists(tmp_path / "missing") == frozenset()
+
+
+@pytest.mark.skipif(not word_lists(__import__("pathlib").Path("/usr/share/dict")),
+                    reason="no word lists in /usr/share/dict (apt-get install wamerican)")
+def test_the_installed_word_lists_know_common_words():
+    vocabulary = word_lists(__import__("pathlib").Path("/usr/share/dict"))
+    assert {"receipt", "total", "thank"} <= vocabulary

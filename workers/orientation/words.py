@@ -1,0 +1,175 @@
+"""What counts as text: the words an OCR reading found, sorted into real words and noise.
+
+The text cue may decide only on evidence that is text. Tesseract reads "words" in anything: gravel, fields seen from
+above, fabric. Such readings are single letters, runs of ``lll``/``iii`` or letter soup at high confidence, scattered
+in every direction. A *real word* (:func:`real_words`) is one that
+
+- Tesseract read confidently (``TEXT_WORD_MIN_CONFIDENCE``), made mostly of letters, at least
+  ``REAL_WORD_MIN_LETTERS`` of them (two for the scripts whose words are one or two characters: CJK, Hangul, Thai);
+- a dictionary knows: for alphabetic scripts the word lists installed for people (Debian's ``wamerican``,
+  ``wngerman``, ``wfrench``, ...: every file in ``SWEEPCAST_ORIENTATION_WORDLISTS``, default ``/usr/share/dict``);
+  for the dense scripts the reading script model's own dictionary (Tesseract's word DAWG, ``WordIsFromDictionary``;
+  only through tesserocr). Tesseract's flag is not used for Latin words: read with a script model first, "LITTER"
+  and "CITY" were not flagged, and it flags strings such as "np", "RTA" or "DAE" read from textures or sideways;
+- is not made of vertical strokes only (``i``, ``l``, ``j``, ``t``, ``f``: what a pattern of lines reads as), and has
+  two different letters at least;
+- lies along the reading direction: its box is wider than tall, as a horizontal word of two or more letters is;
+- stands on a line of the same size as the view's other real words (its height within ``REAL_WORD_HEIGHT_RATIO`` of
+  their median): lines of text have one letter size; noise read as words comes in every size.
+
+:func:`evidence` sums one reading up; the decision rules (:mod:`workers.orientation.text`) compare a view's evidence
+with the opposite view's, region by region (:func:`overlapping`): text read upright reads as nonsense upside down.
+"""
+from __future__ import annotations
+
+import statistics
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import AbstractSet, Iterable, Sequence
+
+from workers.orientation.geometry import Box, view_box_to_image
+
+TEXT_WORD_MIN_CONFIDENCE = 80.0
+"""A word counts when Tesseract's word confidence (0-100) reaches this (chosen a priori: Tesseract's own "good word"
+region; not tuned)."""
+TEXT_WORD_LETTER_SHARE = 0.6
+"""... and letters make up at least this share of it (a priori: numbers and punctuation read from noise are not
+words)."""
+REAL_WORD_MIN_LETTERS = 4
+"""Least letters of a real word in an alphabetic script. Short strings are what noise reads, and the dictionaries
+know most of them: Hebrew read sideways by the English model gave ten three-letter words the word lists or
+Tesseract accept ("ere", "par", "aga", "RTA", "DAE"), more than it read upright."""
+REAL_WORD_MIN_LETTERS_DENSE = 2
+"""Least letters of a real word in the scripts that write a word with one or two characters (CJK, Hangul, Thai)."""
+REAL_WORD_HEIGHT_RATIO = 2.5
+"""A real word's box height is within this factor of the median height of the view's real words."""
+_STROKES = frozenset("iljtf")
+_DENSE_SCRIPTS_FROM = 0x0E00
+"""Code points from Thai upwards (Thai, Hangul, CJK, kana) are the dense scripts; Latin, Greek, Cyrillic, Hebrew and
+Arabic lie below."""
+
+
+@dataclass(frozen=True)
+class OcrWord:
+    """One word of an OCR reading.
+
+    ``box`` is (x, y, w, h) in pixels of the page as it was read (the turned view); ``dictionary`` whether the
+    language model's dictionary accepts the word (None: the backend cannot say)."""
+
+    text: str
+    confidence: float
+    box: Box = (0.0, 0.0, 0.0, 0.0)
+    dictionary: bool | None = None
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """One reading (a page turned one way) summed up: confident letter words, their letters, and the real words.
+
+    ``regions`` are the real words' boxes on the *stored* page, as fractions of its width and height (x, y, w, h),
+    so that readings of different views can be compared region by region."""
+
+    words: int = 0
+    """Confident words of at least 3 letters (the count the OCR verification used before the dictionary)."""
+    letters: int = 0
+    """Letters of the confident words of at least 2 letters (the scene reading's count before the dictionary)."""
+    real: int = 0
+    """Real words (:func:`real_words`)."""
+    real_letters: int = 0
+    """Their letters."""
+    regions: tuple[Box, ...] = ()
+
+
+@lru_cache(maxsize=4)
+def word_lists(folder: Path) -> frozenset[str]:
+    """Every word (lower case) of the word lists in ``folder`` (one word a line, UTF-8; README files skipped); empty
+    when there is none."""
+    words: set[str] = set()
+    folder = Path(folder)
+    if not folder.is_dir():
+        return frozenset()
+    seen = set()
+    for path in sorted(folder.iterdir()):
+        real = path.resolve()
+        if real in seen or not real.is_file() or path.name.upper().startswith("README"):
+            continue
+        seen.add(real)
+        try:
+            words.update(line.strip().lower() for line in real.read_text(encoding="utf-8", errors="ignore").splitlines())
+        except OSError:
+            continue
+    words.discard("")
+    return frozenset(words)
+
+
+def _core(text: str) -> str:
+    """The word without the punctuation OCR reads around it ("Total:", "(EUR)")."""
+    return text.strip(".,:;!?()[]{}\"'`-_/|*")
+
+
+def known(word: OcrWord, vocabulary: AbstractSet[str]) -> bool:
+    """A dictionary knows ``word``: Tesseract's own for the dense scripts, else the word lists (lower case,
+    punctuation around it stripped)."""
+    if _is_dense(word.text):
+        return word.dictionary is True
+    return _core(word.text).lower() in vocabulary
+
+
+def letter_count(text: str) -> int:
+    return sum(ch.isalpha() for ch in text)
+
+
+def _is_dense(text: str) -> bool:
+    return any(ch.isalpha() and ord(ch) >= _DENSE_SCRIPTS_FROM for ch in text)
+
+
+def confident(word: OcrWord, min_letters: int) -> bool:
+    """Confident and made of letters: at least ``min_letters`` of them, ``TEXT_WORD_LETTER_SHARE`` of the word."""
+    letters = letter_count(word.text)
+    return (word.confidence >= TEXT_WORD_MIN_CONFIDENCE and letters >= min_letters
+            and letters >= TEXT_WORD_LETTER_SHARE * len(word.text))
+
+
+def real_words(words: Iterable[OcrWord], vocabulary: AbstractSet[str] = frozenset()) -> list[OcrWord]:
+    """The real words of one reading (module docstring): confident, known to a dictionary (``vocabulary``: the word
+    lists, lower case; or Tesseract's flag), not strokes only, horizontal, and on lines of one letter size."""
+    found = []
+    for w in words:
+        least = REAL_WORD_MIN_LETTERS_DENSE if _is_dense(w.text) else REAL_WORD_MIN_LETTERS
+        letters = {ch for ch in w.text.lower() if ch.isalpha()}
+        if (confident(w, least) and known(w, vocabulary) and len(letters) >= 2 and not letters <= _STROKES
+                and w.box[2] >= w.box[3] > 0):
+            found.append(w)
+    if len(found) < 2:
+        return found
+    median = statistics.median(w.box[3] for w in found)
+    return [w for w in found if median / REAL_WORD_HEIGHT_RATIO <= w.box[3] <= median * REAL_WORD_HEIGHT_RATIO]
+
+
+def evidence(words: Sequence[OcrWord], rotation: int, width: int, height: int,
+             vocabulary: AbstractSet[str] = frozenset()) -> Evidence:
+    """``words`` read on the page (``width`` x ``height`` px, stored orientation) turned ``rotation`` degrees
+    clockwise, summed up with ``vocabulary`` (:func:`real_words`); the real words' boxes mapped back onto the stored
+    page (fractions)."""
+    real = real_words(words, vocabulary)
+    regions = []
+    for w in real:
+        x, y, bw, bh = view_box_to_image(w.box, rotation, width, height)
+        regions.append((round(x / width, 4), round(y / height, 4), round(bw / width, 4), round(bh / height, 4)))
+    return Evidence(words=sum(confident(w, 3) for w in words),
+                    letters=sum(letter_count(w.text) for w in words if confident(w, 2)),
+                    real=len(real), real_letters=sum(letter_count(w.text) for w in real), regions=tuple(regions))
+
+
+def overlapping(regions: Sequence[Box], others: Sequence[Box], min_share: float = 0.3) -> int:
+    """How many of ``regions`` overlap any of ``others`` by at least ``min_share`` of the smaller box's area."""
+    n = 0
+    for a in regions:
+        for b in others:
+            iw = min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0])
+            ih = min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1])
+            if iw > 0 and ih > 0 and iw * ih >= min_share * min(a[2] * a[3], b[2] * b[3]):
+                n += 1
+                break
+    return n
