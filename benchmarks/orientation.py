@@ -16,21 +16,17 @@ four views were accepted) and Table III (success / reject / error). Configuratio
 - ``combined``: YuNet faces confirmed by Haar parts or by a decisive YuNet margin (the default
   when a YuNet model is configured).
 
-Faces first, then text (``$SWEEPCAST_DATA/orientation``: ``text/``, real text photos and scans,
-upright as stored; ``noup/``, textures and aerial views with no clear up), and the face photos again.
-Every image is turned by the four rotations (JPEG q95) and analysed by: ``paper`` (faces only),
-``combined_prev`` (YuNet + parts without the paper's detector: the combined detector before it
-used both detectors' evidence), ``combined`` (faces only) and ``engine`` (combined, then Tesseract
-OSD verified by OCR when the faces decide nothing: the service's default). Per set and cue: decided
-(right), rejected, wrong. A text/ or noup/ trial decided by faces is counted under ``faces``. The text
-cue's thresholds are calibrated here: every engine trial in which the text cue ran records its four OSD
-views, its OCR word counts (the engine reads every OCR variant here; its decisions are the service's) and,
-when the first stage rejected it, the scene reading's letters per view; the text rule is re-applied to those
-records over a grid of (OSD-alone least mean confidence, OCR least words, OCR ratio), then of the scene
-reading's (least letters, ratio) behind the chosen first stage: in sample, and held out (thresholds selected
-on the other images, applied to the held-out image; and by source repository). A first-stage point stricter
-than the engine's rejects trials that have no scene record: those count as undecided there. Trials run on two threads. The text cue's speed is then
-measured apart in the service's configuration (one thread, each text photo once).
+Text (``--text-section``, section orientation_text; issue 33). The text photos of
+``$SWEEPCAST_DATA/orientation/text`` and the no-text set (:mod:`benchmarks._notext`: ``noup/``, the drone's nadir
+stills, Debian's wallpapers, foliage and paper textures, scikit-image's photos, generated fields, fabric, foliage,
+crowds, stripes, cells and noise) are each read once by the text cue in all four views and every stage, kept in
+``--records`` (:mod:`benchmarks._text_records`), and decided as if stored at each of the four turns: by the engine's
+rule, by a grid's selection tuned on a split by source (the tuning sources and category named there), and by the
+previous release's rule, per source and category. Then the CPU per photo of each cue.
+
+Faces of every size (``--face-sizes``, section orientation_face_sizes; issue 33): the paper's detector with the Haar
+scans of the last releases and the short-side rule on the dev faces scaled to 5-45 % of a 2048 x 1365 photo
+(:mod:`benchmarks._face_sizes`).
 
 Speed. ~12-megapixel JPEGs are made by upscaling dev photos. Engine only: ``analyze`` in-process
 on one thread and on two threads (OpenCV releases the GIL), with decoding alone timed in the
@@ -49,8 +45,9 @@ product's choice), Exiv2 through pyexiv2 (in memory, ``ImageData``; the bench ex
 bytes changed (differing bytes when the length is kept, else the changed span before plus after) and
 median milliseconds per file. A writer of ours is kept only where it wins on bytes or time.
 
-Run: ``python benchmarks/orientation.py [--quick] [--no-http] [--no-speed] [--no-sets]`` from the repository root;
-``python benchmarks/orientation.py --text-section`` for the faces-then-text sets alone (section orientation_text);
+Run: ``python benchmarks/orientation.py [--quick] [--no-http] [--no-speed]`` from the repository root;
+``python benchmarks/orientation.py --text-section`` for the text cue alone (section orientation_text);
+``python benchmarks/orientation.py --face-sizes`` for the Haar scans on faces of every size;
 ``python benchmarks/orientation.py --writers`` for the writers section alone;
 ``python benchmarks/orientation.py --throughput`` for issue 21's throughput alone (section orientation_throughput:
 engines vs HTTP at 4 and 50 concurrent clients, ``/healthz`` latency under that load).
@@ -59,7 +56,6 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures
-import json
 import os
 import statistics
 import sys
@@ -77,16 +73,15 @@ from benchmarks._report import md_table, publish  # noqa: E402
 from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app  # noqa: E402
 from workers.common.datasets import data_root, dataset  # noqa: E402
 from workers.orientation.decode import decode_gray  # noqa: E402
-from workers.orientation.detect import (Decision, DetectorConfig, OrientationDetector, PaperDetector,  # noqa: E402
-                                        YuNetDetector, get_detector)
+from workers.orientation.detect import (DetectorConfig, OrientationDetector, PaperDetector,  # noqa: E402
+                                        get_detector)
 from workers.orientation.geometry import ROTATIONS, rotate_view  # noqa: E402
 from workers.orientation.faces import LongSideScan, ShortSideScan  # noqa: E402
 from workers.orientation.parts import PartSpec  # noqa: E402
-from workers.orientation.service import analyze, combine_cues  # noqa: E402
+from workers.orientation.service import analyze  # noqa: E402
 from workers.orientation.detect import Engine  # noqa: E402
-from workers.orientation.text import (TEXT_MIN_AGREE, TEXT_MIN_CONFIDENCE, TEXT_SCENE_MIN_LETTERS,  # noqa: E402
-                                      TEXT_SCENE_RATIO, TEXT_VERIFY_MIN_WORDS, TEXT_VERIFY_RATIO, LetterCount,
-                                      OsdView, TesseractOsd, TextResult, WordCount, decide_text)
+from workers.orientation.text import get_text_detector  # noqa: E402
+from workers.orientation.words import word_lists  # noqa: E402
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp")
 NEGATIVES = {"dogs.jpg"}
@@ -143,268 +138,6 @@ def configurations(yunet: Path | None, mcs: Path | None) -> dict[str, DetectorCo
         configs["yunet"] = DetectorConfig(method="yunet", yunet_model=yunet, text=False)
         configs["combined"] = DetectorConfig(method="combined", yunet_model=yunet, text=False)
     return configs
-
-
-def set_detectors(yunet: Path | None) -> dict[str, OrientationDetector]:
-    """The configurations run on every set: faces only, the previous combined detector, and the engine."""
-    out: dict[str, OrientationDetector] = {"paper": get_detector(DetectorConfig(method="paper", text=False))}
-    if yunet is not None:
-        out["combined_prev"] = YuNetDetector(yunet, PartSpec.opencv(), name="combined_prev")
-        out["combined"] = get_detector(DetectorConfig(method="combined", yunet_model=yunet, text=False))
-    engine = get_detector(DetectorConfig(yunet_model=yunet, text=True))
-    if engine.text is not None:  # every OCR variant read (same decisions), each result kept for the calibration
-        engine = Engine(engine.faces, RecordingText(engine.text.path), engine.text_info)
-    out["engine"] = engine
-    return out
-
-
-class RecordingText(TesseractOsd):
-    """The text cue reading every OCR variant (``exhaustive``: the decision is the same, the calibration needs
-    them all), keeping its last result per thread."""
-
-    def __init__(self, binary: str) -> None:
-        super().__init__(binary, exhaustive=True)
-        self.exhaustive_scene = False  # the scene reading runs as in the service: only when the first stage rejects
-        self.last = __import__("threading").local()
-
-    def upright(self, gray: np.ndarray) -> TextResult:
-        self.last.result = result = super().upright(gray)
-        return result
-
-
-def run_sets(sets: dict[str, list[Path]], detectors: dict[str, OrientationDetector], threads: int = 2) -> list[dict]:
-    """Every image of every set x 4 rotations through every detector; one record per trial."""
-    jobs = [(name, path) for name, paths in sets.items() for path in paths]
-
-    def one(job: tuple[str, Path]) -> list[dict]:
-        set_name, path = job
-        out = []
-        for r, data in rotated_inputs(path).items():
-            for name, detector in detectors.items():
-                if isinstance(detector, Engine) and isinstance(detector.text, RecordingText):
-                    detector.text.last.result = None
-                report = analyze(data, detector)
-                views = [[v.view_degrees, v.ran, v.rotation_degrees, v.confidence] for v in report.text.views]
-                recorded = getattr(getattr(getattr(detector, "text", None), "last", None), "result", None)
-                words = [[w.variant, w.rotation, w.words] for w in recorded.words] if recorded else []
-                scene = [[c.rotation, c.letters] for c in recorded.scene] if recorded else []
-                out.append({"text_words": words, "text_how": recorded.how if recorded else None,
-                            "text_scene": scene, "text_scene_language": recorded.scene_language if recorded else None,
-                            "text_scripts": [v.script for v in recorded.views] if recorded else [],
-                            "set": set_name, "image": path.name, "turn": r, "config": name,
-                            "rotation": report.rotation_degrees, "cue": report.cue, "reason": report.reject_reason,
-                            "accepted": report.accepted_rotations, "text_views": views,
-                            "text_status": report.text.status, "ms": report.elapsed_ms})
-        marks = {n: "".join("+" if t["rotation"] == t["turn"] else "." if t["rotation"] is None else "X"
-                            for t in out if t["config"] == n) for n in detectors}
-        print(f"{set_name:5s} {path.name[:40]:40s} " + " ".join(f"{n}:{m}" for n, m in marks.items()), flush=True)
-        return out
-
-    with concurrent.futures.ThreadPoolExecutor(threads) as pool:
-        return [t for trials in pool.map(one, jobs) for t in trials]
-
-
-def set_tallies(trials: list[dict]) -> dict:
-    """Per set and configuration: decided right / rejected / wrong, per cue, and the wrong cases."""
-    out: dict = {}
-    for t in trials:
-        c = out.setdefault(t["set"], {}).setdefault(t["config"], {
-            "trials": 0, "decided": 0, "rejected": 0, "wrong": 0, "by_cue": {}, "reasons": {}, "wrong_cases": [],
-            "ms": []})
-        c["trials"] += 1
-        c["ms"].append(t["ms"])
-        cue = c["by_cue"].setdefault(t["cue"], {"decided": 0, "wrong": 0, "rejected": 0})
-        if t["rotation"] is None:
-            c["rejected"] += 1
-            cue["rejected"] += 1
-            c["reasons"][t["reason"]] = c["reasons"].get(t["reason"], 0) + 1
-        elif t["set"] != "noup" and t["rotation"] == t["turn"]:
-            c["decided"] += 1
-            cue["decided"] += 1
-        else:  # a decision on a no-up image is wrong whatever it says
-            c["wrong"] += 1
-            cue["wrong"] += 1
-            c["wrong_cases"].append(f"{t['image']} turned {t['turn']}: {t['cue']} decided {t['rotation']}")
-    for configs in out.values():
-        for c in configs.values():
-            c["median_ms"] = statistics.median(c.pop("ms"))
-    return out
-
-
-def paper_vs(trials: list[dict], config: str) -> dict:
-    """Per set: trials the paper's detector decided (right) and ``config`` did not, and the reverse."""
-    by_key = {(t["set"], t["image"], t["turn"], t["config"]): t for t in trials}
-    out: dict = {}
-    for (set_name, image, turn, name), t in by_key.items():
-        if name != "paper" or (set_name, image, turn, config) not in by_key:
-            continue
-        other = by_key[set_name, image, turn, config]
-        row = out.setdefault(set_name, {"paper_only": [], "other_only": 0})
-        paper_ok, other_ok = t["rotation"] == turn, other["rotation"] == turn
-        if set_name == "noup":
-            paper_ok = other_ok = False
-        if paper_ok and not other_ok:
-            row["paper_only"].append(f"{image} turned {turn}")
-        row["other_only"] += other_ok and not paper_ok
-    return out
-
-
-CALIBRATION_CONFIDENCES = (1.5, 2.0, 2.5, 3.0, 4.0, 6.0, 99.0)
-"""OSD-alone thresholds tried (99: never decide by OSD alone)."""
-CALIBRATION_WORDS = (3, 5, 8, 10, 15, 20, 30)
-CALIBRATION_RATIOS = (1.5, 2.0, 3.0, 4.0, 6.0)
-SCENE_LETTERS = (4, 6, 8, 10, 12, 15, 20, 30, 999)
-"""Scene-reading least letters tried (999: no scene reading)."""
-SCENE_RATIOS = (1.5, 2.0, 3.0, 4.0, 6.0)
-NO_SCENE = (999, 6.0)
-
-
-def _final(t: dict, conf: float, words: int, ratio: float, letters: int = NO_SCENE[0],
-           scene_ratio: float = NO_SCENE[1]) -> int | None:
-    views = tuple(OsdView(v, ok, rot, c) for v, ok, rot, c in t["text_views"])
-    counts = tuple(WordCount(var, rot, n) for var, rot, n in t.get("text_words", []))
-    scene = tuple(LetterCount(rot, n) for rot, n in t.get("text_scene", []))
-    rotation, reason, how = decide_text(views, counts, scene, conf, TEXT_MIN_AGREE, words, ratio, letters, scene_ratio)
-    faces = Decision(tuple(t["accepted"]), None)  # the faces decided nothing: only their views matter
-    final, _, _ = combine_cues(faces, TextResult(rotation, reason, views, counts, how, scene))
-    return final
-
-
-def _score(trials: list[dict], *point) -> dict:
-    out: dict = {}
-    for t in trials:
-        cell = out.setdefault(t["set"], {"trials": 0, "decided": 0, "wrong": 0})
-        cell["trials"] += 1
-        final = _final(t, *point)
-        if final is not None:
-            cell["decided" if t["set"] != "noup" and final == t["turn"] else "wrong"] += 1
-    return out
-
-
-def _grid() -> list[tuple[float, int, float]]:
-    return [(c, w, r) for c in CALIBRATION_CONFIDENCES for w in CALIBRATION_WORDS for r in CALIBRATION_RATIOS]
-
-
-def _scene_grid() -> list[tuple[int, float]]:
-    return [(n, r) for n in SCENE_LETTERS for r in SCENE_RATIOS]
-
-
-def _row(trials: list[dict], point: tuple) -> list[str | None]:
-    """Each trial's outcome at ``point``: "d" (decided right), "w" (wrong; any decision on noup/), None."""
-    out = []
-    for t in trials:
-        final = _final(t, *point)
-        out.append(None if final is None else "d" if t["set"] != "noup" and final == t["turn"] else "w")
-    return out
-
-
-class Outcomes:
-    """Trial outcomes per grid point: the first stage's grid without the scene reading, and the scene reading's
-    grid behind a given first-stage point (computed when first asked)."""
-
-    def __init__(self, trials: list[dict]) -> None:
-        self.trials = trials
-        self.first = {point: _row(trials, (*point, *NO_SCENE)) for point in _grid()}
-        self._scene: dict = {}
-
-    def scene(self, first: tuple) -> dict:
-        if first not in self._scene:
-            self._scene[first] = {sp: _row(self.trials, (*first, *sp)) for sp in _scene_grid()}
-        return self._scene[first]
-
-
-def _best(rows: dict, idx: list[int]) -> tuple | None:
-    """The point with no wrong turn on ``idx`` deciding the most; ties to the strictest (the largest values)."""
-    best = None
-    for point, row in rows.items():
-        got = [row[i] for i in idx]
-        if "w" in got:
-            continue
-        key = (got.count("d"), *point)
-        best = key if best is None or key > best else best
-    return None if best is None else best[1:]
-
-
-def _stricter(grid: tuple, value):
-    return grid[min(grid.index(value) + 1, len(grid) - 1)]
-
-
-def select_thresholds(outcomes: Outcomes, idx: list[int]) -> tuple:
-    """The calibration rule, as a held-out fold applies it to the trials ``idx``, stage by stage. First stage
-    (OSD-alone confidence, OCR words, OCR ratio) without the scene reading: among the grid points with no wrong
-    turn (no-up decisions count as wrong), the one deciding the most; ties go to the strictest; then the OSD-alone
-    confidence one grid step stricter (a margin: the loosest safe value sits next to a wrong turn). Then the scene
-    reading (least letters, ratio) behind that first stage, by the same rule, its least letters one step stricter."""
-    first = _best(outcomes.first, idx)
-    if first is None:
-        first = (CALIBRATION_CONFIDENCES[-1], CALIBRATION_WORDS[-1], CALIBRATION_RATIOS[-1])
-    else:
-        first = (_stricter(CALIBRATION_CONFIDENCES, first[0]), first[1], first[2])
-    scene = _best(outcomes.scene(first), idx)
-    scene = NO_SCENE if scene is None else (_stricter(SCENE_LETTERS, scene[0]), scene[1])
-    return (*first, *scene)
-
-
-def held_out(outcomes: Outcomes, key) -> dict:
-    """Thresholds selected without a group (all 4 turns of an image, or every image of a source), applied to
-    it; decided / wrong per set over all groups, and the thresholds the folds chose."""
-    trials = outcomes.trials
-    groups: dict = {}
-    for i, t in enumerate(trials):
-        groups.setdefault(key(t), []).append(i)
-    totals: dict = {}
-    picks: dict = {}
-    for g, test in groups.items():
-        chosen = select_thresholds(outcomes, [i for k, v in groups.items() if k != g for i in v])
-        picks[str(chosen)] = picks.get(str(chosen), 0) + 1
-        row = outcomes.scene(chosen[:3])[chosen[3:]]
-        for i in test:
-            t = trials[i]
-            tot = totals.setdefault(t["set"], {"trials": 0, "decided": 0, "wrong": 0, "wrong_cases": []})
-            tot["trials"] += 1
-            got = row[i]
-            tot["decided"] += got == "d"
-            tot["wrong"] += got == "w"
-            if got == "w":
-                tot["wrong_cases"].append(f"{t['image']} turned {t['turn']} with {chosen}")
-    return {"folds": len(groups), "totals": totals, "picks": picks}
-
-
-def text_calibration(trials: list[dict]) -> dict:
-    """The text rule re-applied to the engine trials in which the text cue ran: the grids in-sample (decided /
-    wrong per set as the engine would decide, faces' accepted views included) and held out by image and by
-    source (the part of the file name before ``__``)."""
-    ran = [t for t in trials if t["config"] == "engine" and t["text_status"] == "ran"]
-    rows = []
-    for conf, words, ratio in _grid():
-        if ratio != TEXT_VERIFY_RATIO and words != TEXT_VERIFY_MIN_WORDS:
-            continue  # the table shows the grid's two slices through the chosen point
-        rows.append({"min_confidence": conf, "min_words": words, "ratio": ratio,
-                     **_score(ran, conf, words, ratio, *NO_SCENE)})
-    chosen_first = (TEXT_MIN_CONFIDENCE, TEXT_VERIFY_MIN_WORDS, TEXT_VERIFY_RATIO)
-    scene_rows = [{"min_letters": n, "ratio": r, **_score(ran, *chosen_first, n, r)} for n, r in _scene_grid()
-                  if n != NO_SCENE[0]]
-    sample = [t for t in ran if t["set"] in ("text", "noup")]
-    outcomes = Outcomes(sample)
-    return {"grid": rows, "scene_grid": scene_rows,
-            "in_sample_selection": select_thresholds(outcomes, list(range(len(sample)))),
-            "leave_one_image_out": held_out(outcomes, lambda t: (t["set"], t["image"])),
-            "leave_one_source_out": held_out(outcomes, lambda t: t["image"].split("__")[0])}
-
-
-def text_speed(paths: list[Path], yunet: Path | None) -> dict:
-    """The service's default engine (OCR stops at the first verifying variant), one thread, one turn per text
-    photo (turn = index mod 4): median and 90th percentile ms of ``analyze``, and the text cue's backend."""
-    engine = get_detector(DetectorConfig(yunet_model=yunet, text=True))
-    ms = []
-    for i, path in enumerate(paths):
-        data = rotated_inputs(path)[ROTATIONS[i % 4]]
-        start = time.perf_counter()
-        analyze(data, engine)
-        ms.append(1000 * (time.perf_counter() - start))
-    ms.sort()
-    return {"photos": len(ms), "median_ms": statistics.median(ms), "p90_ms": ms[int(0.9 * (len(ms) - 1))],
-            "backend": engine.text_info.get("backend")}
 
 
 def load_photo(path: Path, megapixels: float | None = None) -> np.ndarray:
@@ -875,10 +608,23 @@ def run_face_sizes(photos: list[Path], yunet: Path) -> dict:
                 cell["wrong"] += report.rotation_degrees not in (None, turn)
                 marks += "+" if report.rotation_degrees == turn else "." if report.rotation_degrees is None else "X"
             print(f"{name_photo[:36]:36s} share {share:.2f} turn {turn:3d} {marks}", flush=True)
+    dev = {name: {"trials": 0, "decided": 0, "wrong": 0} for name in configs if _dev_config(name)}
+    for path in [p for p in photos if p.name not in NEGATIVES]:
+        for turn, data in rotated_inputs(path).items():
+            for name in dev:
+                got = analyze(data, configs[name]).rotation_degrees
+                dev[name]["trials"] += 1
+                dev[name]["decided"] += got == turn
+                dev[name]["wrong"] += got not in (None, turn)
     return {"canvas": list(CANVAS), "shares": list(FACE_SHARES), "turns": list(FACE_SIZE_TURNS),
-            "photos": len(photos_used), "cells": cells,
+            "photos": len(photos_used), "cells": cells, "dev_photos": dev,
             "cpu_ms_per_photo": {n: statistics.median(v) for n, v in cpu.items()},
             "load_average_before": load_before, "load_average_after": os.getloadavg()[0]}
+
+
+def _dev_config(name: str) -> bool:
+    """The scans also run on the dev photos as they are: the previous release's and the engine's."""
+    return "previous release" in name or name.endswith("engine)")
 
 
 def face_sizes_markdown(result: dict) -> str:
@@ -910,7 +656,10 @@ def face_sizes_markdown(result: dict) -> str:
         f"{result['load_average_after']:.1f} after): compare within the table.", "",
         md_table(["Haar scan", *[f"{float(s):.2f} ({round(float(s) * h)} px)" for s in shares], "all", "wrong",
                   "CPU ms/photo"], rows), "",
-        f"Faces never below the previous release: {verdict}."])
+        f"Faces never below the previous release: {verdict}.", "",
+        "The same detector on the dev face photos as they are (native size, 4 turns, JPEG q95):", "",
+        md_table(["Haar scan", "decided", "wrong"], [[n, f"{c['decided']}/{c['trials']}", c["wrong"]]
+                                                    for n, c in result["dev_photos"].items()])])
 
 
 def markdown(results: dict) -> str:
@@ -944,7 +693,6 @@ def markdown(results: dict) -> str:
         md_table(["config", "0", "1", "2", "3", "4"],
                  [[n] + list(c["table2_accepted_views"].values()) for n, c in configs.items()]),
     ]
-    parts += sets_markdown(results.get("sets"))
     speed = results.get("speed")
     if speed:
         rows = []
@@ -971,116 +719,72 @@ def markdown(results: dict) -> str:
     return "\n".join(parts)
 
 
-def run_orientation_sets(face_photos: list[Path], yunet: Path | None, quick: bool,
-                         only: list[str] | None = None) -> dict | None:
-    """Faces first, then text, on text/, noup/ and the face photos: tallies, paper comparison, calibration."""
-    root = dataset("orientation")
-    if root is None:
-        print(f"note: no {data_root() / 'orientation'}: the text and no-up sets are not measured")
-        return None
-    sets = {"text": find_photos(root / "text"), "noup": find_photos(root / "noup"), "faces": face_photos}
-    if quick:
-        sets = {k: v[::3] for k, v in sets.items()}
-    if only:
-        sets = {k: v for k, v in sets.items() if k in only}
-    detectors = set_detectors(yunet)
-    text_info = detectors["engine"].text_info
-    print(f"--- faces first, then text: {', '.join(f'{k} {len(v)}' for k, v in sets.items())}; text cue {text_info}",
-          flush=True)
-    trials = run_sets(sets, detectors)
-    tallies = set_tallies(trials)
-    for set_name, configs in tallies.items():
-        for name, c in configs.items():
-            print(f"{set_name:5s} {name:13s} decided {c['decided']}/{c['trials']} rejected {c['rejected']} "
-                  f"wrong {c['wrong']} by cue {c['by_cue']}", flush=True)
-    compare = {name: paper_vs(trials, name) for name in detectors if name != "paper"}
-    calibration = text_calibration(trials)
-    print(f"text calibration: in-sample {calibration['in_sample_selection']}; "
-          f"by image {calibration['leave_one_image_out']}; by source {calibration['leave_one_source_out']}", flush=True)
-    speed = text_speed(sets["text"], yunet) if "text" in sets and text_info.get("available") else None
-    print(f"text speed: {speed}", flush=True)
-    return {"images": {k: len(v) for k, v in sets.items()}, "text_cue": text_info, "tallies": tallies,
-            "paper_vs": compare, "calibration": calibration, "text_speed": speed,
-            "chosen": {"min_confidence": TEXT_MIN_CONFIDENCE, "min_agree": TEXT_MIN_AGREE,
-                       "min_words": TEXT_VERIFY_MIN_WORDS, "ratio": TEXT_VERIFY_RATIO,
-                       "scene_min_letters": TEXT_SCENE_MIN_LETTERS, "scene_ratio": TEXT_SCENE_RATIO},
-            "trials": trials}
+def run_text_section(face_photos: list[Path], yunet: Path | None, records_path: Path, quick: bool) -> int:
+    """Section orientation_text (issue 33): the text cue's rule on the text photos, by split, and on the no-text set,
+    by category (:mod:`benchmarks._text_records`, :mod:`benchmarks._notext`); per-photo CPU of each cue."""
+    from benchmarks._notext import DEBIAN_PACKAGES, describe, no_text_images
+    from benchmarks._text_records import collect, section, select_rule
+
+    text = get_text_detector()
+    root = dataset("orientation", "text")
+    if text is None or root is None:
+        print("skipped: the text section needs tesseract and $SWEEPCAST_DATA/orientation/text")
+        return 0
+    every = 3 if quick else 1
+    jobs = [("text", p.name, lambda p=p: cv2.imread(str(p), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION))
+            for p in find_photos(root)[::every]]
+    jobs += [(cat, name, lambda load=load: cv2.cvtColor(load(), cv2.COLOR_BGR2GRAY))
+             for cat, name, load in no_text_images(data_root(), every)]
+    records_path.parent.mkdir(parents=True, exist_ok=True)
+    load_before = os.getloadavg()[0]
+    records = collect(text, jobs, records_path)
+    vocabulary = word_lists(text.wordlists)
+    selected, grid_rows = select_rule(records, vocabulary)
+    counts = describe(data_root())
+    note = (f"No-text set: {sum(counts.values())} images here ({', '.join(f'{k} {v}' for k, v in counts.items())}), "
+            f"from $SWEEPCAST_DATA, the Debian packages {', '.join(DEBIAN_PACKAGES)}, scikit-image's bundled photos "
+            "and textures generated with fixed seeds (benchmarks/_notext.py says which and why; none is committed). "
+            f"Word lists: {len(vocabulary)} words in {text.wordlists}; tesseract {text.version} ({text.backend}).")
+    results, markdown_text = section(records, vocabulary, selected, grid_rows, note)
+    results["cue_cpu"] = cue_cpu(face_photos, yunet)
+    results["load_average"] = [load_before, os.getloadavg()[0]]
+    publish("orientation_text", results, markdown_text + "\n\n" + cue_cpu_markdown(results["cue_cpu"], results["load_average"]))
+    return 0
 
 
-def sets_markdown(sets: dict | None) -> list[str]:
-    if not sets:
-        return []
-    tallies, sizes = sets["tallies"], sets["images"]
-    rows = []
-    for set_name, configs in tallies.items():
-        for name, c in configs.items():
-            cues = ", ".join(f"{cue} {v['decided']}/{v['wrong']}" for cue, v in sorted(c["by_cue"].items())
-                             if cue != "none")
-            reasons = ", ".join(f"{k} {v}" for k, v in sorted(c["reasons"].items()))
-            decided_pct = 100 * c["decided"] / max(c["trials"], 1)
-            rows.append([set_name, name, c["trials"], c["decided"], f"{decided_pct:.1f}%", c["rejected"],
-                         f"{100 * c['rejected'] / max(c['trials'], 1):.1f}%", c["wrong"], cues or "-",
-                         reasons or "-", c["median_ms"]])
-    out = ["", "Faces first, then text: every image x 4 rotations (JPEG q95); "
-               + ", ".join(f"{k}/ {v} images" for k, v in sizes.items())
-               + ". 'decided' counts right turns only; on noup/ any decision is wrong. "
-               "'by cue' is decided/wrong per deciding cue. Trials ran on 2 threads (ms are not single-core).",
-           "", md_table(["set", "config", "trials", "decided", "decided %", "rejected", "rejected %", "wrong",
-                         "by cue (decided/wrong)", "reject reasons", "median ms"], rows)]
-    vs = sets.get("paper_vs", {})
-    if vs:
-        rows = [[set_name, name, len(v["paper_only"]), v["other_only"], "; ".join(v["paper_only"][:6]) or "-"]
-                for name, by_set in vs.items() for set_name, v in by_set.items()]
-        out += ["", "Faces against the paper's detector alone: trials the paper decided (right) and the config did "
-                    "not, and the reverse", "",
-                md_table(["set", "config", "paper only", "config only", "paper-only cases"], rows)]
-    cal = sets.get("calibration") or {}
-    if cal:
-        names = [n for n in ("text", "noup", "faces") if any(n in r for r in cal["grid"])]
-        rows = []
-        for r in cal["grid"]:
-            cells = [f"{r[n]['decided']}/{r[n]['wrong']} of {r[n]['trials']}" if n in r else "-" for n in names]
-            chosen = (r["min_confidence"], r["min_words"], r["ratio"]) == (
-                TEXT_MIN_CONFIDENCE, TEXT_VERIFY_MIN_WORDS, TEXT_VERIFY_RATIO)
-            rows.append([r["min_confidence"], r["min_words"], r["ratio"], *cells, "chosen" if chosen else ""])
-        out += ["", "Text cue calibration (in sample): the text rule re-applied to the engine trials where the text "
-                    "cue ran (decided right / wrong of those trials), per set, along the grid's two slices through "
-                    "the chosen point (OSD-alone confidence 99: never decided by OSD alone). The four turns of one "
-                    "image are nearly the same trial (the views are the same pictures up to JPEG noise): "
-                    "there are 50 + 13 independent images, not 252 trials.", "",
-                md_table(["OSD-alone min mean confidence", "OCR min words", "OCR ratio", *names, ""], rows)]
-        rows = []
-        for r in cal.get("scene_grid", []):
-            cells = [f"{r[n]['decided']}/{r[n]['wrong']} of {r[n]['trials']}" if n in r else "-" for n in names]
-            chosen = (r["min_letters"], r["ratio"]) == (TEXT_SCENE_MIN_LETTERS, TEXT_SCENE_RATIO)
-            rows.append([r["min_letters"], r["ratio"], *cells, "chosen" if chosen else ""])
-        if rows:
-            out += ["", "Scene reading calibration (in sample): behind the chosen first stage (OSD proposes, OCR "
-                        "verifies), the sparse-text reading of the four views decides when its best view reads at "
-                        "least 'min letters' confident letters and 'ratio' times every other view.", "",
-                    md_table(["scene min letters", "scene ratio", *names, ""], rows)]
-        rows = []
-        for label, key in (("leave one image out", "leave_one_image_out"), ("leave one source out", "leave_one_source_out")):
-            h = cal[key]
-            for set_name, tot in h["totals"].items():
-                rows.append([label, h["folds"], set_name, tot["trials"], tot["decided"],
-                             f"{100 * tot['decided'] / max(tot['trials'], 1):.1f}%", tot["wrong"],
-                             "; ".join(tot["wrong_cases"][:4]) or "-"])
-        picks = "; ".join(f"{k}: {v} folds" for k, v in cal["leave_one_image_out"]["picks"].items())
-        out += ["", "Held-out calibration: for each fold the thresholds (OSD-alone confidence, OCR words, OCR ratio; "
-                    "then the scene reading's least letters and ratio) are selected on the other images only, stage by "
-                    "stage (most decided with no wrong turn and every no-up trial rejected, ties to the strictest, "
-                    "then the OSD-alone confidence and the scene reading's least letters one grid step stricter) and "
-                    f"applied to the held-out image(s). In-sample selection: {tuple(cal['in_sample_selection'])}; "
-                    f"leave-one-image-out picks: {picks}.", "",
-                md_table(["held out", "folds", "set", "trials", "decided", "decided %", "wrong", "wrong cases"], rows)]
-    sp = sets.get("text_speed")
-    if sp:
-        out += ["", f"Text cue speed: the service's default engine (faces, then text; tesseract through "
-                    f"{sp['backend']}), one thread, each text/ photo once (turned by index mod 4): median "
-                    f"{sp['median_ms']:.0f} ms, 90th percentile {sp['p90_ms']:.0f} ms per photo over {sp['photos']} "
-                    "photos."]
+def cue_cpu(face_photos: list[Path], yunet: Path | None, count: int = 6) -> dict:
+    """Median CPU ms per photo (this thread, OpenCV single-threaded) of each cue: the faces alone (text off) and the
+    service's engine (faces, then text) on a few face photos, text photos and no-text images."""
+    from benchmarks._notext import no_text_images
+
+    sets = {"faces": [rotated_inputs(p)[90] for p in [p for p in face_photos if p.name not in NEGATIVES][:count]]}
+    text_root = dataset("orientation", "text")
+    sets["text"] = [rotated_inputs(p)[90] for p in find_photos(text_root)[::max(1, 50 // count)][:count]]
+    encoded = []
+    for _, _, load in no_text_images(data_root())[::20][:count]:
+        ok, buf = cv2.imencode(".jpg", load(), [cv2.IMWRITE_JPEG_QUALITY, 95])
+        encoded.append(buf.tobytes())
+    sets["no text"] = encoded
+    faces = get_detector(DetectorConfig(yunet_model=yunet, text=False))
+    engine = get_detector(DetectorConfig(yunet_model=yunet, text=True))
+    out = {}
+    for name, items in sets.items():
+        out[name] = {"photos": len(items), "faces_only_ms": cpu_ms_per_photo(lambda d: analyze(d, faces), items),
+                     "engine_ms": cpu_ms_per_photo(lambda d: analyze(d, engine), items)}
+        print(f"cue cpu {name}: {out[name]}", flush=True)
+    out["detector"] = engine.name
     return out
+
+
+def cue_cpu_markdown(cpu: dict, load: list[float]) -> str:
+    rows = [[name, c["photos"], f"{c['faces_only_ms']:.0f}", f"{c['engine_ms']:.0f}",
+             f"{c['engine_ms'] - c['faces_only_ms']:.0f}"] for name, c in cpu.items() if isinstance(c, dict)]
+    return "\n".join([
+        f"CPU per photo of each cue ({cpu['detector']} faces; median ms of this thread, OpenCV single-threaded, "
+        f"decode included; each photo turned 90 degrees, JPEG q95). Measured under load from other work (load "
+        f"average {load[0]:.1f} before the section, {load[1]:.1f} after): CPU ms grow under contention, compare "
+        "within the table.", "",
+        md_table(["photos", "n", "faces only", "faces, then text (engine)", "the text cue's share"], rows)])
 
 
 def changed_bytes(before: bytes, after: bytes) -> int:
@@ -1223,15 +927,12 @@ def main() -> int:
     parser.add_argument("--no-http", action="store_true", help="skip the end-to-end HTTP measurement")
     parser.add_argument("--no-speed", action="store_true", help="accuracy only")
     parser.add_argument("--clients", type=int, default=4, help="concurrent HTTP clients (default 4)")
-    parser.add_argument("--no-sets", action="store_true", help="skip the text/no-up sets (faces first, then text)")
-    parser.add_argument("--set", action="append", choices=("text", "noup", "faces"),
-                        help="with --sets-only: only these sets (repeat; default all)")
-    parser.add_argument("--sets-only", metavar="JSON", type=Path,
-                        help="only the faces-then-text sets, written to JSON and printed (nothing published): "
-                             "for calibrating the text cue; with --text-section: published and written")
     parser.add_argument("--text-section", action="store_true",
-                        help="only the faces-then-text sets (text, noup, faces; --set narrows), published as the "
-                             "section orientation_text (a few minutes)")
+                        help="only the text cue on the text photos and the no-text set, published as the section "
+                             "orientation_text (reads each image once into --records; an hour or more on 2 cores)")
+    parser.add_argument("--records", type=Path, default=ROOT / "sweepcast-data" / "cache" / "orientation_text.jsonl",
+                        help="where the text section keeps its readings (JSON lines; a rerun reads only what is "
+                             "missing; delete it after changing how the cue reads)")
     args = parser.parse_args()
 
     if args.throughput:
@@ -1268,20 +969,8 @@ def main() -> int:
     photos = find_photos(faces_dir)
     if args.quick:
         photos = [p for i, p in enumerate(photos) if i % 3 == 0 or p.name in NEGATIVES]
-    sets_result = None if args.no_sets and not args.sets_only else run_orientation_sets(photos, yunet, args.quick,
-                                                                                            args.set)
-    if args.sets_only and sets_result is not None and args.text_section:  # the records too, for a closer look
-        args.sets_only.write_text(json.dumps(sets_result, indent=1))
     if args.text_section:
-        if sets_result is None:
-            return 0
-        publish("orientation_text", {k: v for k, v in sets_result.items() if k != "trials"},
-                "\n".join(sets_markdown(sets_result)).strip())
-        return 0
-    if args.sets_only:
-        args.sets_only.write_text(json.dumps(sets_result, indent=1))
-        print("\n".join(sets_markdown(sets_result)))
-        return 0
+        return run_text_section(photos, yunet, args.records, args.quick)
     detectors = {name: get_detector(cfg) for name, cfg in configurations(yunet, mcs).items()}
     tallies = run_accuracy(photos, detectors)
     print(f"--- the same photos upscaled to ~{MEGAPIXELS:.0f} MP (the speed test's size)", flush=True)
@@ -1296,7 +985,6 @@ def main() -> int:
         "paper_table3": PAPER,
         "default_config": "combined" if yunet is not None else "paper",
         "photos_per_s": None,
-        "sets": {k: v for k, v in sets_result.items() if k != "trials"} if sets_result else None,
     }
     if not args.no_speed:
         repeats = 2 if args.quick else 5
