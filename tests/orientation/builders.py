@@ -170,3 +170,20 @@ def xmp_packet(value: int | None, form: str = "attribute", pad: int = 200) -> by
 def insert_xmp(jpeg_bytes: bytes, packet: bytes) -> bytes:
     """The JPEG with an XMP APP1 segment (after its first APPn segment)."""
     return insert_app1(jpeg_bytes, b"http://ns.adobe.com/xap/1.0/\x00" + packet)
+
+
+def letter_marks(seed: int = 0) -> np.ndarray:
+    """(900, 1200) uint8 grey: rows of dark L-shaped marks on a noisy grey ground (hedge corners, brackets, posts
+    and their shadows seen from above). No word, but Tesseract's OSD votes for one turn in every view with a
+    confidence of about 20, and its OCR reads each mark as a confident "L": the previous text cue decided it."""
+    rng = np.random.default_rng(seed)
+    image = cv2.GaussianBlur((120 + 30 * rng.standard_normal((900, 1200))).clip(0, 255).astype(np.uint8), (0, 0), 3)
+    for row in range(6):
+        y, x = 90 + row * 140, 60
+        while x < 1080:
+            size = int(rng.integers(36, 48))
+            stroke = max(5, size // 6)
+            cv2.rectangle(image, (x, y), (x + stroke, y + size), 30, -1)
+            cv2.rectangle(image, (x, y + size - stroke), (x + size * 2 // 3, y + size), 30, -1)
+            x += size + (int(rng.integers(8, 30)) if rng.random() < 0.7 else 80)
+    return image

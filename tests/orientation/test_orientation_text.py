@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.orientation.builders import FakeDetector, asymmetric_image, encode, jpeg
+from tests.orientation.builders import FakeDetector, asymmetric_image, encode, jpeg, letter_marks
 from workers.orientation.detect import Decision, DetectorConfig, Engine, Face, decide, fuse_paper, get_detector
 from workers.orientation.geometry import ROTATIONS, rotate_view
 from workers.orientation.service import analyze, combine_cues
@@ -389,6 +389,20 @@ def test_an_image_without_text_is_rejected_for_review(image):
     assert report.cue == "none" and report.needs_review
     assert report.reject_reason in ("no_cue", "conflicting_rotations", "low_confidence")
     assert report.text.status == "ran"
+
+
+@needs_tesseract
+@pytest.mark.parametrize("rotation", [0, 90])
+def test_letter_shaped_marks_with_no_word_are_not_text(rotation):
+    """Issue 33's false decision: patterns taken for text. Rows of L-shaped marks make OSD vote for one turn in all
+    four views with a confidence of about 20 (the previous text cue then decided it by OSD alone, and the wrong way
+    up), and the scene reading reads a confident "L" per mark; no real word, so no decision."""
+    if not TESSERACT.ocr:
+        pytest.skip("no English OCR data (tesseract-ocr-eng)")
+    result = TESSERACT.upright(turned(letter_marks(), rotation))
+    votes = {v.rotation for v in result.views if v.ran}
+    assert len(votes) == 1 and min(v.confidence for v in result.views) > 10  # what fooled OSD alone
+    assert result.rotation is None and result.reason is not None, result
 
 
 SIGNS = dataset("orientation", "text")
