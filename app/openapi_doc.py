@@ -73,6 +73,11 @@ OPERATION_STATUSES: dict[tuple[str, str], dict[int, str]] = {
         415: "the file is not a JPEG, WebP, TIFF, PNG, HEIC/HEIF, AVIF or RAW photo",
         503: "metadata_tool_unavailable: the write needs ExifTool (PNG, a sidecar update) and this deployment has none",
     },
+    ("get", "/v1/photos/batches/{job_id}/review"): {409: "the batch has not succeeded (yet)"},
+    ("post", "/v1/photos/batches/{job_id}/review/{index}"): {
+        409: "the batch has not succeeded, the photo is not in its review queue, or the job changed meanwhile",
+        503: "metadata_tool_unavailable: writing this photo needs ExifTool (PNG) and this deployment has none",
+    },
 }
 
 # Extra media types a success response can have.

@@ -272,11 +272,21 @@ def section(records: list[dict], vocabulary, selected: Rule, grid_rows: list[dic
     held = {f: sum(c[f] for c in held_text) for f in ("trials", "decided", "wrong")}
     no_text = {f: sum(c[f] for c in engine.get("no text", {}).values()) for f in ("trials", "wrong")}
     cases = [case for cells in engine.values() for c in cells.values() for case in c["cases"]]
+    previous_cases = [case for c in tallies["previous release"].get("no text", {}).values() for case in c["cases"]]
+    missed = []
+    for rec in records:
+        if rec["set"] != "text" or part(rec) != "held out":
+            continue
+        lost = [t for t in ROTATIONS if decide(rec, t, vocabulary, Rule())[0] != t]
+        if lost:
+            before = sum(previous_decide(rec, t, vocabulary) == t for t in lost)
+            missed.append(f"{rec['image']} ({len(lost)} turns; the previous rule decided {before} of them)")
     goals = [
         f"- No decision where there is nothing to read: the engine decided {no_text['wrong']} of {no_text['trials']} "
         f"no-text trials: **{'met' if no_text['trials'] and no_text['wrong'] == 0 else 'not met'}**.",
         f"- Text decided >= 90 % with 0 wrong on the held-out sources: {held['decided']}/{held['trials']} "
-        f"({_pct(held)}), {held['wrong']} wrong: **{'met' if held['trials'] and held['decided'] >= 0.9 * held['trials'] and held['wrong'] == 0 else 'not met'}**.",
+        f"({_pct(held)}), {held['wrong']} wrong: **{'met' if held['trials'] and held['decided'] >= 0.9 * held['trials'] and held['wrong'] == 0 else 'not met'}**."
+        + (f" Left undecided: {'; '.join(missed)}." if missed else ""),
     ]
     chosen = {k: getattr(Rule(), k) for k in GRID}
     at_engine = next((r for r in grid_rows if all(r[k] == v for k, v in chosen.items())), None)
@@ -304,7 +314,8 @@ def section(records: list[dict], vocabulary, selected: Rule, grid_rows: list[dic
         "",
         *goals,
         "",
-        "Engine decisions counted wrong: " + ("; ".join(cases[:12]) if cases else "none") + ".",
+        "Engine decisions counted wrong: " + ("; ".join(cases[:12]) if cases else "none") + ". The previous release's "
+        "rule on the no-text images: " + ("; ".join(previous_cases) if previous_cases else "none") + ".",
     ])
     results = {"tallies": tallies, "grid": grid_rows, "selected": selected.__dict__, "engine_rule": Rule().__dict__,
                "tune_sources": TUNE_SOURCES, "tune_no_text": TUNE_NO_TEXT}
