@@ -562,21 +562,18 @@ Haar search sees all four views in every trial)."""
 
 def face_size_configs() -> dict[str, tuple]:
     """The Haar scans compared on faces of every size: the releases' fixed long sides and the rule (short side)."""
-    from workers.orientation.detect import HAAR_FACE_PX, HAAR_MIN_NEIGHBORS, HAAR_SCALE_FACTOR, HAAR_SMALLEST_FACE
+    from workers.orientation.detect import (HAAR_FACE_PX, HAAR_MIN_NEIGHBORS, HAAR_SCALE_FACTOR, HAAR_SMALLEST_FACE,
+                                            PREVIOUS_HAAR)
 
     return {
         "400 px long side (two releases ago)": (LongSideScan(400, 20), 1.2, 3),
         "320 px long side (the regression)": (LongSideScan(320, 20), 1.2, 3),
-        "360 px long side (previous release)": (LongSideScan(360, 22), HAAR_SCALE_FACTOR, HAAR_MIN_NEIGHBORS),
-        "rule: 1/10 of the short side at 30 px (300 px short side)": (ShortSideScan(0.1, 30), HAAR_SCALE_FACTOR,
-                                                                       HAAR_MIN_NEIGHBORS),
-        "rule: 1/12 of the short side at 30 px (360 px short side)": (ShortSideScan(1 / 12, 30), HAAR_SCALE_FACTOR,
-                                                                       HAAR_MIN_NEIGHBORS),
+        "360 px long side (previous release)": PREVIOUS_HAAR,
+        f"rule: 1/{round(1 / HAAR_SMALLEST_FACE)} of the short side at {HAAR_FACE_PX} px, step 1.35": (
+            ShortSideScan(HAAR_SMALLEST_FACE, HAAR_FACE_PX), 1.35, HAAR_MIN_NEIGHBORS),
         f"rule: 1/{round(1 / HAAR_SMALLEST_FACE)} of the short side at {HAAR_FACE_PX} px "
-        f"({round(HAAR_FACE_PX / HAAR_SMALLEST_FACE)} px short side; engine)": (
+        f"({round(HAAR_FACE_PX / HAAR_SMALLEST_FACE)} px short side), step {HAAR_SCALE_FACTOR}; engine)": (
             ShortSideScan(HAAR_SMALLEST_FACE, HAAR_FACE_PX), HAAR_SCALE_FACTOR, HAAR_MIN_NEIGHBORS),
-        "rule: 1/16 of the short side at 24 px (384 px short side)": (ShortSideScan(1 / 16, 24), HAAR_SCALE_FACTOR,
-                                                                       HAAR_MIN_NEIGHBORS),
     }
 
 

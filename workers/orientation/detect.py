@@ -64,14 +64,18 @@ HAAR_FACE_PX = 26
 scanned at 546 x 364, a 4:3 one at 485 x 364). The previous release scanned a fixed 360 px long side (faces from
 22 px), the one before 320 px (from 20 px); at 320 px a face 280 px wide in a 2048 x 1365 photo measured 44 px in
 the scan and was lost. Chosen on faces of every size (``benchmarks/orientation.py --face-sizes``, section
-orientation_face_sizes; 15 of the dev photos, each face scaled to 5-45 % of the short side, 2 turns): 84 of 160
-trials decided against 61 for the previous release's scan (at least as many at every face size) and 85 for the
-400 px scan two releases ago (step 1.2, 3 neighbours), at 74 ms CPU per photo against 44 and 106 under the same
-load; 1/10 at 30 px (a 300 px short side) decided 74, 1/12 at 30 px 79, 1/16 at 24 px 84 at 73 ms."""
+orientation_face_sizes; the dev photos, each face scaled to 5-45 % of the short side, 2 turns; step 1.35 then):
+on 44 photos 271 of 490 trials decided against 205 for the previous release's scan and 281 for the 400 px scan two
+releases ago (step 1.2, 3 neighbours), at 71 ms CPU per photo against 40 and 101 under the same load; 1/10 at
+30 px (a 300 px short side) decided 238, 1/12 at 30 px 257, 1/16 at 24 px 271."""
 HAAR_SCAN = ShortSideScan(HAAR_SMALLEST_FACE, HAAR_FACE_PX)
-HAAR_SCALE_FACTOR = 1.35
+HAAR_SCALE_FACTOR = 1.25
 """Pyramid step of the Haar face search. OpenCV slides the window by 2 px below twice the smallest face
-size and by 1 px above, so the cost is set by how many steps fall above: at 1.35 from 22 px, 4 of 9."""
+size and by 1 px above, so the cost is set by how many steps fall above. The previous release stepped by 1.35
+(from 22 px on a 360 px long side); with the short-side scan, 1.35 lost faces of 20 % of the short side against it
+(50 against 55 of 66 trials, benchmarks/orientation.py --face-sizes) and 1.25 did not (55; 1.2 with 3 neighbours 56
+at 1.4x the CPU of 1.25): on all 44 dev photos at face shares 0.15-0.45, 1.25 decided 206 trials against 193 for
+the previous release (at least as many at each share), 1.35 195, 1.3 198."""
 HAAR_MIN_NEIGHBORS = 2
 """Raw detections a face needs (OpenCV's facedetect sample, which the paper ran, used 2).
 
@@ -81,8 +85,8 @@ is the same count with 1 to 3 more or fewer trials decided by any change, so rea
 3 neighbours did, at 0.56x the scan's CPU time (102 against 171 ms per 12 MP photo in all). Cheaper
 settings lost decisions: 1.3 with 3 neighbours 154 and 146, 1.4 with 2 neighbours 140 and 140, 1.25 or
 1.3 from 24 px 143-150 and 142-145, a coarser position step (octaves scanned at half size) 131 at 12 MP."""
-PREVIOUS_HAAR_SCAN = LongSideScan(360, 22)
-"""The previous release's Haar scan (a fixed long side), kept for the benchmarks' comparison."""
+PREVIOUS_HAAR = (LongSideScan(360, 22), 1.35, 2)
+"""The previous release's Haar search (scan, pyramid step, neighbours), kept for the benchmarks' comparison."""
 MAX_PART_CHECKS = 16
 """Most faces whose parts are checked per photo (the highest-scoring first)."""
 _SAME_FACE_IOU = 0.3
