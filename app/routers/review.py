@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from fastapi import APIRouter, Depends
+from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 
@@ -32,6 +33,8 @@ from workers.runtime import results_prefix
 
 PAGE = Path(__file__).resolve().parents[1] / "static" / "review"
 REPORT = "report.json"
+MAX_INDEX = 1_000_000
+"""Largest photo index a request may name (far past any batch; keeps the value a small integer)."""
 
 router = APIRouter(prefix="/v1/photos/batches", tags=["photos"], dependencies=[Depends(require_key)])
 page_router = APIRouter()
@@ -119,7 +122,8 @@ async def review_queue(job_id: str, svc: Services = Depends(services)) -> Review
              summary="A person's decision on one photo of the queue: the upright turn (written with the lossless "
                      "writers into a new fixed file of the job, or its XMP sidecar) or null to leave it as it is; "
                      "recorded in report.json as decided by that person")
-async def decide_photo(job_id: str, index: int, choice: ReviewChoice,
+async def decide_photo(job_id: str, choice: ReviewChoice,
+                       index: int = PathParam(ge=0, le=MAX_INDEX, description="the photo's index in the batch"),
                        svc: Services = Depends(services)) -> ReviewItem:
     job = await _batch(job_id, svc)
     mode = "sidecar" if (job.params or {}).get("sidecar") else "file"
