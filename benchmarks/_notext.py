@@ -1,6 +1,8 @@
 """The no-text set: images with nothing to read, on which the orientation text cue must decide nothing (issue 33).
 
-Built on this machine from what is installed, never committed (each source's licence allows local benchmark use):
+Built on this machine from what is installed (``apt-get install gnome-backgrounds mate-backgrounds
+mypaint-data-extras``; scikit-image comes with the bench extra; a source that is missing is left out and the section
+says how many images each category had), never committed (each source's licence allows local benchmark use):
 
 - ``dev noup``: ``$SWEEPCAST_DATA/orientation/noup`` (textures, microscopy, aerial views; see its PROVENANCE);
 - ``aerial``: ``$SWEEPCAST_DATA/sfm/drone_fc350/images``, nadir stills of a cheap drone (fields, roads, roofs);
@@ -54,8 +56,11 @@ def _files(folder: Path | None, names: tuple[str, ...] | None = None) -> list[Pa
 
 def sources(data_root: Path) -> dict[str, list[Path]]:
     """The installed and shared images per category (paths), in a fixed order."""
-    import skimage
-
+    try:
+        import skimage
+        skimage_data = Path(skimage.__file__).parent / "data"
+    except ImportError:  # the bench extra brings it
+        skimage_data = None
     wallpapers = [p for folder in _WALLPAPERS for p in _files(Path(folder))]
     mypaint = Path("/usr/share/mypaint/backgrounds")
     return {
@@ -64,7 +69,7 @@ def sources(data_root: Path) -> dict[str, list[Path]]:
         "wallpapers": wallpapers,
         "foliage": _files(Path("/usr/share/backgrounds/mate/nature")),
         "fabric/paper": [p for sub in sorted(mypaint.glob("*")) for p in _files(sub)] if mypaint.is_dir() else [],
-        "skimage": _files(Path(skimage.__file__).parent / "data", _SKIMAGE),
+        "skimage": _files(skimage_data, _SKIMAGE),
     }
 
 
