@@ -125,7 +125,7 @@ def _fit(src: np.ndarray, dst: np.ndarray, up: np.ndarray | None, collinear: boo
         return sim
     # Turn about the line (through the centroid of dst) so that the model's up points as high as it can.
     centre = dst.mean(0)
-    axis = np.linalg.svd(dst - centre)[2][0]
+    axis = np.linalg.svd(dst - centre, full_matrices=False)[2][0]
     u = sim.R @ (np.asarray(up, np.float64) / np.linalg.norm(up))
     z = np.array([0.0, 0.0, 1.0])
     u_perp = u - (u @ axis) * axis
@@ -153,7 +153,8 @@ def ground_up(points: np.ndarray, centres: np.ndarray) -> np.ndarray:
     c = np.median(pts, axis=0)
     d = np.linalg.norm(pts - c, axis=1)
     core = pts[d <= np.percentile(d, 90)] if len(pts) > 10 else pts
-    normal = np.linalg.svd(core - core.mean(0))[2][2]
+    centred = core - core.mean(0)
+    normal = np.linalg.eigh(centred.T @ centred)[1][:, 0]  # the direction of least spread
     if normal @ (np.asarray(centres, np.float64).mean(0) - core.mean(0)) < 0:
         normal = -normal
     return normal
