@@ -112,3 +112,14 @@ def test_laz_reads_back_with_crs_coordinates_and_colours():
     assert las.header.parse_crs().to_epsg() == 32632
     np.testing.assert_allclose(np.column_stack([las.x, las.y, las.z]), pts + ORIGIN, atol=0.0011)
     assert list(las.red) == [30 * 257, 0] and list(las.blue) == [10 * 257, 200 * 257]
+
+
+def test_the_service_starts_without_the_map_libraries():
+    """rasterio (~0.25 s to import), laspy and pyproj load when a job writes map files, not on start-up."""
+    import subprocess
+    import sys
+
+    code = ("import sys, app.main, workers.registry, workers.drone.job; "
+            "print(','.join(m for m in ('rasterio', 'laspy', 'pyproj') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    assert out.stdout.strip() == ""

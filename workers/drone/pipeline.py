@@ -223,6 +223,10 @@ def _map(out: Outcome, media, media_name: str | None, params: ReconstructionPara
 
     ref = out.georef if out.georef is not None else out.level
     gsd = params.gsd_cm / 100.0 if params.gsd_cm is not None else None
+    if gsd is not None and out.georef is None:
+        out.model.report["warnings"].append("gsd_cm ignored: without GPS the map has no metric scale (the flight's own "
+                                            "ground sampling distance is used)")
+        gsd = None
     t0 = time.perf_counter()
     model = out.model
     # The orthophoto samples the frames as the lens saw them (one interpolation, through the lens model).
