@@ -32,7 +32,7 @@ from benchmarks.sweep import REF_SPACINGS, STEREO_CASES, sgbm_disparity  # noqa:
 from workers.common.datasets import dataset  # noqa: E402
 from workers.drone import dense  # noqa: E402
 from workers.drone.calibration import from_values  # noqa: E402
-from workers.drone.job import dense_pass  # noqa: E402
+from workers.drone.pipeline import dense_pass  # noqa: E402
 from workers.drone.params import ReconstructionParams  # noqa: E402
 from workers.drone.preview import render_preview  # noqa: E402
 from workers.drone.reconstruction import reconstruct  # noqa: E402
@@ -241,9 +241,9 @@ def bench_drone(quick: bool) -> tuple[dict, str]:
     params = ReconstructionParams(fx=702.0, fy=702.0, cx=599.5, cy=449.5, dense=True,
                                   **({"dense_scale": 0.5} if quick else {}))
     d = _drone_model(quick)
-    model, intr, t_sparse = d["model"], d["intr"], d["seconds"]
+    model, t_sparse = d["model"], d["seconds"]
     t0 = time.perf_counter()
-    res = dense_pass(model, folder, intr, params)
+    res = dense_pass(model, folder, params)
     t_dense = time.perf_counter() - t0
     rep = res.report
     reg = model.registered

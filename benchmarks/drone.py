@@ -1,6 +1,6 @@
 """Drone reconstruction benchmarks (issue 6).
 
-    python benchmarks/drone.py [--quick] [--only ba,synthetic,slow_flight,temple,drone_fc350]
+    python benchmarks/drone.py [--quick] [--only ba,synthetic,slow_flight,temple,drone_fc350,mapping]
 
 1. Bundle adjustment alone on BAL problem-49-7776: our LM (Schur complement) vs scipy
    ``least_squares`` (SciPy cookbook settings; skipped with --quick) vs ``pycolmap.bundle_adjustment``
@@ -13,6 +13,9 @@
    on all frames.
 4. Real images: multiview/temple (ground-truth poses, SIFT path, exhaustive matching) and
    sfm/drone_fc350 (ATE against EXIF GPS), each beside pycolmap with the same fixed K.
+5. ``mapping`` (issue 32, :mod:`benchmarks._drone_mapping`): a synthetic nadir survey against its true
+   orthophoto and DSM, and the real stills with no intrinsics given (self-calibration, georeference,
+   orthophoto, DSM) beside pycolmap's own self-calibration.
 
 Timings are wall-clock on whatever machine runs this; the load average is recorded beside them.
 pycolmap is a benchmark-only dependency (``pip install .[bench]``).
@@ -33,6 +36,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks._drone_mapping import bench_mapping  # noqa: E402
 from benchmarks._timing import timed  # noqa: E402
 from benchmarks._report import md_table, publish  # noqa: E402
 from workers.common.datasets import dataset  # noqa: E402
@@ -754,12 +758,12 @@ def bench_fc350(quick: bool) -> tuple[dict[str, Any], str]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="short run: fewer repeats and frames, no scipy")
-    ap.add_argument("--only", help="comma-separated subset of: ba,synthetic,slow_flight,temple,drone_fc350 (the other sections "
-                                   "of the previous results are kept)")
+    ap.add_argument("--only", help="comma-separated subset of: ba,synthetic,slow_flight,temple,drone_fc350,mapping (the "
+                                   "other sections of the previous results are kept)")
     ap.add_argument("--no-scipy", action="store_true", help="leave out the scipy least_squares BA (about a minute)")
     args = ap.parse_args()
     benches = {"ba": bench_ba, "synthetic": bench_synthetic, "slow_flight": bench_slow_flight, "temple": bench_temple,
-               "drone_fc350": bench_fc350}
+               "drone_fc350": bench_fc350, "mapping": bench_mapping}
     chosen = args.only.split(",") if args.only else list(benches)
     unknown = set(chosen) - set(benches)
     if unknown:

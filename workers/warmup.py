@@ -74,9 +74,10 @@ def _demo() -> None:
 
 
 def _bundle() -> None:
-    """The bundle adjuster with both camera models (the drone pipeline's pinhole, BAL's camera)."""
+    """The bundle adjuster with every camera model (the drone pipeline's pinhole, the self-calibrating radial
+    camera with its priors and information, BAL's camera)."""
     from workers.drone import bundle
-    from workers.drone.camera_models import BALModel, PinholeModel, pose_params
+    from workers.drone.camera_models import BALModel, PinholeModel, RadialModel, pose_params
 
     rng = np.random.default_rng(0)
     n_cams, n_pts = 3, 30
@@ -94,6 +95,13 @@ def _bundle() -> None:
     for loss in ("trivial", "huber", "cauchy"):
         bundle.solve(PinholeModel(K, n_cams), params, X, ci, pj, obs, fixed,
                      bundle.BAOptions(max_iterations=2, loss=loss))
+    radial = RadialModel(K[:2, 2])
+    shared = np.array([300.0, 0.0, 0.0])
+    prior = bundle.SharedPrior(shared, np.array([10.0, 0.25, 0.25]))
+    centres = bundle.CentrePrior(-np.einsum("nji,nj->ni", R, t), np.ones(n_cams))
+    bundle.solve(radial, params, X, ci, pj, obs, fixed, bundle.BAOptions(max_iterations=2, loss="cauchy"),
+                 shared=shared, shared_prior=prior, centre_prior=centres)
+    bundle.shared_information(radial, params, X, shared, ci, pj, obs, fixed)
     bal = np.column_stack([params, np.full(n_cams, 300.0), np.zeros((n_cams, 2))])
     fixed = np.zeros_like(bal, bool)
     fixed[0] = True
@@ -101,9 +109,12 @@ def _bundle() -> None:
 
 
 def _dense() -> None:
-    """The dense pass (ZNCC sweep, coarse-to-fine and SGM, fusion) on four tiny views of a textured wall."""
+    """The dense pass (ZNCC sweep, coarse-to-fine and SGM, fusion) on four tiny views of a textured wall, and
+    the orthophoto's visibility kernels on the same views."""
     from workers.drone import dense
+    from workers.drone.orthophoto import orthophoto
     from workers.drone.params import ReconstructionParams
+    from workers.drone.surface import Grid
 
     rng = np.random.default_rng(0)
     K = np.array([[40.0, 0, 23.5], [0, 40.0, 17.5], [0, 0, 1]])
@@ -116,6 +127,9 @@ def _dense() -> None:
         params = ReconstructionParams(fx=40.0, fy=40.0, cx=23.5, cy=17.5, dense=True, dense_planes=16,
                                       dense_aggregation=aggregation, dense_coarse_to_fine=coarse)
         dense.densify_views(views, points, seen, params)
+    down = [dense.View(v.name, v.image, K, np.diag([1.0, -1.0, -1.0]), np.array([0.1 * i, 0.0, 2.0]))
+            for i, v in enumerate(views)]
+    orthophoto(np.zeros((20, 30), np.float32), Grid(-1.0, 0.7, 0.05, 30, 20), down, dist=np.array([-0.05, 0, 0, 0]))
 
 
 def _depth() -> None:

@@ -16,28 +16,34 @@ router = APIRouter(prefix="/v1/reconstructions", tags=["reconstructions"], depen
 
 
 @router.post("", status_code=202, response_model=JobOut,
-             summary="Reconstruct cameras and a point cloud from a drone video or a zip of ordered images",
-             description="A job with progress per stage (decode, track k/N, initialise, BA iteration i; with "
-                         "dense: dense depth k/M, dense fusion). Results: points.ply, cameras.txt, images.txt, "
-                         "points3D.txt (COLMAP text), trajectory.json, report.json, preview.png; with "
-                         '`"dense": true` also dense.ply (points, normals, colours) and depth.zip (16-bit depth '
-                         "PNGs, scales in report.json under dense); the dense_* parameters tune that pass.")
+             summary="Reconstruct cameras, a point cloud and (for a georeferenced flight) a map from a drone video "
+                     "or a zip of ordered images",
+             description="A job with progress per stage (decode, track k/N, initialise, BA iteration i, georeference; "
+                         "with a dense pass: dense depth k/M, dense fusion; with map products: surface model, "
+                         "orthophoto k/N, orthophoto blend). No intrinsics needed: without them the camera is "
+                         "self-calibrated (focal length from EXIF or DJI telemetry, else a 72 degree field of view; "
+                         "radial distortion refined). Stills with EXIF GPS, or a DJI video with its .SRT telemetry "
+                         "(uploaded as 'telemetry' or in the video's subtitle stream), are placed in the local UTM "
+                         "zone. Results: points.ply, cameras.txt, images.txt, points3D.txt (COLMAP text), "
+                         "trajectory.json, report.json, preview.png; with `\"dense\": true` also dense.ply and "
+                         "depth.zip; georeferenced also points.laz; for a georeferenced flight (or with "
+                         '`"orthophoto"`/`"dsm"` true) orthophoto.tif (Cloud-Optimized GeoTIFF, RGBA), '
+                         "orthophoto.png, dsm.tif (float32 heights) and dsm.png.")
 async def create_reconstruction(
     media: UploadFile = File(..., description="a video (MP4, MOV, MKV, AVI, ...) or a zip of ordered images"),
     calibration: UploadFile | None = File(None, description="calibration file (OpenCV YAML/XML/JSON, COLMAP "
                                                             "cameras.txt, or 'fx fy cx cy')"),
-    params: str | None = Form(None, description='JSON object of ReconstructionParams, e.g. {"fx": 702, "fy": 702, '
-                                                '"cx": 600, "cy": 450}'),
+    telemetry: UploadFile | None = File(None, description="the video's DJI .SRT telemetry file (GPS per frame)"),
+    params: str | None = Form(None, description='JSON object of ReconstructionParams, e.g. {"orthophoto": true, '
+                                                '"gsd_cm": 5} or {"fx": 702, "fy": 702, "cx": 600, "cy": 450}'),
     svc: Services = Depends(services),
 ) -> JSONResponse:
     p = parse_params(ReconstructionParams, params)
-    if p.fx is None and p.calibration is None and calibration is None:
-        raise ApiError(422, "missing intrinsics: give fx, fy, cx, cy (pixels) in params, or a calibration file",
-                       "invalid_parameters")
     if media.size == 0:
         raise ApiError(400, f"{media.filename or 'media'} is empty", "empty_file")
     uploads = [Upload("media", media.file, {"filename": media.filename, "content_type": media.content_type})]
-    if calibration is not None:
-        check_size(calibration, svc.settings.max_upload_bytes)
-        uploads.append(Upload("calibration", calibration.file, {"filename": calibration.filename}))
+    for name, extra in (("calibration", calibration), ("telemetry", telemetry)):
+        if extra is not None:
+            check_size(extra, svc.settings.max_upload_bytes)
+            uploads.append(Upload(name, extra.file, {"filename": extra.filename}))
     return job_accepted(await create_job(svc, RECONSTRUCT_JOB, p, uploads))

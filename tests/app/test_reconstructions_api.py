@@ -49,13 +49,29 @@ def test_a_flight_video_gives_cameras_points_and_a_report(client, flight_video):
     assert len(trajectory["frames"]) == report["frames"]["decoded"]
 
 
-def test_missing_intrinsics_are_refused_before_upload_is_queued(client, flight_video):
-    video, _ = flight_video
-    r = client.post("/v1/reconstructions", files={"media": ("flight.mp4", video, "video/mp4")})
-    assert r.status_code == 422 and "intrinsics" in r.json()["detail"]
+def test_a_video_without_intrinsics_is_self_calibrated(client, flight_video):
+    video, intrinsics = flight_video
     r = client.post("/v1/reconstructions", files={"media": ("flight.mp4", video, "video/mp4")},
-                    data={"params": json.dumps({"fx": -5, "fy": 500, "cx": 160, "cy": 120})})
-    assert r.status_code == 422 and "fx" in r.json()["detail"]
+                    data={"params": json.dumps({"frame_step": 1})})
+    assert r.status_code == 202, r.text
+    job = wait_final(client, r.json()["id"], timeout=600)
+    assert job["state"] == "succeeded", job
+    report = client.get(f"/v1/jobs/{job['id']}/results/report.json").json()
+    lens = report["intrinsics"]
+    # No EXIF in a video, no telemetry: a default field of view, refined by the bundle adjustment.
+    assert lens["source"] == "default_fov" and lens["self_calibrated"] and lens["distortion"] is not None
+    assert report["frames"]["registered"] >= 20
+    assert report["georeference"]["georeferenced"] is False
+
+
+def test_bad_parameters_are_refused_before_upload_is_queued(client, flight_video):
+    video, _ = flight_video
+    for params, field in (({"fx": -5, "fy": 500, "cx": 160, "cy": 120}, "fx"),
+                          ({"gsd_cm": 5, "georeference": "off"}, "gsd_cm"),
+                          ({"orthophoto": "yes please"}, "orthophoto")):
+        r = client.post("/v1/reconstructions", files={"media": ("flight.mp4", video, "video/mp4")},
+                        data={"params": json.dumps(params)})
+        assert r.status_code == 422 and field in r.json()["detail"], r.text
 
 
 @pytest.mark.parametrize("name,data,fragment", [

@@ -14,7 +14,8 @@ import pytest
 
 from workers.common.jobctx import JobInputError
 from workers.drone import cli, dense
-from workers.drone.job import DENSE_RESULT_NAMES, RESULT_NAMES, run_reconstruction
+from workers.drone.job import run_reconstruction
+from workers.drone.pipeline import DENSE_RESULT_NAMES, RESULT_NAMES
 from workers.drone.params import ReconstructionParams
 from workers.sweep import costs
 from workers.synth.flight import flight_cameras, terrain_scene

@@ -12,7 +12,8 @@ import pytest
 
 from workers.common.jobctx import JobInputError
 from workers.drone import cli
-from workers.drone.job import RESULT_NAMES, run_reconstruction
+from workers.drone.job import run_reconstruction
+from workers.drone.pipeline import RESULT_NAMES
 from workers.drone.params import ReconstructionParams
 from workers.synth.flight import encode_video
 
@@ -72,7 +73,7 @@ def test_bad_inputs_fail_with_a_reason(tmp_path, flight):
     video = flight.path.read_bytes()
     good = _intrinsics(flight)
     _fails(tmp_path / "a", good, {"media": b"this is plain text, not a video"}, "not a video")
-    _fails(tmp_path / "b", {}, {"media": video}, "missing intrinsics")
+    _fails(tmp_path / "b", {**good, "georeference": "required"}, {"media": video}, "no GPS positions")
     _fails(tmp_path / "c", {**good, "fx": 1e6, "fy": 1e6}, {"media": video}, "focal length .* implausible")
     _fails(tmp_path / "d", {**good, "cx": 5000.0}, {"media": video}, "principal point")
     _fails(tmp_path / "e", {**good, "fx": -3}, {"media": video}, "invalid parameters")
@@ -141,7 +142,7 @@ def test_cli_reconstruct(tmp_path, flight, capsys):
 @pytest.mark.parametrize("argv, message", [
     (["--intrinsics", "1,2,3"], "four numbers"),
     (["--intrinsics", "a,b,c,d"], "comma-separated"),
-    ([], "missing intrinsics"),
+    (["--georeference", "required"], "no GPS positions"),
     (["--intrinsics", "200,200,5000,100"], "principal point"),
 ])
 def test_cli_bad_input_exits_2_with_a_message(tmp_path, flight, capsys, argv, message):

@@ -15,6 +15,18 @@ trust-region rule of Ceres' LM strategy (Nielsen's update), except that a step a
 half the predicted decrease grows the radius 4x. Fixed camera parameters (the gauge:
 the first camera's pose) are removed from the reduced system.
 
+Self-calibration: a model with parameters *shared* by every camera (``n_shared`` > 0, e.g. one focal
+length and radial distortion, :class:`~workers.drone.camera_models.RadialModel`) adds a small block
+``dg`` to the reduced system, bordering it::
+
+    [S_cc    S_cg] [dc]   [r_c]
+    [S_cg^T  S_gg] [dg] = [r_g]
+
+solved with the factorisation of ``S_cc`` (a few more right-hand sides) and the ``g x g`` Schur
+complement of the border. Priors enter as extra squared residuals: a Gaussian prior on the shared
+parameters (:class:`SharedPrior`: what holds the focal length where the images cannot, e.g. a flat
+scene seen from straight above) and one on camera centres (:class:`CentrePrior`: GPS positions).
+
 Jacobians come from the analytic camera models in :mod:`workers.drone.camera_models`; the heavy
 loops are numba kernels (``cache=True``).
 """
@@ -33,7 +45,7 @@ import scipy.sparse.linalg as spla
 from numba import njit, prange
 from threadpoolctl import threadpool_limits
 
-from .camera_models import CameraModel
+from .camera_models import CameraModel, poses_from_params
 
 LossName = Literal["trivial", "huber", "cauchy"]
 _MIN_DIAG = 1e-6
@@ -76,6 +88,26 @@ class BAResult:
     seconds: float
     history: list[float] = field(default_factory=list)
     """Cost after every accepted step."""
+    shared: np.ndarray | None = None
+    """The refined shared parameters (n_shared,) of a self-calibrating model, else None."""
+
+
+@dataclass(frozen=True)
+class SharedPrior:
+    """Gaussian prior on the shared parameters: cost ``0.5 * sum(((g - mean) / sigma)^2)``;
+    mean, sigma (n_shared,) float64 in the parameters' units (``sigma`` inf: no prior on that one)."""
+
+    mean: np.ndarray
+    sigma: np.ndarray
+
+
+@dataclass(frozen=True)
+class CentrePrior:
+    """Prior on camera centres ``C = -R^T t``: cost ``0.5 * sum |(C_i - target_i) / sigma_i|^2``;
+    target (C, 3) world units, sigma (C,) world units (inf: no prior on that camera)."""
+
+    target: np.ndarray
+    sigma: np.ndarray
 
 
 # ---------------------------------------------------------------------------------------------
@@ -378,28 +410,136 @@ def _model_decrease(Jc, Jp, r, dc, dp, ci, pj):
     return total
 
 
+@njit(cache=True, fastmath=True)
+def _shared_blocks(Jc, Jp, Jg, r, ci, pj, n_cams, n_pts):
+    """The shared parameters' blocks: H (C,p,g) = Jc^T Jg per camera, G (g,g) = Jg^T Jg,
+    Wg (P,3,g) = Jp^T Jg per point, gg (g,) = Jg^T r (weighted inputs, as :func:`_normal_blocks`)."""
+    n, _, p = Jc.shape
+    g = Jg.shape[2]
+    H = np.zeros((n_cams, p, g))
+    G = np.zeros((g, g))
+    Wg = np.zeros((n_pts, 3, g))
+    gg = np.zeros(g)
+    for o in range(n):
+        c = ci[o]
+        q = pj[o]
+        for a in range(g):
+            j0 = Jg[o, 0, a]
+            j1 = Jg[o, 1, a]
+            gg[a] += j0 * r[o, 0] + j1 * r[o, 1]
+            for b in range(g):
+                G[a, b] += j0 * Jg[o, 0, b] + j1 * Jg[o, 1, b]
+            for b in range(p):
+                H[c, b, a] += Jc[o, 0, b] * j0 + Jc[o, 1, b] * j1
+            for b in range(3):
+                Wg[q, b, a] += Jp[o, 0, b] * j0 + Jp[o, 1, b] * j1
+    return H, G, Wg, gg
+
+
+@njit(cache=True, fastmath=True)
+def _shared_schur(W, Vinv, Wg, gp, ci, order, point_start, n_cams):
+    """What eliminating the points takes from the border: sum_q W_q^T V_q^-1 Wg_q per camera
+    (C,p,g), sum_q Wg_q^T V_q^-1 Wg_q (g,g) and sum_q Wg_q^T V_q^-1 g_q (g,)."""
+    p = W.shape[2]
+    g = Wg.shape[2]
+    n_pts = Vinv.shape[0]
+    Scg = np.zeros((n_cams, p, g))
+    Sgg = np.zeros((g, g))
+    rg = np.zeros(g)
+    Z = np.empty((3, g))
+    for q in range(n_pts):
+        for k in range(3):
+            for b in range(g):
+                Z[k, b] = Vinv[q, k, 0] * Wg[q, 0, b] + Vinv[q, k, 1] * Wg[q, 1, b] + Vinv[q, k, 2] * Wg[q, 2, b]
+        for a in range(g):
+            rg[a] += Z[0, a] * gp[q, 0] + Z[1, a] * gp[q, 1] + Z[2, a] * gp[q, 2]
+            for b in range(g):
+                Sgg[a, b] += Wg[q, 0, a] * Z[0, b] + Wg[q, 1, a] * Z[1, b] + Wg[q, 2, a] * Z[2, b]
+        for k in range(point_start[q], point_start[q + 1]):
+            o = order[k]
+            c = ci[o]
+            for a in range(p):
+                for b in range(g):
+                    Scg[c, a, b] += W[o, 0, a] * Z[0, b] + W[o, 1, a] * Z[1, b] + W[o, 2, a] * Z[2, b]
+    return Scg, Sgg, rg
+
+
+@njit(parallel=True, cache=True)
+def _model_decrease_shared(Jc, Jp, Jg, r, dc, dp, dg, ci, pj):
+    """:func:`_model_decrease` with the shared parameters' step dg (g,) too."""
+    total = 0.0
+    p = Jc.shape[2]
+    g = Jg.shape[2]
+    for o in prange(ci.shape[0]):
+        c = ci[o]
+        q = pj[o]
+        for k in range(2):
+            jd = Jp[o, k, 0] * dp[q, 0] + Jp[o, k, 1] * dp[q, 1] + Jp[o, k, 2] * dp[q, 2]
+            for a in range(p):
+                jd += Jc[o, k, a] * dc[c, a]
+            for a in range(g):
+                jd += Jg[o, k, a] * dg[a]
+            total += -r[o, k] * jd - 0.5 * jd * jd
+    return total
+
+
 # ---------------------------------------------------------------------------------------------
 # The solver
 # ---------------------------------------------------------------------------------------------
-def _solve_reduced(struct: _Structure, blocks: np.ndarray, rhs: np.ndarray, dense_limit: int
-                   ) -> np.ndarray | None:
-    """Solve S x = rhs on the free unknowns; None when S is not positive definite."""
+def _factorise(struct: _Structure, blocks: np.ndarray, dense_limit: int) -> Callable[[np.ndarray], np.ndarray] | None:
+    """A solver ``b (n,) or (n, k) -> S^-1 b`` for the reduced matrix on the free unknowns; None when
+    S is not positive definite."""
     n = struct.n_free
-    if n == 0:
-        return np.zeros(0)
     values = blocks.ravel()[struct.take]
-    b = rhs.ravel()[struct.free_index >= 0]
     try:
         if n <= dense_limit:  # every (row, col) appears once: written straight into the dense matrix
             dense = np.zeros((n, n))
             dense.ravel()[struct.flat] = values
-            return scipy.linalg.cho_solve(scipy.linalg.cho_factor(dense, overwrite_a=True, check_finite=False), b,
-                                          check_finite=False)
+            factor = scipy.linalg.cho_factor(dense, overwrite_a=True, check_finite=False)
+            return lambda b: scipy.linalg.cho_solve(factor, b, check_finite=False)
         S = sp.coo_matrix((values, (struct.rows, struct.cols)), shape=(n, n))
-        x = spla.splu(S.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(b)
+        lu = spla.splu(S.tocsc(), permc_spec="MMD_AT_PLUS_A")
+        return lu.solve
     except (np.linalg.LinAlgError, RuntimeError):
         return None
+
+
+def _solve_reduced(struct: _Structure, blocks: np.ndarray, rhs: np.ndarray, dense_limit: int
+                   ) -> np.ndarray | None:
+    """Solve S x = rhs on the free unknowns; None when S is not positive definite."""
+    if struct.n_free == 0:
+        return np.zeros(0)
+    solve_s = _factorise(struct, blocks, dense_limit)
+    if solve_s is None:
+        return None
+    x = solve_s(rhs.ravel()[struct.free_index >= 0])
     return x if np.all(np.isfinite(x)) else None
+
+
+def _solve_bordered(struct: _Structure, blocks: np.ndarray, rhs: np.ndarray, border: np.ndarray, corner: np.ndarray,
+                    rhs_g: np.ndarray, dense_limit: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Solve ``[[S, B], [B^T, D]] [x; y] = [rhs; rhs_g]``: S the reduced camera matrix (free unknowns),
+    border B (C * p, g) (all camera unknowns), corner D (g, g). Returns x (free,), y (g,); None when the
+    system is not positive definite."""
+    keep = struct.free_index >= 0
+    B = border[keep]
+    b = rhs.ravel()[keep]
+    try:
+        if struct.n_free == 0:
+            y = np.linalg.solve(corner, rhs_g)
+            return np.zeros(0), y
+        solve_s = _factorise(struct, blocks, dense_limit)
+        if solve_s is None:
+            return None
+        Z = solve_s(np.column_stack([b, B]))
+        z, Y = Z[:, 0], Z[:, 1:]
+        reduced = corner - B.T @ Y
+        y = scipy.linalg.cho_solve(scipy.linalg.cho_factor(reduced, check_finite=False), rhs_g - B.T @ z,
+                                   check_finite=False)
+    except (np.linalg.LinAlgError, RuntimeError, ValueError):
+        return None
+    x = z - Y @ y
+    return (x, y) if np.all(np.isfinite(x)) and np.all(np.isfinite(y)) else None
 
 
 def solve(
@@ -412,6 +552,11 @@ def solve(
     fixed: np.ndarray | None = None,
     options: BAOptions = BAOptions(),
     callback: Callable[[int, float], None] | None = None,
+    *,
+    shared: np.ndarray | None = None,
+    shared_fixed: np.ndarray | None = None,
+    shared_prior: SharedPrior | None = None,
+    centre_prior: CentrePrior | None = None,
 ) -> BAResult:
     """Levenberg–Marquardt bundle adjustment.
 
@@ -420,14 +565,23 @@ def solve(
     fixed: (C, p) bool, True for parameters held constant (default: the first camera's pose).
     ``callback(iteration, cost)`` is called after every linear solve.
     Points seen by no observation keep their values.
+    A model with shared parameters (``model.n_shared`` > 0) needs their start values ``shared``
+    (n_shared,); ``shared_fixed`` (n_shared,) bool holds some constant; the result's ``shared`` holds
+    the refined values. ``shared_prior`` and ``centre_prior`` add the priors described by their classes
+    (the cost then includes them).
     """
     t0 = time.perf_counter()
+    g = int(getattr(model, "n_shared", 0))
+    if g and shared is None:
+        raise ValueError("this camera model has shared parameters: give their start values (shared=...)")
     prob = _Problem(model, np.ascontiguousarray(cam_idx, np.int64), np.ascontiguousarray(pt_idx, np.int64),
-                    np.ascontiguousarray(obs, np.float64), options)
+                    np.ascontiguousarray(obs, np.float64), options, shared_prior, centre_prior)
     params = np.ascontiguousarray(params, np.float64)
     if fixed is None:
         fixed = np.zeros(params.shape, bool)
         fixed[0, :6] = True
+    shared = np.ascontiguousarray(shared, np.float64).reshape(g) if g else np.zeros(0)
+    shared_free = (np.ones(g, bool) if shared_fixed is None else ~np.asarray(shared_fixed, bool).reshape(g))
     # Threads only pay off on large problems; on small ones (and on a busy machine) the
     # synchronisation of numba's and BLAS's thread pools costs more than it saves.
     threads = numba.get_num_threads() if len(prob.ci) >= _PARALLEL_MIN_OBS else 1
@@ -435,12 +589,30 @@ def solve(
     numba.set_num_threads(threads)
     try:
         with threadpool_limits(1, user_api="blas"):
-            result = _levenberg_marquardt(prob, params, np.ascontiguousarray(points, np.float64), fixed, threads,
-                                          callback)
+            result = _levenberg_marquardt(prob, params, np.ascontiguousarray(points, np.float64), shared, fixed,
+                                          shared_free, threads, callback)
     finally:
         numba.set_num_threads(previous)
     result.seconds = time.perf_counter() - t0
     return result
+
+
+@dataclass
+class _Evaluation:
+    """Cost and linearisation at one point: IRLS weights w (N,), residuals r (N, 2), Jacobians Jc, Jp,
+    Jg (None without shared parameters); the priors' residuals and Jacobians (None when absent):
+    shared e_g (g,) with its diagonal Jacobian d_g (g,), centres e_c (C, 3) and J_c (C, 3, p)."""
+
+    cost: float
+    w: np.ndarray
+    r: np.ndarray
+    Jc: np.ndarray
+    Jp: np.ndarray
+    Jg: np.ndarray | None
+    e_g: np.ndarray | None = None
+    d_g: np.ndarray | None = None
+    e_c: np.ndarray | None = None
+    J_c: np.ndarray | None = None
 
 
 @dataclass
@@ -450,81 +622,145 @@ class _Problem:
     pj: np.ndarray
     obs: np.ndarray
     options: BAOptions
+    shared_prior: SharedPrior | None = None
+    centre_prior: CentrePrior | None = None
 
-    def evaluate(self, params: np.ndarray, points: np.ndarray):
-        """Robust cost, IRLS weights (N,), residuals (N, 2), Jacobians."""
-        r, Jc, Jp = self.model.evaluate(params, points, self.ci, self.pj, self.obs, True)
+    def evaluate(self, params: np.ndarray, points: np.ndarray, shared: np.ndarray) -> _Evaluation:
+        """Robust cost (priors included), IRLS weights, residuals, Jacobians."""
+        if len(shared):
+            r, Jc, Jp, Jg = self.model.evaluate_shared(params, shared, points, self.ci, self.pj, self.obs, True)
+        else:
+            (r, Jc, Jp), Jg = self.model.evaluate(params, points, self.ci, self.pj, self.obs, True), None
         cost, w = loss_cost_and_weight(np.einsum("ij,ij->i", r, r), self.options.loss, self.options.loss_scale)
-        return cost, w, r, Jc, Jp
+        ev = _Evaluation(cost, w, r, Jc, Jp, Jg)
+        if self.shared_prior is not None and len(shared):
+            inv = 1.0 / np.asarray(self.shared_prior.sigma, np.float64)
+            ev.e_g = (shared - self.shared_prior.mean) * inv
+            ev.d_g = inv
+            ev.cost += 0.5 * float(ev.e_g @ ev.e_g)
+        if self.centre_prior is not None:
+            ev.e_c, ev.J_c = _centre_residuals(params, self.centre_prior)
+            ev.cost += 0.5 * float((ev.e_c * ev.e_c).sum())
+        return ev
 
 
-def _levenberg_marquardt(prob: _Problem, params: np.ndarray, points: np.ndarray, fixed: np.ndarray, threads: int,
+def _centre_residuals(params: np.ndarray, prior: CentrePrior) -> tuple[np.ndarray, np.ndarray]:
+    """Whitened centre residuals (C, 3) and their Jacobians (C, 3, p) by the camera parameters: with
+    ``R <- exp([d]x) R``, ``C = -R^T t`` moves by ``-R^T [t]x d`` and by ``-R^T dt``."""
+    R, t = poses_from_params(params)
+    inv = np.where(np.isfinite(prior.sigma), 1.0 / np.asarray(prior.sigma, np.float64), 0.0)
+    C = -np.einsum("nji,nj->ni", R, t)
+    e = (C - np.nan_to_num(prior.target)) * inv[:, None]
+    tx = np.zeros((len(t), 3, 3))
+    tx[:, 0, 1], tx[:, 0, 2], tx[:, 1, 2] = -t[:, 2], t[:, 1], -t[:, 0]
+    tx[:, 1, 0], tx[:, 2, 0], tx[:, 2, 1] = t[:, 2], -t[:, 1], t[:, 0]
+    Rt = np.swapaxes(R, 1, 2)
+    J = np.zeros((len(t), 3, params.shape[1]))
+    J[:, :, :3] = -Rt @ tx
+    J[:, :, 3:6] = -Rt
+    return e, J * inv[:, None, None]
+
+
+def _levenberg_marquardt(prob: _Problem, params: np.ndarray, points: np.ndarray, shared: np.ndarray,
+                         fixed: np.ndarray, shared_free: np.ndarray, threads: int,
                          callback: Callable[[int, float], None] | None) -> BAResult:
     options = prob.options
     ci, pj = prob.ci, prob.pj
     n_cams, p = params.shape
+    g = len(shared)
+    sel = np.flatnonzero(shared_free)
     struct = _structure(n_cams, len(points), p, ci, pj, fixed)
     n_chunks = max(1, min(threads, len(points) // 256))
     free_rows = 1.0 - fixed.astype(np.float64)
-    cost, w, r, Jc, Jp = prob.evaluate(params, points)
-    initial_cost = cost
-    history = [cost]
+    ev = prob.evaluate(params, points, shared)
+    initial_cost = ev.cost
+    history = [ev.cost]
     radius, nu = options.initial_radius, 2.0
     iterations = accepted = invalid = 0
     grad0 = None
     termination = "max_iterations"
     need_blocks = True
+    dg = np.zeros(g)
     while iterations < options.max_iterations:
         if need_blocks:
-            sw = np.sqrt(w)
-            r_w = r * sw[:, None]
-            Jc_w = Jc * sw[:, None, None]
-            Jp_w = Jp * sw[:, None, None]
+            sw = np.sqrt(ev.w)
+            r_w = ev.r * sw[:, None]
+            Jc_w = ev.Jc * sw[:, None, None]
+            Jp_w = ev.Jp * sw[:, None, None]
             U, V, W, gc, gp = _normal_blocks(Jc_w, Jp_w, r_w, ci, pj, n_cams, len(points))
-            gmax = max(float(np.abs(gc * free_rows).max(initial=0.0)), float(np.abs(gp).max(initial=0.0)))
+            if ev.e_c is not None:  # the centre prior touches each camera alone
+                U += np.einsum("nka,nkb->nab", ev.J_c, ev.J_c)
+                gc += np.einsum("nka,nk->na", ev.J_c, ev.e_c)
+            if g:
+                Jg_w = ev.Jg * sw[:, None, None]
+                H, G, Wg, gg = _shared_blocks(Jc_w, Jp_w, Jg_w, r_w, ci, pj, n_cams, len(points))
+                if ev.e_g is not None:
+                    G[np.diag_indices(g)] += ev.d_g**2
+                    gg += ev.d_g * ev.e_g
+            gmax = max(float(np.abs(gc * free_rows).max(initial=0.0)), float(np.abs(gp).max(initial=0.0)),
+                       float(np.abs(gg[sel]).max(initial=0.0)) if g else 0.0)
             grad0 = gmax if grad0 is None else grad0
             if gmax <= options.gradient_tolerance * max(grad0, 1e-300):
                 termination = "gradient_tolerance"
                 break
             need_blocks = False
         iterations += 1
+        mu = 1.0 / radius
         blocks, rhs, Vinv = _schur(U, V, W, gc, gp, ci, struct.order, struct.point_start, struct.pair_block,
-                                   struct.pair_start, struct.blk_indptr, struct.blk_indices, 1.0 / radius, n_chunks)
-        x = _solve_reduced(struct, blocks, rhs, options.dense_limit)
+                                   struct.pair_start, struct.blk_indptr, struct.blk_indices, mu, n_chunks)
+        dc = dp = None
+        if len(sel):
+            Scg, Sgg, rg = _shared_schur(W, Vinv, Wg, gp, ci, struct.order, struct.point_start, n_cams)
+            border = (H - Scg)[:, :, sel].reshape(n_cams * p, len(sel))
+            corner = (G - Sgg)[np.ix_(sel, sel)]
+            corner[np.diag_indices(len(sel))] += mu * np.clip(np.diag(G)[sel], _MIN_DIAG, _MAX_DIAG)
+            sol = _solve_bordered(struct, blocks, rhs, border, corner, (rg - gg)[sel], options.dense_limit)
+            if sol is not None:
+                x, y = sol
+                dg = np.zeros(g)
+                dg[sel] = y
+        else:
+            x = _solve_reduced(struct, blocks, rhs, options.dense_limit)
         trial = None
         if x is not None:
             dc = np.zeros(n_cams * p)
             dc[struct.free_index >= 0] = x
             dc = dc.reshape(n_cams, p)
-            dp = _back_substitute(dc, W, Vinv, gp, ci, struct.order, struct.point_start)
+            gp_step = gp + Wg @ dg if len(sel) else gp
+            dp = _back_substitute(dc, W, Vinv, gp_step, ci, struct.order, struct.point_start)
             if np.all(np.isfinite(dp)):
                 new_params = prob.model.retract(params, dc)
                 new_points = points + dp
-                trial = prob.evaluate(new_params, new_points)
-        if trial is None or not np.isfinite(trial[0]):
+                new_shared = shared + dg
+                trial = prob.evaluate(new_params, new_points, new_shared)
+        if trial is None or not np.isfinite(trial.cost):
             invalid += 1
             if invalid > options.max_invalid_steps:
                 termination = "invalid_steps"
                 break
             radius, nu = radius / nu, nu * 2.0
             if callback is not None:
-                callback(iterations, cost)
+                callback(iterations, ev.cost)
             continue
         invalid = 0
-        step_norm = math.sqrt(float((dc * dc).sum() + (dp * dp).sum()))
-        x_norm = math.sqrt(float((params * params).sum() + (points * points).sum()))
+        step_norm = math.sqrt(float((dc * dc).sum() + (dp * dp).sum() + (dg * dg).sum()))
+        x_norm = math.sqrt(float((params * params).sum() + (points * points).sum() + (shared * shared).sum()))
         if step_norm <= options.parameter_tolerance * (x_norm + options.parameter_tolerance):
             termination = "parameter_tolerance"
             break
-        predicted = _model_decrease(Jc_w, Jp_w, r_w, dc, dp, ci, pj)
-        rho = (cost - trial[0]) / predicted if predicted > 0 else -1.0
+        if g:
+            predicted = _model_decrease_shared(Jc_w, Jp_w, Jg_w, r_w, dc, dp, dg, ci, pj)
+        else:
+            predicted = _model_decrease(Jc_w, Jp_w, r_w, dc, dp, ci, pj)
+        predicted += _prior_decrease(ev, dc, dg)
+        rho = (ev.cost - trial.cost) / predicted if predicted > 0 else -1.0
         if rho > 1e-3:
-            change = cost - trial[0]
-            params, points = new_params, new_points
-            cost, w, r, Jc, Jp = trial
+            change = ev.cost - trial.cost
+            params, points, shared = new_params, new_points, new_shared
+            ev = trial
             need_blocks = True
             accepted += 1
-            history.append(cost)
+            history.append(ev.cost)
             # Ceres' rule (Nielsen) grows the radius by at most 3x and hardly at all for 0.5 < rho < 0.8,
             # where BAL problems sit for dozens of steps: the damping then, not the model, sets the pace
             # (BAL-49 needs 64 accepted steps to reach Ceres' 100-iteration cost; 4x growth: 28).
@@ -534,12 +770,25 @@ def _levenberg_marquardt(prob: _Problem, params: np.ndarray, points: np.ndarray,
         else:
             radius, nu = radius / nu, nu * 2.0
         if callback is not None:
-            callback(iterations, cost)
+            callback(iterations, ev.cost)
         if rho > 1e-3 and change <= options.function_tolerance * max(history[-2], 1e-300):
             termination = "function_tolerance"
             break
-    return BAResult(params=params, points=points, initial_cost=initial_cost, final_cost=cost,
-                    iterations=iterations, accepted=accepted, termination=termination, seconds=0.0, history=history)
+    return BAResult(params=params, points=points, initial_cost=initial_cost, final_cost=ev.cost,
+                    iterations=iterations, accepted=accepted, termination=termination, seconds=0.0, history=history,
+                    shared=shared.copy() if g else None)
+
+
+def _prior_decrease(ev: _Evaluation, dc: np.ndarray, dg: np.ndarray) -> float:
+    """Decrease of the priors' linearised cost for the step (dc, dg)."""
+    total = 0.0
+    if ev.e_g is not None:
+        jd = ev.d_g * dg
+        total += float(-(ev.e_g * jd).sum() - 0.5 * (jd * jd).sum())
+    if ev.e_c is not None:
+        jd = np.einsum("nka,na->nk", ev.J_c, dc)
+        total += float(-(ev.e_c * jd).sum() - 0.5 * (jd * jd).sum())
+    return total
 
 
 def reprojection_errors(model: CameraModel, params: np.ndarray, points: np.ndarray,
@@ -549,3 +798,42 @@ def reprojection_errors(model: CameraModel, params: np.ndarray, points: np.ndarr
                              np.ascontiguousarray(cam_idx, np.int64), np.ascontiguousarray(pt_idx, np.int64),
                              np.ascontiguousarray(obs, np.float64), False)
     return np.sqrt(np.einsum("ij,ij->i", r, r))
+
+
+def shared_information(model: CameraModel, params: np.ndarray, points: np.ndarray, shared: np.ndarray,
+                       cam_idx: np.ndarray, pt_idx: np.ndarray, obs: np.ndarray, fixed: np.ndarray,
+                       options: BAOptions = BAOptions()) -> np.ndarray:
+    """What the observations alone say about the shared parameters: their Fisher information (g, g)
+    at the given solution (no prior), with every point and free camera parameter estimated too (the
+    Schur complement of the Gauss-Newton matrix onto the shared block; residuals in pixels, unit
+    variance, the robust loss's weights). Its inverse's diagonal holds the variances the images
+    alone would give; a direction they do not determine (a flat scene seen from above: focal length
+    against altitude) has little information. The gauge directions left free (scale) get a
+    negligible damping, 1e-9 of the diagonal."""
+    g = int(model.n_shared)
+    prob = _Problem(model, np.ascontiguousarray(cam_idx, np.int64), np.ascontiguousarray(pt_idx, np.int64),
+                    np.ascontiguousarray(obs, np.float64), options)
+    params = np.ascontiguousarray(params, np.float64)
+    points = np.ascontiguousarray(points, np.float64)
+    ev = prob.evaluate(params, points, np.ascontiguousarray(shared, np.float64))
+    ci, pj = prob.ci, prob.pj
+    n_cams, p = params.shape
+    struct = _structure(n_cams, len(points), p, ci, pj, fixed)
+    sw = np.sqrt(ev.w)
+    r_w, Jc_w, Jp_w, Jg_w = ev.r * sw[:, None], ev.Jc * sw[:, None, None], ev.Jp * sw[:, None, None], \
+        ev.Jg * sw[:, None, None]
+    with threadpool_limits(1, user_api="blas"):
+        U, V, W, gc, gp = _normal_blocks(Jc_w, Jp_w, r_w, ci, pj, n_cams, len(points))
+        H, G, Wg, _ = _shared_blocks(Jc_w, Jp_w, Jg_w, r_w, ci, pj, n_cams, len(points))
+        blocks, _, Vinv = _schur(U, V, W, gc, gp, ci, struct.order, struct.point_start, struct.pair_block,
+                                 struct.pair_start, struct.blk_indptr, struct.blk_indices, 1e-9, 1)
+        Scg, Sgg, _ = _shared_schur(W, Vinv, Wg, gp, ci, struct.order, struct.point_start, n_cams)
+        keep = struct.free_index >= 0
+        B = (H - Scg).reshape(n_cams * p, g)[keep]
+        info = G - Sgg
+        if struct.n_free:
+            solve_s = _factorise(struct, blocks, options.dense_limit)
+            if solve_s is None:
+                return np.zeros((g, g))
+            info = info - B.T @ solve_s(B)
+    return 0.5 * (info + info.T)

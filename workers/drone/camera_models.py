@@ -10,6 +10,10 @@ columns are ``d residual / d d`` at ``d = 0`` and :meth:`retract` composes inste
   parameters (rotation, translation). Residual ``K (R X + t) / z - observed`` in pixels.
 - :class:`BALModel`: the "Bundle Adjustment in the Large" camera, 9 parameters (rotation,
   translation, f, k1, k2), ``p = -P_xy / P_z`` and ``f (1 + k1 |p|^2 + k2 |p|^4) p``.
+- :class:`RadialModel`: self-calibration, 6 pose parameters per camera and intrinsics ``f, k1, k2``
+  *shared* by every camera (COLMAP's RADIAL camera with a fixed principal point): ``x = P_xy / P_z``,
+  pixel ``f (1 + k1 |x|^2 + k2 |x|^4) x + c``. Models with shared parameters set ``n_shared`` and
+  implement :meth:`CameraModel.evaluate_shared`; the solver adds the shared block to its reduced system.
 """
 from __future__ import annotations
 
@@ -208,6 +212,67 @@ def _bal_kernel(params, X, ci, pj, obs, want_jac, r, Jc, Jp):
             Jp[o, 1, k] = b0 * R[0, k] + b1 * R[1, k] + b2 * R[2, k]
 
 
+@njit(parallel=True, cache=True, fastmath=True)
+def _radial_kernel(params, shared, centre, X, ci, pj, obs, want_jac, r, Jc, Jp, Jg):
+    """Shared-intrinsics radial camera: residuals (N, 2); with ``want_jac`` Jc (N, 2, 6), Jp (N, 2, 3)
+    and Jg (N, 2, 3) (derivatives by f, k1, k2)."""
+    Rs = _rotation_matrices(params)
+    f, k1, k2 = shared[0], shared[1], shared[2]
+    for o in prange(ci.shape[0]):
+        c = ci[o]
+        p = pj[o]
+        R = Rs[c]
+        x0, x1, x2 = X[p, 0], X[p, 1], X[p, 2]
+        q0 = R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] * x2
+        q1 = R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] * x2
+        q2 = R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] * x2
+        P0 = q0 + params[c, 3]
+        P1 = q1 + params[c, 4]
+        P2 = max(q2 + params[c, 5], _MIN_DEPTH)
+        iz = 1.0 / P2
+        px = P0 * iz
+        py = P1 * iz
+        r2 = px * px + py * py
+        d = 1.0 + r2 * (k1 + k2 * r2)
+        r[o, 0] = f * d * px + centre[0] - obs[o, 0]
+        r[o, 1] = f * d * py + centre[1] - obs[o, 1]
+        if not want_jac:
+            continue
+        # d(pixel)/d(x, y) = f (d I + 2 (k1 + 2 k2 r2) x x^T); d(x, y)/dP = [[iz, 0, -x iz], [0, iz, -y iz]]
+        g = 2.0 * f * (k1 + 2.0 * k2 * r2)
+        m00 = f * d + g * px * px
+        m01 = g * px * py
+        m11 = f * d + g * py * py
+        a0 = m00 * iz
+        a1 = m01 * iz
+        a2 = -(m00 * px + m01 * py) * iz
+        b0 = m01 * iz
+        b1 = m11 * iz
+        b2 = -(m01 * px + m11 * py) * iz
+        # dP/d(rotation increment) = -[q]x
+        Jc[o, 0, 0] = -a1 * q2 + a2 * q1
+        Jc[o, 0, 1] = a0 * q2 - a2 * q0
+        Jc[o, 0, 2] = -a0 * q1 + a1 * q0
+        Jc[o, 1, 0] = -b1 * q2 + b2 * q1
+        Jc[o, 1, 1] = b0 * q2 - b2 * q0
+        Jc[o, 1, 2] = -b0 * q1 + b1 * q0
+        Jc[o, 0, 3] = a0
+        Jc[o, 0, 4] = a1
+        Jc[o, 0, 5] = a2
+        Jc[o, 1, 3] = b0
+        Jc[o, 1, 4] = b1
+        Jc[o, 1, 5] = b2
+        Jg[o, 0, 0] = d * px
+        Jg[o, 1, 0] = d * py
+        Jg[o, 0, 1] = f * r2 * px
+        Jg[o, 1, 1] = f * r2 * py
+        Jg[o, 0, 2] = f * r2 * r2 * px
+        Jg[o, 1, 2] = f * r2 * r2 * py
+        for k in range(3):
+            Jp[o, 0, k] = a0 * R[0, k] + a1 * R[1, k] + a2 * R[2, k]
+            Jp[o, 1, k] = b0 * R[0, k] + b1 * R[1, k] + b2 * R[2, k]
+
+
 @njit(cache=True)
 def _rotation_vectors(R: np.ndarray) -> np.ndarray:
     out = np.empty((R.shape[0], 3))
@@ -233,6 +298,8 @@ class CameraModel:
 
     n_params: int
     """Parameters per camera (and the size of a camera's tangent space)."""
+    n_shared: int = 0
+    """Parameters shared by every camera (0: none; see :meth:`evaluate_shared`)."""
 
     def evaluate(
         self, params: np.ndarray, points: np.ndarray, cam_idx: np.ndarray, pt_idx: np.ndarray,
@@ -244,6 +311,14 @@ class CameraModel:
         obs (N, 2) float64 pixels. Returns r (N, 2) pixels, Jc (N, 2, n_params), Jp (N, 2, 3)
         (both None unless ``want_jac``).
         """
+        raise NotImplementedError
+
+    def evaluate_shared(
+        self, params: np.ndarray, shared: np.ndarray, points: np.ndarray, cam_idx: np.ndarray, pt_idx: np.ndarray,
+        obs: np.ndarray, want_jac: bool,
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """As :meth:`evaluate` with the shared parameters ``shared`` (n_shared,) float64; also returns
+        Jg (N, 2, n_shared), the derivatives by them (None unless ``want_jac``)."""
         raise NotImplementedError
 
     def retract(self, params: np.ndarray, delta: np.ndarray) -> np.ndarray:
@@ -291,3 +366,34 @@ class BALModel(CameraModel):
         r, Jc, Jp = _buffers(len(cam_idx), 9, want_jac)
         _bal_kernel(params, points, cam_idx, pt_idx, obs, want_jac, r, Jc, Jp)
         return (r, Jc, Jp) if want_jac else (r, None, None)
+
+
+class RadialModel(CameraModel):
+    """Self-calibration: per camera ``[rvec(3), t(3)]`` (world-to-camera, OpenCV axes); shared by all
+    cameras ``f, k1, k2`` (focal length in pixels, radial distortion of the normalised image point,
+    OpenCV's k1, k2); the principal point ``centre`` (2,) pixels stays fixed.
+
+    The shared parameters are passed to :meth:`evaluate_shared` (the solver refines them);
+    :meth:`evaluate` uses ``shared`` given here, for callers that only want residuals.
+    """
+
+    n_params = 6
+    n_shared = 3
+
+    def __init__(self, centre: tuple[float, float] | np.ndarray, shared: np.ndarray | None = None) -> None:
+        self.centre = np.ascontiguousarray(centre, np.float64).reshape(2)
+        self.shared = None if shared is None else np.ascontiguousarray(shared, np.float64).reshape(3)
+
+    def evaluate_shared(self, params, shared, points, cam_idx, pt_idx, obs, want_jac):
+        n = len(cam_idx)
+        r, Jc, Jp = _buffers(n, 6, want_jac)
+        Jg = np.empty((n, 2, 3)) if want_jac else np.empty((1, 2, 3))
+        _radial_kernel(params, np.ascontiguousarray(shared, np.float64), self.centre, points, cam_idx, pt_idx, obs,
+                       want_jac, r, Jc, Jp, Jg)
+        return (r, Jc, Jp, Jg) if want_jac else (r, None, None, None)
+
+    def evaluate(self, params, points, cam_idx, pt_idx, obs, want_jac):
+        if self.shared is None:
+            raise ValueError("RadialModel.evaluate needs the shared parameters given to the constructor")
+        r, Jc, Jp, _ = self.evaluate_shared(params, self.shared, points, cam_idx, pt_idx, obs, want_jac)
+        return r, Jc, Jp

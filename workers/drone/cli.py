@@ -1,8 +1,11 @@
-"""``sweepcast reconstruct VIDEO --intrinsics fx,fy,cx,cy [--out DIR]``: drone video -> point cloud.
+"""``sweepcast reconstruct VIDEO [--intrinsics fx,fy,cx,cy] [--orthophoto] [--out DIR]``: drone video ->
+point cloud, and for a georeferenced flight a map.
 
-VIDEO may also be a zip or a folder of ordered still images. The results are the job's:
-points.ply, cameras.txt, images.txt, points3D.txt, trajectory.json, report.json, preview.png, and with
-``--dense`` dense.ply and depth.zip.
+VIDEO may also be a zip or a folder of ordered still images. Without intrinsics the camera is
+self-calibrated (EXIF, DJI telemetry or a default field of view). The results are the job's
+(:mod:`workers.drone.pipeline`): points.ply, cameras.txt, images.txt, points3D.txt, trajectory.json,
+report.json, preview.png; with ``--dense`` dense.ply and depth.zip; georeferenced points.laz; with map
+products orthophoto.tif/.png and dsm.tif/.png.
 """
 from __future__ import annotations
 
@@ -17,16 +20,16 @@ from workers.common.cliutil import ProgressBar, format_table
 from workers.common.jobctx import JobInputError
 from workers.common.validation import describe_errors
 
-from .job import dense_pass, resolve_intrinsics, write_outputs
 from .params import ReconstructionParams
-from .reconstruction import reconstruct
+from .pipeline import run_pipeline, write_outputs
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``reconstruct`` verb."""
     p = subparsers.add_parser("reconstruct", help="3D reconstruction (points + camera path) from a drone video")
     p.add_argument("video", type=Path, help="video file, or a zip / folder of ordered images")
-    p.add_argument("--intrinsics", help="fx,fy,cx,cy in pixels of the video's resolution")
+    p.add_argument("--intrinsics", help="fx,fy,cx,cy in pixels of the video's resolution (default: self-calibrated "
+                                        "from EXIF, DJI telemetry or a 72 degree field of view)")
     p.add_argument("--calibration", type=Path, help="calibration file (OpenCV YAML/XML/JSON, COLMAP cameras.txt)")
     p.add_argument("--distortion", help="OpenCV distortion k1,k2,p1,p2[,k3]: frames are undistorted first")
     p.add_argument("--out", type=Path, default=Path("reconstruction"), help="output folder (default ./reconstruction)")
@@ -39,6 +42,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--dense-planes", type=int, help="depth planes per depth map (default 128)")
     p.add_argument("--dense-scale", type=float,
                    help="depth-map resolution as a fraction of the working one (default 1)")
+    p.add_argument("--telemetry", type=Path, help="the video's DJI .SRT telemetry file (GPS per frame)")
+    p.add_argument("--georeference", choices=["auto", "required", "off"],
+                   help="place the result in the local UTM zone from GPS (default auto: when the media has GPS)")
+    p.add_argument("--orthophoto", action=argparse.BooleanOptionalAction, default=None,
+                   help="orthophoto.tif (COG) + orthophoto.png (default: on for a georeferenced flight)")
+    p.add_argument("--dsm", action=argparse.BooleanOptionalAction, default=None,
+                   help="dsm.tif (float32 heights) + dsm.png (default: on for a georeferenced flight)")
+    p.add_argument("--gsd-cm", type=float, help="ground sampling distance of orthophoto and DSM, cm per pixel")
     p.add_argument("--params", help="further ReconstructionParams as JSON, e.g. '{\"outlier_threshold\": 3}'")
     p.set_defaults(func=_reconstruct)
 
@@ -59,7 +70,8 @@ def _params(args: argparse.Namespace) -> ReconstructionParams:
         fields.update(zip(("fx", "fy", "cx", "cy"), values))
     if args.distortion:
         fields["distortion"] = _numbers(args.distortion, "--distortion")
-    for name in ("frame_step", "matcher", "max_frames", "max_width", "dense", "dense_planes", "dense_scale"):
+    for name in ("frame_step", "matcher", "max_frames", "max_width", "dense", "dense_planes", "dense_scale",
+                 "georeference", "orthophoto", "dsm", "gsd_cm"):
         if getattr(args, name) is not None:
             fields[name] = getattr(args, name)
     return ReconstructionParams.model_validate(fields)
@@ -70,15 +82,9 @@ def _reconstruct(args: argparse.Namespace) -> int:
     try:
         params = _params(args)
         calib = args.calibration.read_bytes() if args.calibration else None
-        intrinsics = resolve_intrinsics(params, calib)
+        telemetry = args.telemetry.read_bytes() if args.telemetry else None
         bar = ProgressBar("reconstruct")
-        share = 0.6 if params.dense else 1.0
-        model = reconstruct(args.video, intrinsics, params, lambda f, s: bar(f * share, s))
-        dense = None
-        if params.dense:
-            dense = dense_pass(model, args.video, intrinsics, params, lambda f, s: bar(0.6 + 0.37 * f, s))
-            model.report["dense"] = dense.report
-            model.report["timings_s"]["dense"] = dense.report["seconds_total"]
+        out = run_pipeline(args.video, params, calib, telemetry, bar)
     except (JobInputError, ValidationError, json.JSONDecodeError, OSError) as exc:
         if bar is not None:
             bar.close()
@@ -87,12 +93,11 @@ def _reconstruct(args: argparse.Namespace) -> int:
         return 2
     bar(0.98, "export")
     args.out.mkdir(parents=True, exist_ok=True)
-    model.report["timings_s"].update(
-        write_outputs(model, lambda name, data: (args.out / name).write_bytes(data), dense))
-    (args.out / "report.json").write_text(json.dumps(model.report, indent=1))
+    write_outputs(out, lambda name, data: (args.out / name).write_bytes(data))
     bar(1.0, "done")
     bar.close()
-    rep = model.report
+    rep = out.model.report
+    intr = rep["intrinsics"]
     err = rep["reprojection_error_px"]
     rows = [
         ["frames decoded / selected", f"{rep['frames']['decoded']} / {rep['frames']['selected']}"],
@@ -103,12 +108,20 @@ def _reconstruct(args: argparse.Namespace) -> int:
         ["points", rep["points"]],
         ["reprojection error before BA (mean, px)", _fmt(err["before_ba"]["mean"])],
         ["reprojection error after BA (mean, px)", _fmt(err["after_ba"]["mean"])],
+        ["intrinsics", f"{intr['source']}: f {intr['fx']:.1f} px"
+                       + (f", k1 {intr['distortion'][0]:.4f} k2 {intr['distortion'][1]:.4f}" if intr["distortion"] else "")],
+        ["world frame", rep["georeference"]["frame"]],
     ]
-    if dense is not None:
-        d = dense.report
+    if out.dense is not None:
+        d = out.dense.report
         rows += [["dense depth maps", d["depth_maps"]], ["dense points", d["points"]],
                  ["dense: consistent in >= 3 views", _fmt(d["views_per_point"]["at_least_3"])],
                  ["dense: seconds per depth map (median)", _fmt(d["seconds_per_depth_map"]["median"])]]
+    if "mapping" in rep:
+        m = rep["mapping"]
+        rows.append(["orthophoto / DSM grid", f"{m['grid']['width']} x {m['grid']['height']} cells of "
+                                              f"{m['gsd'] * 100:.1f} cm" if m["gsd_unit"] == "m" else
+                     f"{m['grid']['width']} x {m['grid']['height']} cells ({m['gsd_unit']})"])
     rows.append(["total time (s)", f"{sum(rep['timings_s'].values()):.1f}"])
     print(format_table(["", "value"], rows))
     print(f"results in {args.out}/")

@@ -39,19 +39,25 @@ def _native(model: SparseModel, xy: np.ndarray) -> np.ndarray:
 def colmap_text(model: SparseModel) -> dict[str, str]:
     """COLMAP text model: {'cameras.txt', 'images.txt', 'points3D.txt'} -> file contents.
 
-    One PINHOLE camera (native resolution); one image per registered frame, named after the
+    One camera (native resolution): PINHOLE, or RADIAL (f, cx, cy, k1, k2) for a self-calibrated lens
+    with the points2D where the lens shows them; one image per registered frame, named after the
     frame; points2D of keyframes are their bundle-adjustment observations.
     """
     intr = model.intrinsics.scaled(1.0 / model.scale)
     w = int(round(model.width / model.scale))
     h = int(round(model.height / model.scale))
+    if model.lens is not None and intr.dist is not None:
+        camera = (f"1 RADIAL {w} {h} {intr.fx:.10g} {intr.cx + 0.5:.10g} {intr.cy + 0.5:.10g} "
+                  f"{intr.dist[0]:.10g} {intr.dist[1]:.10g}\n")
+    else:
+        camera = f"1 PINHOLE {w} {h} {intr.fx:.10g} {intr.fy:.10g} {intr.cx + 0.5:.10g} {intr.cy + 0.5:.10g}\n"
     cameras = ("# Camera list with one line of data per camera:\n"
-               "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n# Number of cameras: 1\n"
-               f"1 PINHOLE {w} {h} {intr.fx:.10g} {intr.fy:.10g} {intr.cx + 0.5:.10g} {intr.cy + 0.5:.10g}\n")
+               "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n# Number of cameras: 1\n" + camera)
     frames = np.flatnonzero(model.registered)
     image_id = {int(f): i + 1 for i, f in enumerate(frames)}
     order = np.lexsort((model.obs_point, model.obs_frame))
-    of, op, xy = model.obs_frame[order], model.obs_point[order], _native(model, model.obs_xy[order]) + 0.5
+    seen = model.obs_xy[order] if model.lens is None else model.lens.distort(model.obs_xy[order])
+    of, op, xy = model.obs_frame[order], model.obs_point[order], _native(model, seen) + 0.5
     starts = np.searchsorted(of, frames)
     ends = np.searchsorted(of, frames, side="right")
     point2d_idx = np.empty(len(of), np.int64)
@@ -123,8 +129,9 @@ def trajectory(model: SparseModel) -> dict[str, Any]:
         frames.append(item)
     frames.sort(key=lambda item: item["frame"])
     return {
-        "convention": "world-to-camera x_cam = R X + t, OpenCV axes (x right, y down, z forward); the world is the "
-                      "first reconstructed camera's frame, the unit the baseline of the initial pair",
+        "convention": "world-to-camera x_cam = R X + t, OpenCV axes (x right, y down, z forward); the world is "
+                      + (model.world or "the first reconstructed camera's frame, the unit the baseline of the initial "
+                                        "pair"),
         "intrinsics": {"fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy,
                        "width": int(round(model.width / model.scale)),
                        "height": int(round(model.height / model.scale))},

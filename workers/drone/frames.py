@@ -117,6 +117,25 @@ def _open_zip(path: Path, name: str) -> MediaSource:
     return src
 
 
+def still_files(path: str | Path, name: str | None = None) -> Iterator[tuple[str, bytes]]:
+    """The image files of a zip or folder of stills as (file name, bytes), in the order
+    :func:`open_media` decodes them (nothing for a video). The zip's limits apply as there."""
+    path = Path(path)
+    label = f"the zip archive {name or path.name}"
+    if path.is_dir():
+        files = sorted((p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES),
+                       key=lambda p: _natural_key(p.name))
+        for p in files:
+            yield p.name, p.read_bytes()
+    elif zipfile.is_zipfile(path):
+        with SafeZip(path, label=label, error=JobInputError) as zf:
+            names = [n for n in zf.names()
+                     if Path(n).suffix.lower() in IMAGE_SUFFIXES and not Path(n).name.startswith(".")]
+            names.sort(key=lambda n: _natural_key(Path(n).name))
+            for n in names:
+                yield Path(n).name, zf.read(n)
+
+
 def _decode_stills(items, src: MediaSource) -> Iterator[tuple[int, float | None, str, np.ndarray]]:
     """Decode each still (JPEG, PNG, ...) with the service's pixel limit; an image that is not one,
     or too large, is recorded in ``src.errors`` and skipped. A damaged archive stops the job."""

@@ -40,6 +40,32 @@ class ReconstructionParams(BaseModel):
     distortion: list[float] | None = Field(
         None, description="OpenCV distortion coefficients k1 k2 p1 p2 [k3 ...]; frames are undistorted first.")
 
+    refine_intrinsics: bool | None = Field(
+        None, description="Self-calibration: refine the focal length and radial distortion (k1, k2), shared by every "
+                          "frame, in bundle adjustment. Default: when no intrinsics are given (they then start from "
+                          "the photos' EXIF, the video's DJI telemetry or a 72 degree field of view; the focal length "
+                          "moves only where the images determine it); given intrinsics are used as they are.")
+
+    georeference: Literal["auto", "required", "off"] = Field(
+        "auto", description="Place the result in the world (the local UTM zone) from the frames' GPS positions "
+                            "(stills: EXIF; video: DJI .SRT telemetry, uploaded as 'telemetry' or in the video's "
+                            "subtitle stream): 'auto' when there are any, 'required' fails without them, 'off' keeps "
+                            "the reconstruction's own frame.")
+    gps_prior_m: float | None = Field(
+        None, gt=0, le=1000,
+        description="After georeferencing, a bundle adjustment with the GPS positions as a prior on the camera "
+                    "centres of this standard deviation (metres per axis); None: the similarity fit alone.")
+    orthophoto: bool | None = Field(
+        None, description="orthophoto.tif (Cloud-Optimized GeoTIFF, RGBA, transparent outside the flight) and "
+                          "orthophoto.png; runs the dense pass. Default: on for a georeferenced flight.")
+    dsm: bool | None = Field(
+        None, description="dsm.tif (float32 heights in metres, the orthophoto's grid) and dsm.png; runs the dense "
+                          "pass. Default: on for a georeferenced flight.")
+    gsd_cm: float | None = Field(
+        None, gt=0, le=100_000,
+        description="Ground sampling distance of orthophoto and DSM, centimetres per pixel (georeferenced flights); "
+                    "default: the flight's own (a working-resolution pixel straight below the camera).")
+
     frame_step: int | None = Field(None, ge=1, le=10_000,
                                    description="Use every k-th frame; None selects frames adaptively by motion.")
     min_motion: float = Field(0.004, ge=0, le=0.5,
@@ -113,6 +139,10 @@ class ReconstructionParams(BaseModel):
         if self.distortion is not None and len(self.distortion) not in _DIST_LENGTHS:
             raise ValueError(f"distortion needs {', '.join(map(str, _DIST_LENGTHS))} coefficients, "
                              f"got {len(self.distortion)}")
+        if self.refine_intrinsics and self.distortion is not None:
+            raise ValueError("refine_intrinsics refines its own radial distortion: leave out 'distortion'")
+        if self.gsd_cm is not None and self.georeference == "off":
+            raise ValueError("gsd_cm is in centimetres on the ground: it needs georeference 'auto' or 'required'")
         if self.dense_window % 2 == 0:
             raise ValueError(f"dense_window must be odd, got {self.dense_window}")
         if self.dense_best_k > self.dense_neighbours:

@@ -7,6 +7,12 @@ removed between rounds -> the selected frames that are not keyframes located by 
 the map, then (``joint_ba``) refined together with it by a final bundle adjustment over their
 tracked observations -> the decoded frames selection left out located by PnP against the final
 map, followed by optical flow from the selected frame before them (:mod:`workers.drone.localise`).
+
+Without given intrinsics (a :class:`~workers.drone.selfcal.FocalPrior` passed to :func:`reconstruct`)
+the global bundle adjustments also refine one focal length and radial distortion shared by every frame
+(:class:`~workers.drone.camera_models.RadialModel`, the focal length held by the prior); the mapper keeps
+the tracked pixels as the lens saw them and, after each such adjustment, their undistorted positions for
+the pinhole steps (PnP, triangulation, outlier tests).
 """
 from __future__ import annotations
 
@@ -21,11 +27,12 @@ from workers.common.jobctx import JobInputError
 
 from . import bundle
 from .calibration import Intrinsics
-from .camera_models import PinholeModel, pose_params, poses_from_params
+from .camera_models import PinholeModel, RadialModel, pose_params, poses_from_params
 from .frames import SelectionStats, Skipped, open_media, select_frames
 from .localise import MIN_INLIERS, Located, SideView, follow_skipped, locate
 from .multiview import register_pnp, select_keyframes, triangulate_pairs, two_view
 from .params import ReconstructionParams
+from .selfcal import DISTORTION_PRIOR_SIGMA, FocalPrior, distort_pixels, undistort_pixels
 from .tracks import FlowTracker, SiftTracker, TrackSet
 
 ProgressFn = Callable[[float, str], None]
@@ -37,6 +44,51 @@ _LOCAL_WINDOW = 8
 _LOCAL_ITERATIONS = 8
 _INIT_FIRST = 6     # initial pairs are searched among the first keyframes ...
 _INIT_SPAN = 6      # ... and this many keyframes after each
+_SELFCAL_MIN_FRAMES = 4  # the lens is refined once this many frames are posed (two views say little about it)
+# The images refine the focal length unless what they alone say lies farther than this many combined
+# standard deviations from the prior: a conflict. Along a direction they barely see (a flat scene from
+# above: f, altitude and distortion trade off exactly) their pull is model error (sfm/drone_fc350: 6.5
+# sigmas, towards 580 px against the EXIF 702 px), and the prior holds the focal length.
+_FOCAL_CONFLICT = 3.0
+
+
+@dataclass
+class Lens:
+    """The self-calibrated camera at the working resolution: focal length ``f`` (pixels), radial
+    distortion ``k1``, ``k2`` (OpenCV's, of the normalised image point), principal point ``centre``
+    (2,) pixels (fixed at the image centre); ``prior`` where the focal length started and how firmly it
+    is held; ``adjustments`` counts the bundle adjustments that refined it."""
+
+    f: float
+    k1: float
+    k2: float
+    centre: np.ndarray
+    prior: FocalPrior
+    adjustments: int = 0
+    focal_data_sigma: float | None = None
+    """The focal length's standard deviation (pixels) that the images alone gave at the last refinement."""
+    focal_conflict: float | None = None
+    """How far (combined standard deviations) what the images alone say lay from the prior, last time."""
+    focal_refined: bool = False
+    """Whether the last refinement let the images move the focal length (else it stayed at the prior)."""
+
+    @property
+    def K(self) -> np.ndarray:
+        """The pinhole matrix (3, 3) of the undistorted image."""
+        return np.array([[self.f, 0.0, self.centre[0]], [0.0, self.f, self.centre[1]], [0.0, 0.0, 1.0]])
+
+    def intrinsics(self) -> Intrinsics:
+        """As :class:`Intrinsics` (OpenCV distortion ``k1 k2 0 0``, None when both are zero)."""
+        dist = None if self.k1 == 0.0 and self.k2 == 0.0 else np.array([self.k1, self.k2, 0.0, 0.0])
+        return Intrinsics(self.f, self.f, float(self.centre[0]), float(self.centre[1]), dist)
+
+    def undistort(self, xy: np.ndarray) -> np.ndarray:
+        """The lens's pixels (N, 2) -> the undistorted image's (N, 2) float64."""
+        return undistort_pixels(xy, self.f, self.k1, self.k2, self.centre)
+
+    def distort(self, xy: np.ndarray) -> np.ndarray:
+        """The undistorted image's pixels (N, 2) -> the lens's (N, 2) float64."""
+        return distort_pixels(xy, self.f, self.k1, self.k2, self.centre)
 
 
 @dataclass
@@ -52,7 +104,9 @@ class SparseModel:
     'pnp' (registered afterwards by PnP against the map; with ``joint_ba`` then refined with it) or None; ``frame_inliers`` (F,) int64
     observations in the final map ('map') or PnP inliers ('pnp'); ``frame_failure`` why an
     unregistered frame has no pose. ``skipped``: the decoded frames selection left out, each
-    with its pose against the map or the reason it has none.
+    with its pose against the map or the reason it has none. ``obs_xy`` are pixels of the undistorted
+    image (``K``); with self-calibration ``intrinsics.dist`` holds the lens's distortion (``lens`` the
+    refined camera), and the frames must be undistorted with it to match ``K``.
     """
 
     K: np.ndarray
@@ -78,6 +132,10 @@ class SparseModel:
     frame_inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     frame_failure: list[str | None] = field(default_factory=list)
     skipped: list[tuple[SideView, Located]] = field(default_factory=list)
+    lens: Lens | None = None
+    world: str | None = None
+    """The world frame in words once the model was moved into one (:mod:`workers.drone.georef`); None: the
+    reconstruction's own frame."""
 
 
 def _stage(progress: ProgressFn | None, fraction: float, stage: str) -> None:
@@ -164,17 +222,22 @@ def _expected_frames(count: int | None, stats: SelectionStats) -> int | None:
 class _Mapper:
     """State of the incremental reconstruction over the keyframes' observations."""
 
-    def __init__(self, tracks: TrackSet, keyframes: np.ndarray, K: np.ndarray, p: ReconstructionParams) -> None:
+    def __init__(self, tracks: TrackSet, keyframes: np.ndarray, K: np.ndarray, p: ReconstructionParams,
+                 lens: Lens | None = None) -> None:
         self.tracks = tracks
         self.K = K
         self.p = p
+        self.lens = lens
+        # Tracked pixels as the lens saw them (raw) and undistorted for the current lens (pinhole steps).
+        self.track_xy = tracks.obs_xy.copy()
         n_frames = tracks.n_frames
         self.is_key = np.zeros(n_frames, bool)
         self.is_key[keyframes] = True
         sel = self.is_key[tracks.obs_frame]
         self.of = tracks.obs_frame[sel]
         self.ot = tracks.obs_track[sel]
-        self.xy = tracks.obs_xy[sel]
+        self.xy_raw = tracks.obs_xy[sel]
+        self.xy = self.xy_raw.copy()
         self.rgb = tracks.obs_rgb[sel]
         self.valid = np.ones(len(self.of), bool)
         self.by_track = np.argsort(self.ot, kind="stable")
@@ -308,7 +371,8 @@ class _Mapper:
         order = np.argsort(of, kind="stable")
         self.of = of[order]
         self.ot = np.concatenate([self.ot, t.obs_track[new]])[order]
-        self.xy = np.concatenate([self.xy, t.obs_xy[new]])[order]
+        self.xy = np.concatenate([self.xy, self.track_xy[new]])[order]
+        self.xy_raw = np.concatenate([self.xy_raw, t.obs_xy[new]])[order]
         self.rgb = np.concatenate([self.rgb, t.obs_rgb[new]])[order]
         self.valid = np.concatenate([self.valid, np.ones(int(new.sum()), bool)])[order]
         self.by_track = np.argsort(self.ot, kind="stable")
@@ -324,7 +388,9 @@ class _Mapper:
     def adjust(self, free_frames: np.ndarray | None, iterations: int,
                callback: Callable[[int, float], None] | None = None) -> bundle.BAResult | None:
         """Bundle adjustment of the frames in ``free_frames`` (all registered when None) and the
-        points they see; other frames seeing those points stay fixed; the gauge frame is fixed."""
+        points they see; other frames seeing those points stay fixed; the gauge frame is fixed.
+        A global adjustment (``free_frames`` None) of a self-calibrating mapper with at least
+        ``_SELFCAL_MIN_FRAMES`` posed frames also refines the lens."""
         rows, pt = self._ba_rows()
         if free_frames is not None:
             local = np.zeros(len(self.reg), bool)
@@ -345,12 +411,59 @@ class _Mapper:
         if fixed.all():
             return None
         options = bundle.BAOptions(max_iterations=iterations, loss=self.p.ba_loss, loss_scale=self.p.ba_loss_scale)
-        res = bundle.solve(PinholeModel(self.K, len(cams)), pose_params(self.R[cams], self.t[cams]), self.X[pts], ci, pj, self.xy[rows],
-                           fixed, options, callback)
+        start = pose_params(self.R[cams], self.t[cams])
+        if self.lens is not None and free_frames is None and len(cams) >= _SELFCAL_MIN_FRAMES:
+            res = self._adjust_lens(start, pts, ci, pj, self.xy_raw[rows], fixed, options, callback)
+        else:
+            res = bundle.solve(PinholeModel(self.K, len(cams)), start, self.X[pts], ci, pj, self.xy[rows], fixed,
+                               options, callback)
         R, t = poses_from_params(res.params)
         self.R[cams], self.t[cams] = R, t
         self.X[pts] = res.points
         return res
+
+    def _adjust_lens(self, start: np.ndarray, pts: np.ndarray, ci: np.ndarray, pj: np.ndarray, raw: np.ndarray,
+                     fixed: np.ndarray, options: bundle.BAOptions, callback) -> bundle.BAResult:
+        """Bundle adjustment that also refines the lens (f under its prior, k1, k2 under weak zero-mean
+        priors); when the images alone would put f in conflict with the prior (``_FOCAL_CONFLICT``), again
+        with f held at the prior. Updates the lens; returns the solver's result."""
+        lens = self.lens
+        model = RadialModel(lens.centre)
+        f0 = lens.prior.focal_px
+        sigma_f = lens.prior.sigma * f0
+        prior = bundle.SharedPrior(np.array([f0, 0.0, 0.0]),
+                                   np.array([sigma_f, DISTORTION_PRIOR_SIGMA, DISTORTION_PRIOR_SIGMA]))
+        res = bundle.solve(model, start, self.X[pts], ci, pj, raw, fixed, options, callback,
+                           shared=np.array([lens.f, lens.k1, lens.k2]), shared_prior=prior)
+        info = bundle.shared_information(model, res.params, res.points, res.shared, ci, pj, raw, fixed, options)
+        sd = _marginal_sigma(info, 0)
+        f = float(res.shared[0])
+        # The posterior mean is the precision-weighted mean of prior and data: solve it for the data's own.
+        f_images = f + (f - f0) * sd**2 / sigma_f**2 if np.isfinite(sd) else f0
+        lens.focal_data_sigma = sd
+        lens.focal_conflict = abs(f_images - f0) / float(np.hypot(sd, sigma_f)) if np.isfinite(sd) else 0.0
+        lens.focal_refined = bool(lens.focal_conflict <= _FOCAL_CONFLICT)
+        if not lens.focal_refined:
+            # Back to the prior's focal length along the flat-scene family (s f, s^2 k1, s^4 k2), then held there.
+            s = f0 / f
+            res = bundle.solve(model, res.params, res.points, ci, pj, raw, fixed, options, callback,
+                               shared=np.array([f0, res.shared[1] * s**2, res.shared[2] * s**4]),
+                               shared_fixed=np.array([True, False, False]), shared_prior=prior)
+        self._set_lens(*res.shared)
+        return res
+
+    def _set_lens(self, f: float, k1: float, k2: float) -> None:
+        """Adopt a refined lens: K and the undistorted pixels follow it."""
+        lens = self.lens
+        lens.f, lens.k1, lens.k2 = float(f), float(k1), float(k2)
+        lens.adjustments += 1
+        self.K = lens.K
+        self.xy = lens.undistort(self.xy_raw)
+        self.track_xy = lens.undistort(self.tracks.obs_xy)
+
+    def undistort(self, xy: np.ndarray) -> np.ndarray:
+        """Pixels as the lens saw them (N, 2) -> the undistorted image's, for the pinhole steps."""
+        return self.lens.undistort(xy) if self.lens is not None else np.asarray(xy, np.float64)
 
     def errors(self, initial: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Rows used by BA and their reprojection errors (pixels; inf behind the camera), with
@@ -382,10 +495,13 @@ class _Mapper:
 # The pipeline
 # ---------------------------------------------------------------------------------------------
 def reconstruct(media: str | Path, intrinsics: Intrinsics, params: ReconstructionParams,
-                progress: ProgressFn | None = None, media_name: str | None = None) -> SparseModel:
+                progress: ProgressFn | None = None, media_name: str | None = None,
+                focal_prior: FocalPrior | None = None) -> SparseModel:
     """Reconstruct cameras and a sparse point cloud from a video or ordered stills.
 
-    ``intrinsics`` refer to the media's native resolution. ``progress(fraction, stage)`` reports
+    ``intrinsics`` refer to the media's native resolution. With ``focal_prior`` (native resolution)
+    they are only the start of self-calibration (no distortion): the global bundle adjustments refine
+    the focal length (held by the prior) and radial distortion shared by every frame. ``progress(fraction, stage)`` reports
     stages 'decode', 'track k/N', 'keyframes', 'initialise', 'register k/N', 'BA iteration i'
     and 'localise' (the final joint adjustment included) with fractions up to 0.97 (the caller writes the outputs and reports 'done').
     User-caused failures raise JobInputError; ``media_name`` names the media in their messages.
@@ -402,6 +518,9 @@ def reconstruct(media: str | Path, intrinsics: Intrinsics, params: Reconstructio
     intr = intrinsics.scaled(stats.scale)
     K = intr.K
     width = stats.working_size[0]
+    lens = None
+    if focal_prior is not None:
+        lens = Lens(intr.fx, 0.0, 0.0, np.array([intr.cx, intr.cy]), focal_prior.scaled(stats.scale))
 
     t0 = time.perf_counter()
     _stage(progress, 0.56, "keyframes")
@@ -411,7 +530,7 @@ def reconstruct(media: str | Path, intrinsics: Intrinsics, params: Reconstructio
     if len(keyframes) < 2:
         raise JobInputError("the camera never moves: tracked features shifted less than "
                             f"{p.keyframe_parallax:.1%} of the image width over the whole input (no parallax)")
-    mapper = _Mapper(tracks, keyframes, K, p)
+    mapper = _Mapper(tracks, keyframes, K, p, lens)
     _stage(progress, 0.58, "initialise")
     mapper.initialise(keyframes)
     mapper.adjust(None, 20)
@@ -468,7 +587,8 @@ def reconstruct(media: str | Path, intrinsics: Intrinsics, params: Reconstructio
     _, err1 = mapper.errors()
     _stage(progress, 0.97, "localise")
 
-    model = _assemble(mapper, tracks, intr, stats, tr, keyframes)
+    model = _assemble(mapper, tracks, lens.intrinsics() if lens is not None else intr, stats, tr, keyframes)
+    model.lens = lens
     rows, _ = mapper.errors()
     model.frame_registration = ["map" if mapped[f] else "pnp" if mapper.reg[f] else None
                                 for f in range(tracks.n_frames)]
@@ -481,6 +601,15 @@ def reconstruct(media: str | Path, intrinsics: Intrinsics, params: Reconstructio
     model.report = _report(model, tr, p, keyframes, mapper, len([v for v in located.values() if v.R is not None]),
                            err0, err1, final, rounds, timings)
     return model
+
+
+def _marginal_sigma(information: np.ndarray, i: int) -> float:
+    """Standard deviation of parameter ``i`` from an information matrix (g, g); inf where singular."""
+    try:
+        var = float(np.linalg.inv(information)[i, i])
+    except np.linalg.LinAlgError:
+        return float("inf")
+    return float(np.sqrt(var)) if var > 0 and np.isfinite(var) else float("inf")
 
 
 def _map_points(mapper: _Mapper, track_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -497,7 +626,7 @@ def _localise_rest(mapper: _Mapper, tracks: TrackSet) -> dict[int, Located]:
     for f in np.flatnonzero(~mapper.reg):
         sl = tracks.frame_slice(int(f))
         rows, pt = _map_points(mapper, tracks.obs_track[sl])
-        loc = locate(mapper.X[pt], tracks.obs_xy[sl][rows], mapper.K, mapper.p.reprojection_threshold, _MIN_PNP)
+        loc = locate(mapper.X[pt], mapper.track_xy[sl][rows], mapper.K, mapper.p.reprojection_threshold, _MIN_PNP)
         if loc.R is not None:
             mapper.R[f], mapper.t[f] = loc.R, loc.t
             mapper.R0[f], mapper.t0[f] = loc.R, loc.t
@@ -531,7 +660,7 @@ def _locate_side(mapper: _Mapper, tracks: TrackSet, view: SideView) -> Located:
     tid = np.full(len(view.keys), -1, np.int64)
     tid[known] = raw[view.keys[known]]
     rows, pt = _map_points(mapper, tid)
-    return locate(mapper.X[pt], view.xy[rows].astype(np.float64), mapper.K, mapper.p.reprojection_threshold, _MIN_PNP)
+    return locate(mapper.X[pt], mapper.undistort(view.xy[rows]), mapper.K, mapper.p.reprojection_threshold, _MIN_PNP)
 
 
 def _assemble(mapper: _Mapper, tracks: TrackSet, intr: Intrinsics, stats: SelectionStats, tr: _Tracked,
@@ -604,6 +733,28 @@ def _report(model: SparseModel, tr: _Tracked, p: ReconstructionParams, keyframes
             "iterations_last_round": final.iterations if final else None,
             "termination": final.termination if final else None,
         },
+        "intrinsics": _intrinsics_report(model, mapper.lens),
         "timings_s": {k: round(v, 4) for k, v in timings.items()},
         "warnings": warnings,
     }
+
+
+def _intrinsics_report(model: SparseModel, lens: Lens | None) -> dict[str, Any]:
+    """Which intrinsics were used and, when self-calibrated, what was found (native-resolution pixels)."""
+    native = model.intrinsics.scaled(1.0 / model.scale)
+    out: dict[str, Any] = {"fx": native.fx, "fy": native.fy, "cx": native.cx, "cy": native.cy,
+                           "distortion": None if native.dist is None else [float(v) for v in native.dist]}
+    if lens is None:
+        return {"source": "given", "self_calibrated": False, **out}
+    start = lens.prior.focal_px / model.scale
+    return {"source": lens.prior.source, "detail": lens.prior.detail, "self_calibrated": lens.adjustments > 0,
+            "model": "RADIAL (f, k1, k2; principal point at the image centre)", **out,
+            "focal_start_px": start, "focal_change": native.fx / start - 1.0,
+            "focal_prior_sigma_px": lens.prior.sigma * start,
+            "focal_images_sigma_px": None if lens.focal_data_sigma is None else lens.focal_data_sigma / model.scale,
+            "focal_conflict_sigmas": lens.focal_conflict, "focal_refined": lens.focal_refined,
+            "focal_note": ("refined by the images under the prior" if lens.focal_refined else
+                           f"what the images alone say lies {lens.focal_conflict:.1f} sigmas from the prior (more than "
+                           f"{_FOCAL_CONFLICT:g}: model error along a direction they barely see, as over a flat scene "
+                           "seen from above): held at the prior; distortion refined"),
+            "adjustments": lens.adjustments}
