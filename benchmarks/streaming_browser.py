@@ -223,7 +223,8 @@ def fps(quick: bool, webgl: str) -> int:
           "10 cameras, 640x480 frames (the demo rig; a 320x240 view sweeps them shrunk by 2, as the server does). "
           "Browser: render, present and a one-pixel readback that waits for the GPU, median of the renders after "
           "the first (which compiles the shaders). Server: `SweepRenderer.render` in this process, same view, same "
-          "options, median of 3.", "",
+          "options, median of 3. Samples per second count the view's pixels x planes (x cameras) over the time, "
+          "whatever the search skipped (coarse-to-fine tests a few planes per pixel at full resolution).", "",
           "Bytes of one frame set on the wire (every camera's frame in one atlas, as the service ships it for a view "
           "of that size):", "",
           md_table(["view", "source factor", "atlas", "MB, PNG (default)", "MB, JPEG q90"], wire)]
