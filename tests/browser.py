@@ -73,7 +73,7 @@ def png_b64(image: np.ndarray) -> str:
     return base64.b64encode(cv2.imencode(".png", image)[1].tobytes()).decode()
 
 
-_RENDER = """async ({spec, atlas, background, camera, factor, options, overlay, repeat}) => {
+_RENDER = """async ({spec, atlas, background, camera, factor, options, overlay, repeat, sgmBlock}) => {
   const { BrowserRenderer } = await import("/render/renderer.js");
   const { Camera } = await import("/render/camera.js");
   const { capabilities } = await import("/render/gl.js");
@@ -87,6 +87,7 @@ _RENDER = """async ({spec, atlas, background, camera, factor, options, overlay, 
   const bitmap = async (b64) => createImageBitmap(await (await fetch(`data:image/png;base64,${b64}`)).blob(),
     { premultiplyAlpha: "none", colorSpaceConversion: "none" });
   const r = await BrowserRenderer.create(gl, spec);
+  if (sgmBlock) r.semiGlobal.block = sgmBlock;
   r.useFactor(factor);
   if (background) r.frames.setBackgrounds(await bitmap(background), spec.atlas_columns);
   r.frames.setFrames(await bitmap(atlas), spec.atlas_columns);
@@ -110,18 +111,19 @@ _RENDER = """async ({spec, atlas, background, camera, factor, options, overlay, 
 
 
 def render_in_browser(page: Any, spec: dict, atlas: np.ndarray, background: np.ndarray | None, camera: Camera,
-                      factor: int, options: dict, overlay: str = "none", repeat: int = 1) -> dict:
+                      factor: int, options: dict, overlay: str = "none", repeat: int = 1,
+                      sgm_block: int | None = None) -> dict:
     """Render ``camera``'s view with the browser renderer in ``page`` (on a page of a site serving app/static):
     spec from :func:`workers.streaming.browser.render_spec`, frame and background atlases (BGR) from
     :func:`workers.streaming.browser.frame_atlas` at ``factor``. Returns the renderer's info, ``times`` (ms per
     render until the GPU has drawn it, ``repeat`` of them), ``gpu`` (the WebGL renderer string), ``image``
     (h, w, 3) uint8 BGR as presented and ``depth`` (h, w, 4) float32 (inverse depth or 0, plane or -1, sub-plane
-    offset, cost)."""
+    offset, cost). sgm_block: the lines a semi-global draw advances (the renderer's choice for its GPU if None)."""
     out = page.evaluate(_RENDER, {
         "spec": spec, "atlas": png_b64(atlas), "background": None if background is None else png_b64(background),
         "camera": {"K": camera.K.tolist(), "R": camera.R.tolist(), "t": camera.t.tolist(), "width": camera.width,
                    "height": camera.height},
-        "factor": factor, "options": options, "overlay": overlay, "repeat": repeat,
+        "factor": factor, "options": options, "overlay": overlay, "repeat": repeat, "sgmBlock": sgm_block,
     })
     h, w = camera.height, camera.width
     rgba = np.frombuffer(base64.b64decode(out["image"]), np.uint8).reshape(h, w, 4)

@@ -11,7 +11,7 @@
 // service's target rate at the chosen size, else on the server; ?render=browser|server forces one.
 import { LocalView } from "./local-view.js";
 import { capabilities } from "./render/gl.js";
-import { unsupported } from "./render/renderer.js";
+import { Unsupported, unsupported } from "./render/renderer.js";
 import { clampAzimuth, orbitCoverage } from "./render/rig.js";
 
 const $ = (id) => document.getElementById(id);
@@ -301,6 +301,10 @@ function drawLocal() {
       hideError();
       showStats({ ...info, render_ms: info.ms, frame: state.source === "live" ? "live" : state.frame });
     } catch (error) {
+      if (error instanceof Unsupported) {
+        fallBack(error.message);
+        return;
+      }
       state.errors.push({ error: "browser_render", detail: error.message });
       showError(`browser render: ${error.message}`);
     } finally {

@@ -218,7 +218,8 @@ def atlas_cells(data: bytes, rig) -> list[np.ndarray]:
 def test_the_viewer_renders_in_the_browser_from_cached_frame_sets(server, take):
     """?render=browser on a machine without a GPU (SwiftShader): the page says so, draws the server's picture of
     the same viewpoint (from JPEG frame sets), fetches each frame set once, keeps the orbit on the cameras' arc
-    unless freed, starts no session on the server, and switches to server rendering on request."""
+    unless freed, renders semi-global aggregation too, starts no session on the server, and switches to server
+    rendering on request."""
     from tests.browser import chromium
     from workers.common.imagemetrics import psnr
     from workers.streaming.params import Orbit
@@ -277,6 +278,17 @@ def test_the_viewer_renders_in_the_browser_from_cached_frame_sets(server, take):
         drawn(page, received + 1)
         assert page.evaluate("viewerState.local.bytes.sets") == 3  # frame 1 fetched once, frame 0 kept
         assert page.evaluate("viewerState.errors.length") == 0
+
+        received = page.evaluate("viewerState.received")
+        page.select_option("#aggregation", "sgm")  # semi-global: rendered in the browser too
+        drawn(page, received)
+        assert page.evaluate("viewerState.mode") == "browser"
+        view = page.evaluate("({az: viewerState.azimuth, el: viewerState.elevation, d: viewerState.distance})")
+        camera = orbit_camera(orbit_frame(take.rig), Orbit(azimuth=view["az"], elevation=view["el"],
+                                                            distance=view["d"]), 50.0, (320, 240))
+        expected = SweepRenderer(take.rig, sent[0], backgrounds=sent[1], device="cpu").render(
+            camera, coarse_to_fine=True, aggregation="sgm")
+        assert psnr(expected.image, gl_canvas(page)) > 35
 
         page.select_option("#render-choice", "server")
         settled(page, 0)

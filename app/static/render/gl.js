@@ -17,11 +17,21 @@ export function capabilities(canvas) {
   const gl = canvas.getContext("webgl2", { antialias: false, depth: false, stencil: false, preserveDrawingBuffer: true });
   if (!gl) return { ok: false, reason: "this browser has no WebGL2", gpu: null, software: false };
   const missing = REQUIRED_EXTENSIONS.filter((name) => !gl.getExtension(name));
-  const info = gl.getExtension("WEBGL_debug_renderer_info");
-  const gpu = info ? gl.getParameter(info.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER);
-  const software = /swiftshader|llvmpipe|software|basic render/i.test(gpu || "");
+  const gpu = rendererName(gl);
+  const software = isSoftware(gl);
   if (missing.length) return { ok: false, reason: `WebGL2 lacks ${missing.join(", ")}`, gpu, software, gl };
   return { ok: true, reason: null, gpu, software, gl };
+}
+
+/** The GPU's name where the browser tells it (else the masked renderer string). */
+export function rendererName(gl) {
+  const info = gl.getExtension("WEBGL_debug_renderer_info");
+  return info ? gl.getParameter(info.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER);
+}
+
+/** Whether a CPU rasteriser (SwiftShader, llvmpipe) stands behind ``gl``. */
+export function isSoftware(gl) {
+  return /swiftshader|llvmpipe|software|basic render/i.test(rendererName(gl) || "");
 }
 
 /** The text of shader file ``name`` (fetched from ./shaders/ once). */
@@ -129,18 +139,21 @@ function nearest(gl, target) {
   gl.texParameteri(target, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
 }
 
-/** A framebuffer drawing into ``targets``: each a 2D texture, or { tex, layer } of an array texture. */
+/** A framebuffer drawing into ``targets``: each a 2D texture, { tex, layer } of an array texture, or null (that
+ * output location draws nowhere). */
 export function framebuffer(gl, targets) {
   const fb = gl.createFramebuffer();
   gl.bindFramebuffer(gl.FRAMEBUFFER, fb);
   targets.forEach((t, i) => {
+    if (t === null) return;
     if (t.layer === undefined) gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0 + i, gl.TEXTURE_2D, t.texture, 0);
     else gl.framebufferTextureLayer(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0 + i, t.tex.texture, 0, t.layer);
   });
-  gl.drawBuffers(targets.map((_, i) => gl.COLOR_ATTACHMENT0 + i));
+  gl.drawBuffers(targets.map((t, i) => (t === null ? gl.NONE : gl.COLOR_ATTACHMENT0 + i)));
   const status = gl.checkFramebufferStatus(gl.FRAMEBUFFER);
   if (status !== gl.FRAMEBUFFER_COMPLETE) throw new Error(`framebuffer incomplete (0x${status.toString(16)})`);
-  const size = targets[0].layer === undefined ? targets[0] : targets[0].tex;
+  const first = targets.find((t) => t !== null);
+  const size = first.layer === undefined ? first : first.tex;
   return { fb, width: size.width, height: size.height };
 }
 

@@ -8,10 +8,11 @@
 //   r.present("none");                                           // to the canvas
 //
 // Options are the server's RenderOptions (same names and defaults); what the browser does not implement
-// (semi-global aggregation, the occlusion fill, visibility-aware colour, the truncated cost) raises an
-// Unsupported error so that a viewer can ask the server instead.
+// (the occlusion fill, visibility-aware colour, the truncated cost) raises an Unsupported error so that a viewer
+// can ask the server instead.
 import { windowedWinner, SHADERS as AGGREGATION_SHADERS } from "./aggregation.js";
 import { searchPixels, SHADERS as COST_SHADERS } from "./cost.js";
+import { MAX_PLANES as SGM_MAX_PLANES, MAX_VOLUME_BYTES, SemiGlobal, SHADERS as SGM_SHADERS, volumeBytes } from "./semiglobal.js";
 import { FrameSet, SHADERS as FRAME_SHADERS } from "./frames.js";
 import { bindTextures, drawFullscreen, framebuffer, loadShaders, program, readBytes, readFloat, release, texture2d } from "./gl.js";
 import { colourMapTexture, present, SHADERS as OVERLAY_SHADERS } from "./overlays.js";
@@ -22,7 +23,7 @@ import { shade, SHADERS as WEIGHTING_SHADERS } from "./weighting.js";
 export const DEFAULTS = {
   method: "kojima", d_bnd: null, k: 3, planes: 48, near: null, far: null, visual_hull: null,
   coarse_to_fine: false, refine_margin: 2, consistency: "variance", min_views: 2, aggregation: "window",
-  window: 2, subplane: true, fill: [0, 0, 0], visibility: null, occlusions: "keep", subpixel_bits: 0,
+  window: 2, cost_cap: 40, sgm_p1: 2, sgm_p2: 32, sgm_directions: 8, subplane: true, fill: [0, 0, 0], visibility: null, occlusions: "keep", subpixel_bits: 0,
 };
 const SAMPLES = 320 * 240; // depth samples read back for the statistics (every pixel up to this size)
 
@@ -31,7 +32,7 @@ export class Unsupported extends Error {}
 /** Which options the browser cannot render (null when it can): the viewer then asks the server. */
 export function unsupported(options) {
   const o = { ...DEFAULTS, ...options };
-  if (o.aggregation === "sgm") return "semi-global aggregation runs on the server";
+  if (o.aggregation === "sgm" && o.planes > SGM_MAX_PLANES) return `semi-global aggregation of over ${SGM_MAX_PLANES} planes runs on the server`;
   if (o.occlusions !== "keep") return "the occlusion fill runs on the server";
   if (o.visibility) return "visibility-aware colour runs on the server";
   if (o.consistency !== "variance") return "the truncated cost runs on the server";
@@ -73,7 +74,7 @@ export class BrowserRenderer {
   /** A renderer for the hello's ``render`` block (rig geometry, silhouette settings, overlay style). */
   static async create(gl, spec) {
     await loadShaders([...new Set([...COST_SHADERS, ...AGGREGATION_SHADERS, ...WEIGHTING_SHADERS, ...OVERLAY_SHADERS,
-      ...FRAME_SHADERS, "sample.frag"])]);
+      ...FRAME_SHADERS, ...SGM_SHADERS, "sample.frag"])]);
     return new BrowserRenderer(gl, spec);
   }
 
@@ -94,6 +95,7 @@ export class BrowserRenderer {
     };
     this.style = { ...spec.style, colourMap: colourMapTexture(gl, spec.style.colour_map) };
     this.placeholder = texture2d(gl, "rgba32f", 1, 1);
+    this.semiGlobal = new SemiGlobal(gl);
     this.factor = null;
     this.frames = null;
     this.work = null;
@@ -136,10 +138,19 @@ export class BrowserRenderer {
     const hull = o.visual_hull ?? this.frames.hasSilhouettes;
     if (hull && !this.frames.hasSilhouettes) throw new Error("visual_hull requested, but there are no backgrounds");
     const sweep = { cameras: this.cameras, planes, hull, minViews: o.min_views, frames: this.frames };
+    const coarseToFine = o.coarse_to_fine && Math.min(virtual.width, virtual.height) >= 8;
+    const half = coarseToFine ? virtual.scaled(0.5) : null;
+    if (o.aggregation === "sgm") {
+      const level = half ?? virtual;
+      const bytes = volumeBytes(level.width, level.height, o.planes);
+      if (bytes > MAX_VOLUME_BYTES) {
+        throw new Unsupported(`semi-global aggregation of a ${level.width}x${level.height} level with ${o.planes} planes `
+          + `needs ${(bytes / 1e6).toFixed(0)} MB of GPU memory (the browser takes up to ${MAX_VOLUME_BYTES / 1e6} MB)`);
+      }
+    }
     const work = this.workspace(virtual.width, virtual.height);
     gl.disable(gl.BLEND);
-    if (o.coarse_to_fine && Math.min(virtual.width, virtual.height) >= 8) {
-      const half = virtual.scaled(0.5);
+    if (coarseToFine) {
       const coarse = this.workspace(half.width, half.height, true);
       const coarseSweep = { ...sweep, geometry: sweepGeometry(half, this.cameras) };
       this.choose(coarseSweep, o, coarse, coarse.depthTarget);
@@ -165,6 +176,8 @@ export class BrowserRenderer {
   choose(sweep, o, work, target) {
     if (o.aggregation === "none") {
       searchPixels(this.gl, this.programs.search, sweep, null, 0, target, this.placeholder);
+    } else if (o.aggregation === "sgm") {
+      this.semiGlobal.winner(this.programs, sweep, o, work, target);
     } else {
       windowedWinner(this.gl, this.programs, sweep, o.window, o.subplane, work, target);
     }
@@ -242,6 +255,7 @@ export class BrowserRenderer {
   dispose() {
     for (const w of [this.work, this.coarse]) if (w) w.dispose();
     if (this.frames) this.frames.dispose();
+    this.semiGlobal.dispose();
     release(this.gl, this.placeholder, this.style.colourMap);
     for (const p of Object.values(this.programs)) this.gl.deleteProgram(p.program);
   }

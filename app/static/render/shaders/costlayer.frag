@@ -1,0 +1,36 @@
+#version 300 es
+// The cost semi-global aggregation works on (workers/sweep/costs.py windowed_variance, robust_cost) for four
+// planes: the column half of the window sums, their ratio the windowed variance, and its square root capped at
+// uCap colour levels. A plane the pixel did not vote for itself, and a padding plane past the last, is no
+// candidate: BIG (the server's inf).
+precision highp float;
+precision highp int;
+uniform highp sampler2D uSsdRows;    // row sums of the squared deviations
+uniform highp sampler2D uVotesRows;  // row sums of the votes
+uniform highp sampler2D uVotes;      // the pixel's own votes
+uniform int uRadius;
+uniform int uFirst;
+uniform int uPlanes;
+uniform float uCap;
+out vec4 oCost;
+
+const float BIG = 1e30;
+
+void main() {
+  ivec2 p = ivec2(gl_FragCoord.xy);
+  int h = textureSize(uSsdRows, 0).y;
+  vec4 num = vec4(0.0);
+  vec4 den = vec4(0.0);
+  for (int d = -uRadius; d <= uRadius; d++) {
+    int y = p.y + d;
+    if (y < 0 || y >= h) continue;
+    num += texelFetch(uSsdRows, ivec2(p.x, y), 0);
+    den += texelFetch(uVotesRows, ivec2(p.x, y), 0);
+  }
+  vec4 own = texelFetch(uVotes, p, 0);
+  vec4 cost;
+  for (int k = 0; k < 4; k++) {
+    cost[k] = uFirst + k < uPlanes && own[k] > 0.0 ? min(sqrt(num[k] / den[k]), uCap) : BIG;
+  }
+  oCost = cost;
+}

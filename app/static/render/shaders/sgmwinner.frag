@@ -1,0 +1,36 @@
+#version 300 es
+// The winner over the semi-global totals (workers/sweep/costs.py winner): the lowest total, ties to the nearer
+// plane, and the totals of its two neighbouring planes for the sub-plane parabola, in the window winner's state
+// layout (best cost, best plane or -1, cost of the plane before it, cost of the plane after it) so that
+// resolve.frag finishes both. A plane that is no candidate has a total of at least BIG.
+precision highp float;
+precision highp int;
+precision highp sampler2DArray;
+uniform sampler2DArray uTotal;  // NG layers of four planes
+uniform int uPlanes;
+layout(location = 0) out vec4 oState;
+layout(location = 1) out vec4 oUnused;  // the state framebuffer's second target (every drawn target needs an output)
+
+const float BIG = 1e30;
+
+void main() {
+  ivec2 p = ivec2(gl_FragCoord.xy);
+  vec4 a = vec4(BIG, -1.0, BIG, BIG);
+  float last = BIG;
+  for (int g = 0; g < NG; g++) {
+    vec4 c = texelFetch(uTotal, ivec3(p, g), 0);
+    for (int k = 0; k < 4; k++) {
+      int j = 4 * g + k;
+      if (j >= uPlanes) break;
+      float cost = min(c[k], BIG);
+      if (cost < a.x) {
+        a = vec4(cost, float(j), last, BIG);
+      } else if (float(j) == a.y + 1.0) {
+        a.w = cost;
+      }
+      last = cost;
+    }
+  }
+  oState = a;
+  oUnused = vec4(0.0);
+}
