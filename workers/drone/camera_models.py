@@ -106,6 +106,50 @@ def _retract(params: np.ndarray, delta: np.ndarray) -> np.ndarray:
     return out
 
 
+@njit(cache=True, inline="always")
+def _camera_point(R, X, p, params, c):  # pragma: no cover - compiled
+    """Point p of X (P, 3) in camera c's frame: q = R X[p] and P = q + t (t = params[c, 3:6]), as six floats."""
+    x0, x1, x2 = X[p, 0], X[p, 1], X[p, 2]
+    q0 = R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] * x2
+    q1 = R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] * x2
+    q2 = R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] * x2
+    return q0, q1, q2, q0 + params[c, 3], q1 + params[c, 4], q2 + params[c, 5]
+
+
+@njit(cache=True, inline="always")
+def _pose_rows(Jc, Jp, o, R, q0, q1, q2, a0, a1, a2, b0, b1, b2):  # pragma: no cover - compiled
+    """Observation o's pose columns Jc[o, :, :6] (rotation increment, translation) and point rows Jp[o] from
+    d(residual)/dP, the rows (a0, a1, a2) and (b0, b1, b2), with q = R X: dP/d(rotation increment) = -[q]x,
+    dP/dt = I, dP/dX = R."""
+    Jc[o, 0, 0] = -a1 * q2 + a2 * q1
+    Jc[o, 0, 1] = a0 * q2 - a2 * q0
+    Jc[o, 0, 2] = -a0 * q1 + a1 * q0
+    Jc[o, 1, 0] = -b1 * q2 + b2 * q1
+    Jc[o, 1, 1] = b0 * q2 - b2 * q0
+    Jc[o, 1, 2] = -b0 * q1 + b1 * q0
+    Jc[o, 0, 3] = a0
+    Jc[o, 0, 4] = a1
+    Jc[o, 0, 5] = a2
+    Jc[o, 1, 3] = b0
+    Jc[o, 1, 4] = b1
+    Jc[o, 1, 5] = b2
+    for k in range(3):
+        Jp[o, 0, k] = a0 * R[0, k] + a1 * R[1, k] + a2 * R[2, k]
+        Jp[o, 1, k] = b0 * R[0, k] + b1 * R[1, k] + b2 * R[2, k]
+
+
+@njit(cache=True, inline="always")
+def _radial_rows(J, o, first, f, d, r2, px, py):  # pragma: no cover - compiled
+    """Observation o's derivatives by the focal length f and the radial terms k1, k2 into J[o, :, first:first + 3],
+    for the pixel f d (px, py) with d = 1 + k1 r2 + k2 r2^2."""
+    J[o, 0, first] = d * px
+    J[o, 1, first] = d * py
+    J[o, 0, first + 1] = f * r2 * px
+    J[o, 1, first + 1] = f * r2 * py
+    J[o, 0, first + 2] = f * r2 * r2 * px
+    J[o, 1, first + 2] = f * r2 * r2 * py
+
+
 @njit(parallel=True, cache=True, fastmath=True)
 def _pinhole_kernel(params, intr, X, ci, pj, obs, want_jac, r, Jc, Jp):
     """Residuals (N, 2) and, when ``want_jac``, Jacobians Jc (N, 2, 6), Jp (N, 2, 3)."""
@@ -114,13 +158,8 @@ def _pinhole_kernel(params, intr, X, ci, pj, obs, want_jac, r, Jc, Jp):
         c = ci[o]
         p = pj[o]
         R = Rs[c]
-        x0, x1, x2 = X[p, 0], X[p, 1], X[p, 2]
-        q0 = R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] * x2
-        q1 = R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] * x2
-        q2 = R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] * x2
-        P0 = q0 + params[c, 3]
-        P1 = q1 + params[c, 4]
-        P2 = max(q2 + params[c, 5], _MIN_DEPTH)
+        q0, q1, q2, P0, P1, P2 = _camera_point(R, X, p, params, c)
+        P2 = max(P2, _MIN_DEPTH)
         iz = 1.0 / P2
         u = P0 * iz
         v = P1 * iz
@@ -158,13 +197,7 @@ def _bal_kernel(params, X, ci, pj, obs, want_jac, r, Jc, Jp):
         c = ci[o]
         p = pj[o]
         R = Rs[c]
-        x0, x1, x2 = X[p, 0], X[p, 1], X[p, 2]
-        q0 = R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] * x2
-        q1 = R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] * x2
-        q2 = R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] * x2
-        P0 = q0 + params[c, 3]
-        P1 = q1 + params[c, 4]
-        P2 = q2 + params[c, 5]
+        q0, q1, q2, P0, P1, P2 = _camera_point(R, X, p, params, c)
         if abs(P2) < _MIN_DEPTH:
             P2 = -_MIN_DEPTH
         iz = 1.0 / P2
@@ -189,27 +222,8 @@ def _bal_kernel(params, X, ci, pj, obs, want_jac, r, Jc, Jp):
         b0 = -m01 * iz
         b1 = -m11 * iz
         b2 = -(m01 * px + m11 * py) * iz
-        Jc[o, 0, 0] = -a1 * q2 + a2 * q1
-        Jc[o, 0, 1] = a0 * q2 - a2 * q0
-        Jc[o, 0, 2] = -a0 * q1 + a1 * q0
-        Jc[o, 1, 0] = -b1 * q2 + b2 * q1
-        Jc[o, 1, 1] = b0 * q2 - b2 * q0
-        Jc[o, 1, 2] = -b0 * q1 + b1 * q0
-        Jc[o, 0, 3] = a0
-        Jc[o, 0, 4] = a1
-        Jc[o, 0, 5] = a2
-        Jc[o, 1, 3] = b0
-        Jc[o, 1, 4] = b1
-        Jc[o, 1, 5] = b2
-        Jc[o, 0, 6] = d * px
-        Jc[o, 1, 6] = d * py
-        Jc[o, 0, 7] = f * r2 * px
-        Jc[o, 1, 7] = f * r2 * py
-        Jc[o, 0, 8] = f * r2 * r2 * px
-        Jc[o, 1, 8] = f * r2 * r2 * py
-        for k in range(3):
-            Jp[o, 0, k] = a0 * R[0, k] + a1 * R[1, k] + a2 * R[2, k]
-            Jp[o, 1, k] = b0 * R[0, k] + b1 * R[1, k] + b2 * R[2, k]
+        _pose_rows(Jc, Jp, o, R, q0, q1, q2, a0, a1, a2, b0, b1, b2)
+        _radial_rows(Jc, o, 6, f, d, r2, px, py)
 
 
 @njit(parallel=True, cache=True, fastmath=True)
@@ -222,13 +236,8 @@ def _radial_kernel(params, shared, centre, X, ci, pj, obs, want_jac, r, Jc, Jp, 
         c = ci[o]
         p = pj[o]
         R = Rs[c]
-        x0, x1, x2 = X[p, 0], X[p, 1], X[p, 2]
-        q0 = R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] * x2
-        q1 = R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] * x2
-        q2 = R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] * x2
-        P0 = q0 + params[c, 3]
-        P1 = q1 + params[c, 4]
-        P2 = max(q2 + params[c, 5], _MIN_DEPTH)
+        q0, q1, q2, P0, P1, P2 = _camera_point(R, X, p, params, c)
+        P2 = max(P2, _MIN_DEPTH)
         iz = 1.0 / P2
         px = P0 * iz
         py = P1 * iz
@@ -249,28 +258,8 @@ def _radial_kernel(params, shared, centre, X, ci, pj, obs, want_jac, r, Jc, Jp, 
         b0 = m01 * iz
         b1 = m11 * iz
         b2 = -(m01 * px + m11 * py) * iz
-        # dP/d(rotation increment) = -[q]x
-        Jc[o, 0, 0] = -a1 * q2 + a2 * q1
-        Jc[o, 0, 1] = a0 * q2 - a2 * q0
-        Jc[o, 0, 2] = -a0 * q1 + a1 * q0
-        Jc[o, 1, 0] = -b1 * q2 + b2 * q1
-        Jc[o, 1, 1] = b0 * q2 - b2 * q0
-        Jc[o, 1, 2] = -b0 * q1 + b1 * q0
-        Jc[o, 0, 3] = a0
-        Jc[o, 0, 4] = a1
-        Jc[o, 0, 5] = a2
-        Jc[o, 1, 3] = b0
-        Jc[o, 1, 4] = b1
-        Jc[o, 1, 5] = b2
-        Jg[o, 0, 0] = d * px
-        Jg[o, 1, 0] = d * py
-        Jg[o, 0, 1] = f * r2 * px
-        Jg[o, 1, 1] = f * r2 * py
-        Jg[o, 0, 2] = f * r2 * r2 * px
-        Jg[o, 1, 2] = f * r2 * r2 * py
-        for k in range(3):
-            Jp[o, 0, k] = a0 * R[0, k] + a1 * R[1, k] + a2 * R[2, k]
-            Jp[o, 1, k] = b0 * R[0, k] + b1 * R[1, k] + b2 * R[2, k]
+        _pose_rows(Jc, Jp, o, R, q0, q1, q2, a0, a1, a2, b0, b1, b2)
+        _radial_rows(Jg, o, 0, f, d, r2, px, py)
 
 
 @njit(cache=True)
