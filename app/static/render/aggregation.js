@@ -14,12 +14,7 @@ export const SHADERS = ["fullscreen.vert", "boxrows.frag", "winner.frag", "resol
 export function windowedWinner(gl, programs, sweep, radius, subplane, work, out) {
   let state = 0;
   for (let first = 0; first < sweep.planes.count; first += PLANES_PER_PASS) {
-    sweepPlanes(gl, programs.sweep, sweep, first, work.sumsTarget);
-    const rows = programs.boxrows;
-    gl.useProgram(rows.program);
-    bindTextures(gl, rows, { uSsd: work.ssd, uVotes: work.votes });
-    gl.uniform1i(rows.uniforms.uRadius, radius);
-    drawFullscreen(gl, work.rowsTarget);
+    rowSums(gl, programs, sweep, first, radius, work);
     const win = programs.winner;
     gl.useProgram(win.program);
     bindTextures(gl, win, {
@@ -32,12 +27,27 @@ export function windowedWinner(gl, programs, sweep, radius, subplane, work, out)
     state = 1 - state;
     drawFullscreen(gl, work.stateTargets[state]);
   }
-  const res = programs.resolve;
-  gl.useProgram(res.program);
-  bindTextures(gl, res, { uStateA: work.stateA[state] });
-  gl.uniform1f(res.uniforms.uS0, sweep.planes.s0);
-  gl.uniform1f(res.uniforms.uDs, sweep.planes.ds);
-  gl.uniform1i(res.uniforms.uPlanes, sweep.planes.count);
-  gl.uniform1i(res.uniforms.uSubplane, subplane ? 1 : 0);
+  resolve(gl, programs.resolve, sweep.planes, subplane, work.stateA[state], out);
+}
+
+/** The sweep's sums of planes first .. first + 3 into work.ssd / work.votes and their row sums over 2 radius + 1
+ * pixels into work.ssdRows / work.votesRows (the first half of the window sums). */
+export function rowSums(gl, programs, sweep, first, radius, work) {
+  sweepPlanes(gl, programs.sweep, sweep, first, work.sumsTarget);
+  const rows = programs.boxrows;
+  gl.useProgram(rows.program);
+  bindTextures(gl, rows, { uSsd: work.ssd, uVotes: work.votes });
+  gl.uniform1i(rows.uniforms.uRadius, radius);
+  drawFullscreen(gl, work.rowsTarget);
+}
+
+/** The chosen plane and its sub-plane offset (resolve.frag) from a winner state texture into ``out``. */
+export function resolve(gl, prog, planes, subplane, state, out) {
+  gl.useProgram(prog.program);
+  bindTextures(gl, prog, { uStateA: state });
+  gl.uniform1f(prog.uniforms.uS0, planes.s0);
+  gl.uniform1f(prog.uniforms.uDs, planes.ds);
+  gl.uniform1i(prog.uniforms.uPlanes, planes.count);
+  gl.uniform1i(prog.uniforms.uSubplane, subplane ? 1 : 0);
   drawFullscreen(gl, out);
 }

@@ -4,7 +4,8 @@
 // Unlike the window aggregation this stores volumes: five of w x h x planes float32 (the cost, the running
 // total and the paths, both twice to read one while writing the other), 74 MB at 320x240 with 48 planes.
 import { bindTextures, drawFullscreen, framebuffer, isSoftware, program, release, textureArray } from "./gl.js";
-import { PLANES_PER_PASS, sweepPlanes } from "./cost.js";
+import { resolve, rowSums } from "./aggregation.js";
+import { PLANES_PER_PASS } from "./cost.js";
 
 export const SHADERS = ["fullscreen.vert", "boxrows.frag", "costlayer.frag", "sgm.frag", "sgmwinner.frag", "resolve.frag"];
 export const MAX_PLANES = 128; // the path state lives in registers: 32 groups of four planes
@@ -102,14 +103,7 @@ export class SemiGlobal {
     bindTextures(gl, own.winner, { uTotal: vol.total[total] });
     gl.uniform1i(own.winner.uniforms.uPlanes, P);
     drawFullscreen(gl, work.stateTargets[0]);
-    const res = programs.resolve;
-    gl.useProgram(res.program);
-    bindTextures(gl, res, { uStateA: work.stateA[0] });
-    gl.uniform1f(res.uniforms.uS0, sweep.planes.s0);
-    gl.uniform1f(res.uniforms.uDs, sweep.planes.ds);
-    gl.uniform1i(res.uniforms.uPlanes, P);
-    gl.uniform1i(res.uniforms.uSubplane, o.subplane ? 1 : 0);
-    drawFullscreen(gl, out);
+    resolve(gl, programs.resolve, sweep.planes, o.subplane, work.stateA[0], out);
   }
 
   /** C = min(sqrt(windowed variance), cost_cap), BIG where the pixel did not vote for the plane. */
@@ -117,11 +111,7 @@ export class SemiGlobal {
     const gl = this.gl;
     for (let g = 0; g < vol.groups; g++) {
       const first = g * PLANES_PER_PASS;
-      sweepPlanes(gl, programs.sweep, sweep, first, work.sumsTarget);
-      gl.useProgram(programs.boxrows.program);
-      bindTextures(gl, programs.boxrows, { uSsd: work.ssd, uVotes: work.votes });
-      gl.uniform1i(programs.boxrows.uniforms.uRadius, o.window);
-      drawFullscreen(gl, work.rowsTarget);
+      rowSums(gl, programs, sweep, first, o.window, work);
       gl.useProgram(costlayer.program);
       bindTextures(gl, costlayer, { uSsdRows: work.ssdRows, uVotesRows: work.votesRows, uVotes: work.votes });
       const u = costlayer.uniforms;

@@ -13,20 +13,12 @@ uniform int uFirst;
 uniform int uPlanes;
 uniform float uCap;
 out vec4 oCost;
-
-const float BIG = 1e30;
+#include "window.glsl"
 
 void main() {
   ivec2 p = ivec2(gl_FragCoord.xy);
-  int h = textureSize(uSsdRows, 0).y;
-  vec4 num = vec4(0.0);
-  vec4 den = vec4(0.0);
-  for (int d = -uRadius; d <= uRadius; d++) {
-    int y = p.y + d;
-    if (y < 0 || y >= h) continue;
-    num += texelFetch(uSsdRows, ivec2(p.x, y), 0);
-    den += texelFetch(uVotesRows, ivec2(p.x, y), 0);
-  }
+  vec4 num, den;
+  columnSums(uSsdRows, uVotesRows, p, uRadius, num, den);
   vec4 own = texelFetch(uVotes, p, 0);
   vec4 cost;
   for (int k = 0; k < 4; k++) {

@@ -10,8 +10,7 @@ uniform sampler2DArray uTotal;  // NG layers of four planes
 uniform int uPlanes;
 layout(location = 0) out vec4 oState;
 layout(location = 1) out vec4 oUnused;  // the state framebuffer's second target (every drawn target needs an output)
-
-const float BIG = 1e30;
+#include "window.glsl"
 
 void main() {
   ivec2 p = ivec2(gl_FragCoord.xy);
@@ -23,11 +22,7 @@ void main() {
       int j = 4 * g + k;
       if (j >= uPlanes) break;
       float cost = min(c[k], BIG);
-      if (cost < a.x) {
-        a = vec4(cost, float(j), last, BIG);
-      } else if (float(j) == a.y + 1.0) {
-        a.w = cost;
-      }
+      a = keepBest(a, cost, j, last);
       last = cost;
     }
   }

@@ -16,20 +16,12 @@ uniform int uFirst;
 uniform int uPlanes;
 layout(location = 0) out vec4 oStateA;
 layout(location = 1) out vec4 oStateB;
-
-const float BIG = 1e30;
+#include "window.glsl"
 
 void main() {
   ivec2 p = ivec2(gl_FragCoord.xy);
-  int h = textureSize(uSsdRows, 0).y;
-  vec4 num = vec4(0.0);
-  vec4 den = vec4(0.0);
-  for (int d = -uRadius; d <= uRadius; d++) {
-    int y = p.y + d;
-    if (y < 0 || y >= h) continue;
-    num += texelFetch(uSsdRows, ivec2(p.x, y), 0);
-    den += texelFetch(uVotesRows, ivec2(p.x, y), 0);
-  }
+  vec4 num, den;
+  columnSums(uSsdRows, uVotesRows, p, uRadius, num, den);
   vec4 own = texelFetch(uVotes, p, 0);
   vec4 a = uFirst == 0 ? vec4(BIG, -1.0, BIG, BIG) : texelFetch(uStateA, p, 0);
   float last = uFirst == 0 ? BIG : texelFetch(uStateB, p, 0).x;
@@ -37,11 +29,7 @@ void main() {
     int j = uFirst + k;
     if (j >= uPlanes) break;
     float cost = own[k] > 0.0 ? num[k] / den[k] : BIG;
-    if (cost < a.x) {
-      a = vec4(cost, float(j), last, BIG);
-    } else if (float(j) == a.y + 1.0) {
-      a.w = cost;
-    }
+    a = keepBest(a, cost, j, last);
     last = cost;
   }
   oStateA = a;
