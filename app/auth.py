@@ -1,30 +1,54 @@
-"""Bearer-key authentication for every ``/v1`` route and socket (when keys are configured).
+"""Who a request acts for: bearer keys on every ``/v1`` route and socket.
 
-HTTP requests are checked by :class:`ApiKeyMiddleware` from the headers alone, before anything
-reads the body (FastAPI parses a form or JSON body before it runs a route's dependencies, so a
-dependency alone would take in a 200 MB upload and then answer 401). :func:`require_key` stays
-on the routers for routes mounted without the middleware; sockets check with
-:func:`websocket_key_ok`.
+HTTP requests are checked by :class:`ApiKeyMiddleware` from the headers alone, before anything reads the body
+(FastAPI parses a form or JSON body before it runs a route's dependencies, so a dependency alone would take in a
+200 MB upload and then answer 401); it puts the request's :class:`~app.keys.Principal` in ``request.state`` for
+the routes (:func:`principal`), counts uploads against the key's rate (:mod:`app.quotas`) and names the key in
+the access log (:mod:`app.logredact`). Sockets resolve theirs with :func:`socket_principal`.
 """
 from __future__ import annotations
 
-import hmac
+import asyncio
 
 from fastapi import Request, WebSocket
 from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from app.errors import ApiError
+from app.keys import SERVICE_ADMIN, KeyStore, Principal, env_key_matches
 from app.limits import send_error
+from app.logredact import request_key_name
 
 PROTECTED_PREFIX = "/v1"
-_UNAUTHORIZED = "missing or wrong API key: send 'Authorization: Bearer <key>'"
+_UNAUTHORIZED = "missing, wrong, revoked or expired API key: send 'Authorization: Bearer <key>'"
 
 
-def _key_ok(presented: str | None, keys: list[str]) -> bool:
-    if presented is None:
-        return False
-    return any(hmac.compare_digest(presented.encode(), k.encode()) for k in keys)
+class Authenticator:
+    """Turns a presented secret into a principal: the service's own keys (admin), else a managed key (one
+    indexed lookup per request, so a revocation holds at once on every replica). Without keys of either kind,
+    every caller is the admin principal."""
+
+    def __init__(self, env_keys: list[str], keys: KeyStore | None) -> None:
+        self.env_keys = list(env_keys)
+        self.keys = keys
+        self._managed_seen = False  # keys are revoked, never deleted: once one exists, auth stays on
+
+    def enabled(self) -> bool:
+        """Blocking (may read the database)."""
+        if self.env_keys or self._managed_seen:
+            return True
+        self._managed_seen = self.keys is not None and self.keys.any()
+        return self._managed_seen
+
+    def resolve(self, presented: str | None) -> Principal | None:
+        """The principal of ``presented`` (None: refuse the request). Blocking (may read the database)."""
+        if not self.enabled():
+            return SERVICE_ADMIN
+        if presented is None:
+            return None
+        if env_key_matches(presented, self.env_keys):
+            return SERVICE_ADMIN
+        return self.keys.lookup(presented) if self.keys is not None else None
 
 
 def _bearer(header: str | None) -> str | None:
@@ -33,26 +57,65 @@ def _bearer(header: str | None) -> str | None:
     return None
 
 
-def require_key(request: Request) -> None:
-    """FastAPI dependency: 401 unless the request carries a configured key."""
-    keys = request.app.state.settings.api_keys
-    if keys and not _key_ok(_bearer(request.headers.get("authorization")), keys):
+def _authenticator(app: ASGIApp) -> Authenticator:
+    services = getattr(app.state, "services", None)
+    if services is not None:
+        return services.auth
+    return Authenticator(app.state.settings.api_keys, None)  # an app served without its lifespan (tests)
+
+
+async def resolve(app: ASGIApp, presented: str | None) -> Principal | None:
+    auth = _authenticator(app)
+    if auth.keys is None and not auth.env_keys:
+        return SERVICE_ADMIN
+    return await asyncio.to_thread(auth.resolve, presented)
+
+
+def principal(request: Request) -> Principal:
+    """FastAPI dependency: the request's principal (401 when its key is missing or wrong)."""
+    found = getattr(request.state, "principal", None)
+    if found is None:
         raise ApiError(401, _UNAUTHORIZED, "unauthorized", headers={"WWW-Authenticate": "Bearer"})
+    return found
+
+
+def require_key(request: Request) -> None:
+    """Router dependency: 401 unless the request carries a key the middleware accepted."""
+    principal(request)
+
+
+def require_admin(request: Request) -> Principal:
+    """FastAPI dependency: the principal, when it is an admin (403 otherwise)."""
+    who = principal(request)
+    if not who.is_admin:
+        raise ApiError(403, "this route needs an admin key", "admin_only")
+    return who
 
 
 class ApiKeyMiddleware:
-    """401 for an HTTP request under ``/v1`` without a configured key, answered before the body is
-    read (add it after the body limit, so it runs first). No keys: every request passes."""
+    """401 for an HTTP request under ``/v1`` without an accepted key, answered before the body is read (add it
+    after the body limit, so it runs first); 429 for an upload past its key's rate. Every accepted request
+    carries its principal in ``scope["state"]["principal"]``."""
 
-    def __init__(self, app: ASGIApp, keys: list[str]) -> None:
+    def __init__(self, app: ASGIApp) -> None:
         self.app = app
-        self.keys = list(keys)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] == "http" and self.keys and _protected(scope["path"]):
-            if not _key_ok(_bearer(Headers(scope=scope).get("authorization")), self.keys):
+        if scope["type"] == "http" and _protected(scope["path"]):
+            headers = Headers(scope=scope)
+            who = await resolve(scope["app"], _bearer(headers.get("authorization")))
+            if who is None:
                 await send_error(send, 401, _UNAUTHORIZED, "unauthorized", [(b"www-authenticate", b"Bearer")])
                 return
+            scope.setdefault("state", {})["principal"] = who
+            request_key_name.set(who.name if who.id == who.name else f"{who.name} ({who.id})")
+            services = getattr(scope["app"].state, "services", None)
+            if services is not None and _is_upload(scope, headers):
+                refused = services.quotas.take_upload(who)
+                if refused is not None:
+                    await send_error(send, refused.status_code, refused.detail, refused.code,
+                                     [(k.lower().encode(), v.encode()) for k, v in (refused.headers or {}).items()])
+                    return
         await self.app(scope, receive, send)
 
 
@@ -60,10 +123,15 @@ def _protected(path: str) -> bool:
     return path == PROTECTED_PREFIX or path.startswith(PROTECTED_PREFIX + "/")
 
 
-def websocket_key_ok(websocket: WebSocket) -> bool:
-    """A socket's key: the Authorization header, or ``?access_token=`` for browsers (which cannot set headers)."""
-    keys = websocket.app.state.settings.api_keys
-    if not keys:
-        return True
+def _is_upload(scope: Scope, headers: Headers) -> bool:
+    """A request that sends files: a POST with a multipart form."""
+    return scope["method"] == "POST" and headers.get("content-type", "").startswith("multipart/form-data")
+
+
+async def socket_principal(websocket: WebSocket) -> Principal | None:
+    """A socket's principal, from the Authorization header or ``?access_token=`` (browsers cannot set headers)."""
     presented = _bearer(websocket.headers.get("authorization")) or websocket.query_params.get("access_token")
-    return _key_ok(presented, keys)
+    who = await resolve(websocket.app, presented)
+    if who is not None:
+        request_key_name.set(who.name if who.id == who.name else f"{who.name} ({who.id})")
+    return who

@@ -52,10 +52,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     overrides = {k: v for k, v in {"host": args.host, "port": args.port, "data_dir": args.data_dir}.items() if v is not None}
     settings = Settings(**overrides)
-    if not _is_loopback(settings.host) and not settings.api_keys and not args.insecure:
+    if not _is_loopback(settings.host) and not settings.api_keys and not args.insecure and not _managed_keys(settings):
         print(
-            f"refusing to listen on {settings.host} without API keys: set SWEEPCAST_API_KEYS=<key>[,<key>...] "
-            "or pass --insecure to serve without authentication",
+            f"refusing to listen on {settings.host} without API keys: create one with 'sweepcast keys create --name "
+            "NAME --role admin', set SWEEPCAST_API_KEYS=<key>[,<key>...], or pass --insecure to serve without "
+            "authentication",
             file=sys.stderr,
         )
         return 2
@@ -73,6 +74,19 @@ def cmd_serve(args: argparse.Namespace) -> int:
     uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level=args.log_level,
                 ws_per_message_deflate=False)
     return 0
+
+
+def _managed_keys(settings: object) -> bool:
+    """True when the service's database holds API keys (made with ``sweepcast keys create``)."""
+    from app.jobstore import JobStore
+    from app.keys import KeyStore
+
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    jobs = JobStore(settings.resolved_database_url)
+    try:
+        return KeyStore(jobs.engine).any()
+    finally:
+        jobs.close()
 
 
 def cmd_worker(args: argparse.Namespace) -> int:
@@ -236,6 +250,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     import importlib
 
+    from app import keys_cli
+
+    keys_cli.register(sub)
     for module in ENGINE_CLIS:
         importlib.import_module(module).register(sub)
     return parser

@@ -17,8 +17,8 @@ import enum
 import uuid
 from typing import Any, Iterable
 
-from sqlalchemy import (JSON, DateTime, Float, Integer, String, Text, and_, case, create_engine, event, select,
-                        update)
+from sqlalchemy import (JSON, BigInteger, DateTime, Float, Index, Integer, String, Text, and_, case, create_engine,
+                        event, func, select, update)
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, sessionmaker
 
@@ -36,6 +36,9 @@ class JobState(str, enum.Enum):
 
 
 ACTIVE = (JobState.queued.value, JobState.running.value)
+ADMIN = "admin"
+"""The principal of the service's own keys (``SWEEPCAST_API_KEYS``, or no keys at all) and of every row stored before
+jobs had owners."""
 
 
 def utcnow() -> dt.datetime:
@@ -48,6 +51,8 @@ class Base(DeclarativeBase):
 
 class Job(Base):
     __tablename__ = "jobs"
+    __table_args__ = (Index("ix_jobs_created_by_created_at", "created_by", "created_at"),
+                      Index("ix_jobs_created_by_state", "created_by", "state"))
 
     id: Mapped[str] = mapped_column(String(36), primary_key=True)
     kind: Mapped[str] = mapped_column(String(64), index=True)
@@ -68,6 +73,10 @@ class Job(Base):
     updated_at: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
     started_at: Mapped[dt.datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
     finished_at: Mapped[dt.datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+    created_by: Mapped[str] = mapped_column(String(64), default=ADMIN, server_default=ADMIN)
+    """The key (principal id) that created the job: only it and admin keys see the job."""
+    stored_bytes: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
+    """Bytes the job keeps in the blob store: its uploaded inputs, plus its result files once it succeeded."""
 
     def as_dict(self) -> dict[str, Any]:
         return {c.name: getattr(self, c.name) for c in self.__table__.columns}
@@ -141,8 +150,10 @@ class JobStore:
         owner: str,
         lease_seconds: float,
         job_id: str | None = None,
+        created_by: str = ADMIN,
     ) -> Job:
-        """Commit a new queued job leased to ``owner`` (who submits it next)."""
+        """Commit a new queued job leased to ``owner`` (the replica that submits it next), created by the key
+        ``created_by``; its uploaded inputs' sizes (``input_meta[name]["size"]``) count as its stored bytes."""
         now = utcnow()
         job = Job(
             id=job_id or str(uuid.uuid4()),
@@ -160,6 +171,8 @@ class JobStore:
             lease_expires_at=now + dt.timedelta(seconds=lease_seconds),
             created_at=now,
             updated_at=now,
+            created_by=created_by,
+            stored_bytes=_input_bytes(input_meta),
         )
         with self._session.begin() as s:
             s.add(job)
@@ -169,14 +182,26 @@ class JobStore:
         with self._session() as s:
             return s.get(Job, job_id)
 
-    def list(self, state: str | None = None, kind: str | None = None, limit: int = 50, offset: int = 0) -> list[Job]:
+    def list(self, state: str | None = None, kind: str | None = None, limit: int = 50, offset: int = 0,
+             created_by: str | None = None) -> list[Job]:
+        """Jobs newest first; ``created_by``: only that key's (an index range, not a scan of the table)."""
         query = select(Job).order_by(Job.created_at.desc(), Job.id).limit(limit).offset(offset)
+        if created_by is not None:
+            query = query.where(Job.created_by == created_by)
         if state:
             query = query.where(Job.state == state)
         if kind:
             query = query.where(Job.kind == kind)
         with self._session() as s:
             return list(s.scalars(query))
+
+    def usage(self, created_by: str) -> tuple[int, int]:
+        """(bytes stored, jobs queued or running) of one key's jobs."""
+        query = select(func.coalesce(func.sum(Job.stored_bytes), 0),
+                       func.count().filter(Job.state.in_(ACTIVE))).where(Job.created_by == created_by)
+        with self._session() as s:
+            stored, active = s.execute(query).one()
+        return int(stored), int(active)
 
     def claim_expired(self, owner: str, lease_seconds: float, limit: int = 100) -> list[Job]:
         """Take over active jobs whose lease has expired (their owner is gone); return them. An
@@ -264,12 +289,20 @@ class JobStore:
                                       lease_expires_at=None, stage=state.value)
         if state is JobState.succeeded:
             values["progress"] = 1.0
+            values["stored_bytes"] = Job.stored_bytes + _result_bytes(result)
         return self._conditional_update(job_id, conditions, **values)
 
     def replace_result(self, job_id: str, result: dict) -> bool:
         """Replace a succeeded job's result manifest (a person's review adds files and counts); False when the job
         is not (or no longer) succeeded."""
-        return self._conditional_update(job_id, [Job.state == JobState.succeeded.value], result=result)
+        with self._session.begin() as s:
+            job = s.get(Job, job_id, with_for_update=True)
+            if job is None or job.state != JobState.succeeded.value:
+                return False
+            job.stored_bytes = _input_bytes(job.input_meta) + _result_bytes(result)
+            job.result = result
+            job.updated_at = utcnow()
+        return True
 
     def delete(self, job_id: str) -> bool:
         with self._session.begin() as s:
@@ -286,11 +319,21 @@ class JobStore:
         return result.rowcount == 1
 
 
+def _input_bytes(input_meta: dict[str, Any] | None) -> int:
+    """Bytes of a job's own uploaded inputs (inputs it reads in place, ``stored``, belong to another job)."""
+    return sum(int(m.get("size") or 0) for m in (input_meta or {}).values() if "stored" not in m)
+
+
+def _result_bytes(result: dict[str, Any] | None) -> int:
+    return sum(int(f.get("size") or 0) for f in (result or {}).get("files", []))
+
+
 def job_public(job: Job) -> dict[str, Any]:
     """The API view of a row."""
     return {
         "id": job.id,
         "kind": job.kind,
+        "created_by": job.created_by or ADMIN,
         "state": job.state,
         "progress": {"fraction": job.progress, "stage": job.stage},
         "params": job.params,

@@ -32,7 +32,12 @@ API_DESCRIPTION = """
 sweepcast takes synchronised camera streams or uploaded media, queues jobs to worker processes
 and streams results back.
 
-Every `/v1` route and socket needs `Authorization: Bearer <key>` when the service has API keys.
+Every `/v1` route and socket needs `Authorization: Bearer <key>` when the service has API keys. A user key sees
+and changes only what it created (jobs, rigs, recordings, face models, sessions): another key's resource answers
+404, as one that does not exist. The demo rig is readable by every key. Admin keys (`SWEEPCAST_API_KEYS`, or
+made with role admin) see everything and manage keys at `/v1/keys`. Each user key has quotas (bytes stored, jobs
+queued or running, viewer sessions, uploads per minute): past one, 429 with `Retry-After` or 507;
+`GET /v1/keys/me` shows the limits and the usage.
 Errors are JSON: `{"error": "<code>", "detail": "<what was wrong>"}`.
 
 Virtual views stream over two WebSockets (not listed below; see docs/viewer.md): `/v1/rigs/{rig_id}/view` for
@@ -87,10 +92,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     limits = {"json": settings.max_json_bytes, "upload": settings.max_upload_bytes, "batch": settings.max_batch_bytes}
     app.add_middleware(BodyLimitMiddleware, limit_for=RouteBodyLimits(limits, BATCH_UPLOAD_ROUTES))
-    app.add_middleware(ApiKeyMiddleware, keys=settings.api_keys)  # added last: runs first, before any body is read
+    app.add_middleware(ApiKeyMiddleware)  # added last: runs first, before any body is read
 
-    from app.routers import (depth, faces, jobs, photos, reconstructions, recordings, review, rig_sockets, rigs,
-                             sessions, system)
+    from app.routers import (depth, faces, jobs, keys, photos, reconstructions, recordings, review, rig_sockets,
+                             rigs, sessions, system)
     from app.demo_session import keep_demo_session_warm
     from app.rig_access import ensure_demo_rig
 
@@ -106,6 +111,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(rigs.router)
     app.include_router(recordings.router)
     app.include_router(sessions.router)
+    app.include_router(keys.router)
     app.include_router(rig_sockets.ws_router)
     app.mount("/viewer", StaticFiles(directory=Path(__file__).parent / "static", html=True), name="viewer")
     app.mount("/review/assets", StaticFiles(directory=review.PAGE), name="review-assets")

@@ -29,18 +29,27 @@ VALIDATION_ERROR = "ValidationErrorResponse"
 BEARER = "bearerAuth"
 SECURITY_SCHEMES = {BEARER: {
     "type": "http", "scheme": "bearer",
-    "description": "one of the service's API keys (SWEEPCAST_API_KEYS); a service started on loopback without "
-                   "keys accepts requests without one. Sockets also take `?access_token=<key>`.",
+    "description": "an API key: a managed one (`sweepcast keys create`, `POST /v1/keys`) or one of "
+                   "SWEEPCAST_API_KEYS (admin); a service without keys accepts requests without one. A user key "
+                   "sees only its own resources. Sockets also take `?access_token=<key>`.",
 }}
 _FASTAPI_422 = "#/components/schemas/HTTPValidationError"
 
 # Statuses every operation of a kind can answer (what causes them is the same everywhere).
-AUTH_STATUS = {401: "missing or wrong API key: send `Authorization: Bearer <key>` (only when the service has keys)"}
+AUTH_STATUS = {401: "missing, wrong, revoked or expired API key: send `Authorization: Bearer <key>` (only when the "
+                    "service has keys)"}
+UPLOAD_STATUS = {429: "the key sent its most uploads this minute (its uploads_per_minute quota): retry after "
+                      "`Retry-After` seconds"}
+NEW_JOB_STATUSES = {
+    429: "the key has its most jobs queued or running (active_jobs quota), or sent its most uploads this minute: "
+         "retry after `Retry-After` seconds",
+    507: "the job's inputs would take the key past its stored_bytes quota; nothing was stored",
+}
 BODY_STATUSES = {
     400: "the body could not be parsed (malformed multipart or JSON), or an upload is empty or unreadable",
     413: "the request body, or one upload in it, is over the service's limit",
 }
-PATH_STATUS = {404: "nothing exists under the id (or name) in the path"}
+PATH_STATUS = {404: "nothing exists under the id (or name) in the path, or it belongs to another key"}
 VALIDATION_DESCRIPTION = ("invalid request: a parameter, form field or `params` object is wrong; request "
                           "validation errors list each problem in `fields`")
 
@@ -168,6 +177,10 @@ def _document_errors(doc: dict[str, Any]) -> None:
             op["security"] = [{BEARER: []}]
         if "requestBody" in op:
             statuses |= BODY_STATUSES  # app.limits guards every body; parsing can fail on any
+        if "multipart/form-data" in op.get("requestBody", {}).get("content", {}):
+            statuses |= UPLOAD_STATUS  # app.auth counts uploads against the key's rate
+        if "202" in responses:  # app.services.create_job checks the key's job and storage quotas
+            statuses |= NEW_JOB_STATUSES
         if any(p.get("in") == "path" for p in op.get("parameters", [])):
             statuses |= PATH_STATUS
         statuses |= OPERATION_STATUSES.get((method, path), {})

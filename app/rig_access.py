@@ -11,6 +11,7 @@ from typing import Any
 
 from app.errors import ApiError
 from app.jobstore import Job, JobState
+from app.keys import SERVICE_ADMIN, Principal
 from app.services import Services, Upload, create_job, delete_job_and_files
 from app.settings import Settings
 from workers.streaming import store as rigstore
@@ -27,11 +28,20 @@ from workers.sweep.rig_io import rig_to_dict
 log = logging.getLogger("sweepcast.rigs")
 
 
-async def rig_meta_or_404(svc: Services, rig_id: str) -> dict[str, Any]:
+async def rig_meta_or_404(svc: Services, rig_id: str, who: Principal, change: bool = False) -> dict[str, Any]:
+    """The rig's metadata when ``who`` may read it (``change``: change it, add recordings or stream live frames to
+    it). A rig another key created answers 404, as one that does not exist; the demo rig is readable by every
+    key and changeable by admin keys only (403)."""
     meta = await asyncio.to_thread(rigstore.load_rig_meta, svc.store, rig_id)
-    if meta is None:
+    if meta is None or not (rig_readable(meta, who)):
         raise ApiError(404, f"no rig with id {rig_id!r}", "rig_not_found")
+    if change and not who.owns(meta.get("created_by")):
+        raise ApiError(403, f"rig {rig_id} is the demo rig: only an admin key may change it", "demo_rig_read_only")
     return meta
+
+
+def rig_readable(meta: dict[str, Any], who: Principal) -> bool:
+    return who.owns(meta.get("created_by")) or bool(meta.get("demo"))
 
 
 async def load_rig(svc: Services, rig_id: str) -> Rig:
@@ -133,10 +143,12 @@ class Source:
         }
 
 
-async def resolve_source(svc: Services, rig_id: str, source: str | None) -> Source:
+async def resolve_source(svc: Services, rig_id: str, source: str | None, who: Principal,
+                         change: bool = False) -> Source:
     """The rig and source a socket asked for (default: the newest ready recording, else live);
-    ApiError (404 unknown rig or recording, 409 recording not ready) otherwise."""
-    await rig_meta_or_404(svc, rig_id)
+    ApiError (404 unknown rig or recording, 409 recording not ready) otherwise. ``change``: the socket changes
+    the rig (live frames in), which the key must be allowed (:func:`rig_meta_or_404`); viewing is a read."""
+    await rig_meta_or_404(svc, rig_id, who, change)
     rig = await load_rig(svc, rig_id)
     size = svc.settings.viewer_size_px
     if source == LIVE:
@@ -184,7 +196,7 @@ async def ensure_demo_rig(svc: Services) -> None:
         params = DemoParams()
         kept = await asyncio.to_thread(cached_demo_recording, svc.settings.resolved_demo_cache_dir, rig,
                                        params.frames, params.fps)
-        job = await create_job(svc, DEMO_JOB, params, [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})],
+        job = await create_job(svc, SERVICE_ADMIN, DEMO_JOB, params, [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})],
                                submit=False)
         await asyncio.to_thread(rigstore.save_recording_meta, svc.store, rig_id, job.id,
                                 {"name": "demo recording", "kind": "demo"})

@@ -16,9 +16,12 @@ from app.dispatcher import Dispatcher
 from app.errors import ApiError
 from app.events import EventHub
 from app.frame_atlases import AtlasCache
+from app.auth import Authenticator
 from app.jobstore import Job, JobStore
+from app.keys import KeyStore, Principal
 from app.kernelcache import KernelWarmup
 from app.live_relay import LiveRelay
+from app.quotas import QuotaLimits, Quotas
 from app.settings import Settings
 from workers.common.validation import describe_errors
 from workers.registry import JobKind
@@ -40,6 +43,9 @@ class Services:
     compute: ThreadPoolExecutor
     """Runs every route's CPU work in this process (:func:`run_compute`): one thread per core, so that a burst of
     requests neither oversubscribes the CPU nor builds a detector per thread of a large pool."""
+    keys: KeyStore
+    auth: Authenticator
+    quotas: Quotas
     ray_owned: bool = False
     ray_error: str | None = None
     warmup: KernelWarmup = field(default_factory=KernelWarmup)
@@ -56,7 +62,11 @@ def build_services(settings: Settings) -> Services:
     store = open_store(settings.resolved_storage_url)
     hub = EventHub()
     compute = ThreadPoolExecutor(settings.request_threads or os.cpu_count() or 1, thread_name_prefix="compute")
+    keys = KeyStore(jobs.engine)
+    quotas = Quotas(QuotaLimits(settings.quota_stored_bytes, settings.quota_active_jobs, settings.quota_viewer_sessions,
+                                settings.quota_uploads_per_minute), jobs)
     return Services(settings, jobs, store, hub, Dispatcher(settings, jobs, hub, store.url), compute,
+                    keys, Authenticator(settings.api_keys, keys), quotas,
                     atlases=AtlasCache(int(settings.viewer_frame_cache_mb * 2**20)))
 
 
@@ -88,6 +98,16 @@ class Upload:
     meta: dict[str, Any] = field(default_factory=dict)
 
 
+def upload_size(upload: Upload) -> int:
+    """Bytes of an upload (a spooled file is measured by seeking; its position is kept)."""
+    if isinstance(upload.file, (bytes, bytearray)):
+        return len(upload.file)
+    position = upload.file.tell()
+    size = upload.file.seek(0, os.SEEK_END)
+    upload.file.seek(position)
+    return size
+
+
 def _invalid(exc: ValidationError) -> ApiError:
     return ApiError(422, f"invalid parameters: {describe_errors(exc)}", "invalid_parameters")
 
@@ -104,9 +124,10 @@ def parse_params(model: type[M], text: str | None) -> M:
         raise _invalid(exc) from None
 
 
-async def create_job(svc: Services, kind: JobKind, params: BaseModel, uploads: list[Upload],
+async def create_job(svc: Services, who: Principal, kind: JobKind, params: BaseModel, uploads: list[Upload],
                      stored: dict[str, str] | None = None, submit: bool = True) -> Job:
-    """Store the inputs, commit the row, then submit: the row exists before Ray hears of the job.
+    """Check ``who``'s quotas, store the inputs, commit the row, then submit: the row exists before Ray hears of
+    the job, and nothing is stored for a job the quotas refuse (429, 507).
 
     ``kind``: the engine's job constant (``workers/<engine>/job.py``); ``params``: the request already
     parsed into the kind's model (stored as JSON; the worker validates the row once more, as it may
@@ -116,6 +137,7 @@ async def create_job(svc: Services, kind: JobKind, params: BaseModel, uploads: l
     """
     if not isinstance(params, kind.params):
         raise TypeError(f"{kind.name} takes {kind.params.__name__}, not {type(params).__name__}")
+    await svc.quotas.check_new_job(who, sum(map(upload_size, uploads)))
     job_id = str(uuid.uuid4())
     prefix = inputs_prefix(job_id)
     inputs: dict[str, str] = dict(stored or {})
@@ -128,7 +150,7 @@ async def create_job(svc: Services, kind: JobKind, params: BaseModel, uploads: l
             meta[up.name] = {**up.meta, "size": size}
         job = await asyncio.to_thread(
             svc.jobs.create, kind.name, params.model_dump(mode="json"), inputs, meta, svc.dispatcher.owner,
-            svc.settings.job_lease_seconds, job_id,
+            svc.settings.job_lease_seconds, job_id, who.id,
         )
     except BaseException:
         await asyncio.to_thread(svc.store.delete_prefix, prefix)

@@ -38,7 +38,15 @@ class Settings(WorkerSettings):
     ray_num_cpus: int | None = Field(None, ge=1, description="CPUs of the local Ray cluster (default: all).")
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=1, le=65535)
-    api_keys: Annotated[list[str], NoDecode] = Field(default_factory=list, description="Comma-separated bearer keys; empty: no auth.")
+    api_keys: Annotated[list[str], NoDecode] = Field(default_factory=list, description="Comma-separated bearer keys "
+                                                     "that act as admin (they see everything); managed keys are made with "
+                                                     "`sweepcast keys create`. No keys of either kind: no auth.")
+    quota_stored_bytes: int = Field(20 * 1024 * MiB, ge=1, description="Bytes a user key may keep stored (its jobs' "
+                                    "uploads and results, recordings included); a key's own quota overrides it.")
+    quota_active_jobs: int = Field(8, ge=1, description="Jobs a user key may have queued or running at once.")
+    quota_viewer_sessions: int = Field(4, ge=1, description="Viewer sockets a user key may hold open on one API replica.")
+    quota_uploads_per_minute: int = Field(60, ge=1, description="Uploads (POSTs with files) a user key may send per "
+                                          "minute to one API replica.")
 
     max_upload_bytes: int = Field(64 * MiB, ge=1, description="Largest request body of single-file endpoints.")
     max_batch_bytes: int = Field(1024 * MiB, ge=1, description="Largest request body of batch uploads.")

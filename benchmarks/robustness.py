@@ -1,6 +1,7 @@
 """Robustness: what hostile input, load and lost processes do to the service.
 
     python benchmarks/robustness.py [--quick]
+    python benchmarks/robustness.py --tenants [--quick]    (only the section robustness_tenants)
 
 Sections (each against servers this script starts on loopback and stops, whatever happens):
 - kernel stress: the compiled depth searches on random rigs with misaligned arrays at 1, 2 and 4 threads
@@ -12,6 +13,9 @@ Sections (each against servers this script starts on loopback and stops, whateve
 - kill cycles: photo batches in flight while a Ray worker and then the API itself are killed with SIGKILL
   and the API restarted on the same data; every job must end ``succeeded`` (none lost, none failed).
 The API's peak RSS (VmHWM of its process) is read after each section.
+With ``--tenants``, only the owners-and-keys section (its own RESULTS section, robustness_tenants, from
+:mod:`benchmarks._tenants`): cross-key probes over every resource operation and socket, quota probes, and the cost
+of the owner filter and of the key lookup.
 """
 from __future__ import annotations
 
@@ -306,7 +310,8 @@ def fuzz(app: ServedApp, key: str, max_examples: int, seed: int) -> dict:
             "--max-examples", str(max_examples), "--report", "json", "--report-dir", str(reports)]
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "schemathesis.cli", *args], cwd=reports, capture_output=True,
-                          text=True, env={**os.environ, "SWEEPCAST_FUZZ_KEY": key})
+                          text=True, env={**os.environ, "SWEEPCAST_FUZZ_KEY": key,
+                                          "SCHEMATHESIS_HOOKS": str(ROOT / "tests" / "app" / "fuzz_cross_key.py")})
     found = sorted(reports.glob("*.json"))
     report = json.loads(found[-1].read_text()) if found else {}
     failures = {f"{f['code']} {f['title']} ({', '.join(f.get('operations', []))})": f["count"]
@@ -489,8 +494,15 @@ def markdown(r: dict) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer repetitions, cases, clients and cycles")
+    ap.add_argument("--tenants", action="store_true", help="only the owners, keys and quotas section")
     args = ap.parse_args()
     q = args.quick
+    if args.tenants:
+        from benchmarks import _tenants
+
+        found = _tenants.tenants(q)
+        publish("robustness_tenants", found, _tenants.markdown(found))
+        return 0 if found["cross_key"]["all_404"] and found["cross_key"]["sockets_refused"] else 1
     results: dict = {"kernel_stress": kernel_stress(50 if q else 500)}
     data_dir = tempfile.mkdtemp(prefix="sc-robust-")
     yunet = data_root().parent / "models" / "yunet" / "face_detection_yunet_2023mar.onnx"

@@ -9,7 +9,8 @@ from fastapi import APIRouter, Depends, File, Form, UploadFile
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 
-from app.auth import require_key
+from app.auth import principal, require_key
+from app.keys import Principal
 from app.errors import ApiError
 from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, parse_params, run_compute, services
@@ -110,6 +111,7 @@ async def filter_video(
     params: str = Form(..., description=PARAMS_HELP.format(model="DepthVideoParams")
                        + "; width and height required for raw YUV"),
     svc: Services = Depends(services),
+    who: Principal = Depends(principal),
 ) -> JSONResponse:
     p = parse_params(DepthVideoParams, params)
     uploads = [Upload("depth", depth.file, {"filename": depth.filename})]
@@ -120,7 +122,7 @@ async def filter_video(
         await run_compute(svc, _check_video, depth, p, svc)
     else:
         _check_yuv(depth, p, svc.settings.max_video_frames)
-    return job_accepted(await create_job(svc, VIDEO_JOB, p, uploads))
+    return job_accepted(await create_job(svc, who, VIDEO_JOB, p, uploads))
 
 
 def _check_yuv(depth: UploadFile, p: DepthVideoParams, max_frames: int) -> None:

@@ -12,7 +12,8 @@ from fastapi import APIRouter, Depends, File, Form, UploadFile
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
 
-from app.auth import require_key
+from app.auth import principal, require_key
+from app.keys import Principal
 from app.errors import ApiError
 from app.jobstore import JobState, as_utc
 from app.routers.jobs import JobOut, job_accepted
@@ -58,11 +59,11 @@ def _default_model(svc: Services) -> FaceModel:
         return ensure_default_model(_default_path(svc))
 
 
-async def _model(model_id: str, svc: Services) -> FaceModel:
+async def _model(model_id: str, svc: Services, who: Principal) -> FaceModel:
     if model_id == DEFAULT_ID:
         return await run_compute(svc, lambda: _default_model(svc))  # trains on first use: CPU work
     job = await asyncio.to_thread(svc.jobs.get, model_id)
-    if job is None or job.kind != TRAIN_JOB.name:
+    if job is None or job.kind != TRAIN_JOB.name or not who.owns(job.created_by):
         raise ApiError(404, f"no face model {model_id!r}: use 'default' or the id of a faces training job",
                        "model_not_found")
     if job.state != JobState.succeeded.value:
@@ -81,6 +82,7 @@ async def train_model(
     dataset: UploadFile | None = File(None, description="zip of registered meshes with manifest.csv (person, expression, file)"),
     params: str | None = Form(None, description='JSON object of FaceTrainParams, e.g. {"source": "synthetic"}'),
     svc: Services = Depends(services),
+    who: Principal = Depends(principal),
 ) -> JSONResponse:
     p = parse_params(FaceTrainParams, params)
     if dataset is None and p.source == "dataset":
@@ -90,7 +92,7 @@ async def train_model(
     if dataset is not None:
         await asyncio.to_thread(_check_dataset_zip, dataset, svc.settings.zip_limits)
     uploads = [Upload("dataset", dataset.file, {"filename": dataset.filename})] if dataset is not None else []
-    return job_accepted(await create_job(svc, TRAIN_JOB, p, uploads))
+    return job_accepted(await create_job(svc, who, TRAIN_JOB, p, uploads))
 
 
 def _check_dataset_zip(dataset: UploadFile, limits: ZipLimits) -> None:
@@ -105,9 +107,10 @@ def _check_dataset_zip(dataset: UploadFile, limits: ZipLimits) -> None:
         dataset.file.seek(0)
 
 
-@router.get("", response_model=FaceModelList, summary="The face models: the default and every trained one")
-async def list_models(svc: Services = Depends(services)) -> FaceModelList:
-    jobs = await asyncio.to_thread(svc.jobs.list, JobState.succeeded.value, TRAIN_JOB.name, 500, 0)
+@router.get("", response_model=FaceModelList, summary="The face models: the default and every one the key trained")
+async def list_models(svc: Services = Depends(services), who: Principal = Depends(principal)) -> FaceModelList:
+    jobs = await asyncio.to_thread(svc.jobs.list, JobState.succeeded.value, TRAIN_JOB.name, 500, 0,
+                                   None if who.is_admin else who.id)
     models = [FaceModelOut(id=DEFAULT_ID, created_at=None,
                            summary={"source": "synthetic", "trained": _default_path(svc).exists()})]
     models += [FaceModelOut(id=j.id, created_at=as_utc(j.finished_at), summary=(j.result or {}).get("summary", {}))
@@ -124,9 +127,10 @@ async def transform(
     params: str = Form(..., description='JSON object of FaceTransformParams, e.g. {"impression": "smile_open", '
                                         '"method": "svm", "q": 1.5}'),
     svc: Services = Depends(services),
+    who: Principal = Depends(principal),
 ) -> TransformOut:
     p = parse_params(FaceTransformParams, params)
-    model = await _model(model_id, svc)
+    model = await _model(model_id, svc, who)
     mesh_bytes = await read_upload(mesh, svc.settings.max_upload_bytes)
     neutral_bytes = await read_upload(neutral, svc.settings.max_upload_bytes) if neutral is not None else None
     neutral_name = neutral.filename if neutral is not None else None

@@ -9,9 +9,10 @@ from fastapi import APIRouter, Depends, Query, WebSocket, WebSocketDisconnect
 from fastapi.responses import JSONResponse, Response, StreamingResponse
 from pydantic import BaseModel, Field
 
-from app.auth import require_key, websocket_key_ok
+from app.auth import principal, require_key, socket_principal
 from app.errors import ApiError
-from app.jobstore import JobState, job_public
+from app.jobstore import Job, JobState, job_public
+from app.keys import Principal
 from app.rig_access import rig_of_recording_job
 from app.services import Services, delete_job_and_files, services
 from workers.runtime import results_prefix
@@ -37,6 +38,7 @@ class JobInput(BaseModel):
 class JobOut(BaseModel):
     id: str
     kind: str
+    created_by: str = Field(description="the id of the key that created the job ('admin': the service's own keys)")
     state: Literal["queued", "running", "succeeded", "failed", "cancelled"]
     progress: JobProgress
     params: dict[str, Any]
@@ -66,34 +68,38 @@ def job_accepted(job: Any) -> JSONResponse:
     return JSONResponse(body, 202, headers={"Location": f"/v1/jobs/{job.id}"})
 
 
-async def load_job(job_id: str, svc: Services) -> Any:
+async def load_job(job_id: str, svc: Services, who: Principal) -> Job:
+    """The job, when ``who`` may see it; 404 otherwise, the same as for a job that does not exist."""
     job = await asyncio.to_thread(svc.jobs.get, job_id)
-    if job is None:
+    if job is None or not who.owns(job.created_by):
         raise ApiError(404, f"no job with id {job_id!r}", "job_not_found")
     return job
 
 
-@router.get("", response_model=JobList, summary="List jobs, newest first")
+@router.get("", response_model=JobList, summary="List jobs, newest first",
+            description="The key's own jobs (an admin key: every key's).")
 async def list_jobs(
     state: Literal["queued", "running", "succeeded", "failed", "cancelled"] | None = None,
     kind: str | None = Query(None, max_length=100),
     limit: int = Query(50, ge=1, le=500),
     offset: int = Query(0, ge=0, le=MAX_OFFSET),
     svc: Services = Depends(services),
+    who: Principal = Depends(principal),
 ) -> dict[str, Any]:
-    rows = await asyncio.to_thread(svc.jobs.list, state, kind, limit, offset)
+    rows = await asyncio.to_thread(svc.jobs.list, state, kind, limit, offset, None if who.is_admin else who.id)
     return {"jobs": [job_public(j) for j in rows], "limit": limit, "offset": offset}
 
 
 @router.get("/{job_id}", response_model=JobOut, summary="One job: state, progress, result manifest or error")
-async def get_job(job_id: str, svc: Services = Depends(services)) -> dict[str, Any]:
-    return job_public(await load_job(job_id, svc))
+async def get_job(job_id: str, svc: Services = Depends(services), who: Principal = Depends(principal)) -> dict[str, Any]:
+    return job_public(await load_job(job_id, svc, who))
 
 
 @router.get("/{job_id}/results/{name:path}", summary="Download one result file of a succeeded job",
             response_class=Response, responses={200: {"content": {"application/octet-stream": {}}}})
-async def get_result(job_id: str, name: str, svc: Services = Depends(services)) -> StreamingResponse:
-    job = await load_job(job_id, svc)
+async def get_result(job_id: str, name: str, svc: Services = Depends(services),
+                     who: Principal = Depends(principal)) -> StreamingResponse:
+    job = await load_job(job_id, svc, who)
     if job.state != JobState.succeeded.value:
         raise ApiError(409, f"job {job_id} has no results: it is {job.state}", "job_not_succeeded")
     files = {f["name"]: f for f in (job.result or {}).get("files", [])}
@@ -123,12 +129,12 @@ async def get_result(job_id: str, name: str, svc: Services = Depends(services)) 
                           204: {"description": "the finished job and its files were deleted"},
                           409: {"description": "the job imported a recording that still exists: delete the "
                                                "recording instead"}})
-async def delete_job(job_id: str, svc: Services = Depends(services)) -> Any:
-    job = await load_job(job_id, svc)
+async def delete_job(job_id: str, svc: Services = Depends(services), who: Principal = Depends(principal)) -> Any:
+    job = await load_job(job_id, svc, who)
     if not JobState(job.state).finished:
         if await svc.dispatcher.cancel(job_id):
-            return job_public(await load_job(job_id, svc))
-        job = await load_job(job_id, svc)  # it finished meanwhile: fall through to delete
+            return job_public(await load_job(job_id, svc, who))
+        job = await load_job(job_id, svc, who)  # it finished meanwhile: fall through to delete
     rig_id = await asyncio.to_thread(rig_of_recording_job, svc.store, job)
     if rig_id is not None:  # its results are the recording: deleting them here would break it
         raise ApiError(409, f"job {job_id} holds recording {job_id} of rig {rig_id}; delete the recording "
@@ -140,7 +146,8 @@ async def delete_job(job_id: str, svc: Services = Depends(services)) -> Any:
 @ws_router.websocket("/{job_id}/events")
 async def job_events(websocket: WebSocket, job_id: str) -> None:
     """Progress events as JSON text messages, then ``{"type": "final", "job": ...}``, then close."""
-    if not websocket_key_ok(websocket):
+    who = await socket_principal(websocket)
+    if who is None:
         await websocket.close(code=1008, reason="missing or wrong API key")
         return
     svc: Services = websocket.app.state.services
@@ -148,7 +155,7 @@ async def job_events(websocket: WebSocket, job_id: str) -> None:
     try:
         job = await asyncio.to_thread(svc.jobs.get, job_id)
         await websocket.accept()
-        if job is None:
+        if job is None or not who.owns(job.created_by):  # another key's job is no job
             await websocket.send_json({"type": "error", "detail": f"no job with id {job_id!r}"})
             await websocket.close(code=1008, reason="unknown job")
             return

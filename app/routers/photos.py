@@ -7,7 +7,8 @@ from typing import Any
 from fastapi import APIRouter, Depends, File, Form, UploadFile
 from fastapi.responses import JSONResponse, Response
 
-from app.auth import require_key
+from app.auth import principal, require_key
+from app.keys import Principal
 from app.errors import ApiError
 from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, run_compute, services
@@ -145,7 +146,7 @@ async def create_batch(files: list[UploadFile] = File(..., description="the phot
                        text: bool = Form(True, description="when the faces decide nothing, try the text cue "
                                                            "(where the service has it on); false: faces only, "
                                                            "about 1-3 s of CPU less per photo without a face"),
-                       svc: Services = Depends(services)) -> JSONResponse:
+                       svc: Services = Depends(services), who: Principal = Depends(principal)) -> JSONResponse:
     limit = svc.settings.max_batch_files
     if len(files) > limit:
         raise ApiError(413, f"{len(files)} files in one batch; the limit is {limit}", "too_many_files")
@@ -155,4 +156,4 @@ async def create_batch(files: list[UploadFile] = File(..., description="the phot
         Upload(f"photo-{i:04d}", f.file, {"filename": f.filename or f"photo-{i:04d}", "content_type": f.content_type})
         for i, f in enumerate(files)
     ]
-    return job_accepted(await create_job(svc, BATCH_JOB, OrientationBatchParams(force=force, sidecar=sidecar, text=text), uploads))
+    return job_accepted(await create_job(svc, who, BATCH_JOB, OrientationBatchParams(force=force, sidecar=sidecar, text=text), uploads))

@@ -4,7 +4,8 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, File, Form, UploadFile
 from fastapi.responses import JSONResponse
 
-from app.auth import require_key
+from app.auth import principal, require_key
+from app.keys import Principal
 from app.errors import ApiError
 from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, parse_params, services
@@ -37,6 +38,7 @@ async def create_reconstruction(
     params: str | None = Form(None, description='JSON object of ReconstructionParams, e.g. {"orthophoto": true, '
                                                 '"gsd_cm": 5} or {"fx": 702, "fy": 702, "cx": 600, "cy": 450}'),
     svc: Services = Depends(services),
+    who: Principal = Depends(principal),
 ) -> JSONResponse:
     p = parse_params(ReconstructionParams, params)
     if media.size == 0:
@@ -46,4 +48,4 @@ async def create_reconstruction(
         if extra is not None:
             check_size(extra, svc.settings.max_upload_bytes)
             uploads.append(Upload(name, extra.file, {"filename": extra.filename}))
-    return job_accepted(await create_job(svc, RECONSTRUCT_JOB, p, uploads))
+    return job_accepted(await create_job(svc, who, RECONSTRUCT_JOB, p, uploads))

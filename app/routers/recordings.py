@@ -12,7 +12,8 @@ from fastapi import APIRouter, Depends, File, Form, Query, Request, UploadFile
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 
-from app.auth import require_key
+from app.auth import principal, require_key
+from app.keys import Principal
 from app.errors import ApiError
 from app.frame_atlases import AtlasKey, build_atlas
 from app.rig_access import (delete_recording_data, load_rig, recording_or_404, recording_views, require_ready,
@@ -56,7 +57,7 @@ class RecordingList(BaseModel):
     recordings: list[RecordingOut]
 
 
-@router.post("/{rig_id}/recordings", status_code=202, response_model=RecordingOut,
+@router.post("/{rig_id}/recordings", status_code=202, response_model=RecordingOut, responses={403: {"description": "the rig is the demo rig, which only an admin key may change"}},
              summary="Add a recording: one video per camera, or a zip of per-camera image folders",
              description="Videos are matched to cameras by file name (the camera's name), else by order. "
                          "A zip holds `<camera name>/<images in name order>` and optionally "
@@ -71,9 +72,10 @@ async def create_recording(
     backgrounds: list[UploadFile] | None = File(None, description="optional empty-scene image per camera"),
     params: str | None = Form(None, description="JSON object of RecordingRequest (name, fps of image folders)"),
     svc: Services = Depends(services),
+    who: Principal = Depends(principal),
 ) -> JSONResponse:
     req = parse_params(RecordingRequest, params)
-    await rig_meta_or_404(svc, rig_id)
+    await rig_meta_or_404(svc, rig_id, who, change=True)
     rig = await load_rig(svc, rig_id)
     if (videos is None) == (archive is None):
         raise ApiError(422, "send either 'videos' (one per camera) or 'archive' (a zip of image folders)",
@@ -105,7 +107,7 @@ async def create_recording(
     else:
         uploads.append(Upload("archive", archive.file, {"filename": archive.filename}))
     uploads += [Upload(f"background-{i:03d}", b.file, {"filename": b.filename}) for i, b in enumerate(backgrounds or [])]
-    job = await create_job(svc, RECORDING_JOB, job_params, uploads)
+    job = await create_job(svc, who, RECORDING_JOB, job_params, uploads)
     meta = await asyncio.to_thread(rigstore.save_recording_meta, svc.store, rig_id, job.id,
                                    {"name": req.name or media[0].filename, "kind": "upload"})
     body = RecordingOut.model_validate(await recording_or_404(svc, rig_id, meta["id"])).model_dump(mode="json")
@@ -113,22 +115,25 @@ async def create_recording(
 
 
 @router.get("/{rig_id}/recordings", response_model=RecordingList, summary="The rig's recordings, oldest first")
-async def list_recordings(rig_id: str, svc: Services = Depends(services)) -> dict[str, Any]:
-    await rig_meta_or_404(svc, rig_id)
+async def list_recordings(rig_id: str, svc: Services = Depends(services),
+                          who: Principal = Depends(principal)) -> dict[str, Any]:
+    await rig_meta_or_404(svc, rig_id, who)
     return {"recordings": await recording_views(svc, rig_id)}
 
 
 @router.get("/{rig_id}/recordings/{recording_id}", response_model=RecordingOut,
             summary="One recording: state (processing, ready, failed), import progress, frames, rate")
-async def get_recording(rig_id: str, recording_id: str, svc: Services = Depends(services)) -> dict[str, Any]:
-    await rig_meta_or_404(svc, rig_id)
+async def get_recording(rig_id: str, recording_id: str, svc: Services = Depends(services),
+                        who: Principal = Depends(principal)) -> dict[str, Any]:
+    await rig_meta_or_404(svc, rig_id, who)
     return await recording_or_404(svc, rig_id, recording_id)
 
 
 @router.delete("/{rig_id}/recordings/{recording_id}", status_code=204, response_class=Response,
-               summary="Delete a recording (its import stops, its session ends)")
-async def delete_recording(rig_id: str, recording_id: str, svc: Services = Depends(services)) -> Response:
-    await rig_meta_or_404(svc, rig_id)
+               summary="Delete a recording (its import stops, its session ends)", responses={403: {"description": "the rig is the demo rig, which only an admin key may change"}})
+async def delete_recording(rig_id: str, recording_id: str, svc: Services = Depends(services),
+                           who: Principal = Depends(principal)) -> Response:
+    await rig_meta_or_404(svc, rig_id, who, change=True)
     recording = await recording_or_404(svc, rig_id, recording_id)
     await asyncio.to_thread(actor.end_sessions, rig_id, recording_id)
     await delete_recording_data(svc, rig_id, recording)
@@ -151,8 +156,9 @@ async def get_frame_set(
     format: Literal["png", "jpeg"] = Query("png", description="image format of the atlas: png is lossless"),
     quality: int = Query(90, ge=50, le=100, description="JPEG quality"),
     svc: Services = Depends(services),
+    who: Principal = Depends(principal),
 ) -> Response:
-    await rig_meta_or_404(svc, rig_id)
+    await rig_meta_or_404(svc, rig_id, who)
     recording = await recording_or_404(svc, rig_id, recording_id)
     require_ready(recording)
     if frame != "background" and not (frame.isdigit() and int(frame) < recording["frames"]):
@@ -177,8 +183,9 @@ async def get_frame_set(
                          "`frame_start + k (frame_end - frame_start) / (frames - 1)`. Results: `video.mp4` and "
                          "`depth.zip` (16-bit PNGs, depth x 1000 = millimetres for a rig in metres, 0 = no surface, "
                          "plus `path.json` with every camera). Progress is reported per frame.")
-async def create_render(rig_id: str, params: BatchRenderParams, svc: Services = Depends(services)) -> JSONResponse:
-    await rig_meta_or_404(svc, rig_id)
+async def create_render(rig_id: str, params: BatchRenderParams, svc: Services = Depends(services),
+                        who: Principal = Depends(principal)) -> JSONResponse:
+    await rig_meta_or_404(svc, rig_id, who)
     recording = await recording_or_404(svc, rig_id, params.recording_id)
     require_ready(recording)
     frames = recording["frames"]
@@ -191,7 +198,7 @@ async def create_render(rig_id: str, params: BatchRenderParams, svc: Services = 
     except ViewError as exc:
         raise ApiError(422, exc.detail, "invalid_parameters") from None
     rig = await load_rig(svc, rig_id)
-    job = await create_job(svc, RENDER_JOB, params,
+    job = await create_job(svc, who, RENDER_JOB, params,
                            [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})],
                            {"recording": rigstore.archive_key(recording["id"])})
     return job_accepted(job)

@@ -20,7 +20,8 @@ from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 
-from app.auth import require_key
+from app.auth import principal, require_key
+from app.keys import Principal
 from app.errors import ApiError
 from app.jobstore import JobState
 from app.routers.jobs import load_job
@@ -84,8 +85,8 @@ def _lock(job_id: str) -> threading.Lock:
         return _locks.setdefault(job_id, threading.Lock())
 
 
-async def _batch(job_id: str, svc: Services) -> Any:
-    job = await load_job(job_id, svc)
+async def _batch(job_id: str, svc: Services, who: Principal) -> Any:
+    job = await load_job(job_id, svc, who)
     if job.kind != BATCH_JOB.name:
         raise ApiError(404, f"job {job_id} is not a photo batch (it is {job.kind})", "not_a_photo_batch")
     if job.state != JobState.succeeded.value:
@@ -110,8 +111,9 @@ def _item(entry: dict[str, Any]) -> ReviewItem:
 @router.get("/{job_id}/review", response_model=ReviewQueue,
             summary="The photos of a finished batch that need a person (rejected, or orientations that conflict), "
                     "with the engine's reasons and any decision already made")
-async def review_queue(job_id: str, svc: Services = Depends(services)) -> ReviewQueue:
-    await _batch(job_id, svc)
+async def review_queue(job_id: str, svc: Services = Depends(services),
+                       who: Principal = Depends(principal)) -> ReviewQueue:
+    await _batch(job_id, svc, who)
     entries = await asyncio.to_thread(_entries, svc, job_id)
     items = [_item(e) for e in entries if needs_review(e.get("report"))]
     return ReviewQueue(job_id=job_id, photos=len(entries), items=items,
@@ -124,8 +126,8 @@ async def review_queue(job_id: str, svc: Services = Depends(services)) -> Review
                      "recorded in report.json as decided by that person")
 async def decide_photo(job_id: str, choice: ReviewChoice,
                        index: int = PathParam(ge=0, le=MAX_INDEX, description="the photo's index in the batch"),
-                       svc: Services = Depends(services)) -> ReviewItem:
-    job = await _batch(job_id, svc)
+                       svc: Services = Depends(services), who: Principal = Depends(principal)) -> ReviewItem:
+    job = await _batch(job_id, svc, who)
     mode = "sidecar" if (job.params or {}).get("sidecar") else "file"
     try:
         return await run_compute(svc, _decide, svc, job, index, choice, mode)

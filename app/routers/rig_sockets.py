@@ -52,8 +52,9 @@ from fastapi import APIRouter, WebSocket
 from pydantic import ValidationError
 from starlette.websockets import WebSocketDisconnect
 
-from app.auth import websocket_key_ok
+from app.auth import socket_principal
 from app.errors import ApiError
+from app.keys import Principal
 from app.live_relay import LiveSet
 from app.rig_access import Source, resolve_source, session_config, view_limits
 from app.services import Services
@@ -147,21 +148,24 @@ class Latest:
         return item
 
 
-async def _open(websocket: WebSocket, rig_id: str, source: str | None) -> tuple[Channel, Source] | None:
-    """Check the key, accept, resolve the rig and source; None (socket closed) when refused."""
-    if not websocket_key_ok(websocket):
+async def _open(websocket: WebSocket, rig_id: str, source: str | None,
+                change: bool = False) -> tuple[Channel, Source, Principal] | None:
+    """Check the key, accept, resolve the rig and source the key may see (``change``: may change); None (socket
+    closed) when refused."""
+    who = await socket_principal(websocket)
+    if who is None:
         await websocket.close(code=POLICY_VIOLATION, reason="missing or wrong API key")
         return None
     await websocket.accept()
     channel = Channel(websocket)
     svc: Services = websocket.app.state.services
     try:
-        target = await resolve_source(svc, rig_id, source)
+        target = await resolve_source(svc, rig_id, source, who, change)
     except ApiError as exc:
         await channel.error(exc.code, str(exc.detail))
         await channel.close(POLICY_VIOLATION, str(exc.detail))
         return None
-    return channel, target
+    return channel, target, who
 
 
 async def _serve(websocket: WebSocket, channel: Channel, client: SessionClient, viewer: str | None,
@@ -217,8 +221,22 @@ async def view_socket(websocket: WebSocket, rig_id: str, source: str | None = No
     opened = await _open(websocket, rig_id, source)
     if opened is None:
         return
-    channel, target = opened
+    channel, target, who = opened
     svc: Services = websocket.app.state.services
+    refused = svc.quotas.open_viewer(who)
+    if refused is not None:
+        await channel.error(refused.code, str(refused.detail))
+        await channel.close(POLICY_VIOLATION, "too many viewer sessions")
+        return
+    try:
+        await _viewer(websocket, channel, target, svc, render)
+    finally:
+        svc.quotas.close_viewer(who)
+
+
+async def _viewer(websocket: WebSocket, channel: Channel, target: Source, svc: Services,
+                  render: Literal["server", "browser"]) -> None:
+    rig_id = target.rig_id
     if render == "browser":
         await _browser_viewer(websocket, channel, target, svc)
         return
@@ -372,10 +390,10 @@ async def _viewpoint(channel: Channel, text: str, svc: Services) -> Viewpoint | 
 @ws_router.websocket("/{rig_id}/live")
 async def live_socket(websocket: WebSocket, rig_id: str) -> None:
     """Synchronised frame sets in (binary: header + one JPEG per camera), acks out; see the module docstring."""
-    opened = await _open(websocket, rig_id, LIVE)
+    opened = await _open(websocket, rig_id, LIVE, change=True)
     if opened is None:
         return
-    channel, target = opened
+    channel, target, _ = opened
     svc: Services = websocket.app.state.services
     client = SessionClient(session_config(svc, rig_id, LIVE), svc.settings.session_resources)
     names = target.rig.names

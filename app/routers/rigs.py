@@ -13,9 +13,11 @@ from fastapi import APIRouter, Depends, File, Form, UploadFile
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 
-from app.auth import require_key
+from app.auth import principal, require_key
+from app.keys import Principal
 from app.errors import ApiError
-from app.rig_access import delete_recording_data, load_rig, recording_views, rig_meta_or_404, session_config
+from app.rig_access import (delete_recording_data, load_rig, recording_views, rig_meta_or_404, rig_readable,
+                            session_config)
 from app.routers.recordings import RecordingOut
 from app.services import Services, run_compute, services
 from app.uploads import check_size
@@ -75,6 +77,7 @@ async def create_rig(
                                                                     "of this type (e.g. hd of CMU Panoptic's "
                                                                     "vga, hd and kinect-color)"),
     svc: Services = Depends(services),
+    who: Principal = Depends(principal),
 ) -> JSONResponse:
     for f in files:
         check_size(f, svc.settings.max_upload_bytes)
@@ -90,7 +93,8 @@ async def create_rig(
     _check_rig(rig, svc)
     rig_id = rigstore.new_rig_id()
     meta = await asyncio.to_thread(rigstore.save_rig, svc.store, rig_id, rig,
-                                   {"name": name or contents[0][0], "format": fmt, "demo": False})
+                                   {"name": name or contents[0][0], "format": fmt, "demo": False,
+                                    "created_by": who.id})
     body = RigOut.model_validate(await _rig_out(svc, meta, rig)).model_dump(mode="json")
     return JSONResponse(body, 201, headers={"Location": f"/v1/rigs/{rig_id}"})
 
@@ -110,15 +114,16 @@ async def _rig_out(svc: Services, meta: dict[str, Any], rig: Rig) -> dict[str, A
             "recordings": await recording_views(svc, meta["id"])}
 
 
-@router.get("", response_model=RigList, summary="List rigs, newest first")
-async def list_rigs(svc: Services = Depends(services)) -> dict[str, Any]:
+@router.get("", response_model=RigList, summary="List rigs, newest first",
+            description="The key's own rigs and the demo rig (an admin key: every rig).")
+async def list_rigs(svc: Services = Depends(services), who: Principal = Depends(principal)) -> dict[str, Any]:
     metas = await asyncio.to_thread(rigstore.list_rig_metas, svc.store)
-    return {"rigs": [_summary(m) for m in metas]}
+    return {"rigs": [_summary(m) for m in metas if rig_readable(m, who)]}
 
 
 @router.get("/{rig_id}", response_model=RigOut, summary="One rig: calibration, orbit frame, recordings")
-async def get_rig(rig_id: str, svc: Services = Depends(services)) -> dict[str, Any]:
-    meta = await rig_meta_or_404(svc, rig_id)
+async def get_rig(rig_id: str, svc: Services = Depends(services), who: Principal = Depends(principal)) -> dict[str, Any]:
+    meta = await rig_meta_or_404(svc, rig_id, who)
     return await _rig_out(svc, meta, await load_rig(svc, rig_id))
 
 
@@ -130,8 +135,9 @@ async def get_rig(rig_id: str, svc: Services = Depends(services)) -> dict[str, A
                         "model from it and then follows the frame sets flagged as background. 404 while the session "
                         "has no model (no background set has arrived).",
             responses={200: {"content": {"image/png": {}}}})
-async def get_live_background(rig_id: str, svc: Services = Depends(services)) -> Response:
-    await rig_meta_or_404(svc, rig_id)
+async def get_live_background(rig_id: str, svc: Services = Depends(services),
+                              who: Principal = Depends(principal)) -> Response:
+    await rig_meta_or_404(svc, rig_id, who)
     rig = await load_rig(svc, rig_id)
     client = actor.SessionClient(session_config(svc, rig_id, actor.LIVE), svc.settings.session_resources)
     pngs = await client.background_pngs()
@@ -143,9 +149,9 @@ async def get_live_background(rig_id: str, svc: Services = Depends(services)) ->
 
 
 @router.delete("/{rig_id}", status_code=204, response_class=Response,
-               summary="Delete a rig with its recordings; its sessions end")
-async def delete_rig(rig_id: str, svc: Services = Depends(services)) -> Response:
-    await rig_meta_or_404(svc, rig_id)
+               summary="Delete a rig with its recordings; its sessions end", responses={403: {"description": "the rig is the demo rig, which only an admin key may change"}})
+async def delete_rig(rig_id: str, svc: Services = Depends(services), who: Principal = Depends(principal)) -> Response:
+    await rig_meta_or_404(svc, rig_id, who, change=True)
     await asyncio.to_thread(actor.end_sessions, rig_id)
     for recording in await recording_views(svc, rig_id):
         await delete_recording_data(svc, rig_id, recording)
