@@ -17,6 +17,7 @@ from app.rig_access import recording_views, session_config
 from app.services import Services
 from workers.streaming import store as rigstore
 from workers.streaming.actor import SessionClient
+from workers.streaming.session import SessionError
 from workers.streaming.params import Viewpoint
 
 log = logging.getLogger("sweepcast.demo")
@@ -51,10 +52,13 @@ async def keep_demo_session_warm(svc: Services) -> None:
             await asyncio.sleep(POLL_SECONDS)
         client = SessionClient(session_config(svc, *found), svc.settings.session_resources)
         await client.info()
-        reply = await client.render(PRESTART_VIEWER, first_view(svc).model_dump(mode="json"))
+        try:
+            header, _ = await client.view(PRESTART_VIEWER, first_view(svc))
+            first = f"{header['render_ms']:.0f} ms"
+        except SessionError as exc:
+            first = exc.code
         await client.leave(PRESTART_VIEWER)
-        log.info("demo session %s/%s warm (first render %s)", *found,
-                 f"{reply['header']['render_ms']:.0f} ms" if reply.get("ok") else reply.get("error"))
+        log.info("demo session %s/%s warm (first render %s)", *found, first)
         while True:
             await asyncio.sleep(max(svc.settings.session_idle_seconds / 3, 0.2))
             await client.touch()

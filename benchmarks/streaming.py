@@ -783,7 +783,7 @@ def live_set_costs(rig: Rig, background: list[bytes], sets: list[list[bytes]], r
 
     live = LiveSession(rig, SessionLimits())
     live.push(background, True)
-    live.render("bench", Viewpoint(frame="live", width=LIVE_VIEW[0], height=LIVE_VIEW[1], planes=PLANES))
+    live.view("bench", Viewpoint(frame="live", width=LIVE_VIEW[0], height=LIVE_VIEW[1], planes=PLANES))
     decoded = [live.decode(s) for s in sets]
 
     def per_set(fn) -> float:

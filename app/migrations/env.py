@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from alembic import context
 
+import app.keys  # noqa: F401 - declares the api_keys table on the same metadata
 from app.jobstore import Base
 
 connection = context.config.attributes["connection"]

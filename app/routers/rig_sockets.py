@@ -56,14 +56,14 @@ from app.auth import socket_principal
 from app.errors import ApiError
 from app.keys import Principal
 from app.live_relay import LiveSet
-from app.rig_access import Source, resolve_source, session_config, view_limits
+from app.rig_access import Source, resolve_source, session_config
 from app.services import Services
 from workers.common.validation import describe_errors
 from workers.streaming.actor import LIVE, SessionClient, SessionInterrupted
 from workers.streaming.browser import render_spec
 from workers.streaming.framing import FramingError, pack_message, unpack_frame_set
 from workers.streaming.params import Viewpoint
-from workers.streaming.session import ViewError
+from workers.streaming.session import SessionError
 
 log = logging.getLogger("sweepcast.rigs")
 ws_router = APIRouter(prefix="/v1/rigs", tags=["rigs"])
@@ -254,11 +254,11 @@ async def _viewer(websocket: WebSocket, channel: Channel, target: Source, svc: S
             if message.get("text") is None:
                 await channel.close(UNSUPPORTED_DATA, "viewpoints are JSON text messages")
                 return
-            vp = await _viewpoint(channel, message["text"], svc)
+            vp = await _viewpoint(channel, message["text"])
             if vp is not None:
                 mailbox.put(vp)
 
-    async def render() -> None:
+    async def send_views() -> None:
         try:
             info = await client.info()
         except ray.exceptions.RayError as exc:
@@ -270,21 +270,21 @@ async def _viewer(websocket: WebSocket, channel: Channel, target: Source, svc: S
             vp: Viewpoint = await mailbox.take()
             t0 = time.perf_counter()
             try:
-                reply = await client.render(viewer, vp.model_dump(mode="json"))
+                header, jpeg = await client.view(viewer, vp)
             except SessionInterrupted as exc:
                 await channel.error("session_restarting", str(exc), id=vp.id)
+                continue
+            except SessionError as exc:
+                await channel.error(exc.code, exc.detail, id=vp.id)
                 continue
             except ray.exceptions.RayError as exc:
                 await channel.error("session_failed", f"the render failed: {_cause(exc)}", id=vp.id)
                 continue
-            if not reply["ok"]:
-                await channel.error(reply["error"], reply["detail"], id=vp.id)
-                continue
-            header = {**reply["header"], "skipped": mailbox.replaced,
+            header = {**header, "skipped": mailbox.replaced,
                       "round_trip_ms": round((time.perf_counter() - t0) * 1e3, 2)}
-            await channel.binary(pack_message(header, [reply["jpeg"]]))
+            await channel.binary(pack_message(header, [jpeg]))
 
-    await _serve(websocket, channel, client, viewer, read, render)
+    await _serve(websocket, channel, client, viewer, read, send_views)
 
 
 async def _browser_viewer(websocket: WebSocket, channel: Channel, target: Source, svc: Services) -> None:
@@ -359,7 +359,7 @@ async def _browser_message(channel: Channel, message: dict[str, Any]) -> bool:
     return True
 
 
-async def _viewpoint(channel: Channel, text: str, svc: Services) -> Viewpoint | None:
+async def _viewpoint(channel: Channel, text: str) -> Viewpoint | None:
     """The viewpoint in a text message, or None after answering with an error (or a pong)."""
     try:
         data = parse_text(text)
@@ -373,17 +373,11 @@ async def _viewpoint(channel: Channel, text: str, svc: Services) -> Viewpoint | 
     if data.get("type") == "ping":
         await channel.json({"type": "pong", "id": msg_id})
         return None
-    try:
-        vp = Viewpoint.model_validate(data)
+    try:  # the one validation of a viewpoint; its limits are the session's check (Session.prepare)
+        return Viewpoint.model_validate(data)
     except ValidationError as exc:
         await channel.error("bad_viewpoint", describe_errors(exc, "viewpoint"), id=msg_id)
         return None
-    try:
-        view_limits(svc.settings).check(vp.width, vp.height, vp.planes)
-    except ViewError as exc:
-        await channel.error(exc.code, exc.detail, id=vp.id)
-        return None
-    return vp
 
 
 # --- live ingest ----------------------------------------------------------------------------------
@@ -425,12 +419,12 @@ async def live_socket(websocket: WebSocket, rig_id: str) -> None:
             except SessionInterrupted as exc:
                 await channel.error("session_restarting", str(exc), seq=frame_set.seq)
                 continue
+            except SessionError as exc:
+                await channel.error(exc.code, exc.detail, seq=frame_set.seq)
+                continue
             except ray.exceptions.RayError as exc:
                 await channel.error("session_failed", f"the frame set was not applied: {_cause(exc)}",
                                     seq=frame_set.seq)
-                continue
-            if not reply.pop("ok"):
-                await channel.error(reply["error"], reply["detail"], seq=frame_set.seq)
                 continue
             live_seq = reply.pop("seq")
             svc.live_relay.publish(rig_id, LiveSet(live_seq, frame_set.jpegs, frame_set.background))

@@ -19,9 +19,9 @@ class FakeClient:
         FakeClient.calls.append(("info", ()))
         return {}
 
-    async def render(self, viewer, viewpoint):
-        FakeClient.calls.append(("render", (viewer, viewpoint)))
-        return {"ok": True, "header": {"render_ms": 5.0}}
+    async def view(self, viewer, viewpoint):
+        FakeClient.calls.append(("view", (viewer, viewpoint)))
+        return {"render_ms": 5.0}, b"jpeg"
 
     async def leave(self, viewer):
         FakeClient.calls.append(("leave", (viewer,)))
@@ -59,9 +59,9 @@ def test_the_demo_session_is_started_rendered_and_kept_warm(tmp_path, monkeypatc
 
     asyncio.run(run())
     methods = [m for m, _ in FakeClient.calls]
-    assert methods[:3] == ["info", "render", "leave"] and methods[3:] == ["touch", "touch"]
+    assert methods[:3] == ["info", "view", "leave"] and methods[3:] == ["touch", "touch"]
     viewer, view = FakeClient.calls[1][1]
-    assert viewer == demo_session.PRESTART_VIEWER and (view["width"], view["height"]) == (400, 300)
+    assert viewer == demo_session.PRESTART_VIEWER and (view.width, view.height) == (400, 300)
 
 
 def test_nothing_happens_without_the_demo(tmp_path, monkeypatch):

@@ -93,6 +93,7 @@ def test_migrations_match_the_model_and_run_twice(database_url):
     from alembic.autogenerate import compare_metadata
     from alembic.migration import MigrationContext
 
+    import app.keys  # noqa: F401 - the api_keys table is declared there, on the same metadata
     from app.jobstore import Base
 
     first = JobStore(database_url)
@@ -143,3 +144,41 @@ def test_begin_attempt_counts_nothing_once_the_lost_worker_budget_is_spent(jobs)
         jobs.record_worker_loss(job.id, "A")
     spent = jobs.begin_attempt(job.id, "A", 60, max_worker_losses=2)
     assert spent.worker_losses == 2 and spent.attempts == 2
+
+
+def test_rows_from_before_owners_belong_to_admin_after_the_migration(tmp_path):
+    from alembic import command
+    from alembic.config import Config
+    from sqlalchemy import text
+
+    from app.jobstore import make_engine
+    from app.migrate import MIGRATIONS
+
+    url = f"sqlite:///{tmp_path / 'old.db'}"
+    engine = make_engine(url)
+    config = Config()
+    config.set_main_option("script_location", str(MIGRATIONS))
+    with engine.begin() as conn:  # the schema of the release before owners, with one job in it
+        config.attributes["connection"] = conn
+        command.upgrade(config, "0002")
+        conn.execute(text("INSERT INTO jobs (id, kind, params, inputs, input_meta, state, progress, stage, attempts, "
+                          "created_at, updated_at) VALUES ('old', 'orientation.batch', '{}', '{}', '{}', 'succeeded', "
+                          "1.0, 'done', 1, '2026-11-01 00:00:00', '2026-11-01 00:00:00')"))
+    engine.dispose()
+    jobs = JobStore(url)  # migrates to the newest schema
+    try:
+        assert jobs.get("old").created_by == "admin"
+        assert [j.id for j in jobs.list(created_by="admin")] == ["old"] and jobs.list(created_by="key_x") == []
+        assert jobs.usage("admin") == (0, 0)
+    finally:
+        jobs.close()
+
+
+def test_stored_bytes_count_inputs_then_results(jobs):
+    job = jobs.create("orientation.batch", {}, {"a": "k", "r": "other"}, {"a": {"size": 1000}, "r": {"stored": "x"}},
+                      "A", 30, created_by="key_1")
+    assert jobs.usage("key_1") == (1000, 1)  # an input read in place (another job's) is not this job's
+    jobs.finish(job.id, "A", JobState.succeeded, {"files": [{"name": "out", "size": 500}]})
+    assert jobs.usage("key_1") == (1500, 0) and jobs.usage("key_2") == (0, 0)
+    assert jobs.replace_result(job.id, {"files": [{"name": "out", "size": 500}, {"name": "more", "size": 20}]})
+    assert jobs.usage("key_1") == (1520, 0)

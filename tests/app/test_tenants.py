@@ -211,3 +211,28 @@ def test_active_jobs_and_viewer_sessions_have_limits(client_factory, take):
         time.sleep(0.05)
     with client.websocket_connect(url) as again:  # the closed one was given back
         assert again.receive_json()["type"] == "hello"
+
+
+def test_the_access_log_names_the_key_and_never_its_secret(client_factory):
+    import asyncio
+    import logging
+
+    from app.auth import ApiKeyMiddleware
+    from app.logredact import NameTheKey, request_key_name
+
+    client = client_factory(api_keys=[ADMIN])
+    key_id, secret = _make_key(client, "carol")
+    seen = []
+
+    async def inner(scope, receive, send):
+        seen.append(request_key_name.get())
+        record = logging.LogRecord("uvicorn.access", logging.INFO, "", 0, '%s - "%s %s HTTP/%s" %d',
+                                   ("127.0.0.1:5000", "GET", "/v1/jobs", "1.1", 200), None)
+        NameTheKey().filter(record)
+        seen.append(record.getMessage())
+
+    scope = {"type": "http", "method": "GET", "path": "/v1/jobs", "app": client.app,
+             "headers": [(b"authorization", f"Bearer {secret}".encode())]}
+    asyncio.run(ApiKeyMiddleware(inner)(scope, None, None))
+    assert seen == [f"carol ({key_id})", f'127.0.0.1:5000 key=carol ({key_id}) - "GET /v1/jobs HTTP/1.1" 200']
+    assert secret not in seen[1]

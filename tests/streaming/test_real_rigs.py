@@ -151,10 +151,10 @@ def test_a_session_shrinks_each_frame_set_once_per_size_and_shows_what_a_camera_
                          frame=f, planes=32, quality=95, **kw)
 
     for turn in (0.0, 2.0, 4.0):  # three viewpoints of frame 1 at 96x72: one read, one shrink
-        header, _ = session.render("a", view(1, 96, 72, 1, turn=turn))
+        header, _ = session.view("a", view(1, 96, 72, 1, turn=turn))
         assert header["source_factor"] == 4
     assert reads == [0, 1]
-    header, data = session.render("b", view(2, 96, 72, 1))
+    header, data = session.view("b", view(2, 96, 72, 1))
     assert reads == [0, 1] and session.describe()["source_factors"] == [1, 4]
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR).astype(int)
     shrunk = cv2.resize(sets[1][2].image, (96, 72), interpolation=cv2.INTER_AREA)
@@ -162,7 +162,7 @@ def test_a_session_shrinks_each_frame_set_once_per_size_and_shows_what_a_camera_
     sil = cv2.resize(sets[1][2].silhouette.astype(np.uint8), (96, 72), interpolation=cv2.INTER_NEAREST)
     inside = cv2.erode(sil, np.ones((5, 5), np.uint8)).astype(bool)
     assert np.abs(image - want)[inside].mean() < 3  # the view from camera 2 is camera 2's shrunk frame
-    session.render("c", view(1, 192, 144, 0))  # another size: its own factor, frame 0 read again
+    session.view("c", view(1, 192, 144, 0))  # another size: its own factor, frame 0 read again
     assert session.source_factor == 2 and reads == [0, 1, 0]
-    session.render("a", view(1, 96, 72, 1, turn=6.0))  # back to 96x72, frame 1: still held, no read
+    session.view("a", view(1, 96, 72, 1, turn=6.0))  # back to 96x72, frame 1: still held, no read
     assert reads == [0, 1, 0] and session.source_factor == 4

@@ -44,7 +44,7 @@ def at_camera(take, c, **fields):
 
 
 def test_a_view_from_a_rig_camera_shows_what_that_camera_saw(session, take):
-    header, data = session.render("v", at_camera(take, 2, id=11, frame=1))
+    header, data = session.view("v", at_camera(take, 2, id=11, frame=1))
     image = decode(data)
     sil = take.silhouettes[1][2]
     inside = cv2.erode(sil.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)  # away from JPEG edge blocks
@@ -59,18 +59,18 @@ def test_a_view_from_a_rig_camera_shows_what_that_camera_saw(session, take):
 
 
 def test_changing_only_the_weighting_reshades_the_same_depth(session, take):
-    first, _ = session.render("v", at_camera(take, 1, method="kojima"))
-    second, _ = session.render("v", at_camera(take, 1, method="nearest"))
-    other, _ = session.render("w", at_camera(take, 1, method="nearest"))
+    first, _ = session.view("v", at_camera(take, 1, method="kojima"))
+    second, _ = session.view("v", at_camera(take, 1, method="nearest"))
+    other, _ = session.view("w", at_camera(take, 1, method="nearest"))
     assert second["reshaded"] is True and other["reshaded"] is False  # per viewer
     assert second["depth_found"] == first["depth_found"]
-    moved, _ = session.render("v", Viewpoint(orbit=Orbit(azimuth=3.0), width=96, height=72, planes=PLANES))
+    moved, _ = session.view("v", Viewpoint(orbit=Orbit(azimuth=3.0), width=96, height=72, planes=PLANES))
     assert moved["reshaded"] is False
 
 
 def test_d_bnd_is_derived_from_the_rig_unless_the_viewer_sets_it(session, take):
-    derived, _ = session.render("v", at_camera(take, 1, method="kojima"))
-    chosen, _ = session.render("v", at_camera(take, 1, method="kojima", d_bnd=0.02))
+    derived, _ = session.view("v", at_camera(take, 1, method="kojima"))
+    chosen, _ = session.view("v", at_camera(take, 1, method="kojima", d_bnd=0.02))
     assert derived["d_bnd"] is not None and 0 < derived["d_bnd"] <= 2 and derived["d_bnd"] != 0.02
     assert chosen["d_bnd"] == 0.02 and chosen["reshaded"] is True
 
@@ -78,17 +78,17 @@ def test_d_bnd_is_derived_from_the_rig_unless_the_viewer_sets_it(session, take):
 def test_k_camera_blending_is_a_viewer_method(session, take):
     """method "kojima_k" (every camera within D_bnd of the nearest one blended) reshades the same depth, with its
     D_bnd derived from the rig like kojima's or set by the viewer."""
-    first, _ = session.render("v", at_camera(take, 1, method="kojima"))
-    kk, data = session.render("v", at_camera(take, 1, method="kojima_k"))
+    first, _ = session.view("v", at_camera(take, 1, method="kojima"))
+    kk, data = session.view("v", at_camera(take, 1, method="kojima_k"))
     assert kk["reshaded"] is True and kk["method"] == "kojima_k" and kk["d_bnd"] == first["d_bnd"]
-    chosen, _ = session.render("v", at_camera(take, 1, method="kojima_k", d_bnd=0.3, overlay="regions"))
+    chosen, _ = session.view("v", at_camera(take, 1, method="kojima_k", d_bnd=0.3, overlay="regions"))
     assert chosen["d_bnd"] == 0.3 and decode(data).shape == (72, 96, 3)
 
 
 def test_overlays_change_the_picture(session, take):
-    _, plain = session.render("v", at_camera(take, 0))
-    _, regions = session.render("v", at_camera(take, 0, overlay="regions"))
-    _, depth = session.render("v", at_camera(take, 0, overlay="depth"))
+    _, plain = session.view("v", at_camera(take, 0))
+    _, regions = session.view("v", at_camera(take, 0, overlay="regions"))
+    _, depth = session.view("v", at_camera(take, 0, overlay="depth"))
     a, b, c = decode(plain).astype(int), decode(regions).astype(int), decode(depth).astype(int)
     surface = cv2.erode((a.max(axis=2) > 0).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
     assert np.abs(b - a)[surface].mean() > 10  # tinted where there is a surface
@@ -98,28 +98,28 @@ def test_overlays_change_the_picture(session, take):
 
 def test_requests_over_the_limits_or_out_of_range_are_view_errors(session, take):
     with pytest.raises(ViewError, match="over the limit of 40,000 pixels") as e:
-        session.render("v", Viewpoint(width=320, height=240))
+        session.view("v", Viewpoint(width=320, height=240))
     assert e.value.code == "too_large"
     with pytest.raises(ViewError, match="64"):
-        session.render("v", Viewpoint(width=96, height=72, planes=128))
+        session.view("v", Viewpoint(width=96, height=72, planes=128))
     with pytest.raises(ViewError, match="frame 3 is out of range"):
-        session.render("v", Viewpoint(width=96, height=72, frame=3))
+        session.view("v", Viewpoint(width=96, height=72, frame=3))
     with pytest.raises(ViewError, match="must be a frame index"):
-        session.render("v", Viewpoint(width=96, height=72, frame="live"))
+        session.view("v", Viewpoint(width=96, height=72, frame="live"))
     with pytest.raises(ViewError, match="behind"):
-        session.render("v", Viewpoint(width=96, height=72, look_at={"eye": [0, 3, 0.5], "target": [0, 6, 0.5]}))
+        session.view("v", Viewpoint(width=96, height=72, look_at={"eye": [0, 3, 0.5], "target": [0, 6, 0.5]}))
 
 
 def test_live_session_shows_the_latest_set_and_keeps_it_on_bad_input(take):
     live = LiveSession(take.rig, SessionLimits())
     with pytest.raises(ViewError, match="no live frame set"):
-        live.render("v", Viewpoint(frame="live", width=96, height=72))
+        live.view("v", Viewpoint(frame="live", width=96, height=72))
     ack = live.push([jpeg(b) for b in take.backgrounds], is_background=True)
     assert ack["seq"] == 1 and ack["background_model"] is True
-    empty, _ = live.render("v", Viewpoint(frame="live", width=96, height=72, planes=PLANES))
+    empty, _ = live.view("v", Viewpoint(frame="live", width=96, height=72, planes=PLANES))
     assert empty["coverage"] == 0  # the empty studio has no silhouette
     live.push([jpeg(i) for i in take.frames[0]])
-    header, _ = live.render("v", Viewpoint(frame="live", width=96, height=72, planes=PLANES))
+    header, _ = live.view("v", Viewpoint(frame="live", width=96, height=72, planes=PLANES))
     assert header["seq"] == 2 and header["frame"] == "live" and header["coverage"] > 0.05
     broken = [jpeg(i) for i in take.frames[1]]
     broken[2] = broken[2][: len(broken[2]) // 3]
@@ -131,7 +131,7 @@ def test_live_session_shows_the_latest_set_and_keeps_it_on_bad_input(take):
     with pytest.raises(ViewError, match="3 images for 4 cameras"):
         live.push([jpeg(i) for i in take.frames[1][:3]])
     with pytest.raises(ViewError, match="must be \"live\""):
-        live.render("v", Viewpoint(frame=0, width=96, height=72))
+        live.view("v", Viewpoint(frame=0, width=96, height=72))
 
 
 def test_background_model_follows_light_but_not_the_subject():
@@ -182,14 +182,14 @@ def test_live_frames_are_decoded_at_the_size_the_viewers_need(take):
     live.push([jpeg(i) for i in take.frames[0]])
     assert live.source_factor == 1  # no viewer yet: the protocol's default size (320x240) needs every pixel
     small = Viewpoint(frame="live", width=48, height=36, planes=PLANES)
-    header, _ = live.render("small", small)
+    header, _ = live.view("small", small)
     assert header["source_factor"] == 1  # the set on show was decoded before this viewer came
     ack = live.push([jpeg(i) for i in take.frames[1]])
     assert ack["source_factor"] == 2 and live.renderer.cameras[0].width == 48  # the next set: half size
     assert live.background.images()[0].shape == (36, 48, 3)  # the model follows
-    header, _ = live.render("small", small)
+    header, _ = live.view("small", small)
     assert header["source_factor"] == 2 and header["seq"] == 3 and header["coverage"] > 0.02
-    header, _ = live.render("big", Viewpoint(frame="live", width=96, height=72, planes=PLANES))
+    header, _ = live.view("big", Viewpoint(frame="live", width=96, height=72, planes=PLANES))
     assert header["source_factor"] == 1 and header["seq"] == 3  # the same set, decoded again at full size at once
     assert header["coverage"] > 0.05
     live.forget("big")

@@ -33,16 +33,14 @@ from typing import Any, Callable, Iterator
 import numba
 import ray
 import ray.exceptions
-from pydantic import ValidationError
 
 from workers.common.images import encode_png
-from workers.common.validation import describe_errors
 from workers.storage import open_store
 
 from .images import decode_stored
 from .params import Viewpoint
 from .recording import RecordingArchive
-from .session import LiveSession, RecordingSession, Session, SessionLimits, ViewError
+from .session import LiveSession, RecordingSession, Session, SessionError, SessionLimits
 from .store import archive_key, load_live, load_rig, save_live
 
 log = logging.getLogger("sweepcast.session")
@@ -117,16 +115,10 @@ class SessionHost:
         return RecordingSession(rig, archive, self.config.limits)
 
     # --- calls ------------------------------------------------------------------------------------
-    def render(self, viewer: str, viewpoint: dict[str, Any]) -> dict[str, Any]:
-        """``{"ok": True, "header": {...}, "jpeg": bytes}`` or ``{"ok": False, "error", "detail"}``."""
+    def view(self, viewer: str, vp: Viewpoint) -> tuple[dict[str, Any], bytes]:
+        """The frame header and JPEG of ``vp`` (validated by the socket; its limits are the session's check);
+        SessionError (a ViewError for what the client sent) when it cannot be served."""
         self._touch(viewer)
-        try:
-            vp = Viewpoint.model_validate(viewpoint)
-            self.session.check(vp)
-        except ValidationError as exc:
-            return {"ok": False, "error": "bad_viewpoint", "detail": describe_errors(exc, "viewpoint")}
-        except ViewError as exc:
-            return {"ok": False, "error": exc.code, "detail": exc.detail}
         t0 = time.perf_counter()
         with self._working(locked=False):
             self._frames.acquire_write()
@@ -137,8 +129,8 @@ class SessionHost:
                 drawing = True
                 with _render_threads(self._frames.readers):
                     header, jpeg = self.session.draw(viewer, plan)
-            except ViewError as exc:
-                return {"ok": False, "error": exc.code, "detail": exc.detail}
+            except SessionError:
+                raise
             except Exception as exc:  # noqa: BLE001 - a renderer bug costs this view, not the session
                 log.exception("render of viewpoint %s for viewer %s failed", vp.id, viewer)
                 self.failures += 1
@@ -147,48 +139,46 @@ class SessionHost:
                     self._frames.acquire_write()
                 self.session.discard_after_failure(viewer)
                 self._frames.release_write()
-                return {"ok": False, "error": "render_failed",
-                        "detail": f"the renderer failed on this viewpoint ({_summary(exc)}); the session goes on"}
+                raise SessionError("render_failed", f"the renderer failed on this viewpoint ({_summary(exc)}); "
+                                                    "the session goes on") from None
             finally:
                 if self._frames.holds_current():
                     self._frames.release_current()
         header["session_ms"] = round((time.perf_counter() - t0) * 1e3, 2)
-        return {"ok": True, "header": header, "jpeg": jpeg}
+        return header, jpeg
 
     def push(self, jpegs: list[bytes], background: bool = False) -> dict[str, Any]:
-        """Apply a live frame set (JPEGs in rig order): ``{"ok": True, "seq", ...}`` or an error.
+        """Apply a live frame set (JPEGs in rig order): its ack (``seq``, timings, ...); SessionError when the
+        set cannot be applied (the previous set stays shown).
         The set is decoded before the render lock is taken (OpenCV releases the GIL), so a decode
         runs beside a render instead of delaying it."""
         self._touch(None)
         session = self.session
         if not isinstance(session, LiveSession):
-            return {"ok": False, "error": "not_live", "detail": "this session shows a recording"}
+            raise SessionError("not_live", "this session shows a recording")
         with self._working(locked=False):
             t0 = time.perf_counter()
-            try:
-                images = session.decode(jpegs)
-            except ViewError as exc:
-                return {"ok": False, "error": exc.code, "detail": exc.detail}
+            images = session.decode(jpegs)
         t1 = time.perf_counter()
         with self._working():
             t2 = time.perf_counter()
             try:
                 session.apply(images, jpegs, background)
                 ack = session.ack((t1 - t0) * 1e3, (time.perf_counter() - t2) * 1e3, background)
-            except ViewError as exc:
-                return {"ok": False, "error": exc.code, "detail": exc.detail}
-            except Exception as exc:  # noqa: BLE001 - as in render: this set is lost, not the session
+            except SessionError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - as in view: this set is lost, not the session
                 log.exception("applying a live frame set failed")
                 self.failures += 1
                 session.discard_after_failure(None)
-                return {"ok": False, "error": "frame_set_failed",
-                        "detail": f"the frame set could not be applied ({_summary(exc)}); send the next one"}
+                raise SessionError("frame_set_failed", f"the frame set could not be applied ({_summary(exc)}); "
+                                                       "send the next one") from None
             due = background or time.monotonic() - self._persisted >= self.config.persist_seconds
             snapshot = self._live_snapshot(with_background=background) if due else None
         if snapshot is not None:  # written after the lock is released: views are not held up by the disk
             self._persist_live(snapshot)
         ack["lock_wait_ms"] = round((t2 - t1) * 1e3, 2)
-        return {"ok": True, **ack}
+        return ack
 
     def _live_snapshot(self, with_background: bool) -> tuple[int, list[bytes], list[Any] | None]:
         """What :meth:`_persist_live` stores, taken while the frames' write lock is held: the latest live
@@ -400,7 +390,8 @@ class SessionClient:
     """Async calls to the session actor of one (rig, source), for one socket of the API.
 
     A call that finds the actor gone (it idled out, or its restarts are spent) creates a new one and
-    tries again; a call that finds it restarting waits for it. A call made with ``resend=False``
+    tries again; a call that finds it restarting waits for it. What a call could not serve (a
+    :class:`~workers.streaming.session.SessionError`) is raised here as it was raised in the actor. A call made with ``resend=False``
     (a render or a push: it may be what crashed the actor) is not tried again: it raises
     :class:`SessionInterrupted`, and the next such call first waits for the actor to be back."""
 
@@ -416,9 +407,9 @@ class SessionClient:
     async def info(self) -> dict[str, Any]:
         return await self._call(lambda actor: actor.info.remote())
 
-    async def render(self, viewer: str, viewpoint: dict[str, Any]) -> dict[str, Any]:
+    async def view(self, viewer: str, vp: Viewpoint) -> tuple[dict[str, Any], bytes]:
         """Not sent again when the actor is lost during it (it may be what crashed it)."""
-        return await self._call(lambda actor: actor.render.remote(viewer, viewpoint), resend=False)
+        return await self._call(lambda actor: actor.view.remote(viewer, vp), resend=False)
 
     async def push(self, jpegs: list[bytes], background: bool = False) -> dict[str, Any]:
         """Not sent again when the actor is lost during it (it may be what crashed it)."""
@@ -453,6 +444,10 @@ class SessionClient:
                 self._handle = await asyncio.to_thread(get_or_create, self.config, self.resources)
             try:
                 return await invoke(self._handle)
+            except ray.exceptions.RayTaskError as exc:  # raised by the call itself: what it could not serve
+                if isinstance(exc.cause, SessionError):
+                    raise exc.cause from None
+                raise
             except ray.exceptions.ActorUnavailableError as exc:
                 if not resend:
                     raise self._interruption(exc) from exc

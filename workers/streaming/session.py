@@ -86,13 +86,21 @@ def shrunk_images(images: Sequence[np.ndarray], rig: Rig) -> list[np.ndarray]:
             for img, c in zip(images, rig.cameras)]
 
 
-class ViewError(ValueError):
-    """A request the session cannot serve because of what the client sent (or has not sent yet)."""
+class SessionError(Exception):
+    """A request a session could not serve: ``code`` and ``detail`` go to the client as they are. Raised in the
+    session's actor, it reaches the API process intact (:class:`workers.streaming.actor.SessionClient`)."""
 
     def __init__(self, code: str, detail: str) -> None:
         super().__init__(detail)
         self.code = code
         self.detail = detail
+
+    def __reduce__(self) -> tuple:  # pickled across Ray with both arguments
+        return type(self), (self.code, self.detail)
+
+
+class ViewError(SessionError, ValueError):
+    """A request the session cannot serve because of what the client sent (or has not sent yet)."""
 
 
 @dataclass(frozen=True)
@@ -150,18 +158,16 @@ class Session:
         self._kept_lock = threading.Lock()  # _previous: drawn into from several threads
         self.renders = 0
 
-    def check(self, vp: Viewpoint) -> None:
-        """ViewError when ``vp`` asks for more than the limits allow."""
-        self.limits.check(vp.width, vp.height, vp.planes)
-
-    def render(self, viewer: str, vp: Viewpoint) -> tuple[dict[str, Any], bytes]:
-        """Render ``vp`` for ``viewer`` (any id; it keys the previous render for re-shading)."""
+    def view(self, viewer: str, vp: Viewpoint) -> tuple[dict[str, Any], bytes]:
+        """The view ``vp`` asks for, as a frame header and a JPEG, for ``viewer`` (any id; it keys the previous
+        render for re-shading); ViewError when ``vp`` is over the limits or cannot be served."""
         return self.draw(viewer, self.prepare(viewer, vp))
 
     def prepare(self, viewer: str, vp: Viewpoint) -> "Plan":
-        """First half of :meth:`render`: check ``vp`` and load the frames it asks for into the
-        renderer. Changes the session: callers that render on several threads run it alone."""
-        self.check(vp)
+        """First half of :meth:`view`: check ``vp`` against the limits (the one check of the viewer path) and
+        load the frames it asks for into the renderer. Changes the session: callers that draw on several
+        threads run it alone."""
+        self.limits.check(vp.width, vp.height, vp.planes)
         frame_label = self._prepare(viewer, vp)
         try:
             cam = virtual_camera(vp, self.orbit, (vp.width, vp.height))
@@ -173,7 +179,7 @@ class Session:
         return Plan(vp, cam, options, key, frame_label, self.renderer, self.seq, self.source_factor)
 
     def draw(self, viewer: str, plan: "Plan") -> tuple[dict[str, Any], bytes]:
-        """Second half of :meth:`render`: sweep (or re-shade) and encode. Reads the frames only, so
+        """Second half of :meth:`view`: sweep (or re-shade) and encode. Reads the frames only, so
         several threads may draw at once while no :meth:`prepare` or frame change runs."""
         vp = plan.vp
         try:
