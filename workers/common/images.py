@@ -112,14 +112,15 @@ def read_image_size(data: bytes) -> ImageSize:
     return ImageSize(fmt, int(width), int(height))
 
 
-def encode_png(image: np.ndarray, level: int = 1) -> bytes:
+def encode_png(image: np.ndarray, level: int | None = 1) -> bytes:
     """Lossless PNG bytes of an (H, W) or (H, W, C) uint8 or uint16 image (C: 3 BGR or 4 BGRA);
-    ``level``: zlib effort 0..9 (1: fast, the files are a few per cent larger than at 9).
+    ``level``: zlib effort 0..9 (1: fast, the files are a few per cent larger than at 9), or None for
+    OpenCV's own fast setting (level 1 with one fixed filter: smaller on smooth pictures such as previews).
     Raises ValueError for an image PNG cannot hold (float pixels, ...)."""
     channels = image.shape[2] if image.ndim == 3 else 1
     if image.dtype not in (np.uint8, np.uint16) or image.ndim not in (2, 3) or channels not in (1, 3, 4):
         raise ValueError(f"cannot encode an image of {image.dtype} {image.shape} as PNG")  # OpenCV would cast
-    ok, buf = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, int(level)])
+    ok, buf = cv2.imencode(".png", image, [] if level is None else [cv2.IMWRITE_PNG_COMPRESSION, int(level)])
     if not ok:  # pragma: no cover - a checked array encodes
         raise ValueError(f"OpenCV failed to encode an image of {image.dtype} {image.shape} as PNG")
     return buf.tobytes()

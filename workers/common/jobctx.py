@@ -23,10 +23,6 @@ class JobInputError(Exception):
     """The job's input is unusable; the message is shown to the user as the job's error."""
 
 
-class JobCancelled(Exception):
-    """Raised inside a job when its cancellation was requested."""
-
-
 class JobContext(Protocol):
     """What a job function sees of the job system (implemented by workers.runtime)."""
 

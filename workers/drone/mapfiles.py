@@ -16,6 +16,8 @@ import io
 import cv2
 import numpy as np
 
+from workers.common.images import encode_png
+
 from .surface import Grid
 
 DSM_NODATA = -9999.0
@@ -96,10 +98,7 @@ def _fit(h: int, w: int, side: int) -> tuple[int, int]:
 def orthophoto_png(rgba: np.ndarray, side: int = _PREVIEW_SIDE) -> bytes:
     """A PNG preview (at most ``side`` px) of an RGBA orthophoto (H, W, 4) uint8, transparent outside."""
     small = cv2.resize(rgba, _fit(*rgba.shape[:2], side), interpolation=cv2.INTER_AREA)
-    ok, png = cv2.imencode(".png", cv2.cvtColor(small, cv2.COLOR_RGBA2BGRA))
-    if not ok:  # pragma: no cover - OpenCV encodes any uint8 image
-        raise RuntimeError("PNG encoding failed")
-    return png.tobytes()
+    return encode_png(cv2.cvtColor(small, cv2.COLOR_RGBA2BGRA), level=None)
 
 
 def dsm_png(dsm: np.ndarray, side: int = _PREVIEW_SIDE) -> bytes:
@@ -118,7 +117,4 @@ def dsm_png(dsm: np.ndarray, side: int = _PREVIEW_SIDE) -> bytes:
     scale = (hi - lo) / 50 if hi > lo else 1.0  # relief of 2 % of the range per pixel reads as a strong slope
     shade = np.clip(0.75 + 0.25 * (-gx - gy) / max(scale, 1e-9), 0.4, 1.0)
     bgra = np.dstack([np.clip(colour * shade[..., None], 0, 255).astype(np.uint8), valid.astype(np.uint8) * 255])
-    ok, png = cv2.imencode(".png", bgra)
-    if not ok:  # pragma: no cover
-        raise RuntimeError("PNG encoding failed")
-    return png.tobytes()
+    return encode_png(bgra, level=None)

@@ -9,6 +9,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from workers.common.images import encode_png
+
 _BG = (40, 40, 40)
 _CAM = (60, 60, 255)
 
@@ -97,7 +99,4 @@ def preview_png(points: np.ndarray, colors_bgr: np.ndarray, R: np.ndarray, t: np
         frame = _frame(np.asarray(points, np.float64).reshape(-1, 3), centres) if len(points) + len(centres) >= 3 \
             else None
         img = np.vstack([img, render_preview(dp[::step], dc[::step], R, t, panel, "dense", frame)])
-    ok, buf = cv2.imencode(".png", img)
-    if not ok:
-        raise RuntimeError("PNG encoding failed")
-    return buf.tobytes()
+    return encode_png(img, level=None)

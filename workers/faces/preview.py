@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 from numba import njit
 
+from workers.common.images import encode_png
 from workers.faces.mesh import vertex_normals
 
 LIGHT = np.array([-0.35, 0.45, 1.0]) / np.linalg.norm([-0.35, 0.45, 1.0])
@@ -89,7 +90,4 @@ def side_by_side(before: np.ndarray, after: np.ndarray, triangles: np.ndarray, l
 def preview_png(before: np.ndarray, after: np.ndarray, triangles: np.ndarray,
                 labels: tuple[str, str] = ("input", "output"), size: int = 320) -> bytes:
     """PNG bytes of :func:`side_by_side`."""
-    ok, buf = cv2.imencode(".png", side_by_side(before, after, triangles, labels, size))
-    if not ok:
-        raise RuntimeError("PNG encoding failed")
-    return buf.tobytes()
+    return encode_png(side_by_side(before, after, triangles, labels, size), level=None)

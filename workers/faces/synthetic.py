@@ -59,11 +59,6 @@ def random_identity(rng: np.random.Generator) -> dict[str, float]:
     return {k: float(mu + sd * rng.standard_normal()) for k, (mu, sd) in IDENTITY.items()}
 
 
-def mean_identity() -> dict[str, float]:
-    """The average identity (every parameter at its mean)."""
-    return {k: mu for k, (mu, _) in IDENTITY.items()}
-
-
 def _bump(du: np.ndarray, dv: np.ndarray, su: float, sv: float) -> np.ndarray:
     return np.exp(-((du / su) ** 2) - (dv / sv) ** 2)
 
