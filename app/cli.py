@@ -149,7 +149,7 @@ def cmd_kernel_env(args: argparse.Namespace) -> int:
 
 
 def cmd_openapi(args: argparse.Namespace) -> int:
-    from app.openapi_doc import render_openapi
+    from app.main import render_openapi
 
     text = render_openapi()
     if args.check:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -153,3 +154,10 @@ def _version() -> str:
         return version("sweepcast")
     except PackageNotFoundError:
         return "0.0.0"
+
+
+def render_openapi() -> str:
+    """The app's OpenAPI document (:func:`app.openapi_doc.document_contract`), serialised stably (sorted keys,
+    2-space indent, trailing newline): what ``sweepcast openapi`` commits."""
+    app = create_app(Settings(api_keys=[]))
+    return json.dumps(app.openapi(), indent=2, sort_keys=True) + "\n"

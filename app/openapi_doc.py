@@ -184,6 +184,9 @@ def _document_errors(doc: dict[str, Any]) -> None:
         if any(p.get("in") == "path" for p in op.get("parameters", [])):
             statuses |= PATH_STATUS
         statuses |= OPERATION_STATUSES.get((method, path), {})
+        # statuses a route declares itself (``responses=``): the error body, with the route's description
+        statuses |= {int(s): r.get("description", "") for s, r in responses.items()
+                     if s[0] in "45" and "content" not in r}
         _add_errors(op, statuses)
         if "422" in responses or op.get("parameters") or "requestBody" in op:
             responses["422"] = _error_response(VALIDATION_DESCRIPTION, VALIDATION_ERROR)
@@ -283,12 +286,3 @@ def install_contract(app: FastAPI) -> None:
         return app.state.contract_openapi
 
     app.openapi = openapi  # type: ignore[method-assign]
-
-
-def render_openapi() -> str:
-    """The app's schema, serialised stably (sorted keys, 2-space indent, trailing newline)."""
-    from app.main import create_app  # here: app.main imports this module
-    from app.settings import Settings
-
-    app = create_app(Settings(api_keys=[]))
-    return json.dumps(app.openapi(), indent=2, sort_keys=True) + "\n"

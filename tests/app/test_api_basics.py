@@ -69,7 +69,7 @@ def test_streamed_body_over_the_limit_is_cut_off(client_factory):
 
 
 def test_committed_openapi_matches_the_app():
-    from app.openapi_doc import render_openapi
+    from app.main import render_openapi
 
     committed = ROOT / "openapi" / "openapi.json"
     assert committed.exists(), "openapi/openapi.json is missing: run 'sweepcast openapi'"

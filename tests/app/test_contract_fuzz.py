@@ -117,7 +117,7 @@ def test_every_operation_keeps_the_documented_contract(service: ServedApp, fuzz_
 
 # --- the document and the fixes the fuzz run found, checked directly (fast, no server) ---------------
 def _doc() -> dict[str, Any]:
-    from app.openapi_doc import render_openapi
+    from app.main import render_openapi
 
     return json.loads(render_openapi())
 
