@@ -1,8 +1,8 @@
 """Request-body limits per route, enforced while the body is read, before it is buffered.
 
-Each route (method + path template) gets the limit of what it takes (:class:`RouteBodyLimits`):
-JSON or no body: ``max_json_bytes``; a single-file upload: ``max_upload_bytes``; a batch
-upload (the routes the app names): ``max_batch_bytes``. The limit is looked up when the route
+Each route gets the limit of what it takes (:class:`RouteBodyLimits`): JSON or no body:
+``max_json_bytes``; a single-file upload: ``max_upload_bytes``; a batch upload (a route declared with
+``openapi_extra=BATCH_BODY``, which the OpenAPI document shows as ``x-body-limit: batch``): ``max_batch_bytes``. The limit is looked up when the route
 first asks for the body (the router has matched it by then and put it in the scope): a declared
 Content-Length over the limit is refused before a byte is read; a body without one (chunked) is
 counted as it streams and refused when it passes the limit. Both give 413 with a JSON body.
@@ -20,6 +20,8 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from app.errors import ApiError, error_body
 
 BodyKind = Literal["json", "upload", "batch"]
+BATCH_BODY = {"x-body-limit": "batch"}
+"""``openapi_extra`` of the true batch uploads (many files, videos, archives): their body may be ``max_batch_bytes``."""
 
 
 class BodyTooLarge(ApiError):
@@ -30,13 +32,12 @@ class BodyTooLarge(ApiError):
 class RouteBodyLimits:
     """The body limit of a request by its route (``scope["route"]``), resolved once per route.
 
-    ``limits``: bytes per kind of body; ``batch_routes``: (method, path template) of the true batch
-    uploads. A route with a ``File`` parameter is an upload, any other route takes JSON (or nothing).
+    ``limits``: bytes per kind of body. A route declared with :data:`BATCH_BODY` is a batch upload, a route
+    with a ``File`` parameter an upload, any other route takes JSON (or nothing).
     """
 
-    def __init__(self, limits: dict[BodyKind, int], batch_routes: Iterable[tuple[str, str]]) -> None:
+    def __init__(self, limits: dict[BodyKind, int]) -> None:
         self.limits = limits
-        self._batch = frozenset(batch_routes)
         self._kinds: dict[tuple[str, str], BodyKind] = {}
 
     def __call__(self, scope: Scope) -> int:
@@ -49,7 +50,8 @@ class RouteBodyLimits:
             return "json"
         key = (scope["method"], route.path)
         if key not in self._kinds:
-            self._kinds[key] = "batch" if key in self._batch else ("upload" if _takes_files(route) else "json")
+            batch = (route.openapi_extra or {}).get("x-body-limit") == "batch"
+            self._kinds[key] = "batch" if batch else ("upload" if _takes_files(route) else "json")
         return self._kinds[key]
 
 

@@ -24,11 +24,6 @@ from workers.common.models import MODELS, ModelError, install, installed
 
 log = logging.getLogger("sweepcast")
 
-# The true batch uploads (many files, videos, archives): max_batch_bytes. Every other route that
-# takes files gets max_upload_bytes, and a route that takes JSON or nothing max_json_bytes.
-BATCH_UPLOAD_ROUTES = (("POST", "/v1/photos/batches"), ("POST", "/v1/reconstructions"), ("POST", "/v1/depth/videos"),
-                       ("POST", "/v1/face-models"), ("POST", "/v1/rigs/{rig_id}/recordings"))
-
 API_DESCRIPTION = """
 sweepcast takes synchronised camera streams or uploaded media, queues jobs to worker processes
 and streams results back.
@@ -92,7 +87,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_log_redaction()  # ?access_token= stays out of uvicorn's request lines
 
     limits = {"json": settings.max_json_bytes, "upload": settings.max_upload_bytes, "batch": settings.max_batch_bytes}
-    app.add_middleware(BodyLimitMiddleware, limit_for=RouteBodyLimits(limits, BATCH_UPLOAD_ROUTES))
+    app.add_middleware(BodyLimitMiddleware, limit_for=RouteBodyLimits(limits))
     app.add_middleware(ApiKeyMiddleware)  # added last: runs first, before any body is read
 
     from app.routers import (depth, faces, jobs, keys, photos, reconstructions, recordings, review, rig_sockets,

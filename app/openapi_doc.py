@@ -53,42 +53,6 @@ PATH_STATUS = {404: "nothing exists under the id (or name) in the path, or it be
 VALIDATION_DESCRIPTION = ("invalid request: a parameter, form field or `params` object is wrong; request "
                           "validation errors list each problem in `fields`")
 
-# What only some operations answer, read off their routes. Keys must name documented operations
-# (rendering fails otherwise, so a renamed route cannot leave a stale entry here).
-OPERATION_STATUSES: dict[tuple[str, str], dict[int, str]] = {
-    ("get", "/v1/jobs/{job_id}/results/{name}"): {
-        409: "the job has not succeeded (it has no results)",
-        410: "the result was listed but is no longer stored",
-    },
-    ("delete", "/v1/jobs/{job_id}"): {
-        409: "the job imported a recording that still exists: delete the recording instead",
-    },
-    ("post", "/v1/face-models/{model_id}/transform"): {
-        409: "the model's training job has not succeeded",
-        410: "the model's files are no longer stored",
-    },
-    ("post", "/v1/rigs/{rig_id}/renders"): {409: "the recording is still being imported, or its import failed"},
-    ("get", "/v1/rigs/{rig_id}/recordings/{recording_id}/frames/{frame}"): {
-        409: "the recording is still being imported, or its import failed",
-    },
-    ("post", "/v1/depth/filter"): {415: "an upload is not an image in a format this route reads"},
-    ("post", "/v1/depth/synthesize"): {415: "an upload is not an image in a format this route reads"},
-    ("post", "/v1/depth/videos"): {415: "input_format video: the depth is no 8-bit H.264/HEVC video this route reads"},
-    ("post", "/v1/photos/orientation"): {
-        415: "the file is not an image, or not a format this route reads",
-        503: "metadata_tool_unavailable: the file needs ExifTool (PNG, a RAW preview) and this deployment has none",
-    },
-    ("post", "/v1/photos/orient"): {
-        415: "the file is not a JPEG, WebP, TIFF, PNG, HEIC/HEIF, AVIF or RAW photo",
-        503: "metadata_tool_unavailable: the write needs ExifTool (PNG, a sidecar update) and this deployment has none",
-    },
-    ("get", "/v1/photos/batches/{job_id}/review"): {409: "the batch has not succeeded (yet)"},
-    ("post", "/v1/photos/batches/{job_id}/review/{index}"): {
-        409: "the batch has not succeeded, the photo is not in its review queue, or the job changed meanwhile",
-        503: "metadata_tool_unavailable: writing this photo needs ExifTool (PNG) and this deployment has none",
-    },
-}
-
 # Extra media types a success response can have.
 EXTRA_SUCCESS_MEDIA: dict[tuple[str, str], list[str]] = {
     ("post", "/v1/photos/orient"): ["image/webp", "image/tiff", "image/png"],  # comes back in its own format
@@ -183,7 +147,6 @@ def _document_errors(doc: dict[str, Any]) -> None:
             statuses |= NEW_JOB_STATUSES
         if any(p.get("in") == "path" for p in op.get("parameters", [])):
             statuses |= PATH_STATUS
-        statuses |= OPERATION_STATUSES.get((method, path), {})
         # statuses a route declares itself (``responses=``): the error body, with the route's description
         statuses |= {int(s): r.get("description", "") for s, r in responses.items()
                      if s[0] in "45" and "content" not in r}
@@ -264,7 +227,7 @@ def _drop_unused(doc: dict[str, Any], names: tuple[str, ...]) -> None:
 def document_contract(doc: dict[str, Any]) -> dict[str, Any]:
     """A copy of FastAPI's ``doc`` that describes the service's real errors and form fields."""
     doc = copy.deepcopy(doc)
-    _check_keys(doc, OPERATION_STATUSES, PARAMS_MODELS, EXTRA_SUCCESS_MEDIA)
+    _check_keys(doc, PARAMS_MODELS, EXTRA_SUCCESS_MEDIA)
     doc.setdefault("components", {}).setdefault("schemas", {}).update(error_schemas())
     doc["components"]["securitySchemes"] = SECURITY_SCHEMES
     _document_errors(doc)

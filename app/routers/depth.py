@@ -12,6 +12,7 @@ from pydantic import BaseModel, Field
 from app.auth import principal, require_key
 from app.keys import Principal
 from app.errors import ApiError
+from app.limits import BATCH_BODY
 from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, parse_params, run_compute, services
 from app.uploads import check_size, read_upload
@@ -24,6 +25,7 @@ from workers.depth.service import filter_depth_bytes, synthesize_bytes
 from workers.depth.upsample import target_size
 from workers.depth.video import probe_depth_video
 
+NOT_AN_IMAGE = "an upload is not an image in a format this route reads"
 router = APIRouter(prefix="/v1/depth", tags=["depth"], dependencies=[Depends(require_key)])
 
 PARAMS_HELP = "JSON object of {model} (see the schema of that name); default {{}}"
@@ -47,7 +49,7 @@ def _bad_input(exc: DepthInputError) -> ApiError:
 
 @router.post("/filter", response_class=Response,
              summary="Upsample and post-filter one depth map (PNG/PGM, 8 or 16 bit) -> filtered depth PNG",
-             responses={200: {"content": {"image/png": {}}}})
+             responses={200: {"content": {"image/png": {}}}, 415: {"description": NOT_AN_IMAGE}})
 async def filter_depth(
     depth: UploadFile = File(..., description="decoded depth map: PNG or PGM, 8 or 16 bit inverse-depth levels"),
     texture: UploadFile | None = File(None, description="texture at the output size (guided methods: wmf)"),
@@ -65,7 +67,7 @@ async def filter_depth(
     return Response(out, media_type="image/png", headers={"X-Depth-Method": p.method_for(texture is not None)})
 
 
-@router.post("/synthesize", response_model=SynthesisOut,
+@router.post("/synthesize", response_model=SynthesisOut, responses={415: {"description": NOT_AN_IMAGE}},
              summary="Synthesise a virtual view from texture + depth of one or two views (DIBR)")
 async def synthesize(
     textures: list[UploadFile] = File(..., description="one texture per source view, in camera order"),
@@ -98,7 +100,9 @@ def _synthesize(views: list[tuple[bytes, bytes]], p: SynthesizeParams, limit: in
     return image, holes, float((mask > 0).mean())
 
 
-@router.post("/videos", status_code=202, response_model=JobOut,
+@router.post("/videos", status_code=202, response_model=JobOut, openapi_extra=BATCH_BODY,
+             responses={415: {"description": "input_format video: the depth is no 8-bit H.264/HEVC video this route "
+                                             "reads"}},
              summary="Post-filter a depth sequence (raw YUV, or H.264/HEVC video): a job with progress per frame",
              description="`input_format` \"yuv\" (default): raw planar frames, `width` and `height` required. "
                          "\"video\": an 8-bit H.264 or HEVC video (raw .264/.265, MP4, MKV, ...) whose luma is the "

@@ -15,6 +15,7 @@ from pydantic import BaseModel, Field
 from app.auth import principal, require_key
 from app.keys import Principal
 from app.errors import ApiError
+from app.limits import BATCH_BODY
 from app.jobstore import JobState, as_utc
 from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, parse_params, run_compute, services
@@ -76,7 +77,7 @@ async def _model(model_id: str, svc: Services, who: Principal) -> FaceModel:
         raise ApiError(410, f"the files of face model {model_id} are gone or unreadable", "model_gone") from None
 
 
-@router.post("", status_code=202, response_model=JobOut,
+@router.post("", status_code=202, response_model=JobOut, openapi_extra=BATCH_BODY,
              summary="Train a face model: from a dataset zip (meshes + manifest.csv) or the synthetic generator")
 async def train_model(
     dataset: UploadFile | None = File(None, description="zip of registered meshes with manifest.csv (person, expression, file)"),
@@ -119,6 +120,8 @@ async def list_models(svc: Services = Depends(services), who: Principal = Depend
 
 
 @router.post("/{model_id}/transform", response_model=TransformOut,
+             responses={409: {"description": "the model's training job has not succeeded"},
+                        410: {"description": "the model's files are no longer stored"}},
              summary="Strengthen an impression of a face mesh (OBJ/PLY): the mesh back in its format and a preview")
 async def transform(
     model_id: str,

@@ -96,7 +96,9 @@ async def get_job(job_id: str, svc: Services = Depends(services), who: Principal
 
 
 @router.get("/{job_id}/results/{name:path}", summary="Download one result file of a succeeded job",
-            response_class=Response, responses={200: {"content": {"application/octet-stream": {}}}})
+            response_class=Response, responses={200: {"content": {"application/octet-stream": {}}},
+                                                409: {"description": "the job has not succeeded (it has no results)"},
+                                                410: {"description": "the result was listed but is no longer stored"}})
 async def get_result(job_id: str, name: str, svc: Services = Depends(services),
                      who: Principal = Depends(principal)) -> StreamingResponse:
     job = await load_job(job_id, svc, who)

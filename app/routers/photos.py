@@ -10,6 +10,7 @@ from fastapi.responses import JSONResponse, Response
 from app.auth import principal, require_key
 from app.keys import Principal
 from app.errors import ApiError
+from app.limits import BATCH_BODY
 from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, run_compute, services
 from app.settings import Settings
@@ -60,6 +61,9 @@ def _tool_error(exc: Exception, filename: str | None) -> ApiError:
 
 
 @router.post("/orientation", response_model=OrientationReport,
+             responses={415: {"description": "the file is not an image, or not a format this route reads"},
+                        503: {"description": "metadata_tool_unavailable: the file needs ExifTool (PNG, a RAW preview) "
+                                             "and this deployment has none"}},
              summary="Detect which way is up in a photo: faces first, then text; never a guess. The answer says "
                      "every orientation the file states and what /orient would write where")
 async def detect_orientation(file: UploadFile = File(..., description="a JPEG, WebP, TIFF, PNG, HEIC/HEIF, AVIF "
@@ -83,7 +87,10 @@ async def detect_orientation(file: UploadFile = File(..., description="a JPEG, W
 @router.post("/orient", response_class=Response,
              summary="Write a photo's orientation: the same file with its tag set (JPEG, WebP, TIFF: EXIF IFD0; "
                      "PNG: eXIf), or an XMP sidecar (HEIC/HEIF, AVIF, RAW, or sidecar=true)",
-             responses={200: {"content": {"image/jpeg": {}, XMP_MEDIA: {}},
+             responses={415: {"description": "the file is not a JPEG, WebP, TIFF, PNG, HEIC/HEIF, AVIF or RAW photo"},
+                        503: {"description": "metadata_tool_unavailable: the write needs ExifTool (PNG, a sidecar "
+                                             "update) and this deployment has none"},
+                        200: {"content": {"image/jpeg": {}, XMP_MEDIA: {}},
                               "description": "the photo with its tag set, image data untouched (image/jpeg, "
                                              "image/webp, image/tiff, image/png), or the XMP sidecar to store "
                                              "beside it (application/rdf+xml, Content-Disposition names it: "
@@ -137,7 +144,7 @@ def _header_safe(name: str) -> str:
     return "".join(c if 32 <= ord(c) < 127 and c not in '"\\' else "_" for c in name)
 
 
-@router.post("/batches", status_code=202, response_model=JobOut,
+@router.post("/batches", status_code=202, response_model=JobOut, openapi_extra=BATCH_BODY,
              summary="Fix many photos in one upload: a job with a report per photo and the fixed files")
 async def create_batch(files: list[UploadFile] = File(..., description="the photos (repeat the field)"),
                        force: bool = Form(False, description="replace existing tags other than 1"),

@@ -7,6 +7,7 @@ from fastapi.responses import JSONResponse
 from app.auth import principal, require_key
 from app.keys import Principal
 from app.errors import ApiError
+from app.limits import BATCH_BODY
 from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, parse_params, services
 from app.uploads import check_size
@@ -16,7 +17,7 @@ from workers.drone.params import ReconstructionParams
 router = APIRouter(prefix="/v1/reconstructions", tags=["reconstructions"], dependencies=[Depends(require_key)])
 
 
-@router.post("", status_code=202, response_model=JobOut,
+@router.post("", status_code=202, response_model=JobOut, openapi_extra=BATCH_BODY,
              summary="Reconstruct cameras, a point cloud and (for a georeferenced flight) a map from a drone video "
                      "or a zip of ordered images",
              description="A job with progress per stage (decode, track k/N, initialise, BA iteration i, georeference; "

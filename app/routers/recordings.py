@@ -15,6 +15,7 @@ from pydantic import BaseModel, Field
 from app.auth import principal, require_key
 from app.keys import Principal
 from app.errors import ApiError
+from app.limits import BATCH_BODY
 from app.frame_atlases import AtlasKey, build_atlas
 from app.rig_access import (delete_recording_data, load_rig, recording_or_404, recording_views, require_ready,
                             rig_json_bytes, rig_meta_or_404, view_limits)
@@ -57,7 +58,7 @@ class RecordingList(BaseModel):
     recordings: list[RecordingOut]
 
 
-@router.post("/{rig_id}/recordings", status_code=202, response_model=RecordingOut, responses={403: {"description": "the rig is the demo rig, which only an admin key may change"}},
+@router.post("/{rig_id}/recordings", status_code=202, response_model=RecordingOut, openapi_extra=BATCH_BODY, responses={403: {"description": "the rig is the demo rig, which only an admin key may change"}},
              summary="Add a recording: one video per camera, or a zip of per-camera image folders",
              description="Videos are matched to cameras by file name (the camera's name), else by order. "
                          "A zip holds `<camera name>/<images in name order>` and optionally "
@@ -149,7 +150,8 @@ async def delete_recording(rig_id: str, recording_id: str, svc: Services = Depen
                         "ETag (`If-None-Match` gets 304) let the browser and proxies keep it. PNG is lossless (the "
                         "viewer's default: its view then matches the server's); JPEG (`quality`) is about 5x "
                         "smaller.",
-            responses={200: {"content": {"image/jpeg": {}, "image/png": {}}}, 304: {"description": "not modified"}})
+            responses={200: {"content": {"image/jpeg": {}, "image/png": {}}}, 304: {"description": "not modified"},
+                       409: {"description": "the recording is still being imported, or its import failed"}})
 async def get_frame_set(
     request: Request, rig_id: str, recording_id: str, frame: str,
     factor: int = Query(1, ge=1, le=MAX_SOURCE_FACTOR, description="integer shrink factor of every camera image"),
@@ -177,6 +179,7 @@ async def get_frame_set(
 
 # --- batch renders --------------------------------------------------------------------------------
 @router.post("/{rig_id}/renders", status_code=202, response_model=JobOut,
+             responses={409: {"description": "the recording is still being imported, or its import failed"}},
              summary="Render a camera path over a recording: a job -> H.264 MP4 + zip of depth PNGs",
              description="The path is an `orbit` (azimuth from/to around the rig) or `keyframes` (orbit, "
                          "look_at or pose each); output frame k shows recording frame "

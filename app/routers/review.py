@@ -109,6 +109,7 @@ def _item(entry: dict[str, Any]) -> ReviewItem:
 
 
 @router.get("/{job_id}/review", response_model=ReviewQueue,
+            responses={409: {"description": "the batch has not succeeded (yet)"}},
             summary="The photos of a finished batch that need a person (rejected, or orientations that conflict), "
                     "with the engine's reasons and any decision already made")
 async def review_queue(job_id: str, svc: Services = Depends(services),
@@ -121,6 +122,10 @@ async def review_queue(job_id: str, svc: Services = Depends(services),
 
 
 @router.post("/{job_id}/review/{index}", response_model=ReviewItem,
+             responses={409: {"description": "the batch has not succeeded, the photo is not in its review queue, or "
+                                             "the job changed meanwhile"},
+                        503: {"description": "metadata_tool_unavailable: writing this photo needs ExifTool (PNG) and "
+                                             "this deployment has none"}},
              summary="A person's decision on one photo of the queue: the upright turn (written with the lossless "
                      "writers into a new fixed file of the job, or its XMP sidecar) or null to leave it as it is; "
                      "recorded in report.json as decided by that person")
