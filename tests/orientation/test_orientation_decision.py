@@ -12,7 +12,7 @@ from workers.orientation.detect import Face, decide
 from workers.orientation.errors import EmptyFile, TruncatedImage, UnsupportedFormat
 from workers.orientation.exif import read_exif, write_orientation
 from workers.orientation.geometry import ROTATIONS, rotate_view, view_box_to_image
-from workers.orientation.service import analyze, orient_jpeg
+from workers.orientation.orient import analyze, orient_jpeg
 
 
 @pytest.mark.parametrize("rotation", ROTATIONS)

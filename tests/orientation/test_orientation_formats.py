@@ -28,7 +28,7 @@ from workers.orientation.exiftool import exiftool_version
 from workers.orientation.geometry import apply_orientation, heif_orientation, turn_orientation
 from workers.orientation.headers import parse_header
 from workers.orientation.metadata import inspect, new_sidecar, png_chunks, write_png_orientation, write_tiff_orientation
-from workers.orientation.service import analyze, orient_file
+from workers.orientation.orient import analyze, orient_file
 from workers.orientation.xmp import existing_sidecars, patch_packet, read_packet, sidecar_bytes, sidecar_path
 
 HAS_EXIFTOOL = exiftool_version() is not None

@@ -32,7 +32,7 @@ from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
 from workers.orientation.headers import RAW_EXTENSIONS, parse_header
 from workers.orientation.job import YUNET_MODEL_ENV, configured_yunet
 from workers.orientation.metadata import VALID, inspect, target_for
-from workers.orientation.service import OrientationReport, analyze, orient_file
+from workers.orientation.orient import OrientationReport, analyze, orient_file
 from workers.orientation.text import TESSERACT_ENV, text_settings_from_env
 from workers.orientation.xmp import MAX_SIDECAR_BYTES, existing_sidecars, replace_file, sidecar_path
 
