@@ -166,17 +166,6 @@ def existing_sidecars(photo: Path) -> list[Path]:
     return found
 
 
-def read_sidecar(path: Path) -> XmpOrientation:
-    """The ``tiff:Orientation`` a sidecar file holds (``unreadable`` for a file too large or not XMP)."""
-    try:
-        size = path.stat().st_size
-        if size > MAX_SIDECAR_BYTES:
-            return XmpOrientation("unreadable", detail=f"{size:,} bytes: larger than {MAX_SIDECAR_BYTES:,}")
-        return read_packet(path.read_bytes())
-    except OSError as exc:
-        return XmpOrientation("unreadable", detail=str(exc))
-
-
 def sidecar_bytes(value: int, existing: bytes | None = None) -> bytes:
     """A sidecar's bytes with ``tiff:Orientation`` = ``value``: ``existing`` (a sidecar's text) with the
     value set and all else kept by ExifTool, or a new minimal sidecar. Raises ExifToolUnavailable /
@@ -194,15 +183,6 @@ def sidecar_bytes(value: int, existing: bytes | None = None) -> bytes:
         if not out.is_file():
             raise exiftool.ExifToolError("exiftool wrote no sidecar")
         return out.read_bytes()
-
-
-def write_sidecar(path: Path, value: int) -> bytes:
-    """Create or update the sidecar at ``path`` with ``tiff:Orientation`` = ``value`` (atomically: a
-    temporary file beside it, then ``os.replace``); returns the bytes written."""
-    existing = path.read_bytes() if path.is_file() else None
-    data = sidecar_bytes(value, existing)
-    replace_file(path, data)
-    return data
 
 
 def replace_file(path: Path, data: bytes) -> None:
