@@ -331,9 +331,8 @@ def test_second_run_over_a_library_changes_nothing(tmp_path, monkeypatch, mode, 
 
 def _xmp_of(path: Path) -> bytes:
     data = path.read_bytes()
-    from workers.orientation.metadata import _jpeg_xmp
-
-    return _jpeg_xmp(data, parse_header(data))
+    start, end = inspect(data, parse_header(data)).xmp_span
+    return data[start:end]
 
 
 def test_rejected_photos_are_left_alone_and_flagged_for_review(tmp_path, monkeypatch):

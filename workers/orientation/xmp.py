@@ -29,6 +29,7 @@ from defusedxml import ElementTree as SafeET
 from defusedxml.common import DefusedXmlException
 
 from workers.orientation import exiftool
+from workers.orientation.exif import require_orientation
 
 TIFF_NS = "http://ns.adobe.com/tiff/1.0/"
 RDF_NS = "http://www.w3.org/1999/02/22-rdf-syntax-ns#"
@@ -102,8 +103,7 @@ def patch_packet(packet: bytes, value: int) -> bytes | None:
     """``packet`` with its one existing ``tiff:Orientation`` set to ``value`` (1-8) and the same length,
     every other byte kept; None when that cannot be done safely (no value, several, an unreadable packet,
     or no trailing whitespace to absorb a shorter/longer number)."""
-    if not 1 <= value <= 8:
-        raise ValueError(f"Orientation must be 1-8, not {value}")
+    require_orientation(value)
     root = _parse(packet)
     if isinstance(root, str) or len([v for v in _values(root) if v is not None]) != 1:
         return None
@@ -170,8 +170,7 @@ def sidecar_bytes(value: int, existing: bytes | None = None) -> bytes:
     """A sidecar's bytes with ``tiff:Orientation`` = ``value``: ``existing`` (a sidecar's text) with the
     value set and all else kept by ExifTool, or a new minimal sidecar. Raises ExifToolUnavailable /
     ExifToolError."""
-    if not 1 <= value <= 8:
-        raise ValueError(f"Orientation must be 1-8, not {value}")
+    require_orientation(value)
     with tempfile.TemporaryDirectory(prefix="sweepcast-xmp-") as tmp:
         out = Path(tmp) / "out.xmp"
         args = ["-q", "-m", "-n", f"-XMP-tiff:Orientation={value}", "-o", str(out)]
