@@ -67,6 +67,7 @@ from typing import Iterable, Literal, Sequence
 import cv2
 import numpy as np
 
+from workers.common.images import encode_png
 from workers.orientation.geometry import ROTATIONS, rotate_view
 from workers.orientation.words import Evidence, OcrWord, evidence, overlapping, word_lists
 from workers.settings import worker_settings
@@ -542,12 +543,13 @@ class TesseractOsd:
 
     def _run(self, image: np.ndarray, args: list[str]) -> tuple[str, str] | str:
         """(stdout, stderr) of the tesseract command line on ``image``, or why it did not run."""
-        ok, png = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 1])
-        if not ok:
+        try:
+            png = encode_png(image, level=1)
+        except ValueError:
             return "could not encode the view"
         env = {**os.environ, "OMP_THREAD_LIMIT": "1"}  # one core per call; the callers run in parallel
         try:
-            proc = subprocess.run([self.path, "stdin", "stdout", "--dpi", "300", *args], input=png.tobytes(),
+            proc = subprocess.run([self.path, "stdin", "stdout", "--dpi", "300", *args], input=png,
                                   capture_output=True, timeout=self.timeout_s, env=env, check=False)
         except subprocess.TimeoutExpired:
             return f"tesseract took longer than {self.timeout_s:.0f} s"
