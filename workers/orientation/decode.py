@@ -27,8 +27,8 @@ __all__ = [
 ]
 
 WORKING_SIZE = 900
-"""Longest side (px) of the decoded image handed to the detectors. A 12-megapixel photo
-(4000 x 3000) decodes at 1/8 to 500 x 375; on the dev photos 900 lost nothing against 1024."""
+"""Longest side (px) of the decoded image handed to the detectors (a 4000 x 3000 photo decodes at 1/8 to
+500 x 375). Chosen on the dev photos (``benchmarks/orientation.py``)."""
 DEFAULT_MAX_PIXELS = images.DEFAULT_MAX_PIXELS
 """Default pixel limit (width x height) when the caller gives none."""
 

@@ -23,8 +23,8 @@ from workers.orientation.metadata import Target, WriteMode, inspect, sidecar_for
 from workers.orientation.xmp import sidecar_name
 
 THUMBNAIL_SIDE = 320
-"""Long side (px) of a review thumbnail (JPEG quality ``THUMBNAIL_QUALITY``: about 10-25 KB, so a 500-photo batch's
-page loads a few megabytes, not 500 photos)."""
+"""Long side (px) of a review thumbnail (JPEG quality ``THUMBNAIL_QUALITY``: a few tens of KB, so a large batch's
+page loads a few megabytes, not every photo)."""
 THUMBNAIL_QUALITY = 85
 REVIEWER_MAX = 80
 
