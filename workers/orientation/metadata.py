@@ -363,8 +363,9 @@ def target_for(fmt: ImageFormat, mode: WriteMode, insp: Inspection | None = None
 
 def write_in_file(data: bytes, insp: Inspection, value: int) -> tuple[bytes, list[str]]:
     """``data`` with its Orientation set to ``value`` where its format keeps it (and an embedded XMP
-    tiff:Orientation set to agree); returns (new bytes, the other places updated). Raises
-    UnsupportedFormat for formats that take no tag here, ExifToolUnavailable for a PNG without exiftool."""
+    tiff:Orientation set to agree); returns (new bytes, the other places updated). ``insp`` is what
+    :func:`inspect` said of these very bytes: its header, EXIF state and packet span are used, not read again.
+    Raises UnsupportedFormat for formats that take no tag here, ExifToolUnavailable for a PNG without exiftool."""
     fmt = insp.format
     if fmt in ("jpeg", "webp") or (fmt == "tiff" and not insp.bigtiff):
         require_orientation(value)
