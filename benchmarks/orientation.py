@@ -78,7 +78,7 @@ from workers.orientation.detect import (DetectorConfig, OrientationDetector, Pap
 from workers.orientation.geometry import ROTATIONS, rotate_view  # noqa: E402
 from workers.orientation.faces import LongSideScan, ShortSideScan  # noqa: E402
 from workers.orientation.parts import PartSpec  # noqa: E402
-from workers.orientation.service import analyze  # noqa: E402
+from workers.orientation.orient import analyze  # noqa: E402
 from workers.orientation.detect import Engine  # noqa: E402
 from workers.orientation.text import get_text_detector  # noqa: E402
 from workers.orientation.words import word_lists  # noqa: E402

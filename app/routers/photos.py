@@ -18,7 +18,7 @@ from app.uploads import check_size, read_upload
 from workers.orientation import errors
 from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
 from workers.orientation.job import BATCH_JOB, OrientationBatchParams
-from workers.orientation.service import DetectorConfig, OrientationReport, analyze, get_detector, orient_file
+from workers.orientation.orient import DetectorConfig, OrientationReport, analyze, get_detector, orient_file
 
 _MEDIA = {"jpeg": "image/jpeg", "webp": "image/webp", "tiff": "image/tiff", "png": "image/png"}
 XMP_MEDIA = "application/rdf+xml"

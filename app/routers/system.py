@@ -9,7 +9,7 @@ from fastapi.responses import HTMLResponse, JSONResponse
 from app import raycluster
 from app.routers.photos import orientation_config
 from app.services import Services, services
-from workers.orientation.service import engine_status
+from workers.orientation.orient import engine_status
 
 router = APIRouter(tags=["system"])
 

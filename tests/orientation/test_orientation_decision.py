@@ -1,4 +1,4 @@
-"""The four views, the exactly-one decision rule, and analyze / orient_jpeg with a test-double detector."""
+"""The four views, the exactly-one decision rule, and analyze / orient_file with a test-double detector."""
 from __future__ import annotations
 
 import struct
@@ -9,10 +9,10 @@ import pytest
 from tests.orientation.builders import (FakeDetector, asymmetric_image, encode, insert_app1, jpeg, split_around_app1,
                                         tiff_block)
 from workers.orientation.detect import Face, decide
-from workers.orientation.errors import EmptyFile, TruncatedImage, UnsupportedFormat
+from workers.orientation.errors import EmptyFile, OrientationInputError, TruncatedImage
 from workers.orientation.exif import read_exif, write_orientation
 from workers.orientation.geometry import ROTATIONS, rotate_view, view_box_to_image
-from workers.orientation.service import analyze, orient_jpeg
+from workers.orientation.orient import analyze, orient_file
 
 
 @pytest.mark.parametrize("rotation", ROTATIONS)
@@ -92,37 +92,43 @@ def test_png_without_exif_is_analysed_and_would_get_an_exif_chunk():
     assert report.write.target == "png-exif" and report.write.value == 3 and report.write.writer == "exiftool"
 
 
+def _orient(data: bytes, detector: FakeDetector, force: bool = False):
+    """(the photo's bytes after orient_file: its new bytes, else the input; the report)."""
+    outcome = orient_file(data, detector, force)
+    return (outcome.photo if outcome.photo is not None else data), outcome.report
+
+
 @pytest.mark.parametrize("rotation,value", [(90, 6), (180, 3), (270, 8)])
-def test_orient_jpeg_writes_the_tag(rotation, value):
+def test_orient_file_writes_the_tag(rotation, value):
     before = jpeg()
-    after, report = orient_jpeg(before, FakeDetector((rotation,)))
+    after, report = _orient(before, FakeDetector((rotation,)))
     assert report.written and report.written_orientation == value and report.action == "written"
     assert report.file_orientation == value
     assert read_exif(after).orientation == value
     assert split_around_app1(after)[1] == before[20:]  # everything after SOI + JFIF untouched
 
 
-def test_orient_jpeg_leaves_an_upright_photo_alone():
+def test_orient_file_leaves_an_upright_photo_alone():
     before = jpeg()
-    after, report = orient_jpeg(before, FakeDetector((0,)))
+    after, report = _orient(before, FakeDetector((0,)))
     assert after == before and not report.written and report.action == "already_set"
     assert report.file_orientation is None  # no EXIF at all: viewers show it as stored
 
 
-def test_orient_jpeg_never_tags_a_rejected_photo():
+def test_orient_file_never_tags_a_rejected_photo():
     before = write_orientation(jpeg(), 1)
     for rotations in [(), (90, 270)]:
-        after, report = orient_jpeg(before, FakeDetector(rotations), force=True)
+        after, report = _orient(before, FakeDetector(rotations), force=True)
         assert after == before and report.action == "not_written_rejected" and report.written_orientation is None
 
 
 def test_an_existing_tag_is_kept_unless_forced():
     before = write_orientation(jpeg(), 8)
-    after, report = orient_jpeg(before, FakeDetector((90,)))
+    after, report = _orient(before, FakeDetector((90,)))
     assert after == before and report.action == "kept_existing" and report.existing_orientation == 8
     assert report.file_orientation == 8
     assert "force" in report.message
-    after, report = orient_jpeg(before, FakeDetector((90,)), force=True)
+    after, report = _orient(before, FakeDetector((90,)), force=True)
     assert report.written and read_exif(after).orientation == 6
 
 
@@ -130,7 +136,7 @@ def test_an_existing_tag_is_kept_unless_forced():
 def test_tag_1_and_invalid_tags_are_replaced_without_force(existing):
     before = insert_app1(jpeg(), tiff_block([(274, 3, 1, struct.pack("<H", existing) + b"\0\0")]))
     assert read_exif(before).orientation == existing
-    after, report = orient_jpeg(before, FakeDetector((270,)))
+    after, report = _orient(before, FakeDetector((270,)))
     assert report.written and read_exif(after).orientation == 8
 
 
@@ -139,22 +145,21 @@ def test_unreadable_exif_is_replaced_even_when_upright():
     seg_start = before.index(b"Exif\x00\x00")
     broken = before[:seg_start + 10] + b"\xff\xff\xff\x7f" + before[seg_start + 14:]  # IFD0 offset far away
     assert read_exif(broken).status == "unreadable"
-    after, report = orient_jpeg(broken, FakeDetector((0,)))
+    after, report = _orient(broken, FakeDetector((0,)))
     assert report.exif_status == "unreadable" and report.exif_detail and report.written
     assert read_exif(after).orientation == 1
 
 
-def test_orient_jpeg_refuses_heif_before_detecting():
-    """HEIF files are never written: orient_jpeg (the photo back) refuses them; orient_file gives a sidecar."""
+def test_a_damaged_heif_is_refused_before_detecting():
     detector = FakeDetector((90,))
-    with pytest.raises(UnsupportedFormat, match="HEIF"):
-        orient_jpeg(b"\0\0\0\x18ftypheic" + b"\0" * 40, detector)
+    with pytest.raises(OrientationInputError):
+        orient_file(b"\0\0\0\x18ftypheic" + b"\0" * 40, detector, filename="a.heic")
     assert detector.seen == []
 
 
-def test_orient_jpeg_bad_inputs():
+def test_orient_file_bad_inputs():
     with pytest.raises(EmptyFile):
-        orient_jpeg(b"", FakeDetector())
+        _orient(b"", FakeDetector())
     data = jpeg(asymmetric_image(300, 400))
     with pytest.raises(TruncatedImage):
-        orient_jpeg(data[:len(data) // 2], FakeDetector((90,)))
+        _orient(data[:len(data) // 2], FakeDetector((90,)))

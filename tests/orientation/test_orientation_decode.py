@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from tests.orientation.builders import asymmetric_image, encode, insert_app1, jpeg, rich_exif
+from workers.common import images
 from workers.orientation.decode import (CorruptImage, EmptyFile, NotAnImage, OrientationInputError, TooManyPixels,
                                         TruncatedImage, UnsupportedFormat, decode_gray, reduction_factor)
 from workers.orientation.exif import write_orientation
@@ -173,5 +174,9 @@ def test_real_image_over_the_limit():
 def test_all_input_errors_share_one_base_class_with_a_code():
     for cls in (EmptyFile, NotAnImage, UnsupportedFormat, TruncatedImage, CorruptImage, TooManyPixels):
         assert issubclass(cls, OrientationInputError) and issubclass(cls, ValueError)
+        assert issubclass(cls, images.ImageInputError)  # the service's one hierarchy of input errors
+    twins = {EmptyFile: images.EmptyImage, NotAnImage: images.NotAnImage, UnsupportedFormat: images.UnsupportedImage,
+             CorruptImage: images.UnreadableImage, TooManyPixels: images.TooManyPixels}
+    assert all(issubclass(cls, twin) and cls.code == twin.code for cls, twin in twins.items())
     assert len({cls.code for cls in (EmptyFile, NotAnImage, UnsupportedFormat, TruncatedImage, CorruptImage,
                                      TooManyPixels)}) == 6

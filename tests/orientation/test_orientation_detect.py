@@ -11,7 +11,7 @@ from workers.orientation.detect import (YUNET_MARGIN, YUNET_MIN_SCORE, DetectorC
 from workers.orientation.faces import Candidate
 from workers.orientation.geometry import ROTATIONS, rotate_view
 from workers.orientation.parts import PART_CROP, PartSpec, PartVerifier
-from workers.orientation.service import analyze
+from workers.orientation.orient import analyze
 
 YUNET = data_root().parent / "models" / "yunet" / "face_detection_yunet_2023mar.onnx"
 FACES = dataset("faces", "dev")

@@ -28,7 +28,7 @@ from workers.orientation.exiftool import exiftool_version
 from workers.orientation.geometry import apply_orientation, heif_orientation, turn_orientation
 from workers.orientation.headers import parse_header
 from workers.orientation.metadata import inspect, new_sidecar, png_chunks, write_png_orientation, write_tiff_orientation
-from workers.orientation.service import analyze, orient_file
+from workers.orientation.orient import analyze, orient_file
 from workers.orientation.xmp import existing_sidecars, patch_packet, read_packet, sidecar_bytes, sidecar_path
 
 HAS_EXIFTOOL = exiftool_version() is not None
@@ -331,9 +331,8 @@ def test_second_run_over_a_library_changes_nothing(tmp_path, monkeypatch, mode, 
 
 def _xmp_of(path: Path) -> bytes:
     data = path.read_bytes()
-    from workers.orientation.metadata import _jpeg_xmp
-
-    return _jpeg_xmp(data, parse_header(data))
+    start, end = inspect(data, parse_header(data)).xmp_span
+    return data[start:end]
 
 
 def test_rejected_photos_are_left_alone_and_flagged_for_review(tmp_path, monkeypatch):

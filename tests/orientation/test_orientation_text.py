@@ -9,7 +9,7 @@ import pytest
 from tests.orientation.builders import FakeDetector, asymmetric_image, encode, jpeg, letter_marks
 from workers.orientation.detect import Decision, DetectorConfig, Engine, Face, decide, fuse_paper, get_detector
 from workers.orientation.geometry import ROTATIONS, rotate_view
-from workers.orientation.service import analyze, combine_cues
+from workers.orientation.orient import analyze, combine_cues
 from workers.common.datasets import dataset
 from workers.orientation.text import (LetterCount, OsdView, TesseractOsd, TextResult, TextUnavailable, WordCount,
                                       decide_text, get_text_detector, ocr_pages, osd_candidate, parse_osd,

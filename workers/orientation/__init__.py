@@ -7,6 +7,6 @@ Modules: ``headers`` (container parsing without decoding), ``decode`` (checked, 
 decoding), ``geometry`` (the four rotations), ``faces`` (Haar and YuNet face finders), ``parts``
 (facial parts and their arrangement), ``detect`` (detectors, the exactly-one decision, the engine),
 ``text`` (the text cue: Tesseract OSD on the four views),
-``exif`` (the Orientation tag), ``service`` (analyze / orient_jpeg), ``job`` (the batch job),
+``exif`` (the Orientation tag), ``orient`` (the reports; analyze / orient_file), ``job`` (the batch job),
 ``cli`` (``sweepcast orient``).
 """

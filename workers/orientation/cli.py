@@ -31,8 +31,9 @@ from workers.orientation.errors import OrientationInputError
 from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
 from workers.orientation.headers import RAW_EXTENSIONS, parse_header
 from workers.orientation.job import YUNET_MODEL_ENV, configured_yunet
-from workers.orientation.metadata import VALID, inspect, target_for
-from workers.orientation.service import OrientationReport, analyze, orient_file
+from workers.orientation.exif import VALID_ORIENTATIONS
+from workers.orientation.metadata import inspect, target_for
+from workers.orientation.orient import OrientationReport, analyze, orient_file
 from workers.orientation.text import TESSERACT_ENV, text_settings_from_env
 from workers.orientation.xmp import MAX_SIDECAR_BYTES, existing_sidecars, replace_file, sidecar_path
 
@@ -139,17 +140,17 @@ def _one(path: Path, detector, args: argparse.Namespace, max_pixels: int) -> Res
     insp = inspect(data, header, sidecars)
     target, _ = target_for(header.format, mode, insp)
     own = insp.sidecars.get(sidecar_path(path, naming).name) if target == "xmp-sidecar" else None
-    existing = own.value if own is not None and own.value in VALID else insp.shown()
-    if not args.force and existing in VALID and existing != 1:
+    existing = own.value if own is not None and own.value in VALID_ORIENTATIONS else insp.shown()
+    if not args.force and existing in VALID_ORIENTATIONS and existing != 1:
         return Result(path, None, f"skipped: already tagged ({existing})", format=header.format, existing=existing,
                       conflicts=insp.conflicts())
     if not (args.write or args.sidecar):
-        report = analyze(data, detector, max_pixels, path.name, sidecars, mode, naming, args.force)
+        report = analyze(data, detector, max_pixels, path.name, sidecars, mode, naming, args.force, inspection=insp)
         plan = report.write
         action = (f"would write {plan.value} to {_target_text(plan.target, plan.where)}" if plan.target != "none"
                   else _plain(report))
         return Result(path, report, action, format=header.format)
-    outcome = orient_file(data, detector, args.force, max_pixels, path.name, sidecars, mode, naming)
+    outcome = orient_file(data, detector, args.force, max_pixels, path.name, sidecars, mode, naming, inspection=insp)
     written: list[str] = []
     if outcome.photo is not None:
         replace_file(path, outcome.photo)

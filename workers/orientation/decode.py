@@ -27,8 +27,8 @@ __all__ = [
 ]
 
 WORKING_SIZE = 900
-"""Longest side (px) of the decoded image handed to the detectors. A 12-megapixel photo
-(4000 x 3000) decodes at 1/8 to 500 x 375; on the dev photos 900 lost nothing against 1024."""
+"""Longest side (px) of the decoded image handed to the detectors (a 4000 x 3000 photo decodes at 1/8 to
+500 x 375). Chosen on the dev photos (``benchmarks/orientation.py``)."""
 DEFAULT_MAX_PIXELS = images.DEFAULT_MAX_PIXELS
 """Default pixel limit (width x height) when the caller gives none."""
 
@@ -63,7 +63,7 @@ def reduction_factor(width: int, height: int, working_size: int = WORKING_SIZE) 
 
 
 def decode_gray(data: bytes, max_pixels: int = DEFAULT_MAX_PIXELS, working_size: int = WORKING_SIZE,
-                filename: str | None = None) -> DecodedImage:
+                filename: str | None = None, header: ImageHeader | None = None) -> DecodedImage:
     """Check and decode ``data`` to grey with its long side <= ``working_size``.
 
     JPEG, PNG, WebP and TIFF: the stored pixels (any Orientation tag ignored). HEIF and AVIF: the
@@ -71,8 +71,10 @@ def decode_gray(data: bytes, max_pixels: int = DEFAULT_MAX_PIXELS, working_size:
     size). RAW: the largest embedded JPEG preview (stored pixels; needs exiftool). Raises EmptyFile,
     NotAnImage, UnsupportedFormat, TooManyPixels (header size above ``max_pixels``, before any
     decoding), TruncatedImage or CorruptImage (and ExifToolUnavailable for a RAW file without exiftool).
+    ``header``: what :func:`parse_header` said of ``data``, when the caller has it (else it is parsed here).
     """
-    header = parse_header(data, filename)
+    if header is None:
+        header = parse_header(data, filename)
     check_header(header, max_pixels)
     if header.format in ("heif", "avif"):
         return _fit(_decode_heif(data, header), header, working_size)
@@ -82,7 +84,7 @@ def decode_gray(data: bytes, max_pixels: int = DEFAULT_MAX_PIXELS, working_size:
         return DecodedImage(decoded.gray, ImageHeader("raw", decoded.header.width, decoded.header.height),
                             decoded.scale_x, decoded.scale_y)
     if header.format == "tiff":
-        data = _tiff_without_orientation(data)
+        data = _tiff_without_orientation(data, header)
     factor = reduction_factor(header.width, header.height, working_size)
     flags = _REDUCED_FLAGS[factor] | cv2.IMREAD_IGNORE_ORIENTATION
     try:  # the service's one checked decoder (its own header check agrees with the one above)
@@ -111,16 +113,17 @@ def _fit(gray: np.ndarray, header: ImageHeader, working_size: int) -> DecodedIma
     return DecodedImage(gray, header, header.width / gray.shape[1], header.height / gray.shape[0])
 
 
-def _tiff_without_orientation(data: bytes) -> bytes:
+def _tiff_without_orientation(data: bytes, header: ImageHeader) -> bytes:
     """The TIFF with IFD0's Orientation set to 1 in memory: OpenCV 4.14 fails on IMREAD_IGNORE_ORIENTATION
     with an oriented TIFF, and applying the tag is not what detection wants."""
     from workers.orientation.exif import _set_orientation
-    from workers.orientation.headers import tiff_ifd0, tiff_values
+    from workers.orientation.headers import read_ifd0, tiff_values
 
     try:
-        endian, _, tags = tiff_ifd0(data)
-        values = tiff_values(data, endian, tags[274]) if 274 in tags else None
-        return _set_orientation(data, 1) if values and values[0] != 1 else data
+        ifd0 = header.ifd0 if header.ifd0 is not None else read_ifd0(data)
+        tags = ifd0.tags
+        values = tiff_values(data, ifd0.endian, tags[274]) if 274 in tags else None
+        return _set_orientation(data, 1, ifd0) if values and values[0] != 1 else data
     except ValueError as exc:
         raise CorruptImage(f"the TIFF's first image directory cannot be read: {exc}") from None
 

@@ -55,40 +55,30 @@ YUNET_SCAN_SIZES = (320, 640)
 """Long sides (px) of the copies of each view YuNet searches, in turn: the next size only when the
 previous one accepted no face at all. YuNet was trained on faces of about 10 to 300 px, so the small
 copy suits portraits (and is four times cheaper) and the large one finds the faces of group photos.
-On the dev photos (combined detector) 640 alone decided 97.7% of the trials, 320 alone and 320 then 640
-100%, all with no wrong turn; 320 then 640 took 43 ms per 12 MP photo against 81 ms for 640 alone."""
+Chosen on the dev photos with the combined detector (``benchmarks/orientation.py``): 320 then 640 decided
+more than 640 alone, with no wrong turn, at less CPU."""
 HAAR_SMALLEST_FACE = 1 / 14
 """Smallest face the Haar face search looks for, as a fraction of the view's short side (:class:`ShortSideScan`)."""
 HAAR_FACE_PX = 26
 """... and its size (px) in the scan, which sets the scan's scale: the scan's short side is 364 px (a 3:2 photo is
-scanned at 546 x 364, a 4:3 one at 485 x 364). The previous release scanned a fixed 360 px long side (faces from
-22 px), the one before 320 px (from 20 px); at 320 px a face 280 px wide in a 2048 x 1365 photo measured 44 px in
-the scan and was lost. Chosen on faces of every size (``benchmarks/orientation.py --face-sizes``, section
-orientation_face_sizes; the dev photos, each face scaled to 5-45 % of the short side, 2 turns; step 1.35 then):
-on 44 photos 271 of 490 trials decided against 205 for the previous release's scan and 281 for the 400 px scan two
-releases ago (step 1.2, 3 neighbours), at 71 ms CPU per photo against 40 and 101 under the same load; 1/10 at
-30 px (a 300 px short side) decided 238, 1/12 at 30 px 257, 1/16 at 24 px 271. With step 1.25 (below) the full section decided 299 of 490 (at least as many
-as the previous release at every face size, none wrong) at 76 ms against 40 per photo (load 5-22), and on the dev
-photos as they are 151 of 176 trials against the previous release's 154 (the counts move by about 4 with any
-change). Tried and dropped: 1/12 at 26 px with step 1.25 (a 312 px short side): 276 of 490 and 155 of 176, but one
-wrong turn (an upside-down face whose eyes and mouth the part test accepted)."""
+scanned at 546 x 364, a 4:3 one at 485 x 364). Earlier releases scanned a fixed long side (360 px, before that
+320 px), which shrank the large faces of a large photo below what the cascade finds. Chosen on faces of every size
+(``benchmarks/orientation.py --face-sizes``; RESULTS.md, orientation_face_sizes, compares it with the earlier
+scans): it decides at least as many trials as the previous release at every face size, none wrong, for more CPU
+per photo. Tried and dropped: 1/12 of the short side at 26 px, which turned one upside-down face the wrong way
+(its eyes and mouth passed the part test)."""
 HAAR_SCAN = ShortSideScan(HAAR_SMALLEST_FACE, HAAR_FACE_PX)
 HAAR_SCALE_FACTOR = 1.25
 """Pyramid step of the Haar face search. OpenCV slides the window by 2 px below twice the smallest face
 size and by 1 px above, so the cost is set by how many steps fall above. The previous release stepped by 1.35
-(from 22 px on a 360 px long side); with the short-side scan, 1.35 lost faces of 20 % of the short side against it
-(50 against 55 of 66 trials, benchmarks/orientation.py --face-sizes) and 1.25 did not (55; 1.2 with 3 neighbours 56
-at 1.4x the CPU of 1.25): on all 44 dev photos at face shares 0.15-0.45, 1.25 decided 206 trials against 193 for
-the previous release (at least as many at each share), 1.35 195, 1.3 198."""
+(on a 360 px long side); with the short-side scan 1.35 and 1.3 lost large faces that 1.25 keeps, and 1.2 with
+3 neighbours kept about as many at more CPU (``benchmarks/orientation.py --face-sizes``)."""
 HAAR_MIN_NEIGHBORS = 2
 """Raw detections a face needs (OpenCV's facedetect sample, which the paper ran, used 2).
 
-Chosen on the dev photos (44 face photos x 4 turns, paper detector, 12 MP and native size; the accuracy
-is the same count with 1 to 3 more or fewer trials decided by any change, so read it as +-4): 360 px,
-22 px, 1.35, 2 neighbours decided 152 and 154 trials, none wrong, as the previous 320 px, 20 px, 1.2,
-3 neighbours did, at 0.56x the scan's CPU time (102 against 171 ms per 12 MP photo in all). Cheaper
-settings lost decisions: 1.3 with 3 neighbours 154 and 146, 1.4 with 2 neighbours 140 and 140, 1.25 or
-1.3 from 24 px 143-150 and 142-145, a coarser position step (octaves scanned at half size) 131 at 12 MP."""
+Chosen on the dev photos (face photos at 4 turns, paper detector, ``benchmarks/orientation.py``): 2 neighbours
+decided as many trials as 3, none wrong, at less CPU; cheaper settings (a coarser pyramid step, a larger smallest
+face, octaves scanned at half size) lost decisions."""
 PREVIOUS_HAAR = (LongSideScan(360, 22), 1.35, 2)
 """The previous release's Haar search (scan, pyramid step, neighbours), kept for the benchmarks' comparison."""
 MAX_PART_CHECKS = 16

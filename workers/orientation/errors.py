@@ -1,32 +1,36 @@
 """What a user can get wrong when sending a photo: one exception class per cause.
 
-Every class derives from :class:`OrientationInputError` (a ``ValueError``) and carries a message
-a person understands; ``code`` is a short stable identifier for JSON error bodies and reports.
-Suggested HTTP statuses: EmptyFile 400, NotAnImage 415, UnsupportedFormat 415, TooManyPixels 413,
-TruncatedImage 422, CorruptImage 422, UnwritableExif 422.
+Every class derives from :class:`OrientationInputError`, itself the service's
+:class:`workers.common.images.ImageInputError` (a ``ValueError`` and a ``JobInputError``), so there is one
+hierarchy of input errors: a cause the common decoder also knows derives from its class there too, with
+the same ``code`` (a short stable identifier for JSON error bodies and reports). Each carries a message
+a person understands. Suggested HTTP statuses: EmptyFile 400, NotAnImage 415, UnsupportedFormat 415,
+TooManyPixels 413, TruncatedImage 422, CorruptImage 422, UnwritableExif 422.
 """
 from __future__ import annotations
 
+from workers.common import images
 
-class OrientationInputError(ValueError):
+
+class OrientationInputError(images.ImageInputError):
     """The photo cannot be analysed or tagged because of what was sent."""
 
     code = "bad_input"
 
 
-class EmptyFile(OrientationInputError):
+class EmptyFile(images.EmptyImage, OrientationInputError):
     """Zero bytes were sent."""
 
     code = "empty_file"
 
 
-class NotAnImage(OrientationInputError):
+class NotAnImage(images.NotAnImage, OrientationInputError):
     """The bytes are not an image in any format we recognise."""
 
     code = "not_an_image"
 
 
-class UnsupportedFormat(OrientationInputError):
+class UnsupportedFormat(images.UnsupportedImage, OrientationInputError):
     """An image, but in a format this operation does not handle (GIF, HEIC, PNG for tagging, ...)."""
 
     code = "unsupported_format"
@@ -38,13 +42,13 @@ class TruncatedImage(OrientationInputError):
     code = "truncated_image"
 
 
-class CorruptImage(OrientationInputError):
+class CorruptImage(images.UnreadableImage, OrientationInputError):
     """The file is structurally damaged or the decoder cannot read it."""
 
     code = "corrupt_image"
 
 
-class TooManyPixels(OrientationInputError):
+class TooManyPixels(images.TooManyPixels, OrientationInputError):
     """The header announces more pixels than the configured limit (a decompression bomb guard)."""
 
     code = "too_many_pixels"

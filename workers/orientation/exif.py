@@ -22,15 +22,17 @@ from __future__ import annotations
 
 import io
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import piexif
 
 from workers.orientation.errors import UnsupportedFormat, UnwritableExif
-from workers.orientation.headers import ImageHeader, parse_header
+from workers.orientation.headers import Ifd0, ImageHeader, parse_header, read_ifd0, riff_chunks
 
 ORIENTATION_TAG = 274
+VALID_ORIENTATIONS = range(1, 9)
+"""The eight values EXIF defines for Orientation (274)."""
 _EXIF_HEADER = b"Exif\x00\x00"
 _APP0, _APP1 = 0xE0, 0xE1
 _SHORT = 3
@@ -49,6 +51,12 @@ def orientation_for_rotation(rotation: int) -> int:
         raise ValueError(f"rotation must be 0, 90, 180 or 270 degrees, not {rotation}") from None
 
 
+def require_orientation(value: int) -> None:
+    """ValueError unless ``value`` is one of the eight Orientation values (1-8)."""
+    if not 1 <= value <= 8:
+        raise ValueError(f"Orientation must be 1-8, not {value}")
+
+
 def rotation_for_orientation(value: int) -> int | None:
     """Clockwise display rotation for Orientation 1, 6, 3, 8; None for mirrored or invalid values."""
     return _ORIENTATION_TO_ROTATION.get(value)
@@ -63,6 +71,8 @@ class ExifInfo:
     """The Orientation value when the block is readable and has the tag."""
     detail: str = ""
     """Why the block is unreadable."""
+    ifd0: Ifd0 | None = field(default=None, compare=False, repr=False)
+    """A readable block's IFD0 (what the writer edits)."""
 
 
 def read_exif(data: bytes, header: ImageHeader | None = None) -> ExifInfo:
@@ -80,11 +90,11 @@ def _tiff_state(tiff: bytes | None) -> ExifInfo:
         return ExifInfo("absent")
     try:
         loaded = piexif.load(_EXIF_HEADER + tiff)
-        _read_ifd0(tiff)
+        ifd0 = read_ifd0(tiff, "block")
     except Exception as exc:  # noqa: BLE001 - piexif raises struct.error, ValueError, KeyError, ...
         return ExifInfo("unreadable", detail=f"{type(exc).__name__}: {exc}")
     value = loaded["0th"].get(ORIENTATION_TAG)
-    return ExifInfo("ok", value if isinstance(value, int) else None)
+    return ExifInfo("ok", value if isinstance(value, int) else None, ifd0=ifd0)
 
 
 def tiff_block_state(tiff: bytes) -> ExifInfo:
@@ -93,19 +103,25 @@ def tiff_block_state(tiff: bytes) -> ExifInfo:
     return _tiff_state(tiff)
 
 
-def write_orientation(data: bytes, value: int) -> bytes:
+def write_orientation(data: bytes, value: int, header: ImageHeader | None = None,
+                      state: ExifInfo | None = None) -> bytes:
     """``data`` (JPEG or WebP bytes) with EXIF Orientation set to ``value`` (1-8), all else kept.
 
-    An unreadable EXIF block is replaced by a valid one holding only the tag (check
-    :func:`read_exif` first to report it). Raises UnsupportedFormat for other formats and
+    ``header`` and ``state`` are the photo's parsed header and its :func:`read_exif` state, when at
+    hand (else read here). An unreadable EXIF block is replaced by a valid one holding only the tag
+    (check :func:`read_exif` first to report it). Raises UnsupportedFormat for other formats and
     UnwritableExif when the edited block would not fit in a JPEG segment (64 KiB).
     """
-    if not 1 <= value <= 8:
-        raise ValueError(f"EXIF Orientation must be 1-8, not {value}")
-    header = _writable_header(data)
+    require_orientation(value)
+    if header is None:
+        header = _writable_header(data)
+    else:
+        require_taggable(header.format)
     tiff = _find_tiff(data, header)
-    if _tiff_state(tiff).status == "ok":
-        new_tiff = _set_orientation(tiff, value)
+    if state is None:
+        state = _tiff_state(tiff)
+    if state.status == "ok":
+        new_tiff = _set_orientation(tiff, value, state.ifd0)
     else:
         new_tiff = piexif.dump({"0th": {ORIENTATION_TAG: value}})[len(_EXIF_HEADER):]
     if header.format == "webp":
@@ -133,8 +149,9 @@ def _find_tiff(data: bytes, header: ImageHeader) -> bytes | None:
     if header.format == "jpeg":
         seg = _exif_segment(data, header)
         return None if seg is None else data[seg.payload][len(_EXIF_HEADER):]
-    for fourcc, payload in _riff_chunks(data):
+    for fourcc, start, end in riff_chunks(data):
         if fourcc == b"EXIF":
+            payload = data[start:end]
             return payload[len(_EXIF_HEADER):] if payload.startswith(_EXIF_HEADER) else payload
     return None
 
@@ -144,33 +161,11 @@ def _exif_segment(data: bytes, header: ImageHeader):
                  if s.marker == _APP1 and data[s.payload][:len(_EXIF_HEADER)] == _EXIF_HEADER), None)
 
 
-def _riff_chunks(data: bytes):
-    pos = 12
-    while pos + 8 <= len(data):
-        fourcc, size = data[pos:pos + 4], struct.unpack_from("<I", data, pos + 4)[0]
-        yield fourcc, data[pos + 8:pos + 8 + size]
-        pos += 8 + size + (size & 1)
-
-
-def _read_ifd0(tiff: bytes) -> tuple[str, int, list[bytes], bytes]:
-    """(endian, IFD0 offset, raw 12-byte entries, raw 4-byte next-IFD pointer); ValueError if malformed."""
-    if tiff[:4] not in (b"II*\x00", b"MM\x00*"):
-        raise ValueError("not a TIFF header")
-    endian = "<" if tiff[:2] == b"II" else ">"
-    offset = struct.unpack_from(endian + "I", tiff, 4)[0]
-    if offset < 8 or offset + 2 > len(tiff):
-        raise ValueError(f"IFD0 offset {offset} outside the block")
-    count = struct.unpack_from(endian + "H", tiff, offset)[0]
-    end = offset + 2 + 12 * count
-    if end + 4 > len(tiff):
-        raise ValueError(f"IFD0 with {count} entries runs past the block")
-    entries = [tiff[offset + 2 + 12 * i:offset + 14 + 12 * i] for i in range(count)]
-    return endian, offset, entries, tiff[end:end + 4]
-
-
-def _set_orientation(tiff: bytes, value: int) -> bytes:
-    """``tiff`` with IFD0's Orientation set to ``value``, every other byte of meaning unchanged."""
-    endian, offset, entries, next_ifd = _read_ifd0(tiff)
+def _set_orientation(tiff: bytes, value: int, ifd0: Ifd0 | None = None) -> bytes:
+    """``tiff`` with IFD0's Orientation set to ``value``, every other byte of meaning unchanged (``ifd0``: its
+    IFD0, when already read; ValueError when it cannot be)."""
+    ifd0 = read_ifd0(tiff, "block") if ifd0 is None else ifd0
+    endian, offset, entries, next_ifd = ifd0.endian, ifd0.offset, ifd0.entries, ifd0.next_ifd
     tags = [struct.unpack_from(endian + "H", e)[0] for e in entries]
     if ORIENTATION_TAG in tags:
         i = tags.index(ORIENTATION_TAG)

@@ -3,7 +3,7 @@ library behind the writes our own byte-level writers do not cover (PNG ``eXIf``,
 the reader of RAW files' embedded previews.
 
 One ``exiftool -stay_open True -@ -`` process per thread is started on first use and fed one command
-at a time; starting Perl costs ~110 ms a file, a command on the open process a few milliseconds
+at a time: starting Perl for each file costs far more than a command on the open process
 (``benchmarks/orientation.py``, section orientation_writers). ExifTool never writes in place here:
 it writes a new file next to the target (``-o``), which the caller moves over the original with
 ``os.replace`` (atomic on one file system).

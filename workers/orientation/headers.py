@@ -15,6 +15,7 @@ from __future__ import annotations
 import re
 import struct
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Literal
 
 from workers.orientation.bmff import BoxError, brand_kind, read_heif
@@ -55,6 +56,28 @@ class Segment:
 
 
 @dataclass(frozen=True)
+class Ifd0:
+    """The first image directory (IFD0) of a classic TIFF structure: a TIFF file, or the TIFF inside an EXIF block."""
+
+    endian: str
+    """``<`` (II) or ``>`` (MM)."""
+    offset: int
+    entries: tuple[bytes, ...]
+    """The raw 12-byte entries, in file order."""
+    next_ifd: bytes
+    """The raw 4-byte pointer to the next IFD."""
+
+    @cached_property
+    def tags(self) -> dict[int, tuple[int, int, bytes]]:
+        """{tag: (field type, count, the entry's 4 value bytes)}; a tag listed twice: its last entry."""
+        out = {}
+        for entry in self.entries:
+            tag, ftype, count = struct.unpack_from(self.endian + "HHI", entry)
+            out[tag] = (ftype, count, entry[8:12])
+        return out
+
+
+@dataclass(frozen=True)
 class ImageHeader:
     """What the container says about an image, read without decoding it."""
 
@@ -65,6 +88,8 @@ class ImageHeader:
     detail: str = ""
     segments: tuple[Segment, ...] = field(default=())
     """JPEG only: the marker segments before the first scan (APPn, DQT, SOFn, DHT, ..., SOS)."""
+    ifd0: Ifd0 | None = field(default=None, repr=False)
+    """TIFF only: its first image directory, when it could be read."""
 
     @property
     def pixels(self) -> int | None:
@@ -209,6 +234,15 @@ def _parse_png(data: bytes) -> ImageHeader:
     return ImageHeader("png", width, height, "truncated", "no IEND chunk")
 
 
+def riff_chunks(data: bytes):
+    """(fourcc, start of data, end of data) of each chunk of a RIFF file (a WebP) after its 12-byte header."""
+    pos = 12
+    while pos + 8 <= len(data):
+        fourcc, size = data[pos:pos + 4], struct.unpack_from("<I", data, pos + 4)[0]
+        yield fourcc, pos + 8, pos + 8 + size
+        pos += 8 + size + (size & 1)
+
+
 def _parse_webp(data: bytes) -> ImageHeader:
     n = len(data)
     if n < 30:
@@ -240,24 +274,31 @@ _TIFF_TYPES = {1: 1, 2: 1, 3: 2, 4: 4, 5: 8, 6: 1, 7: 1, 8: 2, 9: 4, 10: 8, 11: 
 """TIFF field type -> bytes per value."""
 
 
-def tiff_ifd0(data: bytes) -> tuple[str, int, dict[int, tuple[int, int, bytes]]]:
-    """(endian, IFD0 offset, {tag: (field type, count, the entry's 4 value bytes)}) of a classic TIFF;
-    ValueError when IFD0 lies outside the data."""
+_IFD0_ERRORS = {
+    "file": ("not a classic TIFF header", "IFD0 offset {offset} lies outside the {size}-byte file",
+             "IFD0 with {count} entries runs past the end of the file"),
+    "block": ("not a TIFF header", "IFD0 offset {offset} outside the block",
+              "IFD0 with {count} entries runs past the block"),
+}
+"""What :func:`read_ifd0` says about a damaged IFD0 of a TIFF file and of an EXIF block (reports quote it)."""
+
+
+def read_ifd0(data: bytes, within: Literal["file", "block"] = "file") -> Ifd0:
+    """IFD0 of the classic TIFF structure ``data``: a TIFF file, or (``block``) the TIFF inside an EXIF block;
+    ValueError when it is not a TIFF structure or IFD0 lies outside the data."""
+    not_tiff, outside, past = _IFD0_ERRORS[within]
     if data[:4] not in (b"II*\x00", b"MM\x00*"):
-        raise ValueError("not a classic TIFF header")
+        raise ValueError(not_tiff)
     endian = "<" if data[:2] == b"II" else ">"
     offset = struct.unpack_from(endian + "I", data, 4)[0]
     if offset < 8 or offset + 2 > len(data):
-        raise ValueError(f"IFD0 offset {offset} lies outside the {len(data)}-byte file")
+        raise ValueError(outside.format(offset=offset, size=len(data)))
     count = struct.unpack_from(endian + "H", data, offset)[0]
-    if offset + 2 + 12 * count + 4 > len(data):
-        raise ValueError(f"IFD0 with {count} entries runs past the end of the file")
-    tags = {}
-    for i in range(count):
-        pos = offset + 2 + 12 * i
-        tag, ftype, n = struct.unpack_from(endian + "HHI", data, pos)
-        tags[tag] = (ftype, n, data[pos + 8:pos + 12])
-    return endian, offset, tags
+    end = offset + 2 + 12 * count
+    if end + 4 > len(data):
+        raise ValueError(past.format(count=count))
+    entries = tuple(data[offset + 2 + 12 * i:offset + 14 + 12 * i] for i in range(count))
+    return Ifd0(endian, offset, entries, data[end:end + 4])
 
 
 def tiff_values(data: bytes, endian: str, entry: tuple[int, int, bytes]) -> list[int] | None:
@@ -281,24 +322,26 @@ def _parse_tiff(data: bytes) -> ImageHeader:
     if n < 16:
         return ImageHeader("tiff", None, None, "truncated", f"only {n} bytes")
     try:
-        endian, _, tags = tiff_ifd0(data)
+        ifd0 = read_ifd0(data)
     except ValueError as exc:
         return ImageHeader("tiff", None, None, "truncated", str(exc))
+    endian, tags = ifd0.endian, ifd0.tags
     width = tiff_values(data, endian, tags[256]) if 256 in tags else None
     height = tiff_values(data, endian, tags[257]) if 257 in tags else None
     if not width or not height:
-        return ImageHeader("tiff", None, None, "corrupt", "IFD0 has no ImageWidth/ImageLength")
+        return ImageHeader("tiff", None, None, "corrupt", "IFD0 has no ImageWidth/ImageLength", ifd0=ifd0)
     w, h = width[0], height[0]
     for offsets_tag, counts_tag in ((273, 279), (324, 325)):  # strips, tiles
         if offsets_tag in tags and counts_tag in tags:
             offsets = tiff_values(data, endian, tags[offsets_tag])
             counts = tiff_values(data, endian, tags[counts_tag])
             if offsets is None or counts is None:
-                return ImageHeader("tiff", w, h, "truncated", "the strip/tile tables lie outside the file")
+                return ImageHeader("tiff", w, h, "truncated", "the strip/tile tables lie outside the file", ifd0=ifd0)
             end = max((a + b for a, b in zip(offsets, counts)), default=0)
             if end > n:
-                return ImageHeader("tiff", w, h, "truncated", f"the image data runs to byte {end}, the file has {n}")
-    return ImageHeader("tiff", w, h)
+                return ImageHeader("tiff", w, h, "truncated", f"the image data runs to byte {end}, the file has {n}",
+                                   ifd0=ifd0)
+    return ImageHeader("tiff", w, h, ifd0=ifd0)
 
 
 def _parse_heif(data: bytes, fmt: ImageFormat) -> ImageHeader:

@@ -35,7 +35,7 @@ from workers.orientation.errors import OrientationInputError
 from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
 from workers.orientation.headers import sniff_format
 from workers.orientation.review import ChoiceWrite, needs_review, thumbnail
-from workers.orientation.service import analyze, orient_file
+from workers.orientation.orient import analyze, orient_file
 from workers.orientation.text import text_settings_from_env
 from workers.registry import JobKind
 from workers.settings import worker_settings

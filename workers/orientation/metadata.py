@@ -44,9 +44,10 @@ from pydantic import BaseModel, Field
 from workers.orientation import exiftool
 from workers.orientation.bmff import BoxError, HeifInfo, read_heif
 from workers.orientation.errors import CorruptImage, UnsupportedFormat
-from workers.orientation.exif import ORIENTATION_TAG, ExifInfo, read_exif, tiff_block_state, write_orientation
+from workers.orientation.exif import (ORIENTATION_TAG, VALID_ORIENTATIONS, ExifInfo, _set_orientation, read_exif,
+                                      require_orientation, tiff_block_state, write_orientation)
 from workers.orientation.geometry import heif_orientation
-from workers.orientation.headers import ImageFormat, ImageHeader, tiff_ifd0, tiff_values
+from workers.orientation.headers import Ifd0, ImageFormat, ImageHeader, read_ifd0, riff_chunks, tiff_values
 from workers.orientation.xmp import XmpOrientation, patch_packet, read_packet, sidecar_bytes
 
 SourceKind = Literal["exif-ifd0", "xmp-embedded", "xmp-sidecar", "heif-transform", "heif-exif"]
@@ -54,7 +55,6 @@ Target = Literal["exif-ifd0", "png-exif", "xmp-sidecar", "none"]
 WriteMode = Literal["file", "sidecar"]
 """``file``: into the photo where its format allows (else a sidecar); ``sidecar``: always a sidecar."""
 
-VALID = range(1, 9)
 IN_FILE_TARGET: dict[str, Target] = {"jpeg": "exif-ifd0", "webp": "exif-ifd0", "tiff": "exif-ifd0",
                                      "png": "png-exif"}
 """Formats whose files take the tag, and where; every other format gets an XMP sidecar."""
@@ -114,6 +114,10 @@ class Inspection:
     sidecars: dict[str, XmpOrientation] = field(default_factory=dict)
     """Sidecar name -> what it says."""
     bigtiff: bool = False
+    header: ImageHeader | None = None
+    """The photo's parsed header (what the writers edit)."""
+    xmp_span: tuple[int, int] | None = None
+    """Where the embedded packet lies in the photo's bytes (JPEG, WebP, TIFF), when it has one."""
 
     def shown(self) -> int | None:
         """The orientation viewers apply now: HEIF/AVIF irot/imir; else the valid EXIF tag; else the
@@ -148,8 +152,8 @@ class Inspection:
 
 def _source(kind: SourceKind, where: str, value: int | None, applied: bool = True,
             detail: str | None = None) -> OrientationSource:
-    return OrientationSource(kind=kind, where=where, value=value, valid=value in VALID, applied_by_viewers=applied,
-                             detail=detail)
+    return OrientationSource(kind=kind, where=where, value=value, valid=value in VALID_ORIENTATIONS,
+                             applied_by_viewers=applied, detail=detail)
 
 
 def inspect(data: bytes, header: ImageHeader, sidecars: dict[str, bytes] | None = None) -> Inspection:
@@ -160,13 +164,14 @@ def inspect(data: bytes, header: ImageHeader, sidecars: dict[str, bytes] | None 
     exif: ExifInfo | None = None
     heif: HeifInfo | None = None
     packet: bytes | None = None
+    span: tuple[int, int] | None = None
     bigtiff = False
     if fmt in ("jpeg", "webp"):
         exif = read_exif(data, header)
-        packet = _jpeg_xmp(data, header) if fmt == "jpeg" else _riff_chunk(data, b"XMP ")
+        span = _jpeg_xmp_span(data, header) if fmt == "jpeg" else _riff_span(data, b"XMP ")
         where = "Exif APP1 segment, IFD0" if fmt == "jpeg" else "EXIF chunk, IFD0"
     elif fmt == "tiff":
-        exif, packet = _tiff_state(data)
+        exif, span = _tiff_state(data, header.ifd0)
         where = "TIFF IFD0"
     elif fmt == "png":
         exif, packet, text_exif = _png_state(data)
@@ -182,8 +187,10 @@ def inspect(data: bytes, header: ImageHeader, sidecars: dict[str, bytes] | None 
             sources.append(_source("heif-exif", "EXIF item, IFD0 (ignored by HEIF readers)", heif_exif, applied=False))
         where = ""
     else:  # raw
-        exif, packet = _raw_state(data)
+        exif, span = _raw_state(data)
         where = "RAW IFD0"
+    if span is not None:
+        packet = data[span[0]:span[1]]
     if exif is not None and (exif.orientation is not None or exif.status == "unreadable"):
         sources.insert(0, _source("exif-ifd0", where, exif.orientation, detail=exif.detail or None))
     xmp_value = None
@@ -201,56 +208,45 @@ def inspect(data: bytes, header: ImageHeader, sidecars: dict[str, bytes] | None 
             sources.append(_source("xmp-sidecar", name, state.value, detail=state.detail or None))
     if fmt == "tiff" and data[:4] in (b"II+\x00", b"MM\x00+"):
         bigtiff = True
-    return Inspection(fmt, sources, exif, heif, xmp_value, found, bigtiff)
+    return Inspection(fmt, sources, exif, heif, xmp_value, found, bigtiff, header, span)
 
 
 # --- reading, per format ---------------------------------------------------------------------------
 
-def _jpeg_xmp(data: bytes, header: ImageHeader) -> bytes | None:
-    for seg in header.segments:
-        payload = data[seg.payload]
-        if seg.marker == 0xE1 and payload.startswith(XMP_JPEG_HEADER):
-            return payload[len(XMP_JPEG_HEADER):]
-    return None
-
-
 def _jpeg_xmp_span(data: bytes, header: ImageHeader) -> tuple[int, int] | None:
+    """Where the packet of the JPEG's XMP APP1 segment lies, if it has one."""
     for seg in header.segments:
         if seg.marker == 0xE1 and data[seg.payload].startswith(XMP_JPEG_HEADER):
             return seg.payload.start + len(XMP_JPEG_HEADER), seg.end
     return None
 
 
-def _riff_chunks(data: bytes):
-    pos = 12
-    while pos + 8 <= len(data):
-        fourcc, size = data[pos:pos + 4], struct.unpack_from("<I", data, pos + 4)[0]
-        yield fourcc, pos + 8, pos + 8 + size
-        pos += 8 + size + (size & 1)
+def _riff_span(data: bytes, fourcc: bytes) -> tuple[int, int] | None:
+    """Where the data of the first ``fourcc`` chunk of a RIFF file lies, if it has one."""
+    return next(((s, e) for f, s, e in riff_chunks(data) if f == fourcc), None)
 
 
-def _riff_chunk(data: bytes, fourcc: bytes) -> bytes | None:
-    return next((data[s:e] for f, s, e in _riff_chunks(data) if f == fourcc), None)
-
-
-def _tiff_state(data: bytes) -> tuple[ExifInfo, bytes | None]:
+def _tiff_state(data: bytes, ifd0: Ifd0 | None = None) -> tuple[ExifInfo, tuple[int, int] | None]:
+    """(the Orientation state of a TIFF structure's IFD0, where its XMP packet lies); ``ifd0``: its IFD0, when
+    already read."""
     try:
-        endian, _, tags = tiff_ifd0(data)
+        ifd0 = read_ifd0(data) if ifd0 is None else ifd0
     except ValueError as exc:
         return ExifInfo("unreadable", detail=str(exc)), None
-    packet = None
+    endian, tags = ifd0.endian, ifd0.tags
+    span = None
     if _XMP_TIFF_TAG in tags:
         ftype, count, raw = tags[_XMP_TIFF_TAG]
         if ftype in (1, 7) and count > 4:
             offset = struct.unpack_from(endian + "I", raw)[0]
             if offset + count <= len(data):
-                packet = data[offset:offset + count]
+                span = (offset, offset + count)
     if ORIENTATION_TAG not in tags:
-        return ExifInfo("ok"), packet
+        return ExifInfo("ok"), span
     values = tiff_values(data, endian, tags[ORIENTATION_TAG])
     if not values:
-        return ExifInfo("unreadable", detail="the Orientation entry is not a SHORT"), packet
-    return ExifInfo("ok", values[0]), packet
+        return ExifInfo("unreadable", detail="the Orientation entry is not a SHORT"), span
+    return ExifInfo("ok", values[0]), span
 
 
 def png_chunks(data: bytes):
@@ -337,7 +333,7 @@ def _heif_state(data: bytes) -> tuple[HeifInfo | None, int | None, bytes | None]
     return info, exif_value, packet
 
 
-def _raw_state(data: bytes) -> tuple[ExifInfo, bytes | None]:
+def _raw_state(data: bytes) -> tuple[ExifInfo, tuple[int, int] | None]:
     if data[:4] in (b"II*\x00", b"MM\x00*"):
         return _tiff_state(data)
     with tempfile.TemporaryDirectory(prefix="sweepcast-raw-") as tmp:
@@ -367,62 +363,42 @@ def target_for(fmt: ImageFormat, mode: WriteMode, insp: Inspection | None = None
 
 def write_in_file(data: bytes, insp: Inspection, value: int) -> tuple[bytes, list[str]]:
     """``data`` with its Orientation set to ``value`` where its format keeps it (and an embedded XMP
-    tiff:Orientation set to agree); returns (new bytes, the other places updated). Raises
-    UnsupportedFormat for formats that take no tag here, ExifToolUnavailable for a PNG without exiftool."""
+    tiff:Orientation set to agree); returns (new bytes, the other places updated). ``insp`` is what
+    :func:`inspect` said of these very bytes: its header, EXIF state and packet span are used, not read again.
+    Raises UnsupportedFormat for formats that take no tag here, ExifToolUnavailable for a PNG without exiftool."""
     fmt = insp.format
-    also: list[str] = []
-    if fmt in ("jpeg", "webp"):
-        out = write_orientation(data, value)
-        if insp.xmp_value is not None and insp.xmp_value != value:
-            out, patched = _patch_embedded(out, fmt, value)
+    if fmt in ("jpeg", "webp") or (fmt == "tiff" and not insp.bigtiff):
+        require_orientation(value)
+        out, also = data, []
+        # The packet first: it keeps its length, so the header read before still describes the bytes.
+        if insp.xmp_value is not None and insp.xmp_value != value and insp.xmp_span is not None:
+            out, patched = _patch_embedded(out, insp.xmp_span, value)
             also += ["XMP packet in the file"] if patched else []
-        return out, also
-    if fmt == "tiff" and not insp.bigtiff:
-        out = write_tiff_orientation(data, value)
-        if insp.xmp_value is not None and insp.xmp_value != value:
-            out, patched = _patch_embedded(out, fmt, value)
-            also += ["XMP packet in the file"] if patched else []
-        return out, also
+        if fmt == "tiff":
+            return write_tiff_orientation(out, value, insp.header.ifd0 if insp.header else None), also
+        return write_orientation(out, value, insp.header, insp.exif), also
     if fmt == "png":
         return write_png_orientation(data, value, update_xmp=insp.xmp_value is not None), (
             ["XMP packet in the file"] if insp.xmp_value is not None and insp.xmp_value != value else [])
     raise UnsupportedFormat(f"{fmt.upper()} files are not written here; an XMP sidecar takes the orientation")
 
 
-def _patch_embedded(data: bytes, fmt: ImageFormat, value: int) -> tuple[bytes, bool]:
-    """``data`` with its embedded XMP packet's tiff:Orientation patched in place (same length)."""
-    from workers.orientation.headers import parse_header
-
-    span: tuple[int, int] | None = None
-    if fmt == "jpeg":
-        span = _jpeg_xmp_span(data, parse_header(data))
-    elif fmt == "webp":
-        span = next(((s, e) for f, s, e in _riff_chunks(data) if f == b"XMP "), None)
-    elif fmt == "tiff":
-        endian, _, tags = tiff_ifd0(data)
-        if _XMP_TIFF_TAG in tags:
-            _, count, raw = tags[_XMP_TIFF_TAG]
-            offset = struct.unpack_from(endian + "I", raw)[0]
-            span = (offset, offset + count)
-    if span is None:
-        return data, False
+def _patch_embedded(data: bytes, span: tuple[int, int], value: int) -> tuple[bytes, bool]:
+    """``data`` with the tiff:Orientation of its embedded XMP packet (at ``span``) patched in place (same length)."""
     new = patch_packet(data[span[0]:span[1]], value)
     if new is None:
         return data, False
     return data[:span[0]] + new + data[span[1]:], True
 
 
-def write_tiff_orientation(data: bytes, value: int) -> bytes:
+def write_tiff_orientation(data: bytes, value: int, ifd0: Ifd0 | None = None) -> bytes:
     """A classic TIFF (either byte order, any number of pages) with IFD0's Orientation set to ``value``:
     the two value bytes patched in place when the tag is one SHORT, else a copy of IFD0 with the tag
     appended at the end of the file and the header pointed at it (every other byte, strip and page
-    unchanged). Raises CorruptImage when IFD0 cannot be read."""
-    from workers.orientation.exif import _set_orientation
-
-    if not 1 <= value <= 8:
-        raise ValueError(f"EXIF Orientation must be 1-8, not {value}")
+    unchanged). ``ifd0``: the file's IFD0, when already read. Raises CorruptImage when it cannot be read."""
+    require_orientation(value)
     try:
-        return _set_orientation(data, value)
+        return _set_orientation(data, value, ifd0)
     except ValueError as exc:
         raise CorruptImage(f"the TIFF's first image directory cannot be read: {exc}") from None
 
@@ -460,8 +436,7 @@ def _insert_png_exif(data: bytes, value: int) -> bytes:
 
 def new_sidecar(value: int) -> bytes:
     """A new XMP sidecar holding only ``tiff:Orientation`` = ``value`` (UTF-8, with an xpacket wrapper)."""
-    if not 1 <= value <= 8:
-        raise ValueError(f"Orientation must be 1-8, not {value}")
+    require_orientation(value)
     return _TEMPLATE.format(value=value).encode("utf-8")
 
 

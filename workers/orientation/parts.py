@@ -119,7 +119,7 @@ class PartVerifier:
 
     def _eye_pair(self, crop: np.ndarray) -> tuple[tuple[float, float], tuple[float, float]] | None:
         """The first plausible eye pair among the detections of the eye cascades run so far, in turn (the
-        cheapest first): the later cascades run only while no pair is found (each costs 3-10 ms a face)."""
+        cheapest first): the later cascades run only while no pair is found (each costs a few ms a face)."""
         centres: list[tuple[float, float]] = []
         for cascade in self._eyes:
             centres += _centres([cascade], crop, _EYE_BAND, _EYE_SIZE, neighbours=2)

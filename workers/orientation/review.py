@@ -18,13 +18,13 @@ from pydantic import BaseModel, ConfigDict, Field
 from workers.orientation.decode import DEFAULT_MAX_PIXELS, decode_gray
 from workers.orientation.exif import orientation_for_rotation
 from workers.orientation.geometry import turn_orientation
-from workers.orientation.headers import parse_header
+from workers.orientation.headers import parse_header, sniff_format
 from workers.orientation.metadata import Target, WriteMode, inspect, sidecar_for, target_for, write_in_file
 from workers.orientation.xmp import sidecar_name
 
 THUMBNAIL_SIDE = 320
-"""Long side (px) of a review thumbnail (JPEG quality ``THUMBNAIL_QUALITY``: about 10-25 KB, so a 500-photo batch's
-page loads a few megabytes, not 500 photos)."""
+"""Long side (px) of a review thumbnail (JPEG quality ``THUMBNAIL_QUALITY``: a few tens of KB, so a large batch's
+page loads a few megabytes, not every photo)."""
 THUMBNAIL_QUALITY = 85
 REVIEWER_MAX = 80
 
@@ -42,7 +42,7 @@ def thumbnail(data: bytes, filename: str | None = None, max_pixels: int = DEFAUL
     displayed, RAW's preview). Call it on a photo already analysed (its size was checked then)."""
     buffer = np.frombuffer(data, np.uint8)
     image = None
-    if parse_header(data, filename).format in ("jpeg", "png", "webp", "tiff"):
+    if sniff_format(data, filename) in ("jpeg", "png", "webp", "tiff"):
         image = cv2.imdecode(buffer, cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
     if image is None:
         image = decode_gray(data, max_pixels, side * 2, filename=filename).gray

@@ -67,6 +67,7 @@ from typing import Iterable, Literal, Sequence
 import cv2
 import numpy as np
 
+from workers.common.images import encode_png
 from workers.orientation.geometry import ROTATIONS, rotate_view
 from workers.orientation.words import Evidence, OcrWord, evidence, overlapping, word_lists
 from workers.settings import worker_settings
@@ -88,25 +89,22 @@ DEFAULT_TESSERACT = "tesseract"
 
 TEXT_MIN_CONFIDENCE = 2.5
 """Least mean OSD orientation confidence for a decision by OSD alone (every vote agreeing, OCR not
-verifying). Calibrated on the text/ and noup/ photos at 4 rotations (``benchmarks/orientation.py``): a
-wrong turn (an ICDAR scene frame whose four views all voted for 90 degrees) appears at a mean of 1.6;
-2.0 is the loosest with no wrong turn, 2.5 keeps one grid step of margin. Held out by image and by source
-the selection (loosest safe value plus one step) chose 2.5 in all folds but one or two (2.0) and made no
-wrong turn (RESULTS.md, orientation_text)."""
+verifying). Calibrated on the text/ and noup/ photos at 4 rotations (``benchmarks/orientation.py``): the
+loosest value with no wrong turn (a scene frame whose four views all voted for one wrong turn sets it), plus
+one grid step of margin; the held-out selection agrees (RESULTS.md, orientation_text)."""
 TEXT_MIN_AGREE = 2
 """Least number of views (of 4) in which OSD ran. Long receipts are read only in their two
 upright-or-upside-down views (OSD finds too few characters when their lines run vertically), so 3
 rejected many of them and gained no safety on the calibration photos."""
 TEXT_VERIFY_MIN_WORDS = 8
 """Least confident words (:class:`workers.orientation.words.Evidence`) OCR must read on the page turned the candidate way for
-an OCR-verified decision. On the calibration photos a real page reads 8 to 630 of them upright and at
-most 12 upside down or sideways; no texture read more than 1. On the benchmark grid (RESULTS.md,
-orientation_text) every value from 3 to 30 made no wrong turn and 5 to 15 decided the most; 8 is inside
-that plateau (the held-out selection, ties to the strictest, picked 15)."""
+an OCR-verified decision. A real page reads many of them upright and few upside down or sideways, a texture
+next to none; 8 lies inside the plateau of values that made no wrong turn and decided the most on the benchmark
+grid (RESULTS.md, orientation_text)."""
 TEXT_VERIFY_RATIO = 3.0
 """The candidate must read this many times as many confident words as the page turned the other way
-up (at least 1 counted there). Calibrated like ``TEXT_VERIFY_MIN_WORDS``: verified pages read 4x to
-100x more words upright; every ratio from 1.5 to 6 was safe and decided the same on the photos, 3 is kept."""
+up (at least 1 counted there). Calibrated like ``TEXT_VERIFY_MIN_WORDS``: verified pages read several times
+more words upright, and the ratios around 3 were all safe and decided the same on the photos."""
 TEXT_VERIFY_MIN_REAL = 3
 """... and at least this many real words (:func:`workers.orientation.words.real_words`: in the dictionary, along
 lines of one size), ``TEXT_VERIFY_RATIO`` times as many as the page turned the other way reads in the same places.
@@ -123,10 +121,10 @@ TEXT_MAX_UPSCALE = 3.0
 TEXT_MAX_SIDE = 2400
 """Long side (px) a larger image is reduced to before OSD."""
 TEXT_OCR_MAX_SIDE = 1600
-"""Long side (px) of the page OCR reads (OCR time grows with the page; receipts still read 20+ words)."""
+"""Long side (px) of the page OCR reads (OCR time grows with the page; receipts still read enough words)."""
 TEXT_OCR_WINDOW = 800
-"""Side (px) of the square OCR reads, placed where the page has the most ink: a dense page took 10 s to
-read whole (twice); a window still holds 15+ lines of a receipt at ``TEXT_OCR_MAX_SIDE``."""
+"""Side (px) of the square OCR reads, placed where the page has the most ink: reading a dense page whole takes
+seconds, and a window still holds many lines of a receipt at ``TEXT_OCR_MAX_SIDE``."""
 TEXT_BINARIZE_BLOCK = 31
 """Neighbourhood (px) of the local threshold applied before OSD (odd; about two text lines at 1600 px)."""
 TEXT_BINARIZE_C = 15
@@ -542,12 +540,13 @@ class TesseractOsd:
 
     def _run(self, image: np.ndarray, args: list[str]) -> tuple[str, str] | str:
         """(stdout, stderr) of the tesseract command line on ``image``, or why it did not run."""
-        ok, png = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 1])
-        if not ok:
+        try:
+            png = encode_png(image, level=1)
+        except ValueError:
             return "could not encode the view"
         env = {**os.environ, "OMP_THREAD_LIMIT": "1"}  # one core per call; the callers run in parallel
         try:
-            proc = subprocess.run([self.path, "stdin", "stdout", "--dpi", "300", *args], input=png.tobytes(),
+            proc = subprocess.run([self.path, "stdin", "stdout", "--dpi", "300", *args], input=png,
                                   capture_output=True, timeout=self.timeout_s, env=env, check=False)
         except subprocess.TimeoutExpired:
             return f"tesseract took longer than {self.timeout_s:.0f} s"

@@ -29,6 +29,7 @@ from defusedxml import ElementTree as SafeET
 from defusedxml.common import DefusedXmlException
 
 from workers.orientation import exiftool
+from workers.orientation.exif import require_orientation
 
 TIFF_NS = "http://ns.adobe.com/tiff/1.0/"
 RDF_NS = "http://www.w3.org/1999/02/22-rdf-syntax-ns#"
@@ -102,8 +103,7 @@ def patch_packet(packet: bytes, value: int) -> bytes | None:
     """``packet`` with its one existing ``tiff:Orientation`` set to ``value`` (1-8) and the same length,
     every other byte kept; None when that cannot be done safely (no value, several, an unreadable packet,
     or no trailing whitespace to absorb a shorter/longer number)."""
-    if not 1 <= value <= 8:
-        raise ValueError(f"Orientation must be 1-8, not {value}")
+    require_orientation(value)
     root = _parse(packet)
     if isinstance(root, str) or len([v for v in _values(root) if v is not None]) != 1:
         return None
@@ -166,23 +166,11 @@ def existing_sidecars(photo: Path) -> list[Path]:
     return found
 
 
-def read_sidecar(path: Path) -> XmpOrientation:
-    """The ``tiff:Orientation`` a sidecar file holds (``unreadable`` for a file too large or not XMP)."""
-    try:
-        size = path.stat().st_size
-        if size > MAX_SIDECAR_BYTES:
-            return XmpOrientation("unreadable", detail=f"{size:,} bytes: larger than {MAX_SIDECAR_BYTES:,}")
-        return read_packet(path.read_bytes())
-    except OSError as exc:
-        return XmpOrientation("unreadable", detail=str(exc))
-
-
 def sidecar_bytes(value: int, existing: bytes | None = None) -> bytes:
     """A sidecar's bytes with ``tiff:Orientation`` = ``value``: ``existing`` (a sidecar's text) with the
     value set and all else kept by ExifTool, or a new minimal sidecar. Raises ExifToolUnavailable /
     ExifToolError."""
-    if not 1 <= value <= 8:
-        raise ValueError(f"Orientation must be 1-8, not {value}")
+    require_orientation(value)
     with tempfile.TemporaryDirectory(prefix="sweepcast-xmp-") as tmp:
         out = Path(tmp) / "out.xmp"
         args = ["-q", "-m", "-n", f"-XMP-tiff:Orientation={value}", "-o", str(out)]
@@ -194,15 +182,6 @@ def sidecar_bytes(value: int, existing: bytes | None = None) -> bytes:
         if not out.is_file():
             raise exiftool.ExifToolError("exiftool wrote no sidecar")
         return out.read_bytes()
-
-
-def write_sidecar(path: Path, value: int) -> bytes:
-    """Create or update the sidecar at ``path`` with ``tiff:Orientation`` = ``value`` (atomically: a
-    temporary file beside it, then ``os.replace``); returns the bytes written."""
-    existing = path.read_bytes() if path.is_file() else None
-    data = sidecar_bytes(value, existing)
-    replace_file(path, data)
-    return data
 
 
 def replace_file(path: Path, data: bytes) -> None:

@@ -3,7 +3,6 @@
     detector = get_detector(DetectorConfig(yunet_model=...))   # once per process
     report = analyze(data, detector, max_pixels, filename="a.heic")   # any format; says what it would write where
     outcome = orient_file(data, detector, force, max_pixels, filename="a.tif", mode="file")  # bytes to store
-    new_bytes, report = orient_jpeg(data, detector, force, max_pixels)   # the photo itself, for in-file targets
 
 They raise :class:`workers.orientation.errors.OrientationInputError` subclasses for bad input, and
 :class:`workers.orientation.exiftool.ExifToolUnavailable` when a write needs exiftool and it is missing.
@@ -20,22 +19,19 @@ from typing import Literal
 from pydantic import BaseModel, Field
 
 from workers.orientation.decode import DEFAULT_MAX_PIXELS, decode_gray
-from workers.orientation.errors import UnsupportedFormat
 from workers.orientation.detect import (Decision, DecisionKind, DetectorConfig, Engine, Face, OrientationDetector,
                                         decide, get_detector)
-from workers.orientation.exif import ExifInfo, orientation_for_rotation
+from workers.orientation.exif import VALID_ORIENTATIONS, ExifInfo, orientation_for_rotation
 from workers.orientation.geometry import turn_orientation
-from workers.orientation.headers import ImageFormat, parse_header, sniff_format
+from workers.orientation.headers import ImageFormat, parse_header
 from workers.orientation.metadata import (Inspection, OrientationSource, WriteMode, WritePlan, inspect, sidecar_for,
                                           target_for, write_in_file)
 from workers.orientation.xmp import SidecarNaming, sidecar_name
 from workers.orientation.text import TEXT_MAX_SIDE, RejectReason, TextResult
 
 __all__ = ["DetectorConfig", "FaceReport", "OrientOutcome", "OrientationReport", "TextReport", "analyze",
-           "engine_status", "get_detector", "orient_file", "orient_jpeg", "plan_tag", "plan_write"]
+           "engine_status", "get_detector", "orient_file", "plan_write"]
 
-VALID_ORIENTATIONS = range(1, 9)
-"""The eight values EXIF defines for Orientation (274)."""
 Action = Literal["analysis_only", "written", "kept_existing", "already_set", "not_written_rejected"]
 Cue = Literal["faces", "text", "none"]
 TextStatus = Literal["ran", "not_needed", "unavailable", "off"]
@@ -131,25 +127,39 @@ class OrientationReport(BaseModel):
 
 def analyze(image_bytes: bytes, detector: OrientationDetector, max_pixels: int = DEFAULT_MAX_PIXELS,
             filename: str | None = None, sidecars: dict[str, bytes] | None = None, mode: WriteMode = "file",
-            naming: SidecarNaming = "ext", force: bool = False) -> OrientationReport:
+            naming: SidecarNaming = "ext", force: bool = False, *,
+            inspection: Inspection | None = None) -> OrientationReport:
     """Detect the upright rotation of a photo in any supported format and say what writing it would do.
 
     ``filename`` tells TIFF-based RAW files from TIFFs and names the sidecar; ``sidecars`` (name -> bytes)
-    are the XMP files beside the photo; ``mode``, ``naming`` and ``force`` shape the plan in ``write``."""
+    are the XMP files beside the photo; ``mode``, ``naming`` and ``force`` shape the plan in ``write``;
+    ``inspection``: what :func:`inspect` said of the photo and these sidecars, when the caller has it."""
+    return _analyze(image_bytes, detector, max_pixels, filename, sidecars, mode, naming, force, inspection)[0]
+
+
+def _analyze(image_bytes: bytes, detector: OrientationDetector, max_pixels: int, filename: str | None,
+             sidecars: dict[str, bytes] | None, mode: WriteMode, naming: SidecarNaming, force: bool,
+             inspection: Inspection | None) -> tuple[OrientationReport, Inspection, Action, int | None]:
+    """(the :func:`analyze` report, the photo's inspection, the action and value its plan writes): the header
+    parsed once, the metadata read once, for the report and the write."""
     start = time.perf_counter()
-    decoded = decode_gray(image_bytes, max_pixels, filename=filename)
+    parsed = inspection.header if inspection is not None else None
+    if parsed is None:
+        parsed = parse_header(image_bytes, filename)
+    decoded = decode_gray(image_bytes, max_pixels, filename=filename, header=parsed)
     faces = detector.upright_faces(decoded.gray)
     decision = decide(faces)
     rotation, cue, reason = decision.rotation, ("faces" if decision.rotation is not None else "none"), decision.reason
-    text = _text_report_unused(detector)
+    text = _text_not_read(detector)
     text_result: TextResult | None = None
     engine = detector if isinstance(detector, Engine) else None
     if rotation is None and engine is not None and engine.text is not None:
-        text_result = engine.text.upright(decode_gray(image_bytes, max_pixels, TEXT_MAX_SIDE, filename=filename).gray)
+        text_result = engine.text.upright(decode_gray(image_bytes, max_pixels, TEXT_MAX_SIDE, filename=filename,
+                                                      header=parsed).gray)
         text = _text_report(text_result)
         rotation, cue, reason = combine_cues(decision, text_result)
-    header = decoded.header
-    insp = inspect(image_bytes, header, sidecars)
+    header = decoded.header  # a RAW file's: its preview's size
+    insp = inspection if inspection is not None else inspect(image_bytes, parsed, sidecars)
     exif = insp.exif
     tag, detail = _valid_tag(exif)
     shown = insp.shown()
@@ -186,8 +196,8 @@ def analyze(image_bytes: bytes, detector: OrientationDetector, max_pixels: int =
         message=_describe(decision, faces, text, rotation, cue, reason, text_result),
         elapsed_ms=_ms_since(start),
     )
-    _, _, plan = plan_write(report, insp, mode, force, naming, filename)
-    return report.model_copy(update={"write": plan})
+    action, value, plan = plan_write(report, insp, mode, force, naming, filename)
+    return report.model_copy(update={"write": plan}), insp, action, value
 
 
 def _confidence(cue: Cue, rotation: int | None, faces: list[Face], text: TextReport) -> float | None:
@@ -223,7 +233,7 @@ def combine_cues(faces: Decision, text: TextResult) -> tuple[int | None, Cue, Re
     return None, "none", max(reasons, key=_REASON_RANK.__getitem__) if reasons else "no_cue"
 
 
-def _text_report_unused(detector: OrientationDetector) -> TextReport:
+def _text_not_read(detector: OrientationDetector) -> TextReport:
     """The text report of a photo whose text was not read: not needed, unavailable or off."""
     info = detector.text_info if isinstance(detector, Engine) else {"enabled": False, "detail": "faces only"}
     if not info.get("enabled"):
@@ -284,15 +294,15 @@ class OrientOutcome(BaseModel):
 def orient_file(data: bytes, detector: OrientationDetector, force: bool = False,
                 max_pixels: int = DEFAULT_MAX_PIXELS, filename: str | None = None,
                 sidecars: dict[str, bytes] | None = None, mode: WriteMode = "file",
-                naming: SidecarNaming = "ext") -> OrientOutcome:
+                naming: SidecarNaming = "ext", *, inspection: Inspection | None = None) -> OrientOutcome:
     """Detect the upright rotation and produce what writing it takes: the photo's new bytes (JPEG, WebP,
     TIFF, PNG in ``file`` mode), or a sidecar's (HEIF, AVIF, RAW, or ``sidecar`` mode), plus the existing
     ``sidecars`` that must change to agree. Nothing is written to disk here; a rejected photo, a kept
-    tag and an orientation already shown produce no bytes."""
+    tag and an orientation already shown produce no bytes. ``inspection``: as for :func:`analyze`."""
     start = time.perf_counter()
-    report = analyze(data, detector, max_pixels, filename, sidecars, mode, naming, force)
-    insp = inspect(data, parse_header(data, filename), sidecars)
-    action, value, plan = plan_write(report, insp, mode, force, naming, filename)
+    report, insp, action, value = _analyze(data, detector, max_pixels, filename, sidecars, mode, naming, force,
+                                           inspection)
+    plan = report.write
     outcome = OrientOutcome(report=report)
     if action == "written" and value is not None:
         if plan.target in ("exif-ifd0", "png-exif"):
@@ -318,23 +328,6 @@ def orient_file(data: bytes, detector: OrientationDetector, force: bool = False,
     return outcome
 
 
-def orient_jpeg(jpeg_bytes: bytes, detector: OrientationDetector, force: bool = False,
-                max_pixels: int = DEFAULT_MAX_PIXELS, filename: str | None = None) -> tuple[bytes, OrientationReport]:
-    """Detect the upright rotation of a JPEG, WebP, TIFF or PNG and set its EXIF Orientation in the file.
-
-    Returns the new file bytes (the input itself when nothing is written) and the report. A tag
-    other than 1 already in the file is kept unless ``force``; a rejected photo is never tagged;
-    an unreadable EXIF block is replaced by a valid one (``exif_status`` says so). Formats that
-    take no tag (HEIF, AVIF, RAW) raise UnsupportedFormat before any decoding: use
-    :func:`orient_file` for their sidecar.
-    """
-    fmt = sniff_format(jpeg_bytes, filename)
-    if target_for(fmt, "file")[0] == "xmp-sidecar":
-        raise UnsupportedFormat(f"{fmt.upper()} files are never written; ask for an XMP sidecar instead")
-    outcome = orient_file(jpeg_bytes, detector, force, max_pixels, filename)
-    return (outcome.photo if outcome.photo is not None else jpeg_bytes), outcome.report
-
-
 _ACTION_TEXT: dict[str, str] = {
     "written": "orientation written",
     "kept_existing": "the file's own orientation was kept (use force to replace it)",
@@ -342,21 +335,6 @@ _ACTION_TEXT: dict[str, str] = {
     "not_written_rejected": "nothing written",
     "analysis_only": "nothing written",
 }
-
-
-def plan_tag(report: OrientationReport, force: bool) -> tuple[Action, int | None]:
-    """What :func:`orient_jpeg` does with the tag after ``report`` (an :func:`analyze` report):
-    (action, value to write or None)."""
-    if report.orientation is None:
-        return "not_written_rejected", None
-    existing = report.existing_orientation if report.existing_orientation in VALID_ORIENTATIONS else None
-    if existing is not None and existing != 1 and not force:
-        return "kept_existing", None
-    # What viewers show now: the tag, 1 without EXIF, unknown for an invalid or unreadable tag.
-    shown = existing if existing is not None else (1 if report.exif_status in ("absent", "not_applicable") else None)
-    if shown == report.orientation:
-        return "already_set", None
-    return "written", report.orientation
 
 
 def plan_write(report: OrientationReport, insp: Inspection, mode: WriteMode = "file", force: bool = False,
