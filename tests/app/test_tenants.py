@@ -236,3 +236,12 @@ def test_the_access_log_names_the_key_and_never_its_secret(client_factory):
     asyncio.run(ApiKeyMiddleware(inner)(scope, None, None))
     assert seen == [f"carol ({key_id})", f'127.0.0.1:5000 key=carol ({key_id}) - "GET /v1/jobs HTTP/1.1" 200']
     assert secret not in seen[1]
+
+
+def test_a_key_revoked_on_one_replica_fails_at_once_on_another(client_factory):
+    first = client_factory(api_keys=[ADMIN])
+    second = client_factory(api_keys=[ADMIN])  # the same database: a second API replica
+    key_id, secret = _make_key(first, "dave")
+    assert second.get("/v1/keys/me", headers=_auth(secret)).json()["name"] == "dave"  # made on the first
+    assert first.delete(f"/v1/keys/{key_id}", headers=_auth(ADMIN)).status_code == 204
+    assert second.get("/v1/keys/me", headers=_auth(secret)).status_code == 401
