@@ -42,13 +42,13 @@ class Authenticator:
 
     def resolve(self, presented: str | None) -> Principal | None:
         """The principal of ``presented`` (None: refuse the request). Blocking (may read the database)."""
+        if presented is not None and env_key_matches(presented, self.env_keys):
+            return SERVICE_ADMIN
         if not self.enabled():
             return SERVICE_ADMIN
-        if presented is None:
+        if presented is None or self.keys is None:
             return None
-        if env_key_matches(presented, self.env_keys):
-            return SERVICE_ADMIN
-        return self.keys.lookup(presented) if self.keys is not None else None
+        return self.keys.lookup(presented)
 
 
 def _bearer(header: str | None) -> str | None:
@@ -65,8 +65,12 @@ def _authenticator(app: ASGIApp) -> Authenticator:
 
 
 async def resolve(app: ASGIApp, presented: str | None) -> Principal | None:
+    """:meth:`Authenticator.resolve` off the event loop when it needs the database (a managed key, or a service
+    that may have none yet); the service's own keys are matched here at once."""
     auth = _authenticator(app)
     if auth.keys is None and not auth.env_keys:
+        return SERVICE_ADMIN
+    if presented is not None and env_key_matches(presented, auth.env_keys):
         return SERVICE_ADMIN
     return await asyncio.to_thread(auth.resolve, presented)
 

@@ -51,8 +51,9 @@ class Base(DeclarativeBase):
 
 class Job(Base):
     __tablename__ = "jobs"
-    __table_args__ = (Index("ix_jobs_created_by_created_at", "created_by", "created_at"),
-                      Index("ix_jobs_created_by_state", "created_by", "state"))
+    __table_args__ = (Index("ix_jobs_created_by_created_at", "created_by", "created_at", "id"),
+                      Index("ix_jobs_created_by_state", "created_by", "state"),
+                      Index("ix_jobs_created_at", "created_at", "id"))
 
     id: Mapped[str] = mapped_column(String(36), primary_key=True)
     kind: Mapped[str] = mapped_column(String(64), index=True)

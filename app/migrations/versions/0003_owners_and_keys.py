@@ -20,8 +20,10 @@ def upgrade() -> None:
     with op.batch_alter_table("jobs") as batch:
         batch.add_column(sa.Column("created_by", sa.String(64), nullable=False, server_default="admin"))
         batch.add_column(sa.Column("stored_bytes", sa.BigInteger(), nullable=False, server_default="0"))
-    # A key's listing and its usage read its own rows only: newest first, or its active ones.
-    op.create_index("ix_jobs_created_by_created_at", "jobs", ["created_by", "created_at"])
+    # A key's listing and its usage read its own rows only: newest first, or its active ones; an admin's
+    # listing reads every row newest first.
+    op.create_index("ix_jobs_created_by_created_at", "jobs", ["created_by", "created_at", "id"])
+    op.create_index("ix_jobs_created_at", "jobs", ["created_at", "id"])
     op.create_index("ix_jobs_created_by_state", "jobs", ["created_by", "state"])
     op.create_table(
         "api_keys",
@@ -41,6 +43,7 @@ def upgrade() -> None:
 def downgrade() -> None:
     op.drop_table("api_keys")
     op.drop_index("ix_jobs_created_by_state", "jobs")
+    op.drop_index("ix_jobs_created_at", "jobs")
     op.drop_index("ix_jobs_created_by_created_at", "jobs")
     with op.batch_alter_table("jobs") as batch:
         batch.drop_column("stored_bytes")
