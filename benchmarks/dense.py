@@ -47,7 +47,7 @@ def _load() -> float:
 
 
 def _view(cam, image) -> dense.View:
-    return dense.View(cam.name, image, cam.K, cam.R, cam.t)
+    return dense.View.from_pose(cam.name, image, cam.K, cam.R, cam.t)
 
 
 def _scores(disp: np.ndarray, gt: np.ndarray) -> dict:
@@ -148,7 +148,7 @@ def _temple_scores(result: dense.DenseResult, views: list[dense.View], sils: lis
     hits = np.zeros(len(pts))
     seen_by = np.zeros(len(pts))
     for v, s in zip(views, sils):
-        uv, z = dense.project(v, pts)
+        uv, z = v.camera.project(pts)
         u = np.rint(np.nan_to_num(uv[:, 0], nan=-1)).astype(int)
         vv = np.rint(np.nan_to_num(uv[:, 1], nan=-1)).astype(int)
         h, w = s.shape
@@ -171,7 +171,8 @@ def _fused_completeness(result: dense.DenseResult, views, sils, p) -> dict:
     reference included; the consistency check of the fusion, before duplicates are removed)."""
     vals: dict[int, list[float]] = {2: [], 3: []}
     for i, (v, d, s) in enumerate(zip(views, result.depths, sils)):
-        nb = [j for j in range(len(views)) if j != i and views[j].name in result.report["frames"][i]["neighbours"]]
+        names = result.report["frames"][i]["neighbours"]
+        nb = [j for j in range(len(views)) if j != i and views[j].camera.name in names]
         ag = dense.consistency(v, d, [views[j] for j in nb], [result.depths[j] for j in nb], p.dense_max_reprojection,
                                p.dense_max_depth_error)
         for m in vals:
@@ -203,7 +204,7 @@ def bench_temple(quick: bool) -> tuple[dict, str]:
     name_to_img = {f: im for f, im in zip(rig.image_files, images)}
     name_to_sil = {f: s for f, s in zip(rig.image_files, sils)}
     reg = np.flatnonzero(model.registered)
-    v2 = [dense.View(model.frame_name[f], name_to_img[model.frame_name[f]], model.K, model.R[f], model.t[f])
+    v2 = [dense.View.from_pose(model.frame_name[f], name_to_img[model.frame_name[f]], model.K, model.R[f], model.t[f])
           for f in reg]
     s2 = [name_to_sil[model.frame_name[f]] for f in reg]
     seen2 = []
@@ -296,15 +297,15 @@ def bench_speed(quick: bool) -> tuple[dict, str]:
     from workers.drone.frames import load_frames
 
     frames = load_frames(d["folder"], d["intr"], model.frame_index[reg], 1280)
-    views = [dense.View(model.frame_name[f], frames[int(model.frame_index[f])], model.K, model.R[f], model.t[f])
-             for f in reg]
+    views = [dense.View.from_pose(model.frame_name[f], frames[int(model.frame_index[f])], model.K, model.R[f],
+                                  model.t[f]) for f in reg]
     seen = [dense.visible_points(v, model.points) for v in views]
     i = len(views) // 2
     nb = dense.select_neighbours(views, model.points, seen, i, 8)
     near, far = dense.depth_range(views[i], model.points[seen[i]])
     ref, nbrs = views[i], [views[j] for j in nb]
     h, w = ref.image.shape[:2]
-    out: dict = {"size": [w, h], "neighbours": len(nbrs), "planes": 128, "reference": ref.name}
+    out: dict = {"size": [w, h], "neighbours": len(nbrs), "planes": 128, "reference": ref.camera.name}
     dense.depth_map(ref.scaled(0.1), [v.scaled(0.1) for v in nbrs], near, far, 8)  # compiled code loaded
     for label, c2f in (("full", False), ("coarse_to_fine", True)):
         if quick and not c2f:
@@ -329,8 +330,8 @@ def bench_speed(quick: bool) -> tuple[dict, str]:
         out["renderer_msamples_per_s"] = sp.get("msamples_per_s")
     rows = [[k, v["s"], v["cpu_s"], v["msamples_per_s"], v["valid"], v["load_average"]] for k, v in out.items()
             if isinstance(v, dict)]
-    md = (f"### Speed: one {w}x{h} depth map of the drone stills ({ref.name}), {len(nbrs)} neighbours, 128 planes, "
-          "ZNCC 5x5, best 4\n\n"
+    md = (f"### Speed: one {w}x{h} depth map of the drone stills ({ref.camera.name}), {len(nbrs)} neighbours, "
+          "128 planes, ZNCC 5x5, best 4\n\n"
           f"Msamples/s: {w} x {h} x {len(nbrs)} x 128 neighbour samples per second of wall time (for "
           "coarse-to-fine: the equivalent full sweep's samples, its effective rate); CPU s: the process's CPU "
           "time (both threads), which the machine's load inflates less than the wall time. The renderer's own "

@@ -63,7 +63,8 @@ def dense_maps():
     rng = np.random.default_rng(0)
     K = np.array([[130.0, 0, 79.5], [0, 130.0, 59.5], [0, 0, 1]])
     wall = rng.integers(0, 256, (120, 160, 3), np.uint8)
-    views = [dense.View(f"v{{i}}", np.roll(wall, -2 * i, axis=1), K, np.eye(3), np.array([-0.03 * i, 0, 0]))
+    views = [dense.View.from_pose(f"v{{i}}", np.roll(wall, -2 * i, axis=1), K, np.eye(3),
+                                  np.array([-0.03 * i, 0, 0]))
              for i in range(4)]
     points = np.column_stack([rng.uniform(-0.5, 0.5, 200), rng.uniform(-0.4, 0.4, 200), np.full(200, 2.0)])
     params = ReconstructionParams(fx=130.0, fy=130.0, cx=79.5, cy=59.5, dense=True, dense_planes=64)

@@ -119,7 +119,7 @@ def _dense() -> None:
     rng = np.random.default_rng(0)
     K = np.array([[40.0, 0, 23.5], [0, 40.0, 17.5], [0, 0, 1]])
     wall = rng.integers(0, 256, (36, 48, 3), np.uint8)
-    views = [dense.View(f"v{i}", np.roll(wall, -2 * i, axis=1), K, np.eye(3), np.array([-0.1 * i, 0, 0]))
+    views = [dense.View.from_pose(f"v{i}", np.roll(wall, -2 * i, axis=1), K, np.eye(3), np.array([-0.1 * i, 0, 0]))
              for i in range(4)]
     points = np.column_stack([rng.uniform(-0.5, 0.5, 50), rng.uniform(-0.4, 0.4, 50), np.full(50, 2.0)])
     seen = [np.arange(50)] * 4
@@ -127,7 +127,7 @@ def _dense() -> None:
         params = ReconstructionParams(fx=40.0, fy=40.0, cx=23.5, cy=17.5, dense=True, dense_planes=16,
                                       dense_aggregation=aggregation, dense_coarse_to_fine=coarse)
         dense.densify_views(views, points, seen, params)
-    down = [dense.View(v.name, v.image, K, np.diag([1.0, -1.0, -1.0]), np.array([0.1 * i, 0.0, 2.0]))
+    down = [dense.View.from_pose(v.camera.name, v.image, K, np.diag([1.0, -1.0, -1.0]), np.array([0.1 * i, 0.0, 2.0]))
             for i, v in enumerate(views)]
     orthophoto(np.zeros((20, 30), np.float32), Grid(-1.0, 0.7, 0.05, 30, 20), down, dist=np.array([-0.05, 0, 0, 0]))
 

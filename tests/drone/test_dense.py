@@ -14,6 +14,7 @@ import pytest
 
 from workers.common.jobctx import JobInputError
 from workers.drone import cli, dense
+from workers.drone.export import depth_png, ply_bytes
 from workers.drone.job import run_reconstruction
 from workers.drone.pipeline import DENSE_RESULT_NAMES, RESULT_NAMES
 from workers.drone.params import ReconstructionParams
@@ -22,6 +23,7 @@ from workers.synth.flight import flight_cameras, terrain_scene
 from workers.synth.raycast import render
 
 from tests.fakectx import FakeContext
+from tests.ply import read_ply
 
 
 def _random_problem(seed, h=23, w=31, n=3, planes=7):
@@ -76,10 +78,10 @@ def test_tiles_and_windows_restrict_the_search():
 
 def test_sweep_geometry_maps_a_plane_point_into_the_other_view():
     cams = flight_cameras(3, length=6.0, altitude=20.0, width=64, height=48, seed=1)
-    views = [dense.View(c.name, np.zeros((48, 64, 3), np.uint8), c.K, c.R, c.t) for c in cams]
+    views = [dense.View(c, np.zeros((48, 64, 3), np.uint8)) for c in cams]
     Q, B = dense.sweep_geometry(views[0], views[1:])
-    X = dense.backproject(views[0], np.array([17.0]), np.array([20.0]), np.array([30.0]))
-    uv, _ = dense.project(views[2], X)
+    X = views[0].camera.backproject(np.array([[30.0, 20.0]]), 17.0)
+    uv, _ = views[2].camera.project(X)
     hmg = Q[1] @ np.array([30.0, 20.0, 1.0]) + B[1] / 17.0
     np.testing.assert_allclose(hmg[:2] / hmg[2], uv[0], atol=1e-9)
 
@@ -93,7 +95,7 @@ def town():
     views, truth = [], []
     for c, g in zip(cams, gains):
         r = render(scene, c, gain=g, with_background=False)
-        views.append(dense.View(c.name, r.image, c.K, c.R, c.t))
+        views.append(dense.View(c, r.image))
         truth.append(r.depth)
     return views, truth
 
@@ -153,7 +155,7 @@ def test_consistency_and_fusion_on_true_depths(town):
     cloud = dense.fuse(vs, depths, nb, min_views=3)
     assert len(cloud) > 0.5 * depths[0].size and (cloud.views >= 3).all()
     # every fused point lies on the surface: its depth in the middle view matches the true depth there
-    uv, z = dense.project(vs[2], cloud.points.astype(np.float64))
+    uv, z = vs[2].camera.project(cloud.points)
     u, v = np.rint(uv[:, 0]).astype(int), np.rint(uv[:, 1]).astype(int)
     inside = (u >= 0) & (v >= 0) & (u < 256) & (v < 192) & (z > 0)
     t = depths[2][v[inside], u[inside]]
@@ -179,7 +181,7 @@ def test_compiled_fusion_agrees_with_the_numpy_consistency_and_normals(town):
     assert len(cloud) == len(ys)
     np.testing.assert_array_equal(cloud.views, ag.count[ys, xs])
     np.testing.assert_allclose(cloud.normals, dense.camera_normals(vs[0], depths[0])[ys, xs], atol=1e-4)
-    X = dense.backproject(vs[0], depths[0][ys, xs], ys.astype(float), xs.astype(float))
+    X = vs[0].camera.backproject(np.column_stack([xs, ys]), depths[0][ys, xs])
     for ok, Xn in zip(ag.agree, ag.X):
         X[ok[keep[ag.ys, ag.xs]]] += Xn[keep[ag.ys, ag.xs]][ok[keep[ag.ys, ag.xs]]]
     np.testing.assert_allclose(cloud.points, X / ag.count[ys, xs][:, None], rtol=1e-5, atol=1e-4)
@@ -187,7 +189,7 @@ def test_compiled_fusion_agrees_with_the_numpy_consistency_and_normals(town):
 
 def test_camera_normals_of_a_tilted_plane():
     K = np.array([[100.0, 0, 31.5], [0, 100.0, 23.5], [0, 0, 1]])
-    view = dense.View("v", np.zeros((48, 64, 3), np.uint8), K, np.eye(3), np.zeros(3))
+    view = dense.View.from_pose("v", np.zeros((48, 64, 3), np.uint8), K, np.eye(3), np.zeros(3))
     ys, xs = np.mgrid[0:48, 0:64].astype(np.float64)
     rays = np.stack([(xs - 31.5) / 100, (ys - 23.5) / 100, np.ones_like(xs)], -1)
     n = np.array([0.3, -0.2, -1.0])
@@ -201,7 +203,8 @@ def test_neighbours_prefer_a_useful_baseline_and_ranges_come_from_the_points():
     K = np.array([[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
     img = np.broadcast_to(np.zeros((1, 1, 3), np.uint8), (480, 640, 3))
     # cameras looking down +z at points around z = 10, 0 / 0.1 / 0.9 / 3 units to the side
-    views = [dense.View(str(i), img, K, np.eye(3), -np.array([x, 0, 0.0])) for i, x in enumerate((0, 0.1, 0.9, 3.0))]
+    views = [dense.View.from_pose(str(i), img, K, np.eye(3), -np.array([x, 0, 0.0]))
+             for i, x in enumerate((0, 0.1, 0.9, 3.0))]
     rng = np.random.default_rng(0)
     pts = np.column_stack([rng.uniform(-2, 2, 300), rng.uniform(-1.5, 1.5, 300), rng.uniform(9, 11, 300)])
     seen = [dense.visible_points(v, pts) for v in views]
@@ -214,14 +217,14 @@ def test_neighbours_prefer_a_useful_baseline_and_ranges_come_from_the_points():
 
 def test_depth_png_and_ply_round_trip():
     depth = np.array([[0.0, 1.5], [10.0, 7.25]], np.float32)
-    png, scale = dense.depth_png(depth, 12.0)
+    png, scale = depth_png(depth, 12.0)
     levels = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
     assert levels.dtype == np.uint16 and levels[0, 0] == 0
     np.testing.assert_allclose(levels * scale, depth, atol=scale)
     cloud = dense.DenseCloud(np.array([[1, 2, 3], [4, 5, 6]], np.float32),
                              np.array([[10, 20, 30], [1, 2, 3]], np.uint8),
                              np.array([[0, 0, 1], [1, 0, 0]], np.float32), np.array([3, 5], np.uint8))
-    v = dense.read_ply(dense.dense_ply_bytes(cloud))
+    v = read_ply(ply_bytes(cloud.points, cloud.colors, cloud.normals, cloud.views))
     np.testing.assert_array_equal(np.column_stack([v["x"], v["y"], v["z"]]), cloud.points)
     np.testing.assert_array_equal(np.column_stack([v["nx"], v["ny"], v["nz"]]), cloud.normals)
     np.testing.assert_array_equal(np.column_stack([v["blue"], v["green"], v["red"]]), cloud.colors)
@@ -247,7 +250,7 @@ def test_job_with_dense_writes_a_dense_cloud(tmp_path, flight):
     d = report["dense"]
     assert d["depth_maps"] == 12 and summary["dense_points"] == d["points"] > 20 * report["points"]
     assert d["views_per_point"]["at_least_3"] == 1.0  # min_views 3
-    ply = dense.read_ply(ctx.result_path("dense.ply").read_bytes())
+    ply = read_ply(ctx.result_path("dense.ply").read_bytes())
     assert len(ply) == d["points"]
     with zipfile.ZipFile(io.BytesIO(ctx.result_path("depth.zip").read_bytes())) as zf:
         assert sorted(zf.namelist()) == sorted(f["file"] for f in d["frames"])

@@ -10,7 +10,7 @@ import pytest
 import rasterio
 from rasterio.io import MemoryFile
 
-from workers.drone.dense import View
+from workers.drone.dense.views import View
 from workers.drone.mapfiles import DSM_NODATA, dsm_png, dsm_tif, laz_bytes, orthophoto_png, orthophoto_tif
 from workers.drone.orthophoto import orthophoto
 from workers.drone.surface import Grid, cell_medians, grid_over, surface_model
@@ -60,7 +60,7 @@ def test_surface_model_fills_gaps_inside_and_leaves_outside_empty():
 def test_orthophoto_of_flat_ground_matches_the_scene_seen_from_above():
     scene = Scene((Plane(material=Material(ColorNoise(scale=3.0, octaves=4, seed=3, contrast=200.0))),))
     cams = survey_cameras((16.0, 12.0), 30.0, width=200, height=150, fov_deg=60.0, jitter_deg=0.5, seed=2)
-    views = [View(c.name, render(scene, c, supersample=2, with_background=False).image, c.K, c.R, c.t) for c in cams]
+    views = [View(c, render(scene, c, supersample=2, with_background=False).image) for c in cams]
     grid = Grid(-10.0, 8.0, 0.15, 134, 107)
     dsm = np.zeros((grid.height, grid.width), np.float32)
     dsm[:5] = np.nan  # nodata rows stay transparent

@@ -1,5 +1,6 @@
 """Writing a :class:`~workers.drone.reconstruction.SparseModel`: coloured PLY, a COLMAP text
-model, the trajectory as JSON.
+model, the trajectory as JSON; and the dense pass's outputs: its PLY (normals and views per point too), its
+depth maps as 16-bit PNGs in a zip.
 
 Pixel values go out at the media's native resolution. COLMAP measures pixels from the image
 corner (the first pixel's centre is (0.5, 0.5)), our convention from the first pixel's centre,
@@ -9,8 +10,10 @@ from __future__ import annotations
 
 import io
 import json
-from typing import Any
+import zipfile
+from typing import Any, Sequence
 
+import cv2
 import numpy as np
 
 from workers.camera import rotation_to_quat
@@ -19,16 +22,59 @@ from .geometry import camera_centre
 from .reconstruction import SparseModel
 
 
-def ply_bytes(points: np.ndarray, colors_bgr: np.ndarray) -> bytes:
-    """Binary little-endian PLY of points (N, 3) with colours (N, 3) uint8 BGR."""
-    v = np.empty(len(points), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
-                                     ("red", "u1"), ("green", "u1"), ("blue", "u1")])
-    v["x"], v["y"], v["z"] = (np.asarray(points, np.float32)[:, i] for i in range(3))
+DEPTH_PNG_LEVELS = 65535
+"""A depth map PNG stores round(depth / scale), 0 = no depth."""
+
+_PLY_TYPES = {"<f4": "float", "u1": "uchar"}
+
+
+def ply_bytes(points: np.ndarray, colors_bgr: np.ndarray, normals: np.ndarray | None = None,
+              views: np.ndarray | None = None, comment: str = "sweepcast drone reconstruction") -> bytes:
+    """Binary little-endian PLY of points (N, 3) (model units, written as float32) with colours (N, 3) uint8
+    BGR, optionally unit normals ``nx ny nz`` (N, 3) float32 and ``views`` (N,) uint8 (frames that agree on
+    each point), as MeshLab and CloudCompare read it."""
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")] if normals is not None else []
+    fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")] + ([("views", "u1")] if views is not None else [])
+    v = np.empty(len(points), dtype=fields)
+    for i, c in enumerate("xyz"):
+        v[c] = points[:, i]
+        if normals is not None:
+            v["n" + c] = normals[:, i]
     v["red"], v["green"], v["blue"] = colors_bgr[:, 2], colors_bgr[:, 1], colors_bgr[:, 0]
-    header = ("ply\nformat binary_little_endian 1.0\ncomment sweepcast drone reconstruction\n"
-              f"element vertex {len(v)}\nproperty float x\nproperty float y\nproperty float z\n"
-              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
+    if views is not None:
+        v["views"] = views
+    header = (f"ply\nformat binary_little_endian 1.0\ncomment {comment}\nelement vertex {len(v)}\n"
+              + "".join(f"property {_PLY_TYPES[t]} {name}\n" for name, t in fields) + "end_header\n")
     return header.encode("ascii") + v.tobytes()
+
+
+def depth_png(depth: np.ndarray, far: float) -> tuple[bytes, float]:
+    """16-bit PNG of a depth map (h, w) float32 (model units, 0 = none) and its scale (model units per
+    level): level = round(depth / scale), scale = far / 65535, 0 = no depth."""
+    scale = float(far) / DEPTH_PNG_LEVELS
+    levels = np.clip(np.rint(depth / scale), 0, DEPTH_PNG_LEVELS).astype(np.uint16)
+    levels[depth <= 0] = 0
+    ok, buf = cv2.imencode(".png", levels)
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes(), scale
+
+
+def depth_file_name(frame: str) -> str:
+    """``<frame name without its image suffix>.png``, safe as a file name in a zip."""
+    stem = frame.rsplit(".", 1)[0] if "." in frame else frame
+    return ("".join(c if c.isalnum() or c in "-_." else "_" for c in stem) or "frame") + ".png"
+
+
+def depth_zip(frames: Sequence[str], pngs: Sequence[bytes]) -> bytes:
+    """A zip of the depth PNGs, each under :func:`depth_file_name` of its frame (stored: PNG is already
+    compressed)."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as zf:
+        for frame, png in zip(frames, pngs):
+            zf.writestr(depth_file_name(frame), png)
+    return buf.getvalue()
 
 
 def _native(model: SparseModel, xy: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .dense import View
+from .dense.views import View
 from .georef import Georeference
 from .orthophoto import Orthophoto, orthophoto
 from .reconstruction import SparseModel
@@ -70,8 +70,8 @@ def make_products(model: SparseModel, ref: Georeference, points: np.ndarray, ima
     t1 = time.perf_counter()
     ortho = None
     if with_ortho:
-        views = [View(model.frame_name[f], img, model.K, model.R[f], model.t[f]) for f, img in sorted(images.items())
-                 if model.registered[f]]
+        views = [View.from_pose(model.frame_name[f], img, model.K, model.R[f], model.t[f])
+                 for f, img in sorted(images.items()) if model.registered[f]]
         ortho = orthophoto(dsm, grid, views, progress, model.intrinsics.dist)
     t2 = time.perf_counter()
     unit = "m" if ref.georeferenced else "model units"

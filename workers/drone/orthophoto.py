@@ -16,7 +16,7 @@ ground cell coloured from the frame that sees it best, blended across the seams 
    band (exposure differences fade), fine detail over a narrow one (no ghosting). Where a frame
    does not see a cell near its seam, its contribution there is the winning frame's colour.
 
-Frames are :class:`~workers.drone.dense.View` objects (pinhole K, world-to-camera R, t in the DSM's
+Frames are :class:`~workers.drone.dense.views.View` objects (pinhole cameras, poses in the DSM's
 frame; images as the lens saw them when ``dist`` gives its OpenCV distortion, else undistorted). Output:
 RGBA uint8, alpha 0 where the DSM has no height or no frame sees it.
 """
@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from .dense import View
+from .dense.views import View
 from .frames import sharpness
 from .surface import Grid
 
@@ -205,8 +205,8 @@ def orthophoto(dsm: np.ndarray, grid: Grid, views: Sequence[View],
     for i, v in enumerate(views):
         if progress is not None:
             progress(0.8 * i / max(len(views), 1), f"orthophoto {i + 1}/{len(views)}")
-        w, h = v.size
-        K, R, tv = (np.ascontiguousarray(a, np.float64) for a in (v.K, v.R, v.t))
+        w, h = v.camera.size
+        K, R, tv = v.camera.K, v.camera.R, v.camera.t
         r0, r1, c0, c1 = _footprint(xs, ys, dsm64, K, R, tv, w, h)
         if r0 < 0:
             windows.append(None)
@@ -215,7 +215,7 @@ def orthophoto(dsm: np.ndarray, grid: Grid, views: Sequence[View],
         mapu = np.full((r1 - r0 + 1, c1 - c0 + 1), -1.0, np.float32)
         mapv = np.full_like(mapu, -1.0)
         vis = np.zeros(mapu.shape, np.uint8)
-        _score_view(xs, ys, dsm64, K, R, tv, v.center, w, h, zbuf, float(weights[i]), i, best, label, best_hidden,
+        _score_view(xs, ys, dsm64, K, R, tv, v.camera.center, w, h, zbuf, float(weights[i]), i, best, label, best_hidden,
                     label_hidden, mapu, mapv, vis, r0, c0)
         if dist is not None:
             mapu, mapv, inside = _through_lens(mapu, mapv, K, dist, w, h)

@@ -22,8 +22,8 @@ from typing import Any, Callable
 from workers.common.jobctx import JobInputError
 
 from .calibration import Intrinsics, from_values, parse_calibration
-from .dense import DenseResult, dense_ply_bytes, densify, depth_zip, reference_frames
-from .export import colmap_text, ply_bytes, trajectory_json
+from .dense import DenseResult, densify, reference_frames
+from .export import colmap_text, depth_zip, ply_bytes, trajectory_json
 from .flightmeta import FlightMeta, centre_of, check_prior, read_flight_meta
 from .frames import load_frames
 from .georef import (Georeference, GeoreferenceError, apply, frame_positions_from_exif,
@@ -255,7 +255,9 @@ def write_outputs(out: Outcome, write: Callable[[str, bytes], None]) -> dict[str
         write(name, text.encode())
     write("trajectory.json", trajectory_json(model))
     if out.dense is not None:
-        write("dense.ply", dense_ply_bytes(out.dense.cloud))
+        cloud = out.dense.cloud
+        write("dense.ply", ply_bytes(cloud.points, cloud.colors, cloud.normals, cloud.views,
+                                     "sweepcast dense reconstruction"))
         write("depth.zip", depth_zip(out.dense.names, out.dense.pngs))
     times["export"] = time.perf_counter() - t0
     t0 = time.perf_counter()
