@@ -13,10 +13,10 @@ import json
 import zipfile
 from typing import Any, Sequence
 
-import cv2
 import numpy as np
 
 from workers.camera import rotation_to_quat
+from workers.common.images import encode_png
 
 from .geometry import camera_centre
 from .reconstruction import SparseModel
@@ -55,10 +55,7 @@ def depth_png(depth: np.ndarray, far: float) -> tuple[bytes, float]:
     scale = float(far) / DEPTH_PNG_LEVELS
     levels = np.clip(np.rint(depth / scale), 0, DEPTH_PNG_LEVELS).astype(np.uint16)
     levels[depth <= 0] = 0
-    ok, buf = cv2.imencode(".png", levels)
-    if not ok:
-        raise RuntimeError("PNG encoding failed")
-    return buf.tobytes(), scale
+    return encode_png(levels, level=None), scale
 
 
 def depth_file_name(frame: str) -> str:
