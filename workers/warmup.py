@@ -1,7 +1,7 @@
 """Compile every engine's numba kernels once per machine, ahead of the first request.
 
 The kernels are ``@njit(cache=True)``: the first process that calls one compiles it (seconds to tens
-of seconds each on two cores: 19 s for the bundle adjuster alone) and writes the machine code to
+of seconds each; benchmarks/RESULTS.md, section coldstart) and writes the machine code to
 numba's cache; every later process loads it in milliseconds. numba keys each cached entry by the
 SHA-256 of the function's source file, the argument types and the CPU target (name and features), so one
 cache directory serves every CPU kind that uses it and a changed source recompiles; and our kernels are filed

@@ -1,8 +1,8 @@
 """Frame-rate decoding side: upsample + post-filter frames of one size with reused buffers.
 
 Gives the same output as :func:`methods.postprocess` but allocates its images once: at 1920x1088
-a fresh 2 MB array per OpenCV call costs about as much in page faults as the 3x3 filter itself
-(measured: 3.3 ms of CPU per frame with reused buffers, 7.6 ms allocating). Guided methods ("wmf")
+a fresh 2 MB array per OpenCV call costs about as much in page faults as the 3x3 filter itself.
+Guided methods ("wmf")
 and the Otsu rule fall back to the allocating path.
 """
 from __future__ import annotations

@@ -1,8 +1,7 @@
 """Single-threaded BLAS for the face engine.
 
 Its matrix products are small (a few hundred rows, or one vector against a (3N, K) basis): BLAS
-threads only add synchronisation, which on busy cores made them 10-50x slower than one thread
-(measured on the shared 2-core development machine).
+threads only add synchronisation, which on busy cores makes them many times slower than one thread.
 """
 from __future__ import annotations
 

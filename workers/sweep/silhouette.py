@@ -42,8 +42,8 @@ def _foreground(image: np.ndarray, background: np.ndarray, threshold: int) -> np
     """(H, W) uint8, 255 where the largest channel difference of ``image`` and ``background`` ((H, W, 3)
     uint8) exceeds ``threshold`` (an integer: for integer differences d > t equals d > floor(t)), else 0.
     OpenCV's vectorised single-threaded passes: a live rig calls this for every camera of every frame
-    set, and a parallel numba kernel on a 320x240 image spent more CPU starting and parking its
-    threads than comparing (0.26-6 ms against 0.1 ms here, more the busier the machine)."""
+    set, and a parallel numba kernel on an image this small spends more CPU starting and parking its
+    threads than comparing, the more so the busier the machine."""
     diff = cv2.absdiff(np.ascontiguousarray(image), np.ascontiguousarray(background))
     b, g, r = cv2.split(diff)
     return cv2.compare(cv2.max(cv2.max(b, g), r), threshold, cv2.CMP_GT)
