@@ -65,8 +65,7 @@ def _blob_files(data_dir: str) -> int:
 
 
 def _quota_probes(app: ServedApp, c: httpx.Client, data_dir: str) -> dict[str, Any]:
-    _, small = _key(c, "small", quota={"stored_bytes": 60_000, "active_jobs": 2, "viewer_sessions": 1,
-                                       "uploads_per_minute": 6})
+    _, small = _key(c, "small", quota={"stored_bytes": 60_000, "uploads_per_minute": 6})
     s = bearer(small)
     out: dict[str, Any] = {}
     first = c.post("/v1/photos/batches", files=[("files", ("a.jpg", noise_jpeg(1), "image/jpeg"))], headers=s)
@@ -76,12 +75,14 @@ def _quota_probes(app: ServedApp, c: httpx.Client, data_dir: str) -> dict[str, A
     out["storage"] = {"first": first.status_code, "status": over.status_code, "error": over.json()["error"],
                       "blob_files_unchanged": _blob_files(data_dir) == blobs,
                       "jobs_unchanged": len(c.get("/v1/jobs", headers=s).json()["jobs"]) == jobs}
-    second = c.post("/v1/photos/batches", files=[("files", ("b.jpg", noise_jpeg(9), "image/jpeg"))], headers=s)
-    third = c.post("/v1/photos/batches", files=[("files", ("c.jpg", noise_jpeg(10), "image/jpeg"))], headers=s)
+    _, busy = _key(c, "busy", quota={"active_jobs": 1})
+    b = bearer(busy)
+    second = c.post("/v1/photos/batches", files=[("files", ("b.jpg", noise_jpeg(9), "image/jpeg"))], headers=b)
+    third = c.post("/v1/photos/batches", files=[("files", ("c.jpg", noise_jpeg(10), "image/jpeg"))], headers=b)
     out["active_jobs"] = {"statuses": [second.status_code, third.status_code], "error": third.json().get("error"),
                           "retry_after": third.headers.get("retry-after")}
     statuses = [c.post("/v1/photos/orientation", files={"file": ("a.jpg", noise_jpeg(1), "image/jpeg")},
-                       headers=s) for _ in range(3)]
+                       headers=s) for _ in range(5)]
     out["upload_rate"] = {"statuses": [r.status_code for r in statuses], "error": statuses[-1].json().get("error"),
                           "retry_after": statuses[-1].headers.get("retry-after")}
     _, viewer = _key(c, "viewer", quota={"viewer_sessions": 1})
@@ -200,17 +201,17 @@ def markdown(r: dict[str, Any]) -> str:
                   for row in ck["operations"]]
                  + [[f"socket {path}", "closed", why, ""] for path, why in ck["sockets"].items()])]
     q = r["quotas"]
-    parts.append("### Quota probes (a user key with stored_bytes 60,000, active_jobs 2, uploads_per_minute 6; "
-                 "another with viewer_sessions 1)\n\n" + md_table(
+    parts.append("### Quota probes (a user key with stored_bytes 60,000 and uploads_per_minute 6; one with "
+                 "active_jobs 1; one with viewer_sessions 1)\n\n" + md_table(
                      ["quota", "what was sent", "answer", "afterwards"],
                      [["stored bytes", "a 1-photo batch, then a 6-photo batch past the limit",
                        f"{q['storage']['first']}, then {q['storage']['status']} {q['storage']['error']}",
                        f"no new job: {q['storage']['jobs_unchanged']}, no stored file: "
                        f"{q['storage']['blob_files_unchanged']}"],
-                      ["active jobs", "two more batches",
+                      ["active jobs", "two batches at once",
                        f"{q['active_jobs']['statuses']}, {q['active_jobs']['error']}",
                        f"Retry-After {q['active_jobs']['retry_after']}"],
-                      ["uploads per minute", "3 more uploads (6 in all)",
+                      ["uploads per minute", "5 more uploads (7 in all)",
                        f"{q['upload_rate']['statuses']}, {q['upload_rate']['error']}",
                        f"Retry-After {q['upload_rate']['retry_after']}"],
                       ["viewer sessions", "two viewer sockets", f"{q['viewer_sessions']['first']}, then "
