@@ -5,6 +5,7 @@ errors add ``"fields"`` with pydantic's per-field messages.
 """
 from __future__ import annotations
 
+import errno
 from http import HTTPStatus
 from typing import Any
 
@@ -16,6 +17,8 @@ from starlette.routing import Match, Mount
 
 from workers.common.validation import describe_errors
 
+FULL = (errno.ENOSPC, errno.EDQUOT)
+"""OSError numbers of a full disk or an exhausted quota: a 507 for the client, not a server error."""
 _METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS", "TRACE")
 
 
@@ -46,6 +49,13 @@ def install_error_handlers(app: FastAPI) -> None:
         if exc.status_code == 405 and headers and "Allow" in headers:  # a route's 405 (not a mount's)
             headers = {**headers, "Allow": ", ".join(allowed_methods(request)) or headers["Allow"]}
         return JSONResponse(error_body(exc.status_code, exc.detail, code), exc.status_code, headers=headers)
+
+    @app.exception_handler(OSError)
+    async def _storage_full(_request: Request, exc: OSError) -> JSONResponse:
+        if exc.errno not in FULL:
+            raise exc  # any other OSError is a server error, answered as before
+        return JSONResponse(error_body(507, "the service's storage is full: nothing was stored; retry once space is "
+                                            "freed", "storage_full"), 507)
 
     @app.exception_handler(RequestValidationError)
     async def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:

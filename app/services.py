@@ -4,9 +4,12 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
+import shutil
+import urllib.parse
 import uuid
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, BinaryIO, Callable, TypeVar
 
 from fastapi import Request
@@ -85,6 +88,19 @@ async def delete_job_and_files(svc: Services, job_id: str) -> None:
     await asyncio.to_thread(svc.store.delete_prefix, inputs_prefix(job_id))
 
 
+def storage_check(svc: Services) -> dict[str, object]:
+    """Free space of a file blob store against ``min_free_storage_mb`` (an object store: not ours to measure)."""
+    url = svc.store.url
+    if not url.startswith("file://"):
+        return {"ok": True, "detail": "object store"}
+    free = shutil.disk_usage(Path(urllib.parse.urlparse(url).path)).free
+    need = svc.settings.min_free_storage_mb * 2**20
+    ok = free >= need
+    detail = f"{free / 2**20:,.0f} MB free" + ("" if ok else f", under the {need / 2**20:,.0f} MB the service keeps "
+                                                               "free: new jobs are refused (507) until space is freed")
+    return {"ok": ok, "free_bytes": free, "detail": detail}
+
+
 def services(request: Request) -> Services:
     return request.app.state.services
 
@@ -138,6 +154,10 @@ async def create_job(svc: Services, who: Principal, kind: JobKind, params: BaseM
     if not isinstance(params, kind.params):
         raise TypeError(f"{kind.name} takes {kind.params.__name__}, not {type(params).__name__}")
     await svc.quotas.check_new_job(who, sum(map(upload_size, uploads)))
+    space = await asyncio.to_thread(storage_check, svc)
+    if not space["ok"]:
+        raise ApiError(507, f"the service's storage is nearly full ({space['detail']}); nothing was stored",
+                       "storage_full")
     job_id = str(uuid.uuid4())
     prefix = inputs_prefix(job_id)
     inputs: dict[str, str] = dict(stored or {})

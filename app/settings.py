@@ -48,6 +48,8 @@ class Settings(WorkerSettings):
     quota_uploads_per_minute: int = Field(60, ge=1, description="Uploads (POSTs with files) a user key may send per "
                                           "minute to one API replica.")
 
+    min_free_storage_mb: float = Field(256.0, ge=0, description="/readyz reports not ready when the data folder "
+                                       "(a file blob store) has less free space than this (megabytes).")
     max_upload_bytes: int = Field(64 * MiB, ge=1, description="Largest request body of single-file endpoints.")
     max_batch_bytes: int = Field(1024 * MiB, ge=1, description="Largest request body of batch uploads.")
     max_json_bytes: int = Field(1 * MiB, ge=1, description="Largest request body of routes that take JSON (or no body).")

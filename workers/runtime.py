@@ -13,6 +13,7 @@ The Ray task in :mod:`workers.ray_tasks` is a thin wrapper around this generator
 """
 from __future__ import annotations
 
+import errno
 import mimetypes
 import os
 import queue
@@ -161,11 +162,11 @@ def execute_job(spec: JobSpec) -> Iterator[dict[str, Any]]:
                                 "user_error": True}
         except Exception as exc:  # noqa: BLE001 - reported as the job's error, not raised into Ray
             traceback.print_exc()
-            outcome["event"] = {
-                "type": "failed",
-                "error": f"internal error: {type(exc).__name__}: {exc}",
-                "user_error": False,
-            }
+            error = f"internal error: {type(exc).__name__}: {exc}"
+            if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+                error = (f"the service's storage is full ({exc.strerror}): the results could not be written and "
+                         "none were published; run the job again once space is freed")
+            outcome["event"] = {"type": "failed", "error": error, "user_error": False}
         finally:
             events.put(_DONE)
 

@@ -43,10 +43,18 @@ def check_key(key: str) -> str:
     return key
 
 
+SAFE_NAME_MAX = 100
+
+
 def safe_name(name: str, fallback: str = "file") -> str:
-    """A file-name segment derived from user text: unsafe characters replaced, length capped."""
+    """A file-name segment derived from user text: unsafe characters replaced; a name over
+    :data:`SAFE_NAME_MAX` characters keeps its start and its end (where its extension and suffixes such as
+    Middlebury's ``_par.txt`` tell the format), joined by ``~``."""
     base = os.path.basename(name.replace("\\", "/"))
-    cleaned = re.sub(r"[^A-Za-z0-9._-]", "_", base).lstrip("._-")[:100]
+    cleaned = re.sub(r"[^A-Za-z0-9._-]", "_", base).lstrip("._-")
+    if len(cleaned) > SAFE_NAME_MAX:
+        head = SAFE_NAME_MAX * 2 // 5
+        cleaned = cleaned[:head] + "~" + cleaned[len(cleaned) - (SAFE_NAME_MAX - head - 1):]
     return cleaned or fallback
 
 

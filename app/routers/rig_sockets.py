@@ -100,7 +100,9 @@ def parse_text(text: str) -> Any:
 
 
 class Channel:
-    """One socket's sends, serialised (frames and errors come from different tasks)."""
+    """One socket's sends, serialised (frames and errors come from different tasks). A send to a peer that has
+    gone (it closed before the hello, or mid-stream) marks the channel closed instead of raising: the reader
+    sees the disconnect and ends the socket quietly, with no traceback in the log."""
 
     def __init__(self, websocket: WebSocket) -> None:
         self.ws = websocket
@@ -108,23 +110,26 @@ class Channel:
         self.closed = False
 
     async def json(self, message: dict[str, Any]) -> None:
-        async with self._lock:
-            if not self.closed:
-                await self.ws.send_text(json.dumps(message))
+        await self._send(lambda: self.ws.send_text(json.dumps(message)))
 
     async def binary(self, data: bytes) -> None:
-        async with self._lock:
-            if not self.closed:
-                await self.ws.send_bytes(data)
+        await self._send(lambda: self.ws.send_bytes(data))
 
     async def error(self, code: str, detail: str, **extra: Any) -> None:
         await self.json({"type": "error", "error": code, "detail": detail, **extra})
 
     async def close(self, code: int, reason: str) -> None:
+        await self._send(lambda: self.ws.close(code=code, reason=reason[:120]), closing=True)
+
+    async def _send(self, send: Callable[[], Awaitable[None]], closing: bool = False) -> None:
         async with self._lock:
-            if not self.closed:
+            if self.closed:
+                return
+            self.closed = closing
+            try:
+                await send()
+            except WebSocketDisconnect:
                 self.closed = True
-                await self.ws.close(code=code, reason=reason[:120])
 
 
 class Latest:

@@ -8,7 +8,7 @@ from fastapi.responses import HTMLResponse, JSONResponse
 
 from app import raycluster
 from app.routers.photos import orientation_config
-from app.services import Services, services
+from app.services import Services, services, storage_check
 from workers.orientation.orient import engine_status
 
 router = APIRouter(tags=["system"])
@@ -47,6 +47,7 @@ async def readyz(svc: Services = Depends(services)) -> JSONResponse:
         checks["ray"] = {"ok": ok and svc.dispatcher.ray_ready.is_set(), "detail": detail}
     # The orientation engine's optional parts (YuNet, tesseract): reported, never a reason to be unready.
     checks["orientation"] = await asyncio.to_thread(engine_status, orientation_config(svc.settings))
+    checks["storage"] = await asyncio.to_thread(storage_check, svc)
     checks["kernels"] = svc.warmup.status()  # compiled ahead of the first request: reported, never unready
     ready = all(c["ok"] for c in checks.values())
     return JSONResponse({"status": "ready" if ready else "not ready", "checks": checks}, 200 if ready else 503)

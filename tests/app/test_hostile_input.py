@@ -324,3 +324,38 @@ def test_an_invalid_stored_orientation_is_never_echoed(client):
     report = r.json()
     assert report["existing_orientation"] is None and report["file_orientation"] is None
     assert "99" in report["exif_detail"] and "not valid" in report["exif_detail"]
+
+
+# --- 9. a full disk -----------------------------------------------------------------------------
+def test_a_full_disk_refuses_uploads_with_507_and_keeps_nothing(client, monkeypatch):
+    import errno
+    import shutil as shutil_module
+    from collections import namedtuple
+
+    from tests.app.photos import noise_jpeg
+
+    svc = client.app.state.services
+    files = [("files", ("a.jpg", noise_jpeg(1), "image/jpeg")), ("files", ("b.jpg", noise_jpeg(2), "image/jpeg"))]
+    written = []
+
+    def full_after_one(key, data):
+        if written:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        written.append(key)
+        return 1
+
+    monkeypatch.setattr(svc.store, "put", full_after_one)  # the disk fills during the batch
+    r = client.post("/v1/photos/batches", files=files)
+    assert r.status_code == 507 and r.json()["error"] == "storage_full", r.text
+    assert client.get("/v1/jobs").json()["jobs"] == []  # no job, and its first input was removed again
+    monkeypatch.undo()
+    assert svc.store.list("jobs") == []
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil_module, "disk_usage", lambda path: usage(10**9, 10**9, 10 * 2**20))  # 10 MB left
+    ready = client.get("/readyz")
+    assert ready.status_code == 503 and not ready.json()["checks"]["storage"]["ok"]
+    assert "10 MB free" in ready.json()["checks"]["storage"]["detail"]
+    r = client.post("/v1/photos/batches", files=files)
+    assert r.status_code == 507 and "nearly full" in r.json()["detail"] and svc.store.list("jobs") == []
+    assert client.get("/v1/jobs").status_code == 200  # reads keep working

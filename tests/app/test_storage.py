@@ -41,6 +41,8 @@ def test_generated_keys_and_safe_names():
     assert safe_name("../../etc/passwd") == "passwd"
     assert safe_name("C:\\Users\\me\\IMG 001.JPG") == "IMG_001.JPG"
     assert safe_name("...") == "file"
+    long = safe_name("temple_ring_" + "x" * 150 + "_par.txt")  # the format is told by the end of the name
+    assert len(long) == 100 and long.startswith("temple_ring_") and long.endswith("x_par.txt") and "~" in long
 
 
 def test_publish_replaces_the_destination_whole(store):
@@ -103,3 +105,36 @@ def test_open_store_from_url(tmp_path):
         open_store("s3:///prefix")
     with pytest.raises(ValueError, match="unknown storage URL option"):
         open_store("s3://bucket/p?colour=blue")
+
+
+def test_a_job_whose_results_do_not_fit_fails_saying_so_and_publishes_nothing(tmp_path, monkeypatch):
+    import errno
+
+    from pydantic import BaseModel
+
+    from workers import runtime
+    from workers.registry import JobKind
+    from workers.storage import DirectoryBlobStore
+
+    store = DirectoryBlobStore(tmp_path / "blobs")
+    real_put = store.put
+
+    def full(key, data):
+        if "/tmp-" in key and store.list("jobs/j1"):  # the first result file fits, the second does not
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_put(key, data)
+
+    def entry(ctx):
+        ctx.write_result("a.bin", b"a" * 10)
+        ctx.write_result("b.bin", b"b" * 10)
+        return {}
+
+    monkeypatch.setattr(store, "put", full)
+    monkeypatch.setattr(runtime, "open_store", lambda url: store)
+    class NoParams(BaseModel):
+        pass
+
+    monkeypatch.setattr(runtime, "get_kind", lambda name: JobKind("test.write", entry, NoParams))
+    events = list(runtime.execute_job(runtime.JobSpec("j1", "test.write", {}, {}, store_url=store.url)))
+    assert events[-1]["type"] == "failed" and "storage is full" in events[-1]["error"], events[-1]
+    assert store.list("jobs") == []  # nothing half-published: the staged copy is gone too

@@ -45,3 +45,30 @@ def test_a_header_nested_too_deeply_is_a_framing_error():
     head = b"[" * 30000 + b"]" * 30000  # within the header limit, beyond the parser's recursion limit
     with pytest.raises(FramingError, match="nested too deeply"):
         unpack_message(struct.pack(">I", len(head)) + head)
+
+
+def test_a_channel_to_a_peer_that_left_stops_sending_without_raising():
+    import asyncio
+
+    from starlette.websockets import WebSocketDisconnect
+
+    from app.routers.rig_sockets import Channel
+
+    class Gone:  # a socket whose peer closed before the server's hello
+        sent = 0
+
+        async def send_text(self, text):
+            Gone.sent += 1
+            raise WebSocketDisconnect(code=1006)
+
+        async def close(self, code, reason):
+            raise AssertionError("no close after the peer left")
+
+    async def run():
+        channel = Channel(Gone())
+        await channel.json({"type": "hello"})
+        await channel.error("x", "y")
+        await channel.close(1000, "bye")
+        return channel.closed
+
+    assert asyncio.run(run()) and Gone.sent == 1
