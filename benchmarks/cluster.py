@@ -1,7 +1,7 @@
 """Scale-out figures: orientation batch throughput on 1 and 2 Ray nodes, and the time from submit to
 the first progress event with SQLite versus PostgreSQL.
 
-    python benchmarks/cluster.py [--quick]
+    python -m benchmarks.cluster [--quick]
 
 Every run starts its own servers on loopback: a Ray cluster with `ray start` (a head without task
 CPUs plus 1 or 2 worker nodes of one CPU each), a throw-away PostgreSQL, and the API as a
@@ -13,22 +13,20 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import sys
 import tempfile
 import time
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
+import httpx
+from websockets.sync.client import connect
+
+from benchmarks._report import md_table, publish
+from tests.servers import create_database, exit_on_sigterm, ray_cluster, serve_app, temp_postgres
+from workers.common.datasets import dataset
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import httpx  # noqa: E402
-from websockets.sync.client import connect  # noqa: E402
-
-from benchmarks._report import md_table, publish  # noqa: E402
-from tests.servers import create_database, exit_on_sigterm, ray_cluster, serve_app, temp_postgres  # noqa: E402
-from workers.common.datasets import dataset  # noqa: E402
 
 
 def photos(count: int) -> list[tuple[str, bytes]]:

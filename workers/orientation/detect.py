@@ -63,7 +63,7 @@ HAAR_FACE_PX = 26
 """... and its size (px) in the scan, which sets the scan's scale: the scan's short side is 364 px (a 3:2 photo is
 scanned at 546 x 364, a 4:3 one at 485 x 364). The previous release scanned a fixed 360 px long side (faces from
 22 px), the one before 320 px (from 20 px); at 320 px a face 280 px wide in a 2048 x 1365 photo measured 44 px in
-the scan and was lost. Chosen on faces of every size (``benchmarks/orientation.py --face-sizes``, section
+the scan and was lost. Chosen on faces of every size (``python -m benchmarks.orientation --face-sizes``, section
 orientation_face_sizes; the dev photos, each face scaled to 5-45 % of the short side, 2 turns; step 1.35 then):
 on 44 photos 271 of 490 trials decided against 205 for the previous release's scan and 281 for the 400 px scan two
 releases ago (step 1.2, 3 neighbours), at 71 ms CPU per photo against 40 and 101 under the same load; 1/10 at
@@ -77,7 +77,7 @@ HAAR_SCALE_FACTOR = 1.25
 """Pyramid step of the Haar face search. OpenCV slides the window by 2 px below twice the smallest face
 size and by 1 px above, so the cost is set by how many steps fall above. The previous release stepped by 1.35
 (from 22 px on a 360 px long side); with the short-side scan, 1.35 lost faces of 20 % of the short side against it
-(50 against 55 of 66 trials, benchmarks/orientation.py --face-sizes) and 1.25 did not (55; 1.2 with 3 neighbours 56
+(50 against 55 of 66 trials, python -m benchmarks.orientation --face-sizes) and 1.25 did not (55; 1.2 with 3 neighbours 56
 at 1.4x the CPU of 1.25): on all 44 dev photos at face shares 0.15-0.45, 1.25 decided 206 trials against 193 for
 the previous release (at least as many at each share), 1.35 195, 1.3 198."""
 HAAR_MIN_NEIGHBORS = 2
