@@ -70,6 +70,12 @@ def command_line() -> str:
     return "python " + " ".join(shlex.quote(a) for a in [*start, *sys.argv[1:]])
 
 
+def shown_path(path: Path) -> str:
+    """A written file as RESULTS.md names it: relative to the repository root when inside it."""
+    path = Path(path).resolve()
+    return str(path.relative_to(BENCH_DIR.parent)) if path.is_relative_to(BENCH_DIR.parent) else str(path)
+
+
 def stamp() -> dict[str, Any]:
     """The machine, the date and the command of this run."""
     return {

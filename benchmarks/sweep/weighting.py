@@ -24,7 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from benchmarks._report import RESULTS_DIR, md_table
+from benchmarks._report import RESULTS_DIR, md_table, shown_path
 from benchmarks.sweep.common import GAIN_SPREAD, FAR, METHODS, NEAR, all_methods, all_weights, leave_one_out
 from workers.camera import Camera
 from workers.common.datasets import dataset
@@ -135,6 +135,18 @@ def weighting_scores(res: RenderResult, truth: np.ndarray, weights: np.ndarray, 
             "share_3plus": float((res.regions[mask] >= 3).mean()) if mask.any() else 0.0, **seam}
 
 
+def score_view(scene, renderer: SweepRenderer, cam: Camera) -> tuple:
+    """One virtual view of the procedural ``scene`` against its analytic truth: (the truth, the sweep's render
+    (64 planes), the scored mask: inside the object where the sweep found a depth, per method
+    :func:`weighting_scores` of that one sweep re-coloured)."""
+    gt = render(scene, cam, with_background=False)
+    first = renderer.render(cam, planes=64, near=NEAR, far=FAR)
+    mask = gt.silhouette & np.isfinite(first.depth)
+    weights, samples = all_weights(renderer, first), camera_samples(renderer, first)
+    return gt, first, mask, {name: weighting_scores(res, gt.image, weights[name], samples, mask)
+                             for name, res in all_methods(renderer, first).items()}
+
+
 def mean_scores(per_view: list[dict]) -> dict:
     """Means over views of :func:`weighting_scores` (seam and curve-pair counts summed; the largest seam step
     of all views)."""
@@ -166,12 +178,9 @@ def procedural_quality(scene, renderer: SweepRenderer, size, quick: bool) -> dic
     for a, b in pairs:
         for s in (0.25, 0.5, 0.75):
             cam = arc_camera(float(angles[a] + s * (angles[b] - angles[a])), width=size[0], height=size[1], name="v")
-            gt = render(scene, cam, with_background=False)
-            first = renderer.render(cam, planes=64, near=NEAR, far=FAR)
-            mask = gt.silhouette & np.isfinite(first.depth)
-            weights, samples = all_weights(renderer, first), camera_samples(renderer, first)
-            for name, res in all_methods(renderer, first).items():
-                scores[name].append(weighting_scores(res, gt.image, weights[name], samples, mask))
+            gt, first, mask, view = score_view(scene, renderer, cam)
+            for name, v in view.items():
+                scores[name].append(v)
             depth_mae.append(float(np.mean(np.abs(first.depth[mask] - gt.depth[mask]))))
     return {m: {**mean_scores(v), "depth_mae_m": float(np.mean(depth_mae))} for m, v in scores.items()}
 
@@ -292,12 +301,9 @@ def dome_quality(scene, renderer: SweepRenderer, lattice: np.ndarray, quick: boo
         vertex = lattice[tri[t % 3]]
         for s in (0.0, 0.25, 0.5):
             cam = dome_camera(centre + s * (vertex - centre), DOME_SIZE, f"tri{t}_{s}")
-            gt = render(scene, cam, with_background=False)
-            first = renderer.render(cam, planes=64, near=NEAR, far=FAR)
-            mask = gt.silhouette & np.isfinite(first.depth)
-            weights, samples = all_weights(renderer, first), camera_samples(renderer, first)
-            for name, res in all_methods(renderer, first).items():
-                per[name].append(weighting_scores(res, gt.image, weights[name], samples, mask))
+            gt, first, mask, view = score_view(scene, renderer, cam)
+            for name, v in view.items():
+                per[name].append(v)
             if s == 0.0 and per["kojima"][-1]["seams"] > picture.get("seams", -1):
                 picture = {"seams": per["kojima"][-1]["seams"], "camera": cam, "first": first, "truth": gt.image,
                            "mask": mask, "triangle": tri}
@@ -390,7 +396,7 @@ def triple_junction_picture(renderer: SweepRenderer, worst: dict, path: Path) ->
     path.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(path), sheet)
     d = worst["camera"].center - np.array(DEFAULT_TARGET)
-    return {"file": f"benchmarks/results/{path.name}", "triangle": tri,
+    return {"file": shown_path(path), "triangle": tri,
             "azimuth_elevation_deg": [float(np.degrees(np.arctan2(d[0], -d[1]))),
                                       float(np.degrees(np.arcsin(d[2] / np.linalg.norm(d))))],
             "crop_xywh": [x0, y0, cw, ch], "seams_in_crop": n_k,
@@ -570,6 +576,12 @@ MIDDLEBURY_NOTES = [
 ]
 
 
+MIDDLEBURY_SETS = {  # name -> label, file prefix, held-out view, input sets, GT disparity file, its divisor
+    "teddy": ("Teddy", "im", 4, {"im3_im5": [3, 5], "im2_im6": [2, 6], "all": [0, 1, 2, 3, 5, 6, 7, 8]}, "disp2.pgm", 4.0),
+    "art": ("Art", "view", 3, {"view2_view4": [2, 4], "view1_view5": [1, 5], "all": [0, 1, 2, 4, 5, 6]}, "disp1.png", 2.0),
+}
+
+
 def weighting_sections(results: dict, notes: list[str], quick: bool, skip_data: bool, t0: float) -> None:
     """The colour-weighting sections, into ``results`` ("quality", "temporal", "dome") and ``notes``."""
     size = (320, 240) if quick else (640, 480)
@@ -580,22 +592,14 @@ def weighting_sections(results: dict, notes: list[str], quick: bool, skip_data: 
     print(f"temporal done ({time.perf_counter() - t0:.0f} s)", flush=True)
     planes = 64 if quick else 128
     if not skip_data:
-        teddy = dataset("multiview", "teddy")
-        if teddy is None:
-            notes.append("Middlebury Teddy not found under $SWEEPCAST_DATA: skipped.")
-        else:
-            sets = {"im3_im5": [3, 5], "im2_im6": [2, 6], "all": [0, 1, 2, 3, 5, 6, 7, 8]}
-            for k, v in rectified_quality(teddy, "im", 4, sets, "disp2.pgm", 4.0, 4, planes).items():
-                results["quality"][f"teddy_{k}"] = v
-            print(f"teddy done ({time.perf_counter() - t0:.0f} s)", flush=True)
-        art = dataset("multiview", "art")
-        if art is None:
-            notes.append("Middlebury Art not found under $SWEEPCAST_DATA: skipped.")
-        else:
-            sets = {"view2_view4": [2, 4], "view1_view5": [1, 5], "all": [0, 1, 2, 4, 5, 6]}
-            for k, v in rectified_quality(art, "view", 3, sets, "disp1.png", 2.0, 4, planes).items():
-                results["quality"][f"art_{k}"] = v
-            print(f"art done ({time.perf_counter() - t0:.0f} s)", flush=True)
+        for name, (label, prefix, target, sets, disp_file, disp_div) in MIDDLEBURY_SETS.items():
+            folder = dataset("multiview", name)
+            if folder is None:
+                notes.append(f"Middlebury {label} not found under $SWEEPCAST_DATA: skipped.")
+                continue
+            for k, v in rectified_quality(folder, prefix, target, sets, disp_file, disp_div, 4, planes).items():
+                results["quality"][f"{name}_{k}"] = v
+            print(f"{name} done ({time.perf_counter() - t0:.0f} s)", flush=True)
         temple = dataset("multiview", "temple")
         if temple is None:
             notes.append("templeSparseRing not found under $SWEEPCAST_DATA: skipped.")
