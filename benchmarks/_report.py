@@ -59,14 +59,23 @@ def machine() -> dict[str, Any]:
     }
 
 
+def _main_module() -> str | None:
+    """The module ``python -m`` ran (``benchmarks.sweep`` for its ``__main__``), None for a script run."""
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    return spec.name.removesuffix(".__main__") if spec is not None and spec.name else None
+
+
+def prog() -> str | None:
+    """The program name for a script's ``--help``: ``python -m benchmarks.x`` when run as a module."""
+    module = _main_module()
+    return f"python -m {module}" if module else None
+
+
 def command_line() -> str:
     """The command that started this process, as a person would type it (``python -m benchmarks.x ...`` for a
     module run, ``python path/to/script.py ...`` otherwise)."""
-    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
-    if spec is not None and spec.name:
-        start = ["-m", spec.name.removesuffix(".__main__")]
-    else:
-        start = [os.path.relpath(sys.argv[0], BENCH_DIR.parent) if sys.argv else "?"]
+    module = _main_module()
+    start = ["-m", module] if module else [os.path.relpath(sys.argv[0], BENCH_DIR.parent) if sys.argv else "?"]
     return "python " + " ".join(shlex.quote(a) for a in [*start, *sys.argv[1:]])
 
 
@@ -178,9 +187,8 @@ class Sections:
         self.name = name
         self.sections: dict[str, Section] = {}
         self.upgrade = upgrade
-        spec = getattr(sys.modules.get("__main__"), "__spec__", None)
         self.parser = argparse.ArgumentParser(
-            prog=f"python -m {spec.name.removesuffix('.__main__')}" if spec is not None and spec.name else None,
+            prog=prog(),
             description=(doc or name).strip().split("\n\n")[0],
             epilog=f"Results: benchmarks/results/{name}.json and the {name} section of benchmarks/RESULTS.md; "
                    "--list names the sections.")

@@ -22,7 +22,7 @@ from typing import Iterator
 import httpx
 from websockets.sync.client import connect
 
-from benchmarks._report import md_table, publish
+from benchmarks._report import md_table, prog, publish
 from tests.servers import create_database, exit_on_sigterm, ray_cluster, serve_app, temp_postgres
 from workers.common.datasets import dataset
 
@@ -104,7 +104,7 @@ def first_progress_ms(database_url: str | None, repeats: int) -> dict[str, float
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog=prog(), description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer photos and repeats")
     args = parser.parse_args()
     batches, per_batch, repeats = (2, 8, 5) if args.quick else (4, 30, 20)

@@ -38,7 +38,7 @@ from pathlib import Path
 import httpx
 import websockets
 
-from benchmarks._report import md_table, publish
+from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load_note
 from benchmarks.streaming import cpu_seconds, demo_recording, view_message, wait_for
 from tests.servers import serve_app
@@ -334,7 +334,7 @@ def markdown(r: dict) -> str:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("--skip-service", action="store_true", help="only the in-process parts (1 and 2)")
     args = ap.parse_args()
     load_before = os.getloadavg()[0]

@@ -39,7 +39,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from benchmarks._report import RESULTS_DIR, md_table, publish
+from benchmarks._report import RESULTS_DIR, md_table, prog, publish
 from benchmarks._timing import timed
 from benchmarks.bd import bd_pair
 from workers.common.datasets import dataset
@@ -510,7 +510,7 @@ def markdown(results: dict, grid: dict, labels: list[str]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="H.264 only, nearest upsampling, no throughput; not published")
     ap.add_argument("--factor", type=int, default=2, help="depth downsampling factor (default 2)")
     ap.add_argument("--qps", type=int, nargs=4, default=list(QPS), help="four QPs (default 22 27 32 37)")

@@ -33,7 +33,7 @@ import numpy as np
 import websockets
 from websockets.sync.client import connect
 
-from benchmarks._report import md_table, publish
+from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load_note
 from benchmarks.cluster import photos
 from benchmarks.coldstart import make_flight
@@ -281,7 +281,7 @@ def kill_api(stack: Stack) -> dict:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("--compose", required=True, help="the podman-compose command with -p and -f")
     ap.add_argument("--project", required=True)
     ap.add_argument("--port", type=int, default=8000)

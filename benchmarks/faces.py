@@ -46,7 +46,7 @@ from sklearn.linear_model import LogisticRegression
 from sklearn.svm import SVC
 
 from benchmarks import _plots as plots
-from benchmarks._report import RESULTS_DIR, md_table, publish
+from benchmarks._report import RESULTS_DIR, md_table, prog, publish
 from benchmarks._timing import timed
 from workers.common.datasets import dataset
 from workers.faces.blas import single_threaded
@@ -554,7 +554,7 @@ def markdown(qs: list[float], results: dict, reference: dict, plausible: dict, f
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer people, fewer Q values, fewer repeats")
     parser.add_argument("--plots-only", action="store_true", help="redraw the charts from results/faces.json")
     args = parser.parse_args(argv)

@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from benchmarks._report import md_table, publish
+from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load, timed
 from workers.faces.errors import FaceInputError
 from workers.faces.mesh import Mesh, read_mesh, write_mesh
@@ -133,7 +133,7 @@ def _outcome(lib: str, data: bytes, name: str) -> str:
 
 
 def main() -> int:
-    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()  # --help: no run
+    argparse.ArgumentParser(prog=prog(), description=__doc__.split("\n\n")[0]).parse_args()  # --help: no run
     hostile = {}
     for what, data, name in HOSTILE:
         hostile[what] = {lib: outcome(lib, data, name) for lib in READERS}

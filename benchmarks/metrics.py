@@ -14,7 +14,7 @@ import sys
 import cv2
 import numpy as np
 
-from benchmarks._report import md_table, publish
+from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load, timed
 from workers.common.datasets import dataset
 from workers.common.imagemetrics import SSIM_SIGMA, luma, psnr, ssim, ssim_map
@@ -48,7 +48,7 @@ def _skimage_psnr(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def main() -> int:
-    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()  # --help: no run
+    argparse.ArgumentParser(prog=prog(), description=__doc__.split("\n\n")[0]).parse_args()  # --help: no run
     teddy = dataset("multiview", "teddy")
     if teddy is None:
         print("no Middlebury Teddy in $SWEEPCAST_DATA; nothing measured", file=sys.stderr)

@@ -67,7 +67,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from benchmarks._report import md_table, publish
+from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load_note, settle_server
 from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app
 from workers.common.datasets import data_root, dataset
@@ -893,7 +893,7 @@ def writers_markdown(result: dict) -> str:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     parser.add_argument("--writers", action="store_true",
                         help="only the writers comparison (ours vs Exiv2 vs ExifTool), section orientation_writers")
     parser.add_argument("--throughput", action="store_true",

@@ -39,7 +39,7 @@ import numpy as np
 import piexif
 from websockets.sync.client import connect
 
-from benchmarks._report import md_table, publish
+from benchmarks._report import md_table, prog, publish
 from tests.servers import ServedApp, serve_app
 from workers.common.datasets import data_root, dataset
 
@@ -491,7 +491,7 @@ def markdown(r: dict) -> str:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer repetitions, cases, clients and cycles")
     ap.add_argument("--tenants", action="store_true", help="only the owners, keys and quotas section")
     args = ap.parse_args()

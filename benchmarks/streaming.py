@@ -60,7 +60,7 @@ import httpx
 import numpy as np
 import websockets
 
-from benchmarks._report import md_table, publish
+from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load_note, wait_quiet
 from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app
 from workers.streaming.framing import unpack_message
@@ -239,7 +239,7 @@ async def first_frame(url: str) -> None:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="5 s per configuration instead of 15")
     ap.add_argument("--seconds", type=float, help="measurement time per configuration")
     ap.add_argument("--viewer-sizes", action="store_true", help="only: the viewer's default size (one viewer per size)")

@@ -42,7 +42,7 @@ import httpx
 import numpy as np
 import websockets
 
-from benchmarks._report import md_table, publish
+from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import settle_server
 from tests.browser import chromium, render_in_browser, static_site
 from workers.common.datasets import dataset
@@ -542,7 +542,7 @@ def latency(quick: bool, size: str) -> int:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("section", choices=["quality", "fps", "cost", "latency"])
     ap.add_argument("--quick", action="store_true", help="half-size views / fewer repeats")
     ap.add_argument("--webgl", choices=["swiftshader", "gpu"], default="swiftshader",

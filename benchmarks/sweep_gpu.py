@@ -18,7 +18,7 @@ import time
 import numba
 import numpy as np
 
-from benchmarks._report import md_table, publish
+from benchmarks._report import md_table, prog, publish
 from workers.synth import arc_angles, arc_camera, default_arc_rig, default_scene, render, render_views
 from workers.common.imagemetrics import psnr
 from workers.sweep.renderer import RenderOptions, SweepRenderer, _wants_gpu
@@ -70,7 +70,7 @@ def gpu_name() -> str | None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
     cores = numba.config.NUMBA_NUM_THREADS
