@@ -5,6 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.sweepcast-installed
 KERNELS := $(VENV)/.sweepcast-warmed
 DOCS_STAMP := $(VENV)/.sweepcast-docs
+BENCH_STAMP := $(VENV)/.sweepcast-bench
 
 .PHONY: serve test docs bench openapi clean
 
@@ -36,6 +37,16 @@ $(DOCS_STAMP): $(STAMP)
 
 docs: $(DOCS_STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
+# One benchmark of benchmarks/, run as a module with the bench extra: make bench NAME=sweep ARGS="--only speed --quick"
+# (python -m benchmarks.sweep --help / --list: its options and sections). It writes benchmarks/RESULTS.md.
+$(BENCH_STAMP): $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[bench]'
+	touch $(BENCH_STAMP)
+
+bench: $(BENCH_STAMP)
+	@test -n "$(NAME)" || { echo "usage: make bench NAME=<one of: $$(ls benchmarks | sed -n 's/^\([a-z][a-z_]*\)\(\.py\)\{0,1\}$$/\1/p' | grep -v '^\(results\|bd\)$$' | tr '\n' ' ')> [ARGS=...]"; exit 2; }
+	$(BIN)/python -m benchmarks.$(NAME) $(ARGS)
 
 openapi: $(STAMP)
 	$(BIN)/sweepcast openapi

@@ -21,6 +21,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from benchmarks._timing import load_average
 from benchmarks._report import RESULTS_DIR, md_table
 from workers.common.datasets import dataset
 from workers.drone.evaluation import trajectory_error
@@ -43,10 +44,6 @@ ORTHO_GOAL_DB = 30.0
 FOCAL_GOAL = 0.03
 JOB_GOAL_S = 120.0
 FC350_FOCAL = (693.3, 702.1)  # EXIF: 35 mm equivalent (diagonal) and focal length on the FC350's 6.17 mm sensor
-
-
-def _load() -> float:
-    return round(os.getloadavg()[0], 2)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -130,7 +127,7 @@ def synthetic(quick: bool) -> tuple[dict[str, Any], str]:
     try:
         folder = work / "stills"
         write_geotagged_stills(folder, frames, cams, SYNTH_EPSG, SYNTH_ORIGIN, focal_35mm=SYNTH_F35)
-        load0 = _load()
+        load0 = load_average(2)
         t1 = time.perf_counter()
         res = run_pipeline(folder, ReconstructionParams())
         job_s = time.perf_counter() - t1
@@ -160,7 +157,7 @@ def synthetic(quick: bool) -> tuple[dict[str, Any], str]:
         picture = RESULTS_DIR / "mapping_synthetic_seams.png"
         _seams_picture(ortho, truth, prod.ortho.source, err, picture)
         out.update({
-            "job_s": round(job_s, 1), "load_average": [load0, _load()],
+            "job_s": round(job_s, 1), "load_average": [load0, load_average(2)],
             "timings_s": model.report["timings_s"], "gsd_m": grid.gsd, "grid": [grid.width, grid.height],
             "dsm_error_gsd": {"rmse": float(np.sqrt(np.mean(e**2))), "median_abs": float(np.median(np.abs(e))),
                               "median": float(np.median(e)), "p90_abs": float(np.percentile(np.abs(e), 90)),
@@ -305,7 +302,7 @@ def real_stills(quick: bool) -> tuple[dict[str, Any], str]:
         gps, epsg = _gps_utm(folder, names)
         out: dict[str, Any] = {"images": len(names), "epsg": epsg}
         # The whole job, no parameters: what a user gets.
-        load0 = _load()
+        load0 = load_average(2)
         t0 = time.perf_counter()
         res = run_pipeline(media, ReconstructionParams())
         files = work / "out"
@@ -317,7 +314,7 @@ def real_stills(quick: bool) -> tuple[dict[str, Any], str]:
         geo = model.report["georeference"]
         out["ours_selfcal"] = {
             **_ate_vs_gps(model, names, gps, res.georef.origin), "job_s": round(job_s, 1),
-            "load_average": [load0, _load()], "timings_s": model.report["timings_s"],
+            "load_average": [load0, load_average(2)], "timings_s": model.report["timings_s"],
             "focal_px": lens["fx"], "focal_source": lens["source"], "focal_refined": lens["focal_refined"],
             "focal_conflict_sigmas": lens["focal_conflict_sigmas"],
             "focal_images_sigma_px": lens["focal_images_sigma_px"], "distortion": lens["distortion"][:2],
@@ -333,8 +330,8 @@ def real_stills(quick: bool) -> tuple[dict[str, Any], str]:
             out[key] = {**_ate_vs_gps(r.model, names, gps, r.georef.origin),
                         "seconds": round(time.perf_counter() - t1, 1), "focal_px": r.model.report["intrinsics"]["fx"]}
         if pycolmap is not None:
-            load1 = _load()
-            out["pycolmap_selfcal"] = {**_pycolmap_selfcal(media, names, gps), "load_average": [load1, _load()]}
+            load1 = load_average(2)
+            out["pycolmap_selfcal"] = {**_pycolmap_selfcal(media, names, gps), "load_average": [load1, load_average(2)]}
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return out, _real_md(out)

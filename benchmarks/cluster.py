@@ -1,7 +1,7 @@
 """Scale-out figures: orientation batch throughput on 1 and 2 Ray nodes, and the time from submit to
 the first progress event with SQLite versus PostgreSQL.
 
-    python benchmarks/cluster.py [--quick]
+    python -m benchmarks.cluster [--quick]
 
 Every run starts its own servers on loopback: a Ray cluster with `ray start` (a head without task
 CPUs plus 1 or 2 worker nodes of one CPU each), a throw-away PostgreSQL, and the API as a
@@ -13,22 +13,20 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import sys
 import tempfile
 import time
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
+import httpx
+from websockets.sync.client import connect
+
+from benchmarks._report import md_table, prog, publish
+from tests.servers import create_database, exit_on_sigterm, ray_cluster, serve_app, temp_postgres
+from workers.common.datasets import dataset
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import httpx  # noqa: E402
-from websockets.sync.client import connect  # noqa: E402
-
-from benchmarks._report import md_table, publish  # noqa: E402
-from tests.servers import create_database, exit_on_sigterm, ray_cluster, serve_app, temp_postgres  # noqa: E402
-from workers.common.datasets import dataset  # noqa: E402
 
 
 def photos(count: int) -> list[tuple[str, bytes]]:
@@ -106,7 +104,7 @@ def first_progress_ms(database_url: str | None, repeats: int) -> dict[str, float
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog=prog(), description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer photos and repeats")
     args = parser.parse_args()
     batches, per_batch, repeats = (2, 8, 5) if args.quick else (4, 30, 20)

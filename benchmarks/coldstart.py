@@ -21,7 +21,7 @@
    is ready; then the first photo's orientation (a real face photo), the first reconstruction job (the generated
    36-frame flight) and a second one (the warm time the first is compared with).
 
-Run: ``python benchmarks/coldstart.py`` from the repository root (about 15 minutes on 2 cores).
+Run: ``python -m benchmarks.coldstart`` from the repository root (about 15 minutes on 2 cores).
 """
 from __future__ import annotations
 
@@ -38,11 +38,10 @@ from pathlib import Path
 import httpx
 import websockets
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._report import md_table, publish  # noqa: E402
-from benchmarks.streaming import cpu_seconds, demo_recording, view_message, wait_for  # noqa: E402
-from tests.servers import serve_app  # noqa: E402
+from benchmarks._report import md_table, prog, publish
+from benchmarks._timing import load_note
+from benchmarks.streaming import cpu_seconds, demo_recording, view_message, wait_for
+from tests.servers import serve_app
 
 ROOT = Path(__file__).resolve().parents[1]
 GOALS = {"ready_s": 5.0, "first_frame_after_ready_s": 3.0, "request_compile_s": 3.0, "first_reconstruction_x": 2.0}
@@ -260,8 +259,7 @@ def _cell(value: float | None, digits: int = 1) -> str:
 def markdown(r: dict) -> str:
     rows = [[name, f"{v['compile_s']:.1f}", f"{v['cached_s']:.2f}"] for name, v in r["kernels"].items()]
     load = r["load_average_before"]
-    parts = [f"Load average before the run {load:.2f} on {os.cpu_count()} cores"
-             + (" (other work shared the CPU: every figure here is high)" if load > 0.5 else "") + ".", "",
+    parts = [load_note(load), "",
              "Kernels, each engine's warm-up (`workers.warmup`) in a fresh process: with an empty cache, and with "
              "the cache the first process wrote.", "", md_table(["engine", "compile (s)", "from cache (s)"], rows), ""]
     rows = [[name, f"{v['cold_s']:.2f}", f"{v['warm_start_s']:.2f}", f"{v['steady_s']:.2f}"]
@@ -336,7 +334,7 @@ def markdown(r: dict) -> str:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("--skip-service", action="store_true", help="only the in-process parts (1 and 2)")
     args = ap.parse_args()
     load_before = os.getloadavg()[0]

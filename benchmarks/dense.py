@@ -1,6 +1,6 @@
 """Dense reconstruction benchmark (issue 15): accuracy, completeness, consistency and speed.
 
-    python benchmarks/dense.py [--quick] [--only middlebury,temple,drone,speed]
+    python -m benchmarks.dense [--quick] [--only middlebury,temple,drone,speed] [--list]
 
 1. Middlebury Teddy and Art (rectified, GT disparity of the reference view): the reference view's depth
    map from 2 views and from all views, ZNCC sweep (window and SGM aggregation) against the renderer's cost
@@ -15,35 +15,26 @@
 """
 from __future__ import annotations
 
-import argparse
 import json
-import os
-import sys
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._report import RESULTS_DIR, md_table, publish  # noqa: E402
-from benchmarks.sweep import REF_SPACINGS, STEREO_CASES, sgbm_disparity  # noqa: E402
-from workers.common.datasets import dataset  # noqa: E402
-from workers.drone import dense  # noqa: E402
-from workers.drone.calibration import from_values  # noqa: E402
-from workers.drone.pipeline import dense_pass  # noqa: E402
-from workers.drone.params import ReconstructionParams  # noqa: E402
-from workers.drone.preview import render_preview  # noqa: E402
-from workers.drone.reconstruction import reconstruct  # noqa: E402
-from workers.sweep.renderer import SweepRenderer  # noqa: E402
-from workers.sweep.rig import Rig  # noqa: E402
-from workers.sweep.rig_io import load_middlebury_par, rectified_rig  # noqa: E402
-from workers.sweep.silhouette import silhouette_from_background  # noqa: E402
-
-
-def _load() -> float:
-    return os.getloadavg()[0]
+from benchmarks._report import RESULTS_DIR, Sections, md_table
+from benchmarks._timing import load_average
+from benchmarks.sweep.stereo import REF_SPACINGS, STEREO_CASES, sgbm_disparity
+from workers.common.datasets import dataset
+from workers.drone import dense
+from workers.drone.calibration import from_values
+from workers.drone.pipeline import dense_pass
+from workers.drone.params import ReconstructionParams
+from workers.drone.preview import render_preview
+from workers.drone.reconstruction import reconstruct
+from workers.sweep.renderer import SweepRenderer
+from workers.sweep.rig import Rig
+from workers.sweep.rig_io import load_middlebury_par, rectified_rig
+from workers.sweep.silhouette import silhouette_from_background
 
 
 def _view(cam, image) -> dense.View:
@@ -310,13 +301,13 @@ def bench_speed(quick: bool) -> tuple[dict, str]:
     for label, c2f in (("full", False), ("coarse_to_fine", True)):
         if quick and not c2f:
             continue
-        load0 = _load()
+        load0 = load_average()
         cpu0 = time.process_time()
         t0 = time.perf_counter()
         dm = dense.depth_map(ref, nbrs, near, far, 128, radius=2, k=4, coarse_to_fine=c2f)
         dt = time.perf_counter() - t0
         out[label] = {"s": dt, "cpu_s": time.process_time() - cpu0, "valid": float((dm.depth > 0).mean()),
-                      "msamples_per_s": w * h * len(nbrs) * 128 / dt / 1e6, "load_average": (load0 + _load()) / 2}
+                      "msamples_per_s": w * h * len(nbrs) * 128 / dt / 1e6, "load_average": (load0 + load_average()) / 2}
         out[label + "_depth"] = dm.depth
     if "full" in out:
         a, b = out["full_depth"], out["coarse_to_fine_depth"]
@@ -348,35 +339,27 @@ def bench_speed(quick: bool) -> tuple[dict, str]:
     return out, md
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="fewer planes, half-resolution drone maps")
-    ap.add_argument("--only", help="comma-separated subset of middlebury,temple,drone,speed (others kept from the "
-                                   "previous results JSON)")
-    args = ap.parse_args()
-    benches = {"middlebury": bench_middlebury, "temple": bench_temple, "drone": bench_drone, "speed": bench_speed}
-    chosen = args.only.split(",") if args.only else list(benches)
-    prev = {}
-    prev_json = RESULTS_DIR / "dense.json"
-    if args.only and prev_json.exists():
-        prev = json.loads(prev_json.read_text())
-    results, mds = {}, {}
-    load0 = _load()
-    for name in benches:
-        if name in chosen:
-            print(f"{name} ...", flush=True)
-            results[name], mds[name] = benches[name](args.quick)
-        elif name in prev:
-            results[name], mds[name] = prev[name], prev.get("markdown", {}).get(name, "")
-    load1 = _load()
-    results["load_average"] = {"start": load0, "end": load1}
-    results["markdown"] = mds
-    md = "\n".join(mds[n] for n in benches if n in mds)
-    md += (f"\n- 1-minute load average {load0:.1f} at the start and {load1:.1f} at the end on 2 cores (the machine "
-           "is shared; timings under load are slower than on a quiet machine).\n")
-    publish("dense", {k: v for k, v in results.items()}, md)
-    return 0
+def upgrade(old: dict) -> dict:
+    """A results file of the script before sections: each section's markdown moved into its results."""
+    stored = old.pop("markdown", {})
+    for name, md in stored.items():
+        if isinstance(old.get(name), dict):
+            old[name] = {**old[name], "markdown": md}
+    return old
+
+
+sections = Sections("dense", __doc__, upgrade=upgrade)
+sections.parser.add_argument("--quick", action="store_true", help="fewer planes, half-resolution drone maps")
+sections.add("middlebury", "Teddy and Art depth maps: ZNCC sweep vs the renderer's cost vs SGBM",
+             lambda a: bench_middlebury(a.quick))
+sections.add("temple", "templeSparseRing: completeness and consistency, GT and SfM poses", lambda a: bench_temple(a.quick))
+sections.add("drone", "sfm/drone_fc350: our SfM and the dense pass with the job's defaults", lambda a: bench_drone(a.quick))
+sections.add("speed", "seconds per 1200x900 depth map, full sweep and coarse-to-fine", lambda a: bench_speed(a.quick))
+
+
+def markdown(results: dict, kept: list[str]) -> str:
+    return "\n".join(sections.stored_markdown(results, kept))
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(sections.main(markdown))

@@ -23,7 +23,7 @@ maps to the view and keeping the nearer surface (exact wherever one GT view sees
 pixels are filled from the background side before coding. Depth errors (MAE, > 1 px bad rate) are
 measured on the GT views only, where GT is known.
 
-Run: ``nice -n 10 python benchmarks/depth.py [--quick]`` from the repository root (``--quick``:
+Run: ``nice -n 10 python -m benchmarks.depth [--quick]`` from the repository root (``--quick``:
 H.264 only, nearest upsampling, no throughput run; it does not publish).
 """
 from __future__ import annotations
@@ -39,19 +39,17 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._report import RESULTS_DIR, md_table, publish  # noqa: E402
-from benchmarks._timing import timed  # noqa: E402
-from benchmarks.bd import bd_pair  # noqa: E402
-from workers.common.datasets import dataset  # noqa: E402
-from workers.common.imagemetrics import psnr  # noqa: E402
-from workers.depth import dibr, metrics  # noqa: E402
-from workers.depth.levels import disparity_to_levels, levels_to_disparity  # noqa: E402
-from workers.depth.methods import FilterOptions, apply_method, postprocess  # noqa: E402
-from workers.depth.pipeline import FramePipeline  # noqa: E402
-from workers.depth.upsample import upsample  # noqa: E402
-from workers.depth.video import available_codecs, code_depth, code_texture  # noqa: E402
+from benchmarks._report import RESULTS_DIR, md_table, prog, publish
+from benchmarks._timing import timed
+from benchmarks.bd import bd_pair
+from workers.common.datasets import dataset
+from workers.common.imagemetrics import psnr
+from workers.depth import dibr, metrics
+from workers.depth.levels import disparity_to_levels, levels_to_disparity
+from workers.depth.methods import FilterOptions, apply_method, postprocess
+from workers.depth.pipeline import FramePipeline
+from workers.depth.upsample import upsample
+from workers.depth.video import available_codecs, code_depth, code_texture
 
 QPS = (22, 27, 32, 37)
 PAPER_METHODS = ["dilation", "modified", "modified_morph"]
@@ -512,7 +510,7 @@ def markdown(results: dict, grid: dict, labels: list[str]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="H.264 only, nearest upsampling, no throughput; not published")
     ap.add_argument("--factor", type=int, default=2, help="depth downsampling factor (default 2)")
     ap.add_argument("--qps", type=int, nargs=4, default=list(QPS), help="four QPs (default 22 27 32 37)")

@@ -2,7 +2,7 @@
 
 Called by ``docker/verify-stack.sh`` (as root, after it built the images and started the S3 stand-in):
 
-    python benchmarks/docker_stack.py --compose "podman-compose -p P -f FILE" --project P --port 8000 \
+    python -m benchmarks.docker_stack --compose "podman-compose -p P -f FILE" --project P --port 8000 \
         --image-record /var/tmp/sweepcast-image/app-image.json
 
 Steps, each timed: ``up`` to ``/readyz`` 200 on both API replicas; a photo batch, a depth video and a
@@ -33,12 +33,11 @@ import numpy as np
 import websockets
 from websockets.sync.client import connect
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._report import md_table, publish  # noqa: E402
-from benchmarks.cluster import photos  # noqa: E402
-from benchmarks.coldstart import make_flight  # noqa: E402
-from benchmarks.streaming import view_message  # noqa: E402
+from benchmarks._report import md_table, prog, publish
+from benchmarks._timing import load_note
+from benchmarks.cluster import photos
+from benchmarks.coldstart import make_flight
+from benchmarks.streaming import view_message
 
 FINAL = ("succeeded", "failed", "cancelled")
 
@@ -282,7 +281,7 @@ def kill_api(stack: Stack) -> dict:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("--compose", required=True, help="the podman-compose command with -p and -f")
     ap.add_argument("--project", required=True)
     ap.add_argument("--port", type=int, default=8000)
@@ -362,8 +361,7 @@ def markdown(r: dict) -> str:
         f"times while replica 1 was down; after `down`/`up`, all {r['after_down_up']['files']} result files of "
         f"{r['after_down_up']['jobs']} finished jobs were fetched byte-identical.",
         "",
-        f"Load average (1 min) {la['before'][0]:.1f} before, {la['after'][0]:.1f} after: other work was running "
-        "on this 2-core machine, so the seconds above are longer than on an idle one.",
+        load_note(la["before"][0], la["after"][0]),
     ])
 
 

@@ -1,6 +1,6 @@
 """Drone reconstruction benchmarks (issue 6).
 
-    python benchmarks/drone.py [--quick] [--only ba,synthetic,slow_flight,temple,drone_fc350,mapping]
+    python -m benchmarks.drone [--quick] [--no-scipy] [--only ba,synthetic,slow_flight,temple,drone_fc350,mapping] [--list]
 
 1. Bundle adjustment alone on BAL problem-49-7776: our LM (Schur complement) vs scipy
    ``least_squares`` (SciPy cookbook settings; skipped with --quick) vs ``pycolmap.bundle_adjustment``
@@ -34,22 +34,20 @@ from typing import Any, Callable
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._drone_mapping import bench_mapping  # noqa: E402
-from benchmarks._timing import timed  # noqa: E402
-from benchmarks._report import md_table, publish  # noqa: E402
-from workers.common.datasets import dataset  # noqa: E402
-from workers.drone import bundle  # noqa: E402
-from workers.drone.bal import BALProblem, read_bal  # noqa: E402
-from workers.drone.calibration import from_values  # noqa: E402
-from workers.drone.camera_models import BALModel, pose_params, poses_from_params  # noqa: E402
-from workers.drone.evaluation import trajectory_error  # noqa: E402
-from workers.drone.features import fast_corners_adaptive, sift_features, spread  # noqa: E402
-from workers.drone.geometry import camera_centre  # noqa: E402
-from workers.drone.matching import essential_inliers, fast_lk_match, global_shift, sift_ratio_matches  # noqa: E402
-from workers.drone.params import ReconstructionParams  # noqa: E402
-from workers.drone.reconstruction import SparseModel, reconstruct  # noqa: E402
+from benchmarks._drone_mapping import bench_mapping
+from benchmarks._timing import load_average, timed
+from benchmarks._report import Sections, md_table
+from workers.common.datasets import dataset
+from workers.drone import bundle
+from workers.drone.bal import BALProblem, read_bal
+from workers.drone.calibration import from_values
+from workers.drone.camera_models import BALModel, pose_params, poses_from_params
+from workers.drone.evaluation import trajectory_error
+from workers.drone.features import fast_corners_adaptive, sift_features, spread
+from workers.drone.geometry import camera_centre
+from workers.drone.matching import essential_inliers, fast_lk_match, global_shift, sift_ratio_matches
+from workers.drone.params import ReconstructionParams
+from workers.drone.reconstruction import SparseModel, reconstruct
 
 try:
     import pycolmap
@@ -57,10 +55,6 @@ except ImportError:  # pragma: no cover - optional
     pycolmap = None
 
 FLIP = np.diag([1.0, -1.0, -1.0])  # BAL (looks down -z, y up) <-> COLMAP/OpenCV axes
-
-
-def _load() -> float:
-    return round(os.getloadavg()[0], 2)
 
 
 def _timed(fn: Callable[[], Any]) -> tuple[Any, float]:
@@ -261,7 +255,7 @@ def bench_ba(quick: bool, scipy_too: bool = True) -> tuple[dict[str, Any], str]:
     keep = _in_front(full)
     prob = BALProblem(full.params, full.points, full.cam_idx[keep], full.pt_idx[keep], full.obs[keep])
     repeats = 1 if quick else 3
-    load0 = _load()
+    load0 = load_average(2)
     out: dict[str, Any] = {"observations": int(keep.sum()), "dropped_behind_camera": int((~keep).sum()),
                            "initial_cost": _bal_cost(prob, prob.params, prob.points)[0]}
     # pycolmap runs Ceres for 100 iterations with function_tolerance 0. "ours" stops when an accepted
@@ -275,7 +269,7 @@ def bench_ba(quick: bool, scipy_too: bool = True) -> tuple[dict[str, Any], str]:
     if not quick and scipy_too:
         out["scipy"] = _scipy_ba(prob)
     out["profile_ms_per_iteration"] = _ba_profile(prob)
-    out["load_average"] = [load0, _load()]
+    out["load_average"] = [load0, load_average(2)]
     names = [n for n in ("ours", "ours_100", "ours_default", "pycolmap", "scipy") if n in out]
     ref = out.get("pycolmap")
     rows = []
@@ -417,12 +411,12 @@ def _compare(label: str, image_dir: Path, names: list[str], K: np.ndarray, truth
     sets = {"pycolmap": names, **(extra_sets or {})}
     if pycolmap is not None:
         for set_name, set_names in sets.items():
-            load0 = _load()
+            load0 = load_average(2)
             pc = _run_pycolmap(image_dir, set_names, K, exhaustive)
             out[set_name] = {**_score(pc["poses"], truth, scale), "seconds": pc["seconds"],
                              "stages_s": pc["stages_s"], "registered": len(pc["poses"]), "of": len(set_names),
                              "points": pc["points"], "reprojection_px": pc.get("mean_reprojection_px"),
-                             "load_average": [load0, _load()]}
+                             "load_average": [load0, load_average(2)]}
     if "pycolmap" in out and out["pycolmap"]["ate"]:
         for name in runs:
             if out[name]["ate"] is not None:
@@ -631,10 +625,10 @@ def bench_slow_flight(quick: bool) -> tuple[dict[str, Any], str]:
             image_dir.mkdir()
             # The frames decoded from the video our pipeline read (identical pixels), not the lossless renders.
             _write_decoded(video, image_dir)
-            load0 = _load()
+            load0 = load_average(2)
             pc = _run_pycolmap(image_dir, sorted(truth), K, exhaustive=False)
             out["pycolmap"] = {**_score(pc["poses"], truth), "seconds": pc["seconds"], "registered": len(pc["poses"]),
-                               "stages_s": pc["stages_s"], "load_average": [load0, _load()]}
+                               "stages_s": pc["stages_s"], "load_average": [load0, load_average(2)]}
             rows.append(["pycolmap (every frame)", f"{len(pc['poses'])}/{n}", out["pycolmap"]["ate"],
                          out["pycolmap"]["rotation_deg"], pc["seconds"]])
             if out["pycolmap"]["ate"]:
@@ -755,52 +749,42 @@ def bench_fc350(quick: bool) -> tuple[dict[str, Any], str]:
     return out, md
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="short run: fewer repeats and frames, no scipy")
-    ap.add_argument("--only", help="comma-separated subset of: ba,synthetic,slow_flight,temple,drone_fc350,mapping (the "
-                                   "other sections of the previous results are kept)")
-    ap.add_argument("--no-scipy", action="store_true", help="leave out the scipy least_squares BA (about a minute)")
-    args = ap.parse_args()
-    benches = {"ba": bench_ba, "synthetic": bench_synthetic, "slow_flight": bench_slow_flight, "temple": bench_temple,
-               "drone_fc350": bench_fc350, "mapping": bench_mapping}
-    chosen = args.only.split(",") if args.only else list(benches)
-    unknown = set(chosen) - set(benches)
-    if unknown:
-        ap.error(f"unknown section(s): {', '.join(sorted(unknown))}")
-    results: dict[str, Any] = {}
-    previous = Path(__file__).resolve().parent / "results" / "drone.json"
-    if args.only and previous.exists():
-        import json
-
-        old = json.loads(previous.read_text())
-        results.update({k: v for k, v in old.items() if k in benches and k not in chosen})
-    results.update(quick=args.quick, pycolmap=getattr(pycolmap, "__version__", None))
-    done: list[str] = []
-    for name in chosen:
-        print(f"[drone] {name} ...", file=sys.stderr, flush=True)
-        load0 = _load()
-        out, md = (bench_ba(args.quick, not args.no_scipy) if name == "ba" else benches[name](args.quick))
-        out["load_average_start_end"] = [load0, _load()]
-        out["markdown"] = md
-        out["quick"] = args.quick
-        results[name] = out
-        done.append(name)
-        print(md, file=sys.stderr)
-        # Published after every section: a long run stopped half-way keeps what it measured.
-        _publish(results, benches, done)
-    return 0
+sections = Sections("drone", __doc__)
+sections.parser.add_argument("--quick", action="store_true", help="short run: fewer repeats and frames, no scipy")
+sections.parser.add_argument("--no-scipy", action="store_true",
+                             help="leave out the scipy least_squares BA (about a minute)")
 
 
-def _publish(results: dict[str, Any], benches: dict[str, Callable], done: list[str]) -> None:
+def _section(name: str, help: str, bench: Callable[[argparse.Namespace], tuple[dict[str, Any], str]]) -> None:
+    """One section (:meth:`Sections.add`), its results marked with --quick."""
+    def quick_marked(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
+        out, md = bench(args)
+        return {**out, "quick": args.quick}, md
+    sections.add(name, help, quick_marked)
+
+
+_section("ba", "bundle adjustment on BAL problem-49-7776: ours, scipy, pycolmap",
+         lambda a: bench_ba(a.quick, not a.no_scipy))
+_section("synthetic", "a synthetic drone video: ATE and inliers of FAST+LK, SIFT, pycolmap",
+         lambda a: bench_synthetic(a.quick))
+_section("slow_flight", "a slow flight: every decoded frame posed, beside pycolmap",
+         lambda a: bench_slow_flight(a.quick))
+_section("temple", "multiview/temple with ground-truth poses", lambda a: bench_temple(a.quick))
+_section("drone_fc350", "sfm/drone_fc350 stills against EXIF GPS", lambda a: bench_fc350(a.quick))
+_section("mapping", "orthophoto and DSM: synthetic survey and real stills, self-calibrated (issue 32)",
+         lambda a: bench_mapping(a.quick))
+
+
+def markdown(results: dict[str, Any], kept: list[str]) -> str:
     parts = [] if pycolmap is not None else ["pycolmap is not installed (`pip install .[bench]`): its rows are missing.\n"]
-    parts += [results[k].get("markdown", f"### {k}\n\n(see results/drone.json)\n")
-              + ("\n(from an earlier run)\n" if k not in done else "") for k in benches if k in results]
-    loads = [max(results[k].get("load_average_start_end", [0.0])) for k in benches if k in results]
-    parts.append(f"Highest 1-minute load average seen: {max(loads)} on {os.cpu_count()} cores"
-                 + (" (timings measured under CPU contention)." if max(loads) > (os.cpu_count() or 1) else "."))
-    publish("drone", results, "\n".join(parts))
+    names = [k for k in sections.sections if k in results]
+    parts += sections.stored_markdown(results, kept)
+    parts.append("1-minute load average at the start and end of each section: " + ", ".join(
+        f"{k} {'/'.join(str(v) for v in results[k]['load_average_start_end'])}" for k in names
+        if "load_average_start_end" in results[k]) + f" ({os.cpu_count()} cores).")
+    return "\n".join(parts)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(sections.main(markdown, extra=lambda a: {"quick": a.quick,
+                                                       "pycolmap": getattr(pycolmap, "__version__", None)}))

@@ -29,7 +29,7 @@ farthest from the origin), scored for closed and open smiles without emphasis, F
 Speed: training on the 280 meshes (median of repeats), and transforms of one 9409-vertex face
 (median of many), with the two unavoidable matrix products timed in the same run as a baseline.
 
-Run: ``python benchmarks/faces.py [--quick]`` from the repository root.
+Run: ``python -m benchmarks.faces [--quick]`` from the repository root.
 """
 from __future__ import annotations
 
@@ -45,20 +45,18 @@ from sklearn.cluster import KMeans
 from sklearn.linear_model import LogisticRegression
 from sklearn.svm import SVC
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks import _plots as plots  # noqa: E402
-from benchmarks._report import RESULTS_DIR, md_table, publish  # noqa: E402
-from benchmarks._timing import timed  # noqa: E402
-from workers.common.datasets import dataset  # noqa: E402
-from workers.faces.blas import single_threaded  # noqa: E402
-from workers.faces.dataset import NEUTRAL, FaceDataset, load_dataset_zip, write_dataset_zip  # noqa: E402
-from workers.faces.mesh import Mesh, read_mesh, replace_vertices, write_mesh  # noqa: E402
-from workers.faces.pca import fit_pca  # noqa: E402
-from workers.faces.preview import frame, preview_png, render  # noqa: E402
-from workers.faces.synthetic import EXPRESSIONS  # noqa: E402
-from workers.faces.train import TrainSettings, train_face_model  # noqa: E402
-from workers.faces.transform import transform_mesh, transform_vertices  # noqa: E402
+from benchmarks import _plots as plots
+from benchmarks._report import RESULTS_DIR, md_table, prog, publish
+from benchmarks._timing import timed
+from workers.common.datasets import dataset
+from workers.faces.blas import single_threaded
+from workers.faces.dataset import NEUTRAL, FaceDataset, load_dataset_zip, write_dataset_zip
+from workers.faces.mesh import Mesh, read_mesh, replace_vertices, write_mesh
+from workers.faces.pca import fit_pca
+from workers.faces.preview import frame, preview_png, render
+from workers.faces.synthetic import EXPRESSIONS
+from workers.faces.train import TrainSettings, train_face_model
+from workers.faces.transform import transform_mesh, transform_vertices
 
 METHODS = ("fisher", "svm")
 COLOURS = {"fisher": "tab:red", "svm": "tab:blue", "none": "tab:gray"}  # matplotlib colours
@@ -556,7 +554,7 @@ def markdown(qs: list[float], results: dict, reference: dict, plausible: dict, f
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer people, fewer Q values, fewer repeats")
     parser.add_argument("--plots-only", action="store_true", help="redraw the charts from results/faces.json")
     args = parser.parse_args(argv)

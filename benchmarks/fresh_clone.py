@@ -1,6 +1,6 @@
 """The whole test suite, several times in a row, in a fresh clone of the committed tree.
 
-    python benchmarks/fresh_clone.py [--runs 3]
+    python -m benchmarks.fresh_clone [--runs 3]
 
 Clones HEAD of this repository into a temporary folder (nothing uncommitted comes along, no .venv, no
 numba cache) and runs the README's test command (`make test`) there ``--runs`` times; the first run
@@ -14,15 +14,13 @@ import re
 import shutil
 import signal
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks._report import md_table, prog, publish
 
-from benchmarks._report import md_table, publish  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 _COUNTS = re.compile(r"(\d+) (passed|failed|skipped|errors?|xfailed|xpassed|deselected)")
 
@@ -53,7 +51,7 @@ def _signal_name(code: str) -> str:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=3)
     args = ap.parse_args()
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,

@@ -11,7 +11,7 @@ Workloads (the service's hot paths): a viewer frame of the sweep renderer (10 ca
 with 48 planes, and 640x480 with 64 planes), a bundle adjustment (6 cameras x 250 points, 50 iterations), the
 dense pass's depth maps (four 160x120 views, 64 planes) and a depth post-filter (wmf_dilation, 512x384 x2).
 
-Run: ``python benchmarks/kernel_target.py`` from the repository root (kernels compiled once into the checkout's
+Run: ``python -m benchmarks.kernel_target`` from the repository root (kernels compiled once into the checkout's
 cache, ``sweepcast-data/cache/numba``, for each target: about five minutes the first time on 2 cores).
 """
 from __future__ import annotations
@@ -23,10 +23,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._report import md_table, publish  # noqa: E402
-from workers.portable_cache import host_cpu, host_supports, target_env  # noqa: E402
+from benchmarks._report import md_table, prog, publish
+from benchmarks._timing import load_note
+from workers.portable_cache import host_cpu, host_supports, target_env
 
 ROOT = Path(__file__).resolve().parents[1]
 CACHE = ROOT / "sweepcast-data" / "cache" / "numba"
@@ -109,9 +108,8 @@ def markdown(r: dict) -> str:
             for name, host in r["host_ms"].items()]
     load = r["load_average_before"]
     return "\n".join([
-        f"Load average before the run {load:.2f} on {os.cpu_count()} cores"
-        + (" (other work shared the CPU: the ratios are the figures to read" + (", and only roughly: more work than "
-           "cores" if load > (os.cpu_count() or 1) else "") + ")" if load > 0.5 else "") + ".", "",
+        load_note(load) + (" At such a load the ratios are the figures to read" + (", and only roughly: more work than "
+           "cores" if load > (os.cpu_count() or 1) else "") + "." if load > 0.5 else ""), "",
         f"This CPU: `{r['host_cpu']}`; the baseline: `{BASELINE}` (the Docker image's kernels). Fastest ms per call "
         f"of {r['repeats']} after one that loads the kernels, in each of {r['rounds']} rounds; each target in its own "
         "fresh process, the targets alternating.", "",
@@ -119,7 +117,7 @@ def markdown(r: dict) -> str:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--rounds", type=int, default=2)
     args = ap.parse_args()

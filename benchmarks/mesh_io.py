@@ -6,14 +6,14 @@ tests/faces/test_faces_mesh.py with an error (ours: FaceInputError naming the pr
 triangulation or vertex merging), extra PLY properties and elements, and OBJ texture references for
 ``replace_vertices``; (3) speed on a face-sized mesh (10,201 vertices, 10,000 quads and triangles mixed).
 
-    python benchmarks/mesh_io.py        (the bench extra's trimesh and meshio; plyfile, GPL-3.0, only when
+    python -m benchmarks.mesh_io        (the bench extra's trimesh and meshio; plyfile, GPL-3.0, only when
                                          installed by hand: `pip install plyfile`, else its column says so)
 """
 from __future__ import annotations
 
+import argparse
 import io
 import multiprocessing
-import sys
 import tempfile
 import warnings
 from pathlib import Path
@@ -21,12 +21,10 @@ from typing import Callable
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._report import md_table, publish  # noqa: E402
-from benchmarks._timing import load, timed  # noqa: E402
-from workers.faces.errors import FaceInputError  # noqa: E402
-from workers.faces.mesh import Mesh, read_mesh, write_mesh  # noqa: E402
+from benchmarks._report import md_table, prog, publish
+from benchmarks._timing import load, timed
+from workers.faces.errors import FaceInputError
+from workers.faces.mesh import Mesh, read_mesh, write_mesh
 
 CUBE = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
 TRUNCATED = write_mesh(Mesh.from_faces(CUBE[:3], [[0, 1, 2]]), "ply", binary=True)[:-20]
@@ -135,6 +133,7 @@ def _outcome(lib: str, data: bytes, name: str) -> str:
 
 
 def main() -> int:
+    argparse.ArgumentParser(prog=prog(), description=__doc__.split("\n\n")[0]).parse_args()  # --help: no run
     hostile = {}
     for what, data, name in HOSTILE:
         hostile[what] = {lib: outcome(lib, data, name) for lib in READERS}

@@ -4,22 +4,20 @@ Measures agreement (the SSIM map, the mean SSIM, PSNR) and speed on Middlebury T
 a neighbouring view and against a blurred, noisy copy) at 450x375 and upscaled to 640x480 and
 1920x1080, plus what the merge changed: the sweep benchmark's old SSIM used a 13x13 window.
 
-    python benchmarks/metrics.py
+    python -m benchmarks.metrics
 """
 from __future__ import annotations
 
+import argparse
 import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._report import md_table, publish  # noqa: E402
-from benchmarks._timing import load, timed  # noqa: E402
-from workers.common.datasets import dataset  # noqa: E402
-from workers.common.imagemetrics import SSIM_SIGMA, luma, psnr, ssim, ssim_map  # noqa: E402
+from benchmarks._report import md_table, prog, publish
+from benchmarks._timing import load, timed
+from workers.common.datasets import dataset
+from workers.common.imagemetrics import SSIM_SIGMA, luma, psnr, ssim, ssim_map
 
 
 def _old_sweep_ssim(a: np.ndarray, b: np.ndarray) -> float:
@@ -50,6 +48,7 @@ def _skimage_psnr(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def main() -> int:
+    argparse.ArgumentParser(prog=prog(), description=__doc__.split("\n\n")[0]).parse_args()  # --help: no run
     teddy = dataset("multiview", "teddy")
     if teddy is None:
         print("no Middlebury Teddy in $SWEEPCAST_DATA; nothing measured", file=sys.stderr)

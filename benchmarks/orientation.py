@@ -45,11 +45,11 @@ product's choice), Exiv2 through pyexiv2 (in memory, ``ImageData``; the bench ex
 bytes changed (differing bytes when the length is kept, else the changed span before plus after) and
 median milliseconds per file. A writer of ours is kept only where it wins on bytes or time.
 
-Run: ``python benchmarks/orientation.py [--quick] [--no-http] [--no-speed]`` from the repository root;
-``python benchmarks/orientation.py --text-section`` for the text cue alone (section orientation_text);
-``python benchmarks/orientation.py --face-sizes`` for the Haar scans on faces of every size;
-``python benchmarks/orientation.py --writers`` for the writers section alone;
-``python benchmarks/orientation.py --throughput`` for issue 21's throughput alone (section orientation_throughput:
+Run: ``python -m benchmarks.orientation [--quick] [--no-http] [--no-speed]`` from the repository root;
+``python -m benchmarks.orientation --text-section`` for the text cue alone (section orientation_text);
+``python -m benchmarks.orientation --face-sizes`` for the Haar scans on faces of every size;
+``python -m benchmarks.orientation --writers`` for the writers section alone;
+``python -m benchmarks.orientation --throughput`` for issue 21's throughput alone (section orientation_throughput:
 engines vs HTTP at 4 and 50 concurrent clients, ``/healthz`` latency under that load).
 """
 from __future__ import annotations
@@ -67,21 +67,20 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._report import md_table, publish  # noqa: E402
-from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app  # noqa: E402
-from workers.common.datasets import data_root, dataset  # noqa: E402
-from workers.orientation.decode import decode_gray  # noqa: E402
-from workers.orientation.detect import (DetectorConfig, OrientationDetector, PaperDetector,  # noqa: E402
+from benchmarks._report import md_table, prog, publish
+from benchmarks._timing import load_note, settle_server
+from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app
+from workers.common.datasets import data_root, dataset
+from workers.orientation.decode import decode_gray
+from workers.orientation.detect import (DetectorConfig, OrientationDetector, PaperDetector,
                                         get_detector)
-from workers.orientation.geometry import ROTATIONS, rotate_view  # noqa: E402
-from workers.orientation.faces import LongSideScan, ShortSideScan  # noqa: E402
-from workers.orientation.parts import PartSpec  # noqa: E402
-from workers.orientation.orient import analyze  # noqa: E402
-from workers.orientation.detect import Engine  # noqa: E402
-from workers.orientation.text import get_text_detector  # noqa: E402
-from workers.orientation.words import word_lists  # noqa: E402
+from workers.orientation.geometry import ROTATIONS, rotate_view
+from workers.orientation.faces import LongSideScan, ShortSideScan
+from workers.orientation.parts import PartSpec
+from workers.orientation.orient import analyze
+from workers.orientation.detect import Engine
+from workers.orientation.text import get_text_detector
+from workers.orientation.words import word_lists
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp")
 NEGATIVES = {"dogs.jpg"}
@@ -274,7 +273,7 @@ def run_http_speed(large: list[bytes], yunet: Path | None, clients: int | list[i
             env["SWEEPCAST_ORIENTATION_TEXT"] = "false"
         try:
             with serve_app(env, log=Path(tmp) / "server.log") as app:
-                settle = _settle(app.base, app.proc.pid, httpx)
+                settle = _settle(app.base, app.proc.pid)
                 if isinstance(clients, int):
                     return {**_post_all(app.base, app.proc.pid, large, clients, repeats, httpx), "settle": settle}
                 return {str(n): {**_post_all(app.base, app.proc.pid, large, n, repeats, httpx, healthz=True),
@@ -312,27 +311,10 @@ def _machine_busy_s() -> float:
     return (sum(values) - values[3] - values[4]) / os.sysconf("SC_CLK_TCK")
 
 
-SETTLE_TIMEOUT_S = 300.0
-
-
-def _settle(base: str, pid: int, httpx) -> dict:
-    """Wait until the served app's start-up work is done: the kernel warm-up reported finished by ``/readyz``,
-    then the server's process tree below 0.1 core over one second (the demo rig and session built, Ray's
-    workers started). Returns how long that took and the server tree's CPU meanwhile."""
-    start, cpu0 = time.perf_counter(), _proc_cpu_s(pid, tree=True)
-    kernels = "unknown"
-    while time.perf_counter() - start < SETTLE_TIMEOUT_S:
-        kernels = httpx.get(f"{base}/readyz", timeout=30.0).json().get("checks", {}).get("kernels", {}).get("state")
-        if kernels != "warming":
-            break
-        time.sleep(1.0)
-    quiet = False
-    while not quiet and time.perf_counter() - start < SETTLE_TIMEOUT_S:
-        before = _proc_cpu_s(pid, tree=True)
-        time.sleep(1.0)
-        quiet = _proc_cpu_s(pid, tree=True) - before < 0.1
-    return {"seconds": time.perf_counter() - start, "kernels": kernels, "quiet": quiet,
-            "server_tree_cpu_s": _proc_cpu_s(pid, tree=True) - cpu0}
+def _settle(base: str, pid: int) -> dict:
+    """Wait until the served app's start-up work is done (:func:`benchmarks._timing.settle_server`: the server's
+    process tree below 0.1 core over one second)."""
+    return settle_server(base, pid, lambda p: _proc_cpu_s(p, tree=True), interval_s=1.0, timeout_s=300.0)
 
 
 def _multipart(data: bytes, boundary: str) -> bytes:
@@ -519,9 +501,9 @@ def run_throughput(photos: list[Path], yunet: Path | None, repeats: int) -> int:
         f"JPEG decoding alone: {results['engine']['decode_cpu_ms_per_photo']:.1f} ms CPU per photo (DCT-scaled to <= 900 px). "
         f"The paper detector's face search takes {results['engine']['paper_prev_search']['cpu_ms_per_photo'] / results['engine']['paper']['cpu_ms_per_photo']:.2f}x "
         "less CPU per photo than the previous one in this run (same decisions on the dev photos: section orientation). "
-        f"Load average before {load_before:.2f}, after {results['load_average_after']:.2f}"
-        + (" (other work shared the 2 cores: every rate here is low, and even CPU ms per photo grows under such "
-           "contention; compare ratios within this table, not with quiet runs)" if busy else "") + ".\n\n"
+        + load_note(load_before, results["load_average_after"])
+        + (" At such a load every rate here is low, and even CPU ms per photo grows under contention; compare "
+           "ratios within this table, not with quiet runs." if busy else "") + "\n\n"
         + md_table(["path", "photos/s 1 thread", "photos/s 2 threads / HTTP", "note", "/healthz p50 / p99 ms"], rows)
         + "\n" + throughput_goals(results)))
     return 0
@@ -648,9 +630,9 @@ def face_sizes_markdown(result: dict) -> str:
         f"of the short side of a {result['canvas'][1]} x {h} photo (cut around the face, edge pixels repeated at the borders; "
         f"never enlarged more than 3x), turned {', '.join(map(str, result['turns']))} degrees, JPEG q90 (the engine "
         f"decodes it to <= 900 px). Cells: trials decided right / trials per face share (face width in the photo = "
-        f"share x {h} px). CPU: median ms per photo (one thread, OpenCV single-threaded, decode included), measured "
-        f"under load from other work (load average {result['load_average_before']:.1f} before, "
-        f"{result['load_average_after']:.1f} after): compare within the table.", "",
+        f"share x {h} px). CPU: median ms per photo (one thread, OpenCV single-threaded, decode included). "
+        + load_note(result["load_average_before"], result["load_average_after"])
+        + " CPU ms grow with the load: compare within the table.", "",
         md_table(["Haar scan", *[f"{float(s):.2f} ({round(float(s) * h)} px)" for s in shares], "all", "wrong",
                   "CPU ms/photo"], rows), "",
         f"Faces never below the previous release: {verdict}.", "",
@@ -778,9 +760,8 @@ def cue_cpu_markdown(cpu: dict, load: list[float]) -> str:
              f"{c['engine_ms'] - c['faces_only_ms']:.0f}"] for name, c in cpu.items() if isinstance(c, dict)]
     return "\n".join([
         f"CPU per photo of each cue ({cpu['detector']} faces; median ms of this thread, OpenCV single-threaded, "
-        f"decode included; each photo turned 90 degrees, JPEG q95). Measured under load from other work (load "
-        f"average {load[0]:.1f} before the section, {load[1]:.1f} after): CPU ms grow under contention, compare "
-        "within the table.", "",
+        f"decode included; each photo turned 90 degrees, JPEG q95). " + load_note(load[0], load[1])
+        + " CPU ms grow with the load: compare within the table.", "",
         md_table(["photos", "n", "faces only", "faces, then text (engine)", "the text cue's share"], rows)])
 
 
@@ -912,7 +893,7 @@ def writers_markdown(result: dict) -> str:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     parser.add_argument("--writers", action="store_true",
                         help="only the writers comparison (ours vs Exiv2 vs ExifTool), section orientation_writers")
     parser.add_argument("--throughput", action="store_true",

@@ -1,7 +1,7 @@
 """Robustness: what hostile input, load and lost processes do to the service.
 
-    python benchmarks/robustness.py [--quick]
-    python benchmarks/robustness.py --tenants [--quick]    (only the section robustness_tenants)
+    python -m benchmarks.robustness [--quick]
+    python -m benchmarks.robustness --tenants [--quick]    (only the section robustness_tenants)
 
 Sections (each against servers this script starts on loopback and stops, whatever happens):
 - kernel stress: the compiled depth searches on random rigs with misaligned arrays at 1, 2 and 4 threads
@@ -33,18 +33,17 @@ import time
 import zipfile
 from pathlib import Path
 
+import cv2
+import httpx
+import numpy as np
+import piexif
+from websockets.sync.client import connect
+
+from benchmarks._report import md_table, prog, publish
+from tests.servers import ServedApp, serve_app
+from workers.common.datasets import data_root, dataset
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import cv2  # noqa: E402
-import httpx  # noqa: E402
-import numpy as np  # noqa: E402
-import piexif  # noqa: E402
-from websockets.sync.client import connect  # noqa: E402
-
-from benchmarks._report import md_table, publish  # noqa: E402
-from tests.servers import ServedApp, serve_app  # noqa: E402
-from workers.common.datasets import data_root, dataset  # noqa: E402
 
 MiB = 2**20
 SYNTH_PARAMS = {"depth_units": "disparity", "positions": [0, 2], "target_position": 1}
@@ -492,7 +491,7 @@ def markdown(r: dict) -> str:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer repetitions, cases, clients and cycles")
     ap.add_argument("--tenants", action="store_true", help="only the owners, keys and quotas section")
     args = ap.parse_args()

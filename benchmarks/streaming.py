@@ -16,11 +16,10 @@ Baseline in the same run: the same views rendered in this process by ``SweepRend
 overhead is latency minus render time.
 Also recorded: the first-run times (server ready, demo recording ready, first frame received).
 
-Run: ``python benchmarks/streaming.py [--quick]`` from the repository root.
+Run: ``python -m benchmarks.streaming [--quick]`` from the repository root.
 
 Client mode (the virtual view rendered in the viewer's browser, WebGL2, headless Chromium):
-``python benchmarks/streaming.py --browser quality|fps|cost|latency [...]`` runs :mod:`benchmarks.streaming_browser`
-(its own options follow the section).
+``python -m benchmarks.streaming_browser quality|fps|cost|latency [...]`` (:mod:`benchmarks.streaming_browser`).
 
 Two more sections, each its own run:
 
@@ -61,19 +60,18 @@ import httpx
 import numpy as np
 import websockets
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._report import md_table, publish  # noqa: E402
-from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app  # noqa: E402
-from workers.streaming.framing import unpack_message  # noqa: E402
-from workers.streaming.params import Viewpoint  # noqa: E402
-from workers.streaming.recording import RecordingArchive  # noqa: E402
-from workers.streaming.store import archive_key, load_rig  # noqa: E402
-from workers.streaming.viewpoint import orbit_frame, virtual_camera  # noqa: E402
-from workers.storage import open_store  # noqa: E402
-from workers.sweep.renderer import RenderOptions, SweepRenderer  # noqa: E402
-from workers.camera import Camera  # noqa: E402
-from workers.sweep.rig import Rig  # noqa: E402
+from benchmarks._report import md_table, prog, publish
+from benchmarks._timing import load_note, wait_quiet
+from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app
+from workers.streaming.framing import unpack_message
+from workers.streaming.params import Viewpoint
+from workers.streaming.recording import RecordingArchive
+from workers.streaming.store import archive_key, load_rig
+from workers.streaming.viewpoint import orbit_frame, virtual_camera
+from workers.storage import open_store
+from workers.sweep.renderer import RenderOptions, SweepRenderer
+from workers.camera import Camera
+from workers.sweep.rig import Rig
 
 VIEWERS = (1, 4, 16)
 SIZES = ((320, 240), (640, 480))
@@ -241,12 +239,7 @@ async def first_frame(url: str) -> None:
 
 
 def main() -> int:
-    if "--browser" in sys.argv:  # client mode: the browser renders (benchmarks/streaming_browser.py)
-        from benchmarks import streaming_browser
-
-        sys.argv.remove("--browser")
-        return streaming_browser.main()
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="5 s per configuration instead of 15")
     ap.add_argument("--seconds", type=float, help="measurement time per configuration")
     ap.add_argument("--viewer-sizes", action="store_true", help="only: the viewer's default size (one viewer per size)")
@@ -360,9 +353,7 @@ def markdown(results: dict) -> str:
         f"Concurrent WebSocket viewers of the demo rig (10 cameras at 640x480, {results['setup']['planes']} planes, "
         "Kojima weighting, coarse-to-fine sweep, visual hull). Each viewer sends its next viewpoint when the "
         "previous frame arrives; latency is viewpoint sent -> frame received. Baseline: the renderer alone in the benchmark "
-        f"process, same views. Load average before the run: {results['setup']['load_average_before']:.2f}"
-        + (" (above ~0.5 on this 2-core machine: other work shared the CPU and the speeds are low)"
-           if results["setup"]["load_average_before"] > 0.5 else "") + ".\n\n"
+        "process, same views. " + load_note(results["setup"]["load_average_before"]) + "\n\n"
         + md_table(["viewers", "size", "fps per viewer", "fps total", "latency p50 ms", "latency p95 ms",
                     "session render p50 ms", "baseline render p50 ms", "server CPU cores", "server CPU ms per frame"],
                    rows)
@@ -377,15 +368,6 @@ def markdown(results: dict) -> str:
 # --- the viewer's default size -----------------------------------------------------------------------
 CANDIDATE_SIZES = ((320, 240), (400, 300), (480, 360), (560, 420), (640, 480), (800, 600), (960, 720))
 DEFAULT_SIZE_FPS = 20.0
-
-
-def wait_quiet(below: float, patience_s: float) -> float:
-    """Wait (up to ``patience_s``) until the 1-minute load average is under ``below`` (this machine is
-    shared: other work halves the speeds); return the load average when measuring starts."""
-    deadline = time.monotonic() + patience_s
-    while os.getloadavg()[0] >= below and time.monotonic() < deadline:
-        time.sleep(5)
-    return os.getloadavg()[0]
 
 
 def viewer_sizes(seconds: float, quiet: float | None = None) -> int:
@@ -815,7 +797,6 @@ def live_markdown(results: dict) -> str:
                      ing["apply_ms_p50"] if ing else "-",
                      min(v["fps"] for v in vs) if vs else "-", max(v["latency_p95_ms"] for v in vs) if vs else "-",
                      r["server_cpu_cores"]])
-    busy = st["load_average_before"] > 0.5
     return (
         f"Live camera streams: {st['cameras']} cameras {st['camera_size']} (the demo rig), JPEG frame sets of the studio "
         f"with its moving ball ({st['jpeg_kb_per_set']:.0f} KB per set) pushed over `/v1/rigs/{{id}}/live` closed-loop "
@@ -823,8 +804,7 @@ def live_markdown(results: dict) -> str:
         f"{st['view']} views closed-loop ({st['planes']} planes, Kojima, coarse-to-fine, visual hull from the live "
         f"background model). {st['seconds_per_config']:g} s per configuration. The session decodes each set at the "
         "size its viewers need (JPEG DCT scaling; `source_factor` in the ack) before taking the render lock. "
-        f"Load average before the run {st['load_average_before']:.2f}, after {results['load_average_after']:.2f}"
-        + (" (other work shared the 2 cores: the figures are low)" if busy else "") + ".\n\n"
+        + load_note(st["load_average_before"], results["load_average_after"]) + "\n\n"
         + md_table(["configuration", "ingest sets/s", "ack p50 ms", "ack p95 ms", "decode ms/set", "apply ms/set",
                     "viewer fps (min)", "viewer p95 ms (max)", "server CPU cores"], rows)
         + f"\n\nPer frame set in this process (CPU ms, numba's threads included): decoding the 10 JPEGs at full size "

@@ -1,7 +1,6 @@
 """The virtual view rendered in the viewer's browser (app/static/render, WebGL2) against the server's renderer.
 
-``python benchmarks/streaming.py --browser SECTION [...]`` (or ``python -m benchmarks.streaming_browser``); each
-section writes its own part of RESULTS.md:
+``python -m benchmarks.streaming_browser SECTION [...]``; each section writes its own part of RESULTS.md:
 
 - ``quality``: views held out of real and synthetic rigs (Middlebury Teddy view 4 and Art view 3, from two and from
   all other views; the demo studio seen from between its cameras, against the ray-cast truth), rendered by the
@@ -43,21 +42,20 @@ import httpx
 import numpy as np
 import websockets
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._report import md_table, publish  # noqa: E402
-from tests.browser import chromium, render_in_browser, static_site  # noqa: E402
-from workers.common.datasets import dataset  # noqa: E402
-from workers.common.imagemetrics import psnr  # noqa: E402
-from workers.streaming.browser import encode_atlas, frame_atlas, render_spec  # noqa: E402
-from workers.streaming.demo import demo_rig, demo_scene  # noqa: E402
-from workers.streaming.params import Orbit  # noqa: E402
-from workers.streaming.session import shrunk_images, shrunk_rig, source_factor  # noqa: E402
-from workers.streaming.viewpoint import orbit_camera, orbit_frame  # noqa: E402
-from workers.sweep.renderer import RenderOptions, SweepRenderer  # noqa: E402
-from workers.sweep.rig import Rig  # noqa: E402
-from workers.sweep.rig_io import rectified_rig, rig_from_dict  # noqa: E402
-from workers.synth import render_views  # noqa: E402
+from benchmarks._report import md_table, prog, publish
+from benchmarks._timing import settle_server
+from tests.browser import chromium, render_in_browser, static_site
+from workers.common.datasets import dataset
+from workers.common.imagemetrics import psnr
+from workers.streaming.browser import encode_atlas, frame_atlas, render_spec
+from workers.streaming.demo import demo_rig, demo_scene
+from workers.streaming.params import Orbit
+from workers.streaming.session import shrunk_images, shrunk_rig, source_factor
+from workers.streaming.viewpoint import orbit_camera, orbit_frame
+from workers.sweep.renderer import RenderOptions, SweepRenderer
+from workers.sweep.rig import Rig
+from workers.sweep.rig_io import rectified_rig, rig_from_dict
+from workers.synth import render_views
 
 GOAL_DB = 0.3
 REF_SPACINGS = 4
@@ -91,7 +89,7 @@ def middlebury_cases(quick: bool) -> list[dict]:
         images = {int(p.stem[len(prefix):]): cv2.imread(str(p)) for p in folder.glob(f"{prefix}*.png")
                   if p.stem[len(prefix):].isdigit()}
         h, w = images[target].shape[:2]
-        # per view spacing (the rig's unit baseline): the GT disparities span 4 spacings (benchmarks/sweep.py)
+        # per view spacing (the rig's unit baseline): the GT disparities span 4 spacings (benchmarks/sweep/stereo.py)
         disp = cv2.imread(str(folder / disp_file), cv2.IMREAD_UNCHANGED).astype(np.float64) / div / REF_SPACINGS
         lo, hi = np.percentile(disp[disp > 0], [0.5, 99.5])
         for set_name, sources in sets.items():
@@ -278,23 +276,12 @@ def fps(quick: bool, webgl: str) -> int:
     return 0
 
 
-def settle(base: str, pid: int, timeout: float = 600.0) -> dict:
-    """Wait until the served app's start-up work is done: the kernel warm-up finished (``/readyz``), then its
-    process tree under 0.05 core over two seconds."""
+def settle(base: str, pid: int) -> dict:
+    """Wait until the served app's start-up work is done (:func:`benchmarks._timing.settle_server`: its process
+    tree under 0.1 CPU seconds over two seconds, at most 10 minutes)."""
     from benchmarks.streaming import cpu_seconds
 
-    start = time.perf_counter()
-    while time.perf_counter() - start < timeout:
-        state = httpx.get(f"{base}/readyz", timeout=30).json().get("checks", {}).get("kernels", {}).get("state")
-        if state != "warming":
-            break
-        time.sleep(1.0)
-    quiet = False
-    while not quiet and time.perf_counter() - start < timeout:
-        before = cpu_seconds(pid)
-        time.sleep(2.0)
-        quiet = cpu_seconds(pid) - before < 0.1
-    return {"seconds": time.perf_counter() - start, "quiet": quiet}
+    return settle_server(base, pid, cpu_seconds, interval_s=2.0, timeout_s=600.0)
 
 
 # --- server cost -------------------------------------------------------------------------------------
@@ -555,7 +542,7 @@ def latency(quick: bool, size: str) -> int:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("section", choices=["quality", "fps", "cost", "latency"])
     ap.add_argument("--quick", action="store_true", help="half-size views / fewer repeats")
     ap.add_argument("--webgl", choices=["swiftshader", "gpu"], default="swiftshader",

@@ -1,6 +1,6 @@
 """The sweep renderer's depth search on a GPU against the CPU's, on the same machine in the same run.
 
-    python benchmarks/sweep_gpu.py [--quick]
+    python -m benchmarks.sweep_gpu [--quick]
 
 A procedural capture (10 cameras, 640x480, the object between 1.6 and 3.6 m); virtual views halfway between
 two cameras. For each configuration the CPU renderer (every core, and 2 threads: the service's reference
@@ -13,20 +13,16 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
-from pathlib import Path
 
 import numba
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._report import md_table, publish  # noqa: E402
-from workers.synth import arc_angles, arc_camera, default_arc_rig, default_scene, render, render_views  # noqa: E402
-from workers.common.imagemetrics import psnr  # noqa: E402
-from workers.sweep.renderer import RenderOptions, SweepRenderer, _wants_gpu  # noqa: E402
-from workers.sweep.rig import Rig  # noqa: E402
+from benchmarks._report import md_table, prog, publish
+from workers.synth import arc_angles, arc_camera, default_arc_rig, default_scene, render, render_views
+from workers.common.imagemetrics import psnr
+from workers.sweep.renderer import RenderOptions, SweepRenderer, _wants_gpu
+from workers.sweep.rig import Rig
 
 NEAR, FAR = 1.6, 3.6
 # name: (view width, height, options); "hull" renders with the silhouettes' visual hull
@@ -74,7 +70,7 @@ def gpu_name() -> str | None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
     cores = numba.config.NUMBA_NUM_THREADS

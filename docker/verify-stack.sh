@@ -78,7 +78,7 @@ cleanup() {
 trap cleanup EXIT
 
 echo "== podman-compose up ($compose)"
-.venv/bin/python benchmarks/docker_stack.py --compose "${podman_compose[*]}" --project "$project" \
+.venv/bin/python -m benchmarks.docker_stack --compose "${podman_compose[*]}" --project "$project" \
   --port "$port" --image-record "$work/app-image.json" \
   --podman-version "$(podman --version), podman-compose $(dpkg-query -W -f='${Version}' podman-compose)"
 echo "OK: the compose stack passed every check ($(date -u +%Y-%m-%d)); see the docker section of benchmarks/RESULTS.md"

@@ -1,8 +1,8 @@
-"""The benchmark's seam and pop measures (benchmarks/sweep.py, issue 22) on constructed known answers."""
+"""The benchmark's seam and pop measures (benchmarks/sweep/weighting.py, issue 22) on constructed known answers."""
 import numpy as np
 import pytest
 
-from benchmarks.sweep import SEAM_TAU, pop_share, seam_measure
+from benchmarks.sweep.weighting import SEAM_TAU, pop_share, seam_measure
 
 
 def _case(weights):

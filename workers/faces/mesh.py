@@ -5,7 +5,7 @@ PLY: ``face_sizes`` and the concatenated ``face_indices``). :func:`replace_verti
 only the vertex positions of an uploaded file, so a transformed mesh keeps everything else the
 user had in it (texture coordinates, groups, materials, colours, extra PLY elements).
 
-Kept rather than a library (``python benchmarks/mesh_io.py``): on the hostile files of the tests trimesh
+Kept rather than a library (``python -m benchmarks.mesh_io``): on the hostile files of the tests trimesh
 accepts 5 of 11 broken files (empty, no vertices, no faces, 2-corner faces) and cannot read a valid binary
 PLY of mixed polygon sizes; meshio accepts 5 and hangs on 2 malformed PLY headers; plyfile (PLY only)
 refuses every bad PLY and keeps the polygons, but reads 2.6x (binary) to 5.8x (ASCII) slower than this
