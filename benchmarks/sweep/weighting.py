@@ -30,7 +30,7 @@ from workers.camera import Camera
 from workers.common.datasets import dataset
 from workers.synth import arc_angles, arc_camera, camera_gains, default_arc_rig, default_scene, render, render_views
 from workers.common.imagemetrics import psnr, ssim
-from workers.sweep.metrics import frame_jump, highfreq_ratio
+from benchmarks.sweep.view_metrics import frame_jump, highfreq_ratio
 from workers.sweep.renderer import RenderResult, SweepRenderer, pixel_inverse_depth
 from workers.sweep.rig import Rig, depth_range_from_box
 from workers.sweep.rig_io import load_images, load_middlebury_par

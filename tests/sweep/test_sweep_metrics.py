@@ -3,7 +3,7 @@ import cv2
 import numpy as np
 import pytest
 
-from workers.sweep.metrics import frame_jump, highfreq_ratio
+from benchmarks.sweep.view_metrics import frame_jump, highfreq_ratio
 
 
 def _img(seed=0):
