@@ -176,12 +176,12 @@ def test_depth_range_from_box_and_focus_point():
 
 
 def test_uploaded_calibration_files_are_read_by_the_one_entry_point():
-    c = _cam("x")
-    vals = " ".join(f"{v:.17g}" for v in np.concatenate([c.K.ravel(), c.R.ravel(), c.t]))
-    par = f"2\nv1.png {vals}\nv2.png {vals}\n".encode()
+    c, c2 = _cam("x"), _cam("x2", t=(0.6, -0.2, 2.0))
+    vals = [" ".join(f"{v:.17g}" for v in np.concatenate([k.K.ravel(), k.R.ravel(), k.t])) for k in (c, c2)]
+    par = f"2\nv1.png {vals[0]}\nv2.png {vals[1]}\n".encode()
     rig, fmt = load_uploaded_rig([("take_par.txt", par)], 64, 48, units="cm")
     assert fmt == "middlebury" and (rig["v1.png"].width, rig["v1.png"].height) == (64, 48)
-    np.testing.assert_allclose(rig["v2.png"].center, c.center * 0.01)  # the rig comes back in metres
+    np.testing.assert_allclose(rig["v2.png"].center, c2.center * 0.01)  # the rig comes back in metres
     ours = json.dumps(rig_to_dict(Rig((c, _cam("y", t=(0.5, 0, 2))))))
     rig, fmt = load_uploaded_rig([("rig.json", ours.encode())])
     assert fmt == "json" and rig.names == ["x", "y"]
@@ -198,3 +198,15 @@ def test_uploaded_calibration_errors_name_the_file_never_the_temporary_folder():
     with pytest.raises(ValueError) as info:
         load_uploaded_rig([("mine.json", b"{not json")])
     assert "mine.json" in str(info.value) and "sweepcast-rig-" not in str(info.value) and "/tmp" not in str(info.value)
+
+
+def test_cameras_at_one_place_are_refused():
+    K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
+    turned = cv2.Rodrigues(np.array([0.0, 0.3, 0.0]))[0]
+    same = (Camera("a", K, np.eye(3), np.zeros(3), 640, 480), Camera("b", K, turned, np.zeros(3), 640, 480))
+    with pytest.raises(RigError, match="every camera stands at the same place"):
+        Rig(same).require_baseline()
+    Rig((same[0], Camera("b", K, np.eye(3), np.array([-0.1, 0, 0]), 640, 480))).require_baseline()  # 10 cm apart
+    upload = [("rig.json", json.dumps(rig_to_dict(Rig(same))).encode())]
+    with pytest.raises(RigError, match="every camera stands at the same place"):  # as the rig route reads it
+        load_uploaded_rig(upload)

@@ -126,6 +126,15 @@ class Rig:
             raise RigError(virtual.name, "pose", "the rig's working volume is behind the virtual camera; give near/far")
         return max(z - 0.5 * radius, far / NEAR_FAR_RATIO), far
 
+    def require_baseline(self) -> None:
+        """RigError when every camera stands at the same place: a plane sweep finds depth only between cameras at
+        two places at least (a rig of one spot gives a collapsed depth range and flat views)."""
+        centres = self.centers()
+        spread = float(np.max(np.linalg.norm(centres - centres[0], axis=1)))
+        if not spread > 1e-9 * max(1.0, float(np.max(np.abs(centres)))):
+            raise RigError(None, "cameras", "every camera stands at the same place: views between cameras need "
+                                            "cameras at two places at least (a baseline)")
+
     def rescaled(self, metres_per_unit: float) -> "Rig":
         """The same rig with world lengths given in another unit: every translation (so every camera
         centre) and ``depth_range`` multiplied by ``metres_per_unit`` (e.g. 0.01 for a file in

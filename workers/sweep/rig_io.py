@@ -462,8 +462,16 @@ def load_uploaded_rig(files: Sequence[tuple[str, bytes]], width: int | None = No
     names already safe (no folders). One file is read as :func:`load_rig` reads it (a Middlebury
     ``*_par.txt`` needs ``width``/``height``: an upload has no images beside it); several files only as
     COLMAP text (``cameras.txt`` + ``images.txt``). Errors (RigError, CameraError, ValueError) name the
-    uploaded files, never the temporary folder they were read from.
+    uploaded files, never the temporary folder they were read from; a rig whose cameras all stand at one place
+    is refused (:meth:`Rig.require_baseline`).
     """
+    rig, fmt = _read_uploaded_rig(files, width, height, units, camera_type)
+    rig.require_baseline()
+    return rig, fmt
+
+
+def _read_uploaded_rig(files: Sequence[tuple[str, bytes]], width: int | None, height: int | None,
+                       units: str | float | None, camera_type: str | None) -> tuple[Rig, str]:
     names = sorted(name for name, _ in files)
     with tempfile.TemporaryDirectory(prefix="sweepcast-rig-") as tmp:
         folder = Path(tmp)
