@@ -9,7 +9,11 @@ counted as it streams and refused when it passes the limit. Both give 413 with a
 """
 from __future__ import annotations
 
+import asyncio
 import json
+import logging
+import time
+from dataclasses import dataclass
 from typing import Callable, Iterable, Literal
 
 from fastapi import params
@@ -19,6 +23,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app.errors import ApiError, error_body
 
+log = logging.getLogger("sweepcast.limits")
 BodyKind = Literal["json", "upload", "batch"]
 BATCH_BODY = {"x-body-limit": "batch"}
 """``openapi_extra`` of the true batch uploads (many files, videos, archives): their body may be ``max_batch_bytes``."""
@@ -27,6 +32,27 @@ BATCH_BODY = {"x-body-limit": "batch"}
 class BodyTooLarge(ApiError):
     def __init__(self, limit: int) -> None:
         super().__init__(413, _too_large(limit), "payload_too_large")
+
+
+class BodyTooSlow(ApiError):
+    def __init__(self, detail: str) -> None:
+        super().__init__(408, detail, "upload_too_slow")
+
+
+@dataclass(frozen=True)
+class BodyPace:
+    """How slowly a client may send a body: ``idle_seconds`` at most between two chunks, and after ``grace_seconds``
+    at least ``min_bytes_per_second`` on average. A stalled or trickling upload is cut off with 408 (it holds no
+    worker, but a connection and a spooled file each)."""
+
+    idle_seconds: float = 60.0
+    grace_seconds: float = 60.0
+    min_bytes_per_second: float = 1024.0
+
+    def check(self, received: int, elapsed: float) -> None:
+        if elapsed > self.grace_seconds and received < self.min_bytes_per_second * elapsed:
+            raise BodyTooSlow(f"the request body arrived at {received / elapsed:,.0f} bytes/s, under the "
+                              f"{self.min_bytes_per_second:,.0f} bytes/s this service needs; send it faster")
 
 
 class RouteBodyLimits:
@@ -66,9 +92,10 @@ def _has_file(dependant: Dependant) -> bool:
 
 
 class BodyLimitMiddleware:
-    def __init__(self, app: ASGIApp, limit_for: Callable[[Scope], int]) -> None:
+    def __init__(self, app: ASGIApp, limit_for: Callable[[Scope], int], pace: BodyPace | None = None) -> None:
         self.app = app
         self.limit_for = limit_for
+        self.pace = pace or BodyPace()
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -78,6 +105,7 @@ class BodyLimitMiddleware:
         limit: int | None = None
         received = 0
         started = False
+        began = time.monotonic()
 
         async def counting_receive() -> Message:
             nonlocal received, limit
@@ -85,11 +113,23 @@ class BodyLimitMiddleware:
                 limit = self.limit_for(scope)
                 if declared is not None and declared > limit:
                     raise BodyTooLarge(limit)
-            message = await receive()
+            try:
+                message = await asyncio.wait_for(receive(), self.pace.idle_seconds)
+            except asyncio.TimeoutError:
+                log.warning("cut off %s %s: no body bytes for %.0f s", scope["method"], scope["path"],
+                            self.pace.idle_seconds)
+                raise BodyTooSlow(f"no part of the request body arrived for {self.pace.idle_seconds:.0f} s") from None
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
                 if received > limit:
                     raise BodyTooLarge(limit)
+                if message.get("more_body"):
+                    try:
+                        self.pace.check(received, time.monotonic() - began)
+                    except BodyTooSlow:
+                        log.warning("cut off %s %s: body too slow (%d bytes in %.0f s)", scope["method"],
+                                    scope["path"], received, time.monotonic() - began)
+                        raise
             return message
 
         async def tracking_send(message: Message) -> None:
@@ -100,9 +140,9 @@ class BodyLimitMiddleware:
 
         try:
             await self.app(scope, counting_receive, tracking_send)
-        except BodyTooLarge as exc:
+        except (BodyTooLarge, BodyTooSlow) as exc:
             if not started:
-                await send_error(send, 413, str(exc.detail), "payload_too_large")
+                await send_error(send, exc.status_code, str(exc.detail), exc.code)
 
 
 def _too_large(limit: int) -> str:

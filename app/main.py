@@ -15,7 +15,7 @@ from app import raycluster
 from app.auth import ApiKeyMiddleware
 from app.errors import install_error_handlers
 from app.kernelcache import KernelWarmup
-from app.limits import BodyLimitMiddleware, RouteBodyLimits
+from app.limits import BodyLimitMiddleware, BodyPace, RouteBodyLimits
 from app.logredact import install_log_redaction
 from app.openapi_doc import install_contract
 from app.services import Services, build_services
@@ -87,7 +87,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_log_redaction()  # ?access_token= stays out of uvicorn's request lines
 
     limits = {"json": settings.max_json_bytes, "upload": settings.max_upload_bytes, "batch": settings.max_batch_bytes}
-    app.add_middleware(BodyLimitMiddleware, limit_for=RouteBodyLimits(limits))
+    pace = BodyPace(settings.upload_idle_seconds, 60.0, settings.min_upload_bytes_per_second)
+    app.add_middleware(BodyLimitMiddleware, limit_for=RouteBodyLimits(limits), pace=pace)
     app.add_middleware(ApiKeyMiddleware)  # added last: runs first, before any body is read
 
     from app.routers import (depth, faces, jobs, keys, photos, reconstructions, recordings, review, rig_sockets,

@@ -47,6 +47,8 @@ NEW_JOB_STATUSES = {
 }
 BODY_STATUSES = {
     400: "the body could not be parsed (malformed multipart or JSON), or an upload is empty or unreadable",
+    408: "the request body stalled (SWEEPCAST_UPLOAD_IDLE_SECONDS) or arrived slower than "
+         "SWEEPCAST_MIN_UPLOAD_BYTES_PER_SECOND",
     413: "the request body, or one upload in it, is over the service's limit",
 }
 PATH_STATUS = {404: "nothing exists under the id (or name) in the path, or it belongs to another key"}

@@ -50,6 +50,10 @@ class Settings(WorkerSettings):
 
     min_free_storage_mb: float = Field(256.0, ge=0, description="/readyz reports not ready when the data folder "
                                        "(a file blob store) has less free space than this (megabytes).")
+    upload_idle_seconds: float = Field(60.0, gt=0, description="A request body with no bytes for this long is cut "
+                                       "off (408).")
+    min_upload_bytes_per_second: float = Field(1024.0, ge=0, description="After its first minute, a request body "
+                                               "slower than this on average is cut off (408).")
     max_upload_bytes: int = Field(64 * MiB, ge=1, description="Largest request body of single-file endpoints.")
     max_batch_bytes: int = Field(1024 * MiB, ge=1, description="Largest request body of batch uploads.")
     max_json_bytes: int = Field(1 * MiB, ge=1, description="Largest request body of routes that take JSON (or no body).")

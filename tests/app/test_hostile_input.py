@@ -359,3 +359,34 @@ def test_a_full_disk_refuses_uploads_with_507_and_keeps_nothing(client, monkeypa
     r = client.post("/v1/photos/batches", files=files)
     assert r.status_code == 507 and "nearly full" in r.json()["detail"] and svc.store.list("jobs") == []
     assert client.get("/v1/jobs").status_code == 200  # reads keep working
+
+
+# --- 10. slow clients ---------------------------------------------------------------------------
+@pytest.mark.parametrize("pace, chunks, gap, expected", [
+    ((0.2, 60.0, 0.0), 3, 0.5, "no part of the request body arrived for 0 s"),   # a stalled upload
+    ((10.0, 0.3, 1000.0), 20, 0.05, "bytes/s, under the 1,000 bytes/s"),          # a trickle
+])
+def test_a_stalled_or_trickling_body_is_cut_off_with_408(pace, chunks, gap, expected):
+    from app.limits import BodyLimitMiddleware, BodyPace
+
+    sent = []
+
+    async def app(scope, receive, send):
+        while (await receive()).get("more_body"):
+            pass
+        await send({"type": "http.response.start", "status": 200, "headers": []})
+        await send({"type": "http.response.body", "body": b""})
+
+    async def receive():
+        await asyncio.sleep(gap)
+        return {"type": "http.request", "body": b"x", "more_body": True}
+
+    async def send(message):
+        sent.append(message)
+
+    scope = {"type": "http", "method": "POST", "path": "/v1/photos/orientation", "headers": []}
+    middleware = BodyLimitMiddleware(app, limit_for=lambda scope: 10**6, pace=BodyPace(*pace))
+    asyncio.run(asyncio.wait_for(middleware(scope, receive, send), 10))
+    assert sent[0]["status"] == 408
+    body = json.loads(sent[1]["body"])
+    assert body["error"] == "upload_too_slow" and expected in body["detail"], body
