@@ -21,7 +21,7 @@ from workers.common.jobctx import JobInputError
 from workers.common.validation import describe_errors
 
 from .params import ReconstructionParams
-from .pipeline import run_pipeline, write_outputs
+from .pipeline import reconstruct_and_write
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -83,18 +83,16 @@ def _reconstruct(args: argparse.Namespace) -> int:
         params = _params(args)
         calib = args.calibration.read_bytes() if args.calibration else None
         telemetry = args.telemetry.read_bytes() if args.telemetry else None
+        args.out.mkdir(parents=True, exist_ok=True)
         bar = ProgressBar("reconstruct")
-        out = run_pipeline(args.video, params, calib, telemetry, bar)
+        out = reconstruct_and_write(args.video, params, calib, telemetry, bar,
+                                    lambda name, data: (args.out / name).write_bytes(data))
     except (JobInputError, ValidationError, json.JSONDecodeError, OSError) as exc:
         if bar is not None:
             bar.close()
         message = describe_errors(exc) if isinstance(exc, ValidationError) else str(exc)
         print(f"sweepcast reconstruct: {message}", file=sys.stderr)
         return 2
-    bar(0.98, "export")
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_outputs(out, lambda name, data: (args.out / name).write_bytes(data))
-    bar(1.0, "done")
     bar.close()
     rep = out.model.report
     intr = rep["intrinsics"]

@@ -20,14 +20,14 @@ from workers.common.validation import describe_errors
 from workers.registry import JobKind
 
 from .params import ReconstructionParams
-from .pipeline import run_pipeline, summary, write_outputs
+from .pipeline import reconstruct_and_write, summary
 
 __all__ = ["ReconstructionParams", "run_reconstruction"]
 
 
 def run_reconstruction(ctx: JobContext) -> dict[str, Any]:
     """Job entry point (see the module docstring); returns a short summary."""
-    try:
+    try:  # the runtime's model is returned as it is; a dict (tests, the CLI's contexts) is checked here
         params = ReconstructionParams.model_validate(ctx.params)
     except ValidationError as exc:
         raise JobInputError(f"invalid parameters: {describe_errors(exc)}") from None
@@ -35,14 +35,10 @@ def run_reconstruction(ctx: JobContext) -> dict[str, Any]:
         raise JobInputError("missing input 'media' (a video or a zip of ordered images)")
     calib = ctx.read_input("calibration") if "calibration" in ctx.inputs else None
     telemetry = ctx.read_input("telemetry") if "telemetry" in ctx.inputs else None
-    ctx.progress(0.0, "decode")
     # Messages name the file the user sent, not its storage key (or an object store's cache file).
     media_name = ctx.input_meta.get("media", {}).get("filename") or "the media"
-    out = run_pipeline(ctx.input_path("media"), params, calib, telemetry, ctx.progress, media_name)
-    ctx.progress(0.97, "export")
-    write_outputs(out, ctx.write_result)
-    ctx.progress(1.0, "done")
-    return summary(out)
+    return summary(reconstruct_and_write(ctx.input_path("media"), params, calib, telemetry, ctx.progress,
+                                         ctx.write_result, media_name))
 
 
 RECONSTRUCT_JOB = JobKind("drone.reconstruct", run_reconstruction, ReconstructionParams)

@@ -297,6 +297,19 @@ def _write_map_files(out: Outcome, write: Callable[[str, bytes], None]) -> dict[
     return times
 
 
+def reconstruct_and_write(media: str | Path, params: ReconstructionParams, calibration: bytes | None,
+                          telemetry: bytes | None, progress: ProgressFn, write: Callable[[str, bytes], None],
+                          media_name: str | None = None) -> Outcome:
+    """The whole reconstruction as the job and the command line run it: every stage (:func:`run_pipeline`, progress
+    0 to 0.96), then every result written through ``write(name, bytes)`` (0.97, "export"; 1.0, "done")."""
+    progress(0.0, "decode")
+    out = run_pipeline(media, params, calibration, telemetry, progress, media_name)
+    progress(0.97, "export")
+    write_outputs(out, write)
+    progress(1.0, "done")
+    return out
+
+
 def summary(out: Outcome) -> dict[str, Any]:
     """The job's short summary (its return value)."""
     rep = out.model.report
