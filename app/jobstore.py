@@ -186,7 +186,7 @@ class JobStore:
     def list(self, state: str | None = None, kind: str | None = None, limit: int = 50, offset: int = 0,
              created_by: str | None = None) -> list[Job]:
         """Jobs newest first; ``created_by``: only that key's (an index range, not a scan of the table)."""
-        query = select(Job).order_by(Job.created_at.desc(), Job.id).limit(limit).offset(offset)
+        query = select(Job).order_by(Job.created_at.desc(), Job.id.desc()).limit(limit).offset(offset)
         if created_by is not None:
             query = query.where(Job.created_by == created_by)
         if state:

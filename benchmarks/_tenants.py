@@ -106,8 +106,15 @@ def _median_us(fn: Callable[[], Any], n: int) -> float:
     return statistics.median(times) * 1e6
 
 
-def _http_lookup(c: httpx.Client, secret: str, n: int) -> float:
-    return _median_us(lambda: c.get("/v1/jobs/no-such-job", headers=bearer(secret)), n) / 1e3
+def _http_lookups(c: httpx.Client, secrets: dict[str, str], n: int) -> dict[str, float]:
+    """Median ms of a request that reaches a route (a 404 job) with each key, the keys taking turns."""
+    times: dict[str, list[float]] = {name: [] for name in secrets}
+    for _ in range(n):
+        for name, secret in secrets.items():
+            t0 = time.perf_counter()
+            c.get("/v1/jobs/no-such-job", headers=bearer(secret))
+            times[name].append(time.perf_counter() - t0)
+    return {name: statistics.median(t) * 1e3 for name, t in times.items()}
 
 
 def owner_list_costs(jobs_total: int = 10_000, keys: int = 10, n: int = 300) -> dict[str, Any]:
@@ -129,7 +136,7 @@ def owner_list_costs(jobs_total: int = 10_000, keys: int = 10, n: int = 300) -> 
                   "by": f"key-{i % keys}"} for i in range(jobs_total)])
         with store.engine.connect() as conn:
             plan = [r[-1] for r in conn.execute(text(
-                "EXPLAIN QUERY PLAN SELECT * FROM jobs WHERE created_by = 'key-3' ORDER BY created_at DESC, id "
+                "EXPLAIN QUERY PLAN SELECT * FROM jobs WHERE created_by = 'key-3' ORDER BY created_at DESC, id DESC "
                 "LIMIT 50"))]
             usage_plan = [r[-1] for r in conn.execute(text(
                 "EXPLAIN QUERY PLAN SELECT sum(stored_bytes), count(*) FROM jobs WHERE created_by = 'key-3'"))]
@@ -182,8 +189,7 @@ def tenants(quick: bool) -> dict[str, Any]:
         results["quotas"] = _quota_probes(app, c, data_dir)
         n = 100 if quick else 500
         _, managed = _key(c, "lookup", quota={"uploads_per_minute": 10**6})
-        results["http_lookup_ms"] = {"env_key": _http_lookup(c, ADMIN, n), "managed_key": _http_lookup(c, managed, n),
-                                     "requests": n}
+        results["http_lookup_ms"] = {**_http_lookups(c, {"env_key": ADMIN, "managed_key": managed}, n), "requests": n}
     results["owner_list"] = owner_list_costs(n=100 if quick else 500)
     results["key_lookup"] = lookup_costs(500 if quick else 3000)
     return results
@@ -226,7 +232,8 @@ def markdown(r: dict[str, Any]) -> str:
          ["principal of the service's own key (in process)", f"{kl['env_key_us']:.1f} µs"],
          [f"principal of a managed key, one indexed query ({kl['keys_in_table']} keys)", f"{kl['managed_key_us']:.0f} µs"],
          ["an unknown key (refused)", f"{kl['unknown_key_us']:.0f} µs"],
-         [f"HTTP request with the service's own key (404 route, {hl['requests']} requests)", f"{hl['env_key']:.2f} ms"],
+         [f"HTTP request with the service's own key (404 route, {hl['requests']} requests each, keys taking turns)",
+          f"{hl['env_key']:.2f} ms"],
          ["the same with a managed key", f"{hl['managed_key']:.2f} ms"]])
         + f"\n\nQuery plans: the list `{'; '.join(ol['plan'])}`; the usage `{'; '.join(ol['usage_plan'])}`.")
     return "\n\n".join(parts)
