@@ -15,6 +15,7 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match, Mount
 
+from workers.common.errors import InputError
 from workers.common.validation import describe_errors
 
 FULL = (errno.ENOSPC, errno.EDQUOT)
@@ -49,6 +50,12 @@ def install_error_handlers(app: FastAPI) -> None:
         if exc.status_code == 405 and headers and "Allow" in headers:  # a route's 405 (not a mount's)
             headers = {**headers, "Allow": ", ".join(allowed_methods(request)) or headers["Allow"]}
         return JSONResponse(error_body(exc.status_code, exc.detail, code), exc.status_code, headers=headers)
+
+    @app.exception_handler(InputError)
+    async def _input_error(_request: Request, exc: InputError) -> JSONResponse:
+        """Every engine's user-facing error: its own status and code (the one mapping; routes only wrap one
+        where they add to the message, e.g. the file it came from)."""
+        return JSONResponse(error_body(exc.status, str(exc), exc.code), exc.status)
 
     @app.exception_handler(OSError)
     async def _storage_full(_request: Request, exc: OSError) -> JSONResponse:

@@ -37,16 +37,6 @@ class SynthesisOut(BaseModel):
     holes_fraction: float = Field(description="share of pixels no source view saw")
 
 
-# Statuses by DepthInputError.code (as the photo routes answer for the same image problems);
-# other codes (bad_depth_input) are 400.
-_STATUS = {"too_many_pixels": 413, "not_an_image": 415, "unsupported_format": 415, "corrupt_image": 422,
-           "output_too_large": 422, "not_a_video": 415, "corrupt_video": 422, "too_many_frames": 413}
-
-
-def _bad_input(exc: DepthInputError) -> ApiError:
-    return ApiError(_STATUS.get(exc.code, 400), str(exc), exc.code)
-
-
 @router.post("/filter", response_class=Response,
              summary="Upsample and post-filter one depth map (PNG/PGM, 8 or 16 bit) -> filtered depth PNG",
              responses={200: {"content": {"image/png": {}}}, 415: {"description": NOT_AN_IMAGE}})
@@ -60,10 +50,7 @@ async def filter_depth(
     depth_bytes = await read_upload(depth, svc.settings.max_upload_bytes)
     texture_bytes = await read_upload(texture, svc.settings.max_upload_bytes) if texture is not None else None
     limit = svc.settings.max_image_pixels
-    try:
-        out = await run_compute(svc, lambda: filter_depth_bytes(depth_bytes, p, texture_bytes, limit))
-    except DepthInputError as exc:
-        raise _bad_input(exc) from None
+    out = await run_compute(svc, lambda: filter_depth_bytes(depth_bytes, p, texture_bytes, limit))
     return Response(out, media_type="image/png", headers={"X-Depth-Method": p.method_for(texture is not None)})
 
 
@@ -82,10 +69,7 @@ async def synthesize(
     views = [(await read_upload(t, svc.settings.max_upload_bytes), await read_upload(d, svc.settings.max_upload_bytes))
              for t, d in zip(textures, depths)]
     limit = svc.settings.max_image_pixels
-    try:
-        image, holes, fraction = await run_compute(svc, lambda: _synthesize(views, p, limit))
-    except DepthInputError as exc:
-        raise _bad_input(exc) from None
+    image, holes, fraction = await run_compute(svc, lambda: _synthesize(views, p, limit))
     return SynthesisOut(image_png=base64.b64encode(image).decode(), holes_png=base64.b64encode(holes).decode(),
                         holes_fraction=fraction)
 
@@ -143,7 +127,7 @@ def _check_yuv(depth: UploadFile, p: DepthVideoParams, max_frames: int) -> None:
 
 def _check_video(depth: UploadFile, p: DepthVideoParams, svc: Services) -> None:
     """Probe a coded depth video (container, codec, 8-bit samples, frame size and count) before a job
-    is made of it; its problems are 4xx (:data:`_STATUS`)."""
+    is made of it; its problems are the engine's 4xx (DepthInputError's status)."""
     name = depth.filename or "depth video"
     if not depth.size:
         raise ApiError(400, f"{name} is empty", "empty_file")
@@ -151,7 +135,5 @@ def _check_video(depth: UploadFile, p: DepthVideoParams, svc: Services) -> None:
         info = probe_depth_video(depth.file, svc.settings.max_video_frames, svc.settings.max_image_pixels, name)
         check_video_input(info, p)
         target_size((info.height, info.width), p.scale, p.out_size(), svc.settings.max_image_pixels)
-    except DepthInputError as exc:
-        raise _bad_input(exc) from None
     finally:
         depth.file.seek(0)

@@ -137,11 +137,9 @@ async def transform(
     mesh_bytes = await read_upload(mesh, svc.settings.max_upload_bytes)
     neutral_bytes = await read_upload(neutral, svc.settings.max_upload_bytes) if neutral is not None else None
     neutral_name = neutral.filename if neutral is not None else None
-    try:  # on the bounded compute pool: parsing, transfer and the preview are CPU work
-        out = await run_compute(svc, lambda: transform_mesh_bytes(
-            model, mesh_bytes, mesh.filename or "mesh", **p.model_dump(),
-            neutral_bytes=neutral_bytes, neutral_filename=neutral_name))
-    except FaceInputError as exc:
-        raise ApiError(422, str(exc), "bad_face_input") from None
+    # on the bounded compute pool: parsing, transfer and the preview are CPU work; a FaceInputError is a 422
+    out = await run_compute(svc, lambda: transform_mesh_bytes(
+        model, mesh_bytes, mesh.filename or "mesh", **p.model_dump(),
+        neutral_bytes=neutral_bytes, neutral_filename=neutral_name))
     return TransformOut(mesh_base64=base64.b64encode(out.mesh).decode(), format=out.info["format"],
                         preview_png_base64=base64.b64encode(out.preview_png).decode(), info=out.info)

@@ -25,16 +25,6 @@ XMP_MEDIA = "application/rdf+xml"
 
 router = APIRouter(prefix="/v1/photos", tags=["photos"], dependencies=[Depends(require_key)])
 
-_STATUS = {
-    errors.EmptyFile: 400,
-    errors.NotAnImage: 415,
-    errors.UnsupportedFormat: 415,
-    errors.TooManyPixels: 413,
-    errors.TruncatedImage: 422,
-    errors.CorruptImage: 422,
-    errors.UnwritableExif: 422,
-}
-
 
 def orientation_config(settings: Settings) -> DetectorConfig:
     """The orientation engine the service uses: YuNet when there is one, the text cue as set."""
@@ -47,9 +37,9 @@ def _detector(svc: Services) -> Any:
 
 
 def _as_api_error(exc: errors.OrientationInputError, filename: str | None) -> ApiError:
-    status = next((s for cls, s in _STATUS.items() if isinstance(exc, cls)), 400)
+    """The engine's error (its status and code) with the file it came from."""
     name = f"{filename}: " if filename else ""
-    return ApiError(status, f"{name}{exc}", exc.code)
+    return ApiError(exc.status, f"{name}{exc}", exc.code)
 
 
 def _tool_error(exc: Exception, filename: str | None) -> ApiError:

@@ -27,8 +27,8 @@ from workers.streaming.session import MAX_SOURCE_FACTOR
 from workers.streaming import store as rigstore
 from workers.streaming.job import RECORDING_JOB, RENDER_JOB
 from workers.streaming.params import BatchRenderParams, RecordingImportParams, RecordingRequest
-from workers.streaming.recording import (RecordingError, check_archive_upload, check_background_uploads,
-                                         check_video_uploads, match_cameras)
+from workers.streaming.recording import (check_archive_upload, check_background_uploads, check_video_uploads,
+                                         match_cameras)
 from workers.streaming.session import ViewError
 
 router = APIRouter(prefix="/v1/rigs", tags=["rigs"], dependencies=[Depends(require_key)])
@@ -84,21 +84,19 @@ async def create_recording(
     media = videos or [archive]
     if len(media) + len(backgrounds or []) > svc.settings.max_batch_files:
         raise ApiError(422, f"too many files; the limit is {svc.settings.max_batch_files}", "invalid_request")
-    try:
-        if videos is not None:
-            cameras = match_cameras([v.filename or "" for v in videos], rig)
-            await run_compute(svc, check_video_uploads, [(v.filename or "a video", v.file) for v in videos], cameras,
-                              rig, svc.settings.max_recording_frames)
-        else:
-            cameras = []
-            await run_compute(svc, check_archive_upload, archive.file, archive.filename or "the archive", rig,
-                              svc.settings.max_recording_frames, svc.settings.zip_limits)
-        bg_cameras = match_cameras([b.filename or "" for b in backgrounds], rig, "backgrounds") if backgrounds else []
-        if backgrounds:
-            await run_compute(svc, check_background_uploads, [(b.filename or "", b.file) for b in backgrounds],
-                              bg_cameras, rig)
-    except RecordingError as exc:
-        raise ApiError(422, str(exc), "invalid_recording") from None
+    # the engine's checks; a RecordingError is a 422 invalid_recording
+    if videos is not None:
+        cameras = match_cameras([v.filename or "" for v in videos], rig)
+        await run_compute(svc, check_video_uploads, [(v.filename or "a video", v.file) for v in videos], cameras,
+                          rig, svc.settings.max_recording_frames)
+    else:
+        cameras = []
+        await run_compute(svc, check_archive_upload, archive.file, archive.filename or "the archive", rig,
+                          svc.settings.max_recording_frames, svc.settings.zip_limits)
+    bg_cameras = match_cameras([b.filename or "" for b in backgrounds], rig, "backgrounds") if backgrounds else []
+    if backgrounds:
+        await run_compute(svc, check_background_uploads, [(b.filename or "", b.file) for b in backgrounds],
+                          bg_cameras, rig)
     job_params = RecordingImportParams(
         rig_id=rig_id, source="videos" if videos is not None else "images", cameras=cameras,
         backgrounds=bg_cameras, fps=req.fps, max_frames=svc.settings.max_recording_frames, name=req.name)

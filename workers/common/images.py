@@ -13,8 +13,8 @@ Every decode of bytes a user sent goes through :func:`decode_image` instead:
 - OpenCV then decodes (the engines work on its arrays); empty and undecodable bytes raise a clear
   error instead of ``cv2.error``.
 
-Errors derive from :class:`ImageInputError` (a ``ValueError`` and a ``JobInputError``): engines wrap
-them in their own input-error type; ``code`` is a short stable identifier for JSON error bodies.
+Errors derive from :class:`ImageInputError` (an :class:`~workers.common.errors.InputError`: ``code`` and the
+HTTP ``status`` for JSON error bodies); engines wrap them in their own input-error type or let them through.
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from workers.common.jobctx import JobInputError
+from workers.common.errors import InputError
 from workers.settings import WorkerSettings, worker_settings
 
 MAX_PIXELS_ENV = "SWEEPCAST_MAX_IMAGE_PIXELS"
@@ -38,10 +38,11 @@ _SUPPORTED_FORMATS = frozenset({"JPEG", "PNG", "WEBP", "BMP", "TIFF", "PPM"})  #
 Image.MAX_IMAGE_PIXELS = None
 
 
-class ImageInputError(ValueError, JobInputError):
+class ImageInputError(InputError):
     """Image bytes a user sent that cannot be decoded; the message says why."""
 
     code = "bad_image"
+    status = 400
 
 
 class EmptyImage(ImageInputError):
@@ -50,18 +51,22 @@ class EmptyImage(ImageInputError):
 
 class NotAnImage(ImageInputError):
     code = "not_an_image"
+    status = 415
 
 
 class UnsupportedImage(ImageInputError):
     code = "unsupported_format"
+    status = 415
 
 
 class TooManyPixels(ImageInputError):
     code = "too_many_pixels"
+    status = 413
 
 
 class UnreadableImage(ImageInputError):
     code = "corrupt_image"
+    status = 422
 
 
 @dataclass(frozen=True)

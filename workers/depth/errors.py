@@ -1,21 +1,21 @@
 """The error a user of the depth engine can cause."""
 from __future__ import annotations
 
-from workers.common.jobctx import JobInputError
+from workers.common.errors import InputError
+
+STATUS_BY_CODE = {"too_many_pixels": 413, "not_an_image": 415, "unsupported_format": 415, "corrupt_image": 422,
+                  "output_too_large": 422, "not_a_video": 415, "corrupt_video": 422, "too_many_frames": 413}
+"""The HTTP status of each cause (as the photo routes answer for the same image problems); others are 400."""
 
 
-class DepthInputError(ValueError, JobInputError):
+class DepthInputError(InputError):
     """Unusable input (sizes, bit depth, file length, method, factor); the message says what was expected.
 
-    A ``ValueError`` for library callers and a ``JobInputError`` for the job system, so the web
-    layer can map it to a 4xx and a job fails at once without retries. ``code`` is a short stable
-    identifier for JSON error bodies: ``bad_depth_input`` unless a cause says more (an image's
-    ``too_many_pixels``, ``not_an_image``, ...; ``output_too_large`` for a requested output size).
+    ``code`` is ``bad_depth_input`` unless a cause says more (an image's ``too_many_pixels``, ``not_an_image``,
+    ...; ``output_too_large`` for a requested output size); the status follows the code (:data:`STATUS_BY_CODE`).
     """
 
     code = "bad_depth_input"
 
     def __init__(self, message: str, code: str | None = None) -> None:
-        super().__init__(message)
-        if code is not None:
-            self.code = code
+        super().__init__(message, code, STATUS_BY_CODE.get(code or self.code, 400))

@@ -1,6 +1,10 @@
-"""The error a user of the face transformer can cause (the web layer maps it to a 4xx)."""
+"""The error a user of the face transformer can cause."""
 from __future__ import annotations
 
+from workers.common.errors import InputError
 
-class FaceInputError(ValueError):
+
+class FaceInputError(InputError):
     """An unusable input: not a mesh, wrong topology, NaN vertices, unknown impression, Q out of range."""
+
+    code = "bad_face_input"

@@ -1,11 +1,11 @@
 """What a user can get wrong when sending a photo: one exception class per cause.
 
 Every class derives from :class:`OrientationInputError`, itself the service's
-:class:`workers.common.images.ImageInputError` (a ``ValueError`` and a ``JobInputError``), so there is one
+:class:`workers.common.images.ImageInputError` (an :class:`~workers.common.errors.InputError`), so there is one
 hierarchy of input errors: a cause the common decoder also knows derives from its class there too, with
-the same ``code`` (a short stable identifier for JSON error bodies and reports). Each carries a message
-a person understands. Suggested HTTP statuses: EmptyFile 400, NotAnImage 415, UnsupportedFormat 415,
-TooManyPixels 413, TruncatedImage 422, CorruptImage 422, UnwritableExif 422.
+the same ``code`` (a short stable identifier for JSON error bodies and reports) and HTTP ``status``
+(EmptyFile 400, NotAnImage 415, UnsupportedFormat 415, TooManyPixels 413, TruncatedImage 422, CorruptImage
+422, UnwritableExif 422). Each carries a message a person understands.
 """
 from __future__ import annotations
 
@@ -40,6 +40,7 @@ class TruncatedImage(OrientationInputError):
     """The file ends before the image data does (an interrupted upload or copy)."""
 
     code = "truncated_image"
+    status = 422
 
 
 class CorruptImage(images.UnreadableImage, OrientationInputError):
@@ -58,3 +59,4 @@ class UnwritableExif(OrientationInputError):
     """The EXIF block cannot take the Orientation tag without losing data (it would exceed 64 KiB)."""
 
     code = "unwritable_exif"
+    status = 422

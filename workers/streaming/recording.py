@@ -27,6 +27,7 @@ from typing import BinaryIO, Callable, Iterable, Literal, Sequence
 
 import numpy as np
 
+from workers.common.errors import InputError
 from workers.common.images import encode_png
 from workers.common.safezip import SafeZip, ZipLimits
 from workers.sweep.rig import Rig
@@ -43,8 +44,10 @@ RATE_TOLERANCE = 0.01
 Progress = Callable[[float, str], None]
 
 
-class RecordingError(ValueError):
+class RecordingError(InputError):
     """Media that do not make a recording of the rig; the message names the file and camera."""
+
+    code = "invalid_recording"
 
 
 @dataclass(frozen=True)
