@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import logging
 
-from app.rig_access import recording_views, session_config
+from app.stored_rigs import recording_views, session_config
 from app.services import Services
 from workers.streaming import store as rigstore
 from workers.streaming.actor import SessionClient

@@ -94,7 +94,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     from app.routers import (depth, faces, jobs, keys, photos, reconstructions, recordings, review, rig_sockets,
                              rigs, sessions, system)
     from app.demo_session import keep_demo_session_warm
-    from app.rig_access import ensure_demo_rig
+    from app.demo_rig import ensure_demo_rig
 
     app.include_router(system.router)
     app.include_router(jobs.router)

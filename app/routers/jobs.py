@@ -13,7 +13,7 @@ from app.auth import principal, require_key, socket_principal
 from app.errors import ApiError
 from app.jobstore import Job, JobState, job_public
 from app.keys import Principal
-from app.rig_access import rig_of_recording_job
+from app.stored_rigs import rig_of_recording_job
 from app.services import Services, delete_job_and_files, services
 from workers.runtime import results_prefix
 from workers.storage import BlobNotFound

@@ -17,7 +17,7 @@ from app.keys import Principal
 from app.errors import ApiError
 from app.limits import BATCH_BODY
 from app.frame_atlases import AtlasKey, build_atlas
-from app.rig_access import (delete_recording_data, load_rig, recording_or_404, recording_views, require_ready,
+from app.stored_rigs import (delete_recording_data, load_rig, recording_or_404, recording_views, require_ready,
                             rig_json_bytes, rig_meta_or_404, view_limits)
 from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, parse_params, run_compute, services

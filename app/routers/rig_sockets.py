@@ -56,7 +56,7 @@ from app.auth import socket_principal
 from app.errors import ApiError
 from app.keys import Principal
 from app.live_relay import LiveSet
-from app.rig_access import Source, resolve_source, session_config
+from app.stored_rigs import Source, resolve_source, session_config
 from app.services import Services
 from workers.common.validation import describe_errors
 from workers.streaming.actor import LIVE, SessionClient, SessionInterrupted

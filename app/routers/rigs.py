@@ -16,7 +16,7 @@ from pydantic import BaseModel, Field
 from app.auth import principal, require_key
 from app.keys import Principal
 from app.errors import ApiError
-from app.rig_access import (delete_recording_data, load_rig, recording_views, rig_meta_or_404, rig_readable,
+from app.stored_rigs import (delete_recording_data, load_rig, recording_views, rig_meta_or_404, rig_readable,
                             session_config)
 from app.routers.recordings import RecordingOut
 from app.services import Services, run_compute, services

@@ -9,7 +9,7 @@ from pydantic import BaseModel, Field
 
 from app.auth import principal, require_key
 from app.keys import Principal
-from app.rig_access import rig_readable
+from app.stored_rigs import rig_readable
 from app.services import Services, services
 from workers.streaming import actor
 from workers.streaming import store as rigstore

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import asyncio
 
-from app import rig_access
-from app.rig_access import ensure_demo_rig, recording_views
+import app.demo_rig as demo_module
+from app.demo_rig import ensure_demo_rig
+from app.stored_rigs import recording_views
 from app.services import build_services
 from app.settings import Settings
 from workers.runtime import results_prefix
@@ -16,7 +17,7 @@ SMALL = demo_rig(2, (32, 24))
 
 
 def _services(tmp_path, monkeypatch):
-    monkeypatch.setattr(rig_access, "demo_rig", lambda: SMALL)
+    monkeypatch.setattr(demo_module, "demo_rig", lambda: SMALL)
     svc = build_services(Settings(data_dir=tmp_path / "data"))
     submitted: list[str] = []
     monkeypatch.setattr(svc.dispatcher, "submit", submitted.append)

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from app.rig_access import rig_json_bytes
+from app.stored_rigs import rig_json_bytes
 from workers.camera import Camera
 from workers.streaming import demo as demo_module
 from workers.streaming.demo import (DEMO_SIZE, build_demo_recording, demo_recording, demo_recording_key, demo_rig,

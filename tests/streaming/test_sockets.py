@@ -13,7 +13,7 @@ from starlette.websockets import WebSocketDisconnect
 
 from tests.streaming.capture import frame_set, jpeg
 from app.routers.rig_sockets import MAX_TEXT_CHARS
-from app.rig_access import session_config
+from app.stored_rigs import session_config
 from tests.streaming.conftest import IDLE_S, add_recording, add_rig, wait_until
 from workers.streaming import actor
 from workers.streaming.framing import unpack_message

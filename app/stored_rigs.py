@@ -1,32 +1,25 @@
-"""What the rig, recording and session routes, the sockets and the demo session share (not a router): rigs
-and recordings read from the blob store with their import job's state, the view limits and session
-configuration, and the first-run demo rig."""
+"""Rigs and recordings as stored, for the rig, recording and session routes, the sockets and the demo (not a
+router): a rig's metadata with who may read or change it, recordings with their import job's state, what a socket
+shows (:class:`Source`), the view limits and a session's configuration."""
 from __future__ import annotations
 
 import asyncio
 import json
-import logging
 from dataclasses import dataclass
 from typing import Any
 
 from app.errors import ApiError
 from app.jobstore import Job, JobState
-from app.keys import SERVICE_ADMIN, Principal
-from app.services import Services, Upload, create_job, delete_job_and_files
+from app.keys import Principal
+from app.services import Services, delete_job_and_files
 from app.settings import Settings
 from workers.streaming import store as rigstore
 from workers.streaming.actor import LIVE, SessionConfig
-from workers.streaming.demo import DEMO_NAME, cached_demo_recording, demo_rig
 from workers.streaming.job import DEMO_JOB, RECORDING_JOB
-from workers.streaming.params import DemoParams
 from workers.streaming.session import SessionLimits
-from workers.streaming.store import ARCHIVE_NAME
 from workers.streaming.viewpoint import orbit_frame
 from workers.sweep.rig import Rig
 from workers.sweep.rig_io import rig_to_dict
-
-log = logging.getLogger("sweepcast.rigs")
-
 
 async def rig_meta_or_404(svc: Services, rig_id: str, who: Principal, change: bool = False) -> dict[str, Any]:
     """The rig's metadata when ``who`` may read it (``change``: change it, add recordings or stream live frames to
@@ -171,41 +164,3 @@ def view_limits(settings: Settings) -> SessionLimits:
 def session_config(svc: Services, rig_id: str, source: str) -> SessionConfig:
     return SessionConfig(svc.store.url, rig_id, source, idle_seconds=svc.settings.session_idle_seconds,
                          limits=view_limits(svc.settings))
-
-
-# --- jobs over stored blobs -----------------------------------------------------------------------
-# --- the first-run demo ---------------------------------------------------------------------------
-async def ensure_demo_rig(svc: Services) -> None:
-    """At start-up (when ``demo_rig`` is on): store the procedural arc rig when there is no demo rig,
-    and start the job that renders its recording when it has none ready or under way (a first
-    attempt may have failed). Never raises: the service is useful without the demo."""
-    if not svc.settings.demo_rig:
-        return
-    try:
-        metas = [m for m in await asyncio.to_thread(rigstore.list_rig_metas, svc.store) if m.get("demo")]
-        if metas:
-            rig_id = metas[0]["id"]
-            if any(r["state"] in ("ready", "processing") for r in await recording_views(svc, rig_id)):
-                return
-            rig = await load_rig(svc, rig_id)
-        else:
-            rig = demo_rig()
-            rig_id = rigstore.new_rig_id()
-            await asyncio.to_thread(rigstore.save_rig, svc.store, rig_id, rig,
-                                    {"name": DEMO_NAME, "format": "json", "demo": True})
-        params = DemoParams()
-        kept = await asyncio.to_thread(cached_demo_recording, svc.settings.resolved_demo_cache_dir, rig,
-                                       params.frames, params.fps)
-        job = await create_job(svc, SERVICE_ADMIN, DEMO_JOB, params, [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})],
-                               submit=False)
-        await asyncio.to_thread(rigstore.save_recording_meta, svc.store, rig_id, job.id,
-                                {"name": "demo recording", "kind": "demo"})
-        # The recording kept by `sweepcast warmup` (or an earlier data folder's demo job) is the job's result as
-        # it is: published here, before Ray is even up, so that the demo's viewer session can start with Ray.
-        if kept is not None and await svc.dispatcher.finish_here(job.id, {ARCHIVE_NAME: kept[0]}, kept[1].summary()):
-            log.info("demo rig %s: its recording %s is the one kept in %s", rig_id, job.id, kept[0].parent)
-            return
-        svc.dispatcher.submit(job.id)
-        log.info("demo rig %s: its recording is being rendered by job %s", rig_id, job.id)
-    except Exception:  # noqa: BLE001 - the service is useful without the demo
-        log.exception("could not create the demo rig")
