@@ -72,7 +72,7 @@ def dense_maps():
 def depth_filter():
     from workers.common.images import encode_png
     from workers.depth import io
-    from workers.depth.service import filter_depth_bytes
+    from workers.depth.encoded import filter_depth_bytes
     rng = np.random.default_rng(0)
     depth = np.kron(rng.integers(1, 255, (24, 32), np.uint8), np.ones((8, 8), np.uint8))
     texture = encode_png(rng.integers(0, 256, (384, 512, 3), np.uint8))

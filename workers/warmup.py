@@ -137,7 +137,7 @@ def _depth() -> None:
     from workers.common.images import encode_png
     from workers.depth import io
     from workers.depth.methods import METHODS, GUIDED_METHODS
-    from workers.depth.service import filter_depth_bytes, synthesize_bytes
+    from workers.depth.encoded import filter_depth_bytes, synthesize_bytes
 
     rng = np.random.default_rng(0)
     texture = encode_png(rng.integers(0, 256, (24, 32, 3), np.uint8))

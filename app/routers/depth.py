@@ -21,7 +21,7 @@ from workers.depth.errors import DepthInputError
 from workers.depth.io import YuvFormat, yuv_frame_count
 from workers.depth.job import VIDEO_JOB, check_video_input
 from workers.depth.params import DepthFilterParams, DepthVideoParams, SynthesizeParams
-from workers.depth.service import filter_depth_bytes, synthesize_bytes
+from workers.depth.encoded import filter_depth_bytes, synthesize_bytes
 from workers.depth.upsample import target_size
 from workers.depth.video import probe_depth_video
 

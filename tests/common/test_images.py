@@ -94,7 +94,7 @@ def test_depth_engine_decodes_through_the_checked_decoder():
 
 def test_depth_output_is_checked_before_it_is_allocated():
     from workers.depth.errors import DepthInputError
-    from workers.depth.service import filter_depth_bytes
+    from workers.depth.encoded import filter_depth_bytes
 
     tiny = encoded(".png", np.full((8, 8), 9, np.uint8))
     with pytest.raises(DepthInputError, match="16384x16384") as caught:

@@ -10,7 +10,7 @@ from workers.depth.errors import DepthInputError
 from workers.depth.levels import disparity_to_levels
 from workers.depth.methods import postprocess
 from workers.depth.params import DepthFilterParams, DepthVideoParams, SynthesizeParams
-from workers.depth.service import filter_depth_bytes, synthesize_bytes
+from workers.depth.encoded import filter_depth_bytes, synthesize_bytes
 
 
 def png(img):

@@ -1,6 +1,6 @@
-"""Synchronous entry points for the web layer and the CLI: encoded images in, encoded images out.
+"""The depth engine over encoded images (PNG/PGM in, PNG out): what the synchronous routes and the CLI call.
 
-User-caused problems raise :class:`DepthInputError` (a ValueError): map it to a 4xx.
+User-caused problems raise :class:`DepthInputError` (an InputError: the service answers its status).
 """
 from __future__ import annotations
 
