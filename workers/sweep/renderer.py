@@ -74,21 +74,19 @@ class RenderOptions(BaseModel):
     point, and where every camera is hidden all take part. visibility_tolerance: relative depth margin of
     that test (0.03: a point counts as hidden when something is more than 3% nearer along the camera's axis).
     None (the default): on exactly when ``occlusions`` is "fill". With the sweep's own depth unfilled (wrong
-    in the half-occluded strips and at the occluding edges, where the test matters) it loses 0.2-2 dB
-    (benchmarks/RESULTS.md, issue 20); after the fill, where the strips are background, it colours them from
-    the one camera that sees them.
+    in the half-occluded strips and at the occluding edges, where the test matters) it loses quality
+    (benchmarks/RESULTS.md, section sweep); after the fill, where the strips are background, it colours them
+    from the one camera that sees them.
 
     occlusions: "keep" the searched depth everywhere, or "fill" the pixels whose plane the cameras do not
     confirm (half-occluded strips next to depth edges and at the frame's edge, mismatches) with the farther
     of the neighbouring confirmed depths along the rows (the columns for a vertically spread rig), as
     classic stereo does after its left-right check (:mod:`workers.sweep.occlusion`). The check runs on the
     aggregated cost volume, so "fill" needs aggregation "window" or "sgm"; with coarse_to_fine the fine level
-    then aggregates too (within its narrow plane windows) instead of the pruned search. Measured (fill with
-    its default visibility, against keep; benchmarks/RESULTS.md, issue 20): two views +1.2 (sgm) / +1.7
-    (window) dB on Middlebury Teddy, +0.8 / +1.5 dB on Art; all views +1.0 / +1.6 dB on Art but -2.2 / -1.0 dB
-    on Teddy, where the visibility-aware colouring alone loses 2.2 dB with 8 cameras. It costs a scan of the
-    cost volume per camera (1.75x the CPU time of the live configuration with window aggregation), so the
-    default is "keep".
+    then aggregates too (within its narrow plane windows) instead of the pruned search. Against keep (section
+    sweep of benchmarks/RESULTS.md) it gains on two views of the Middlebury sets and on all views of Art, but
+    loses on all views of Teddy, where the visibility-aware colouring alone loses with 8 cameras; and it costs a
+    scan of the cost volume per camera, so the default is "keep".
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -449,7 +447,7 @@ class SweepRenderer:
         cost volume confirm (``volume`` (h, w, P) float32 with plane windows lo..hi; the cross-view check of
         :mod:`workers.sweep.occlusion`) given the farther neighbouring depth along the line, and the mask (h, w)
         bool of those pixels. (A visibility check instead, a point seen by fewer than two cameras past the view's
-        own depth, was measured too: on Middlebury Teddy it lost 2.6 dB after the per-pixel search and gained less
+        own depth, was tried too: on Middlebury Teddy it lost quality after the per-pixel search and gained less
         than the cross-view check after sgm, since it also rejects the many pixels whose depth is noisy but whose
         colour is right.)"""
         bad = confirmed_views(Q, B, s_planes, volume, lo, hi, best, self._sizes) < opt.min_views
@@ -487,8 +485,7 @@ class SweepRenderer:
         """The sweep kernel's per-camera rows, (N * CAM_F,) float64 and (N * CAM_I,) int64 (see
         :mod:`workers.sweep.kernels`), in sampling order: nearest to the virtual centre (3,) first. A
         near camera sees every plane of a pixel at nearly the same place, so its samples come from
-        cache (measured with the 16-lane search, 640x480, 32 planes: 2-3% less time than widely spread
-        cameras first or the rig's order)."""
+        cache (a little less time than widely spread cameras first or the rig's order)."""
         n, hm, wm = self._sils.shape
         camf = np.zeros((n, kernels.CAM_F))
         cami = np.zeros((n, kernels.CAM_I), np.int64)
