@@ -15,7 +15,9 @@ from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, run_compute, services
 from app.settings import Settings
 from app.uploads import check_size, read_upload
+from workers.common.models import models_dir
 from workers.orientation import errors
+from workers.orientation.detect import detector_config
 from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
 from workers.orientation.job import BATCH_JOB, OrientationBatchParams
 from workers.orientation.orient import DetectorConfig, OrientationReport, analyze, get_detector, orient_file
@@ -27,9 +29,8 @@ router = APIRouter(prefix="/v1/photos", tags=["photos"], dependencies=[Depends(r
 
 
 def orientation_config(settings: Settings) -> DetectorConfig:
-    """The orientation engine the service uses: YuNet when there is one, the text cue as set."""
-    return DetectorConfig(yunet_model=settings.resolved_yunet_model, text=settings.orientation_text,
-                          tesseract=settings.orientation_tesseract)
+    """The orientation engine the service uses: YuNet when there is one, the text cue as set (as its jobs do)."""
+    return detector_config(settings, models_dir(settings.data_dir))
 
 
 def _detector(svc: Services) -> Any:

@@ -25,7 +25,7 @@ from .errors import DepthInputError
 from .job import run_depth_video
 from .methods import METHODS
 from .params import DepthFilterParams, SynthesizeParams
-from .service import filter_depth_bytes, synthesize_bytes
+from .encoded import filter_depth_bytes, synthesize_bytes
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -41,6 +41,7 @@ from workers.orientation.faces import Candidate, HaarFaceFinder, LongSideScan, S
 from workers.orientation.geometry import ROTATIONS, Box, iou, rotate_view, view_box_to_image
 from workers.orientation.parts import PartSpec, PartVerifier, face_crop
 from workers.orientation.text import DEFAULT_TESSERACT, RejectReason, TesseractOsd, get_text_detector, text_status
+from workers.settings import WorkerSettings
 
 Method = Literal["auto", "paper", "yunet", "combined"]
 DecisionKind = Literal["upright", "rotated", "rejected"]
@@ -352,6 +353,14 @@ class DetectorConfig(BaseModel):
         if self.method == "auto":
             return "combined" if self.yunet_model is not None else "paper"
         return self.method
+
+
+def detector_config(settings: WorkerSettings, models_folder: Path | None, method: Method = "auto") -> DetectorConfig:
+    """The one way a deployment's settings become a detector configuration (the service's routes and its batch
+    jobs alike): ``method``, the YuNet model the settings name or the one installed in ``models_folder``, the
+    text cue and its tesseract binary as set."""
+    return DetectorConfig(method=method, yunet_model=settings.yunet_model(models_folder), text=settings.orientation_text,
+                          tesseract=settings.orientation_tesseract or DEFAULT_TESSERACT)
 
 
 class Engine:

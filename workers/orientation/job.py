@@ -30,7 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from workers.common.images import max_pixels_from_env
 from workers.common.jobctx import JobContext, JobInputError
-from workers.orientation.detect import DetectorConfig, Method, OrientationDetector, get_detector
+from workers.orientation.detect import DetectorConfig, Method, OrientationDetector, detector_config, get_detector
 from workers.orientation.errors import OrientationInputError
 from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
 from workers.orientation.headers import sniff_format
@@ -68,9 +68,8 @@ def detector_config_from_env(method: Method = "auto") -> DetectorConfig:
     """The detector configuration of this worker: ``method`` with the YuNet model the environment names,
     else the one installed in ``$SWEEPCAST_MODELS_DIR``, if any; the text cue as the service set it
     (``$SWEEPCAST_ORIENTATION_TEXT``, ``$SWEEPCAST_ORIENTATION_TESSERACT``; default on, ``tesseract`` on PATH)."""
-    text, tesseract = text_settings_from_env()
-    return DetectorConfig(method=method, yunet_model=configured_yunet(worker_settings().models_dir), text=text,
-                          tesseract=tesseract)
+    settings = worker_settings()
+    return detector_config(settings, settings.models_dir, method)
 
 
 def run_orientation_batch(ctx: JobContext) -> dict[str, Any]:
