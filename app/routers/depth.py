@@ -18,7 +18,7 @@ from app.services import Services, Upload, create_job, parse_params, run_compute
 from app.uploads import check_size, read_upload
 from workers.common.images import ImageInputError, decode_image
 from workers.depth.errors import DepthInputError
-from workers.depth.io import YuvFormat, yuv_frame_count
+from workers.depth.io import YuvFormat, yuv_sequence_frames
 from workers.depth.job import VIDEO_JOB, check_video_input
 from workers.depth.params import DepthFilterParams, DepthVideoParams, SynthesizeParams
 from workers.depth.encoded import filter_depth_bytes, synthesize_bytes
@@ -114,15 +114,10 @@ async def filter_video(
 
 
 def _check_yuv(depth: UploadFile, p: DepthVideoParams, max_frames: int) -> None:
-    """Refuse at once a sequence whose size is not a whole number of frames, or that has too many
-    (the job would fail anyway)."""
-    try:
-        count = yuv_frame_count(depth.size or 0, YuvFormat(p.width, p.height, p.bits, p.chroma))
-    except DepthInputError as exc:
-        raise ApiError(422, f"{depth.filename or 'depth'}: {exc}", "bad_depth_input") from None
-    if count > max_frames:
-        raise ApiError(413, f"{depth.filename or 'depth'} holds {count} frames; the limit is {max_frames}",
-                       "too_many_frames")
+    """Refuse at once a sequence whose size is not a whole number of frames, or that has too many (the job's own
+    rule: the job would fail anyway)."""
+    yuv_sequence_frames(depth.size or 0, YuvFormat(p.width, p.height, p.bits, p.chroma), max_frames,
+                        depth.filename or "depth")
 
 
 def _check_video(depth: UploadFile, p: DepthVideoParams, svc: Services) -> None:

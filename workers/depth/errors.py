@@ -17,5 +17,5 @@ class DepthInputError(InputError):
 
     code = "bad_depth_input"
 
-    def __init__(self, message: str, code: str | None = None) -> None:
-        super().__init__(message, code, STATUS_BY_CODE.get(code or self.code, 400))
+    def __init__(self, message: str, code: str | None = None, status: int | None = None) -> None:
+        super().__init__(message, code, status or STATUS_BY_CODE.get(code or self.code, 400))

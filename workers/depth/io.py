@@ -138,6 +138,19 @@ def yuv_frame_count(file_size: int, fmt: YuvFormat) -> int:
     return frames
 
 
+def yuv_sequence_frames(file_size: int, fmt: YuvFormat, max_frames: int, name: str = "the sequence") -> int:
+    """Frames of a raw YUV depth sequence of ``file_size`` bytes, the one rule of the upload route and the job:
+    DepthInputError (422) unless a positive whole number of ``fmt`` frames, (413, ``too_many_frames``) past
+    ``max_frames``; messages name the file (``name``)."""
+    try:
+        count = yuv_frame_count(file_size, fmt)
+    except DepthInputError as exc:
+        raise DepthInputError(f"{name}: {exc}", status=422) from None
+    if count > max_frames:
+        raise DepthInputError(f"{name} holds {count} frames; the limit is {max_frames}", "too_many_frames")
+    return count
+
+
 def read_yuv_frames(fh: BinaryIO, fmt: YuvFormat, count: int) -> Iterator[np.ndarray]:
     """Yield ``count`` luma planes (H, W) uint8/uint16 from an open file, checking their levels."""
     luma_bytes = fmt.width * fmt.height * fmt.sample_bytes

@@ -59,9 +59,8 @@ def run_depth_video(ctx: JobContext) -> dict[str, Any]:
         width, height = p.width, p.height
         described = {"format": "yuv", "chroma": p.chroma}
         fmt_in = io.YuvFormat(width, height, p.bits, p.chroma)
-        count = io.yuv_frame_count(depth_path.stat().st_size, fmt_in)
-        if count > max_frames:
-            raise DepthInputError(f"the sequence has {count} frames; the limit is {max_frames}", "too_many_frames")
+        name = ctx.input_meta.get("depth", {}).get("filename") or "the sequence"
+        count = io.yuv_sequence_frames(depth_path.stat().st_size, fmt_in, max_frames, name)
         frames_in = None
     out_w, out_h = target_size((height, width), p.scale, p.out_size(), max_pixels)
     fmt_out = io.YuvFormat(out_w, out_h, p.bits, p.chroma)
