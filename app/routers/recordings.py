@@ -26,7 +26,8 @@ from workers.streaming.browser import ATLAS_FORMATS
 from workers.streaming.session import MAX_SOURCE_FACTOR
 from workers.streaming import store as rigstore
 from workers.streaming.job import RECORDING_JOB, RENDER_JOB
-from workers.streaming.params import BatchRenderParams, RecordingImportParams, RecordingRequest
+from workers.streaming.params import (ARCHIVE_INPUT, BatchRenderParams, RecordingImportParams, RecordingRequest,
+                                      background_input, media_input)
 from workers.streaming.recording import (check_archive_upload, check_background_uploads, check_video_uploads,
                                          match_cameras)
 from workers.streaming.session import ViewError
@@ -102,10 +103,10 @@ async def create_recording(
         backgrounds=bg_cameras, fps=req.fps, max_frames=svc.settings.max_recording_frames, name=req.name)
     uploads = [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})]
     if videos is not None:
-        uploads += [Upload(f"media-{i:03d}", v.file, {"filename": v.filename}) for i, v in enumerate(videos)]
+        uploads += [Upload(media_input(i), v.file, {"filename": v.filename}) for i, v in enumerate(videos)]
     else:
-        uploads.append(Upload("archive", archive.file, {"filename": archive.filename}))
-    uploads += [Upload(f"background-{i:03d}", b.file, {"filename": b.filename}) for i, b in enumerate(backgrounds or [])]
+        uploads.append(Upload(ARCHIVE_INPUT, archive.file, {"filename": archive.filename}))
+    uploads += [Upload(background_input(i), b.file, {"filename": b.filename}) for i, b in enumerate(backgrounds or [])]
     job = await create_job(svc, who, RECORDING_JOB, job_params, uploads)
     meta = await asyncio.to_thread(rigstore.save_recording_meta, svc.store, rig_id, job.id,
                                    {"name": req.name or media[0].filename, "kind": "upload"})

@@ -24,7 +24,7 @@ from workers.sweep.rig_io import rig_from_dict
 from .batch import render_path
 from .demo import demo_recording
 from .images import ImageError, decode_image
-from .params import BatchRenderParams, DemoParams, RecordingImportParams
+from .params import ARCHIVE_INPUT, BatchRenderParams, DemoParams, RecordingImportParams, background_input, media_input
 from .recording import RecordingArchive, RecordingError, check_videos, import_image_zip, import_videos
 from .store import ARCHIVE_NAME
 from .video import VideoError, probe_video
@@ -51,13 +51,13 @@ def run_recording_import(ctx: JobContext) -> dict[str, Any]:
     try:
         backgrounds = _backgrounds(ctx, p, rig)
         if p.source == "videos":
-            names = [f"media-{i:03d}" for i in range(len(p.cameras))]
+            names = [media_input(i) for i in range(len(p.cameras))]
             videos = [(_label(ctx, n), ctx.input_path(n)) for n in names]
             infos = [(label, probe_video(path)) for label, path in videos]
             frames, fps = check_videos(infos, p.cameras, rig, p.max_frames)
             info = import_videos(videos, p.cameras, rig, out, frames, fps, backgrounds, ctx.progress)
         else:
-            info = import_image_zip(ctx.input_path("archive"), rig, out, p.fps or DEFAULT_IMAGE_FPS, p.max_frames,
+            info = import_image_zip(ctx.input_path(ARCHIVE_INPUT), rig, out, p.fps or DEFAULT_IMAGE_FPS, p.max_frames,
                                     backgrounds, ctx.progress)
     except _USER_ERRORS as exc:
         raise JobInputError(str(exc)) from None
@@ -71,7 +71,7 @@ def _backgrounds(ctx: JobContext, p: RecordingImportParams, rig: Rig) -> dict[in
         raise RecordingError(f"give a background image for every camera ({len(rig)}) or none")
     out = {}
     for i, cam in enumerate(p.backgrounds):
-        name = f"background-{i:03d}"
+        name = background_input(i)
         c = rig[cam]
         try:
             out[cam] = decode_image(ctx.read_input(name), (c.width, c.height))

@@ -141,6 +141,20 @@ class RecordingRequest(BaseModel):
     fps: float | None = Field(None, gt=0.0, le=1000.0, description="frame rate of image folders (default 25)")
 
 
+ARCHIVE_INPUT = "archive"
+"""The input name of a recording's zip of image folders (the upload route names its inputs, the job reads them)."""
+
+
+def media_input(i: int) -> str:
+    """The input name of the ``i``-th video of a recording."""
+    return f"media-{i:03d}"
+
+
+def background_input(i: int) -> str:
+    """The input name of the ``i``-th background image of a recording."""
+    return f"background-{i:03d}"
+
+
 class RecordingImportParams(BaseModel):
     """Job ``streaming.recording``: inputs ``rig`` (our rig JSON), ``media-NNN`` (one video per
     camera, or one zip ``archive`` of per-camera image folders) and optional ``background-NNN``
