@@ -13,12 +13,12 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
+from pydantic.fields import FieldInfo
 
-from workers.sweep.renderer import MAX_PLANES
+from workers.sweep.renderer import MAX_PLANES, RenderOptions
 
 Vec3 = tuple[float, float, float]
-Method = Literal["kojima", "kojima_k", "nearest", "ulr", "global"]
 STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
@@ -72,33 +72,23 @@ class ViewPose(BaseModel):
         return self
 
 
-class SweepSettings(BaseModel):
-    """Renderer options a client may set (see :class:`workers.sweep.renderer.RenderOptions`)."""
+CLIENT_RENDER_FIELDS = ("method", "d_bnd", "k", "planes", "near", "far", "visual_hull", "coarse_to_fine",
+                        "aggregation", "visibility", "occlusions")
+"""The renderer options a viewer or a batch render may set: :class:`RenderOptions`' own fields (types, limits,
+descriptions), read off it; only ``coarse_to_fine`` defaults otherwise (on: a viewer's views are live)."""
 
-    model_config = STRICT
-    method: Method = "kojima"
-    d_bnd: float | None = Field(None, gt=0.0, le=2.0,
-                                description="the paper's D_bnd; None: derived from the rig (suggest_d_bnd)")
-    k: int = Field(3, ge=2, le=8)
-    planes: int = Field(48, ge=2, le=MAX_PLANES)
-    near: float | None = Field(None, gt=0.0)
-    far: float | None = Field(None, gt=0.0)
-    visual_hull: bool | None = None
-    coarse_to_fine: bool = True
-    aggregation: Literal["none", "window", "sgm"] = Field(
-        "window", description="how each pixel's depth plane is chosen: 'none' alone (winner-take-all, fastest), "
-                              "'window' on the cameras' variance over a 5x5 px window, 'sgm' the windowed cost "
-                              "with semi-global smoothing (best on real scenes, slowest); see "
-                              "workers.sweep.costs")
-    visibility: bool | None = Field(
-        None, description="colour each pixel only from the cameras its surface point is not hidden from by a "
-                          "nearer surface of the view (per-camera z-buffers of the rendered depth); see "
-                          "workers.sweep.visibility. None: on exactly when occlusions is 'fill'")
-    occlusions: Literal["keep", "fill"] = Field(
-        "keep", description="'fill': the pixels whose depth plane the cameras do not confirm (half-occluded strips "
-                            "next to depth edges, mismatches) take the farther neighbouring depth along the "
-                            "scanline, as classic stereo does after its left-right check; 'keep': the searched "
-                            "depth everywhere; see workers.sweep.occlusion")
+
+def _client_field(name: str) -> tuple[object, FieldInfo]:
+    info = RenderOptions.model_fields[name]
+    return info.annotation, FieldInfo.merge_field_infos(info, default=True) if name == "coarse_to_fine" else info
+
+
+_RenderFields = create_model("SweepSettings", __config__=STRICT,
+                             **{name: _client_field(name) for name in CLIENT_RENDER_FIELDS})
+
+
+class SweepSettings(_RenderFields):
+    """Renderer options a client may set (see :class:`workers.sweep.renderer.RenderOptions`)."""
 
     @model_validator(mode="after")
     def _near_far(self) -> "SweepSettings":
@@ -108,8 +98,7 @@ class SweepSettings(BaseModel):
 
     def render_fields(self) -> dict:
         """The fields :class:`RenderOptions` takes."""
-        return self.model_dump(include={"method", "d_bnd", "k", "planes", "near", "far", "visual_hull", "coarse_to_fine",
-                                             "aggregation", "visibility", "occlusions"})
+        return self.model_dump(include=set(CLIENT_RENDER_FIELDS))
 
 
 class Viewpoint(ViewPose, SweepSettings):

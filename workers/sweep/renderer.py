@@ -91,8 +91,9 @@ class RenderOptions(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    method: Literal["global", "nearest", "ulr", "kojima", "kojima_k"] = "kojima"
-    d_bnd: float | None = Field(None, gt=0.0, le=2.0)
+    method: Literal["kojima", "kojima_k", "nearest", "ulr", "global"] = "kojima"
+    d_bnd: float | None = Field(None, gt=0.0, le=2.0,
+                                description="the paper's D_bnd; None: derived from the rig (suggest_d_bnd)")
     k: int = Field(3, ge=2, le=8)
     planes: int = Field(48, ge=2, le=MAX_PLANES)
     near: float | None = Field(None, gt=0.0)
@@ -105,16 +106,27 @@ class RenderOptions(BaseModel):
     min_views: int = Field(2, ge=1)
     subpixel_bits: int = Field(0, ge=0, le=10)
     fill: tuple[int, int, int] = (0, 0, 0)
-    aggregation: Literal["none", "window", "sgm"] = "window"
+    aggregation: Literal["none", "window", "sgm"] = Field(
+        "window", description="how each pixel's depth plane is chosen: 'none' alone (winner-take-all, fastest), "
+                              "'window' on the cameras' variance over a 5x5 px window, 'sgm' the windowed cost "
+                              "with semi-global smoothing (best on real scenes, slowest); see "
+                              "workers.sweep.costs")
     window: int = Field(2, ge=0, le=15)
     cost_cap: float = Field(40.0, gt=0.0, le=1000.0)
     sgm_p1: float = Field(2.0, ge=0.0, le=1000.0)
     sgm_p2: float = Field(32.0, ge=0.0, le=1000.0)
     sgm_directions: Literal[4, 8] = 8
     subplane: bool = True
-    visibility: bool | None = None
+    visibility: bool | None = Field(
+        None, description="colour each pixel only from the cameras its surface point is not hidden from by a "
+                          "nearer surface of the view (per-camera z-buffers of the rendered depth); see "
+                          "workers.sweep.visibility. None: on exactly when occlusions is 'fill'")
     visibility_tolerance: float = Field(0.03, ge=1e-4, le=1.0)
-    occlusions: Literal["keep", "fill"] = "keep"
+    occlusions: Literal["keep", "fill"] = Field(
+        "keep", description="'fill': the pixels whose depth plane the cameras do not confirm (half-occluded strips "
+                            "next to depth edges, mismatches) take the farther neighbouring depth along the "
+                            "scanline, as classic stereo does after its left-right check; 'keep': the searched "
+                            "depth everywhere; see workers.sweep.occlusion")
 
     @model_validator(mode="after")
     def _compatible(self) -> "RenderOptions":
