@@ -5,6 +5,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from workers.settings import WorkerSettings, worker_settings
+
 
 @dataclass
 class FakeContext:
@@ -21,6 +23,11 @@ class FakeContext:
         (self.root / "out").mkdir(parents=True, exist_ok=True)
         for name, data in self.files.items():
             (self.root / "in" / name).write_bytes(data)
+
+    @property
+    def settings(self) -> WorkerSettings:
+        """Read from the environment at each use, as a worker reads it once per attempt (tests set variables)."""
+        return worker_settings()
 
     @property
     def inputs(self) -> dict[str, str]:

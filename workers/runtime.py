@@ -32,6 +32,7 @@ from pydantic import BaseModel, ValidationError
 from workers.common.jobctx import JobInputError
 from workers.common.validation import describe_errors
 from workers.registry import get_kind
+from workers.settings import worker_settings
 from workers.storage import BlobStore, check_key, open_store
 
 _DONE = object()
@@ -68,6 +69,7 @@ class StoreJobContext:
         self.params = params  # the kind's model, validated once here
         self.inputs = dict(spec.inputs)
         self.input_meta = dict(spec.input_meta)
+        self.settings = worker_settings()  # as the service set them in this worker's environment
         self._store = store
         self._staging = staging
         self._emit = emit

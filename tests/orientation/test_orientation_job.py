@@ -17,6 +17,7 @@ from workers.orientation.exiftool import exiftool_version
 HAS_EXIFTOOL = exiftool_version() is not None
 from workers.orientation.exif import read_exif, write_orientation
 from workers.orientation.job import OrientationBatchParams, run_orientation_batch, sanitize_filename
+from workers.settings import WorkerSettings, worker_settings
 
 
 @dataclass
@@ -28,6 +29,10 @@ class FakeContext:
     job_id: str = "job-1"
     kind: str = "orientation.batch"
     events: list[tuple[float, str]] = field(default_factory=list)
+
+    @property
+    def settings(self) -> WorkerSettings:  # read at each use: tests set the environment after making a context
+        return worker_settings()
 
     def add(self, name: str, filename: str, data: bytes) -> None:
         (self.root / "in").mkdir(parents=True, exist_ok=True)
@@ -194,14 +199,21 @@ def test_cli_yunet_without_a_model_exits_2(tmp_path, monkeypatch, capsys):
 
 def test_workers_use_the_named_model_else_the_installed_one(tmp_path, monkeypatch):
     from workers.common.models import MODELS_DIR_ENV, YUNET
+    from workers.orientation.detect import detector_config
+    from workers.settings import worker_settings
 
     monkeypatch.delenv(job.YUNET_MODEL_ENV, raising=False)
     monkeypatch.setenv(MODELS_DIR_ENV, str(tmp_path))
-    assert job.detector_config_from_env().yunet_model is None  # nothing installed yet
+
+    def worker_config():  # as a batch job builds it from its context's settings
+        settings = worker_settings()
+        return detector_config(settings, settings.models_dir)
+
+    assert worker_config().yunet_model is None  # nothing installed yet
     (tmp_path / YUNET.filename).write_bytes(b"model")
-    assert job.detector_config_from_env().yunet_model == tmp_path / YUNET.filename
+    assert worker_config().yunet_model == tmp_path / YUNET.filename
     monkeypatch.setenv(job.YUNET_MODEL_ENV, "/elsewhere/yunet.onnx")
-    assert job.detector_config_from_env().yunet_model == Path("/elsewhere/yunet.onnx")
+    assert worker_config().yunet_model == Path("/elsewhere/yunet.onnx")
 
 
 def test_photos_left_for_review_get_a_thumbnail_of_their_stored_pixels(tmp_path, monkeypatch):

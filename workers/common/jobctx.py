@@ -18,6 +18,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Protocol
 
+from workers.settings import WorkerSettings
+
 
 class JobInputError(Exception):
     """The job's input is unusable; the message is shown to the user as the job's error."""
@@ -34,6 +36,9 @@ class JobContext(Protocol):
     """Input name -> blob key. Names are chosen by the API route (e.g. ``photo-0003``)."""
     input_meta: dict[str, dict[str, Any]]
     """Input name -> metadata recorded at upload (e.g. ``{"filename": "IMG_1.jpg", "size": 123}``)."""
+    settings: WorkerSettings
+    """The worker settings (limits, models, tools) the service passed to its workers: a job reads its limits
+    here and hands them to the engine's functions as plain arguments."""
 
     def input_path(self, name: str) -> Path:
         """A local file holding input ``name`` (downloaded first when the store is remote)."""

@@ -18,6 +18,7 @@ from pydantic import ValidationError
 
 from workers.common.cliutil import ProgressBar
 from workers.common.jobctx import JobInputError
+from workers.settings import WorkerSettings, worker_settings
 from workers.common.validation import describe_errors
 
 from . import io
@@ -182,6 +183,7 @@ class _FileContext:
     job_id: str = "cli"
     kind: str = "depth.video"
     input_meta: dict[str, dict[str, Any]] = field(default_factory=dict)
+    settings: WorkerSettings = field(default_factory=worker_settings)
 
     @property
     def inputs(self) -> dict[str, str]:

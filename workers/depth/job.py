@@ -18,11 +18,9 @@ import cv2
 import numpy as np
 from pydantic import ValidationError
 
-from workers.common import images
 from workers.common.jobctx import JobContext, JobInputError
 from workers.common.validation import describe_errors
 from workers.registry import JobKind
-from workers.settings import worker_settings
 
 from . import io
 from .errors import DepthInputError
@@ -33,15 +31,6 @@ from .pipeline import FramePipeline
 from .upsample import target_size
 from .video import DepthVideoInfo, decode_depth_video, probe_depth_video
 
-MAX_VIDEO_FRAMES_ENV = "SWEEPCAST_MAX_VIDEO_FRAMES"
-
-
-def max_video_frames_from_env() -> int:
-    """Most frames of one depth sequence: ``$SWEEPCAST_MAX_VIDEO_FRAMES`` (the service's
-    ``max_video_frames`` setting), else 10 000."""
-    return worker_settings().max_video_frames
-
-
 def run_depth_video(ctx: JobContext) -> dict[str, Any]:
     """Filter every frame of the ``depth`` sequence; returns a short summary (also in report.json)."""
     try:
@@ -49,7 +38,7 @@ def run_depth_video(ctx: JobContext) -> dict[str, Any]:
     except ValidationError as exc:
         raise JobInputError(f"invalid parameters: {describe_errors(exc)}") from None
     depth_path = ctx.input_path("depth")
-    max_frames, max_pixels = max_video_frames_from_env(), images.max_pixels_from_env()
+    max_frames, max_pixels = ctx.settings.max_video_frames, ctx.settings.max_image_pixels
     if p.input_format == "video":
         info = check_video_input(probe_depth_video(depth_path, max_frames, max_pixels), p)
         width, height, count = info.width, info.height, info.frames

@@ -28,15 +28,13 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from workers.common.images import max_pixels_from_env
 from workers.common.jobctx import JobContext, JobInputError
-from workers.orientation.detect import DetectorConfig, Method, OrientationDetector, detector_config, get_detector
+from workers.orientation.detect import Method, OrientationDetector, detector_config, get_detector
 from workers.orientation.errors import OrientationInputError
 from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
 from workers.orientation.headers import sniff_format
 from workers.orientation.review import ChoiceWrite, needs_review, thumbnail
 from workers.orientation.orient import analyze, orient_file
-from workers.orientation.text import text_settings_from_env
 from workers.registry import JobKind
 from workers.settings import worker_settings
 
@@ -64,14 +62,6 @@ def configured_yunet(models_folder: Path | None) -> Path | None:
     return worker_settings().yunet_model(models_folder)
 
 
-def detector_config_from_env(method: Method = "auto") -> DetectorConfig:
-    """The detector configuration of this worker: ``method`` with the YuNet model the environment names,
-    else the one installed in ``$SWEEPCAST_MODELS_DIR``, if any; the text cue as the service set it
-    (``$SWEEPCAST_ORIENTATION_TEXT``, ``$SWEEPCAST_ORIENTATION_TESSERACT``; default on, ``tesseract`` on PATH)."""
-    settings = worker_settings()
-    return detector_config(settings, settings.models_dir, method)
-
-
 def run_orientation_batch(ctx: JobContext) -> dict[str, Any]:
     """Analyse every ``photo-NNNN`` input, tag the JPEGs, write ``report.json`` and ``fixed/*``."""
     params = OrientationBatchParams.model_validate(ctx.params)
@@ -79,11 +69,11 @@ def run_orientation_batch(ctx: JobContext) -> dict[str, Any]:
     if not names:
         raise JobInputError("the batch has no photos")
     try:
-        config = detector_config_from_env(params.method)
+        config = detector_config(ctx.settings, ctx.settings.models_dir, params.method)
         detector = get_detector(config.model_copy(update={"text": config.text and params.text}))
     except ValueError as exc:
         raise JobInputError(str(exc)) from None
-    max_pixels = max_pixels_from_env()
+    max_pixels = ctx.settings.max_image_pixels
     entries = []
     for index, name in enumerate(names):
         filename = str(ctx.input_meta.get(name, {}).get("filename") or name)

@@ -83,8 +83,6 @@ Backend = Literal["tesserocr", "cli"]
 
 TESSERACT_ENV = "SWEEPCAST_ORIENTATION_TESSERACT"
 """Environment variable naming the tesseract binary (a name on PATH or a path) for the workers."""
-TEXT_ENV = "SWEEPCAST_ORIENTATION_TEXT"
-"""Environment variable switching the text cue on (1, the default) or off (0) for the workers."""
 DEFAULT_TESSERACT = "tesseract"
 
 TEXT_MIN_CONFIDENCE = 2.5
