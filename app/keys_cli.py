@@ -66,8 +66,13 @@ def cmd_keys(args: argparse.Namespace) -> int:
     keys = _store(args.data_dir)
     try:
         if args.action == "create":
+            first = not keys.any()
             key, secret = keys.create(args.name, args.role, args.expires, dict(args.quota or []) or None)
             print(_show(key.public()))
+            if first and args.role == "user":
+                print("note: the service's first managed key: every request now needs a key. Without "
+                      "SWEEPCAST_API_KEYS, make an admin key too (--role admin) to see what was stored before "
+                      "and to manage keys.", file=sys.stderr)
             print(f"secret (shown once; send it as 'Authorization: Bearer <secret>'):\n{secret}")
         elif args.action == "list":
             listed = [k.public() for k in keys.list()]

@@ -265,3 +265,26 @@ def test_a_key_revoked_on_one_replica_fails_at_once_on_another(client_factory):
     assert second.get("/v1/keys/me", headers=_auth(secret)).json()["name"] == "dave"  # made on the first
     assert first.delete(f"/v1/keys/{key_id}", headers=_auth(ADMIN)).status_code == 204
     assert second.get("/v1/keys/me", headers=_auth(secret)).status_code == 401
+
+
+def test_the_keys_command_creates_lists_rotates_and_revokes(tmp_path, capsys, monkeypatch):
+    from app.cli import main
+    from app.jobstore import JobStore
+    from app.keys import KeyStore
+
+    monkeypatch.delenv("SWEEPCAST_DATABASE_URL", raising=False)
+    data = ["--data-dir", str(tmp_path / "data")]
+    assert main(["keys", "create", "--name", "ops", "--role", "admin", "--expires", "30d",
+                 "--quota", "active_jobs=3", *data]) == 0
+    created = capsys.readouterr().out.splitlines()
+    secret = created[-1]
+    assert secret.startswith("sck_") and "ops" in created[0] and "admin" in created[0] and "active_jobs=3" in created[0]
+    assert main(["keys", "list", *data]) == 0
+    assert "ops" in capsys.readouterr().out
+    assert main(["keys", "rotate", "ops", *data]) == 0
+    rotated = capsys.readouterr().out.splitlines()[-1]
+    keys = KeyStore(JobStore(f"sqlite:///{(tmp_path / 'data' / 'sweepcast.db').resolve()}").engine)
+    assert keys.lookup(secret) is None and keys.lookup(rotated).name == "ops"
+    assert main(["keys", "revoke", "ops", *data]) == 0 and keys.lookup(rotated) is None
+    assert main(["keys", "revoke", "nobody", *data]) == 1
+    assert "no key with id 'nobody'" in capsys.readouterr().err
