@@ -33,6 +33,12 @@ class Authenticator:
         self.keys = keys
         self._managed_seen = False  # keys are revoked, never deleted: once one exists, auth stays on
 
+    @property
+    def known_enabled(self) -> bool:
+        """Whether requests need a key, as of the last request this replica authenticated (no database read):
+        for answers that depend on it, e.g. whether a response may be cached by shared caches."""
+        return bool(self.env_keys) or self._managed_seen
+
     def enabled(self) -> bool:
         """Blocking (may read the database)."""
         if self.env_keys or self._managed_seen:

@@ -167,7 +167,7 @@ async def get_frame_set(
                             f"or 'background'", "frame_not_found")
     key = AtlasKey(recording_id, frame if frame == "background" else int(frame), factor, format,
                    quality if format == "jpeg" else 0)
-    headers = {"ETag": key.etag, "Cache-Control": f"{'private' if svc.settings.api_keys else 'public'}, "
+    headers = {"ETag": key.etag, "Cache-Control": f"{'private' if svc.auth.known_enabled else 'public'}, "
                                                   "max-age=31536000, immutable"}
     if request.headers.get("if-none-match") == key.etag:
         return Response(status_code=304, headers=headers)

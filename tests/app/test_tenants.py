@@ -288,3 +288,18 @@ def test_the_keys_command_creates_lists_rotates_and_revokes(tmp_path, capsys, mo
     assert main(["keys", "revoke", "ops", *data]) == 0 and keys.lookup(rotated) is None
     assert main(["keys", "revoke", "nobody", *data]) == 1
     assert "no key with id 'nobody'" in capsys.readouterr().err
+
+
+def test_frame_sets_are_private_to_caches_once_managed_keys_exist(client_factory, take):
+    client = client_factory()  # no SWEEPCAST_API_KEYS: managed keys alone turn authentication on
+    _, secret = client.app.state.services.keys.create("gina")
+    g = _auth(secret)
+    rig_id = client.post("/v1/rigs", files={"files": ("rig.json", rig_json(take.rig))}, headers=g).json()["id"]
+    rec = client.post(f"/v1/rigs/{rig_id}/recordings", files={"archive": ("take.zip", zip_bytes(take))},
+                      data={"params": '{"fps": 5}'}, headers=g).json()
+    client.headers.update(g)
+    assert wait_recording(client, rig_id, rec["id"])["state"] == "ready"
+    frame = client.get(f"/v1/rigs/{rig_id}/recordings/{rec['id']}/frames/0")
+    assert frame.status_code == 200 and frame.headers["cache-control"].startswith("private")
+    client.headers.pop("Authorization")
+    assert client.get(f"/v1/rigs/{rig_id}/recordings/{rec['id']}/frames/0").status_code == 401
