@@ -46,10 +46,16 @@ class Authenticator:
         self._managed_seen = self.keys is not None and self.keys.any()
         return self._managed_seen
 
+    def service_key(self, presented: str | None) -> bool:
+        """Whether ``presented`` is one of the service's own keys (no database read)."""
+        return presented is not None and env_key_matches(presented, self.env_keys)
+
     def resolve(self, presented: str | None) -> Principal | None:
         """The principal of ``presented`` (None: refuse the request). Blocking (may read the database)."""
-        if presented is not None and env_key_matches(presented, self.env_keys):
-            return SERVICE_ADMIN
+        return SERVICE_ADMIN if self.service_key(presented) else self.resolve_managed(presented)
+
+    def resolve_managed(self, presented: str | None) -> Principal | None:
+        """:meth:`resolve` for anything but the service's own keys. Blocking (reads the database)."""
         if not self.enabled():
             return SERVICE_ADMIN
         if presented is None or self.keys is None:
@@ -74,11 +80,11 @@ async def resolve(app: ASGIApp, presented: str | None) -> Principal | None:
     """:meth:`Authenticator.resolve` off the event loop when it needs the database (a managed key, or a service
     that may have none yet); the service's own keys are matched here at once."""
     auth = _authenticator(app)
-    if auth.keys is None and not auth.env_keys:
+    if auth.service_key(presented):
         return SERVICE_ADMIN
-    if presented is not None and env_key_matches(presented, auth.env_keys):
-        return SERVICE_ADMIN
-    return await asyncio.to_thread(auth.resolve, presented)
+    if auth.keys is None:  # no managed keys (an app without its lifespan): the service's own keys only
+        return None if auth.env_keys else SERVICE_ADMIN
+    return await asyncio.to_thread(auth.resolve_managed, presented)
 
 
 def principal(request: Request) -> Principal:
@@ -118,7 +124,7 @@ class ApiKeyMiddleware:
                 await send_error(send, 401, _UNAUTHORIZED, "unauthorized", [(b"www-authenticate", b"Bearer")])
                 return
             scope.setdefault("state", {})["principal"] = who
-            request_key_name.set(who.name if who.id == who.name else f"{who.name} ({who.id})")
+            request_key_name.set(who.label)
             services = getattr(scope["app"].state, "services", None)
             if services is not None and _is_upload(scope, headers):
                 refused = services.quotas.take_upload(who)
@@ -143,5 +149,5 @@ async def socket_principal(websocket: WebSocket) -> Principal | None:
     presented = _bearer(websocket.headers.get("authorization")) or websocket.query_params.get("access_token")
     who = await resolve(websocket.app, presented)
     if who is not None:
-        request_key_name.set(who.name if who.id == who.name else f"{who.name} ({who.id})")
+        request_key_name.set(who.label)
     return who

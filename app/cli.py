@@ -78,15 +78,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 def _managed_keys(settings: object) -> bool:
     """True when the service's database holds API keys (made with ``sweepcast keys create``)."""
-    from app.jobstore import JobStore
-    from app.keys import KeyStore
+    from app.keys_cli import opened_keys
 
-    settings.data_dir.mkdir(parents=True, exist_ok=True)
-    jobs = JobStore(settings.resolved_database_url)
-    try:
-        return KeyStore(jobs.engine).any()
-    finally:
-        jobs.close()
+    with opened_keys(settings) as keys:
+        return keys.any()
 
 
 def cmd_worker(args: argparse.Namespace) -> int:

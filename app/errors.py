@@ -5,7 +5,6 @@ errors add ``"fields"`` with pydantic's per-field messages.
 """
 from __future__ import annotations
 
-import errno
 from http import HTTPStatus
 from typing import Any
 
@@ -17,9 +16,8 @@ from starlette.routing import Match, Mount
 
 from workers.common.errors import InputError
 from workers.common.validation import describe_errors
+from workers.storage import storage_full
 
-FULL = (errno.ENOSPC, errno.EDQUOT)
-"""OSError numbers of a full disk or an exhausted quota: a 507 for the client, not a server error."""
 _METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS", "TRACE")
 
 
@@ -59,7 +57,7 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(OSError)
     async def _storage_full(_request: Request, exc: OSError) -> JSONResponse:
-        if exc.errno not in FULL:
+        if not storage_full(exc):
             raise exc  # any other OSError is a server error, answered as before
         return JSONResponse(error_body(507, "the service's storage is full: nothing was stored; retry once space is "
                                             "freed", "storage_full"), 507)

@@ -40,6 +40,11 @@ class Principal:
     """This key's quota overrides (:mod:`app.quotas` names the fields); None: the settings' defaults."""
 
     @property
+    def label(self) -> str:
+        """How logs name the key: its name, and its id when that differs (never its secret)."""
+        return self.name if self.id == self.name else f"{self.name} ({self.id})"
+
+    @property
     def is_admin(self) -> bool:
         return self.role == "admin"
 

@@ -7,8 +7,9 @@ import datetime as dt
 import json
 import re
 import sys
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 from app.quotas import QUOTA_FIELDS
 
@@ -43,14 +44,18 @@ def parse_quota(text: str) -> tuple[str, int]:
     return name, number
 
 
-def _store(data_dir: Path | None) -> Any:
+@contextmanager
+def opened_keys(settings: Any) -> Iterator[Any]:
+    """The :class:`~app.keys.KeyStore` of the service's database (``settings``: the service's), closed after."""
     from app.jobstore import JobStore
     from app.keys import KeyStore
-    from app.settings import Settings
 
-    settings = Settings(**({"data_dir": data_dir} if data_dir is not None else {}))
     settings.data_dir.mkdir(parents=True, exist_ok=True)
-    return KeyStore(JobStore(settings.resolved_database_url).engine)
+    jobs = JobStore(settings.resolved_database_url)
+    try:
+        yield KeyStore(jobs.engine)
+    finally:
+        jobs.close()
 
 
 def _show(key: dict[str, Any]) -> str:
@@ -62,34 +67,41 @@ def _show(key: dict[str, Any]) -> str:
 
 def cmd_keys(args: argparse.Namespace) -> int:
     from app.keys import UnknownKey
+    from app.settings import Settings
 
-    keys = _store(args.data_dir)
+    settings = Settings(**({"data_dir": args.data_dir} if args.data_dir is not None else {}))
     try:
-        if args.action == "create":
-            first = not keys.any()
-            key, secret = keys.create(args.name, args.role, args.expires, dict(args.quota or []) or None)
-            print(_show(key.public()))
-            if first and args.role == "user":
-                print("note: the service's first managed key: every request now needs a key. Without "
-                      "SWEEPCAST_API_KEYS, make an admin key too (--role admin) to see what was stored before "
-                      "and to manage keys.", file=sys.stderr)
-            print(f"secret (shown once; send it as 'Authorization: Bearer <secret>'):\n{secret}")
-        elif args.action == "list":
-            listed = [k.public() for k in keys.list()]
-            if args.json:
-                print(json.dumps(listed, default=str, indent=2))
-            for key in [] if args.json else listed:
-                print(_show(key))
-        elif args.action == "revoke":
-            print(_show(keys.revoke(keys.find(args.key).id).public()))
-        else:
-            key, secret = keys.rotate(keys.find(args.key).id)
-            print(_show(key.public()))
-            print(f"new secret (shown once; the old one no longer works):\n{secret}")
+        with opened_keys(settings) as keys:
+            _keys_action(keys, args)
     except UnknownKey as exc:
         print(str(exc), file=sys.stderr)
         return 1
     return 0
+
+
+def _keys_action(keys: Any, args: argparse.Namespace) -> None:
+    if args.action == "create":
+        first = not keys.any()
+        key, secret = keys.create(args.name, args.role, args.expires, dict(args.quota or []) or None)
+        print(_show(key.public()))
+        if first and args.role == "user":
+            print("note: the service's first managed key: every request now needs a key. Without "
+                  "SWEEPCAST_API_KEYS, make an admin key too (--role admin) to see what was stored before "
+                  "and to manage keys.", file=sys.stderr)
+        print(f"secret (shown once; send it as 'Authorization: Bearer <secret>'):\n{secret}")
+    elif args.action == "list":
+        listed = [k.public() for k in keys.list()]
+        if args.json:
+            print(json.dumps(listed, default=str, indent=2))
+        else:
+            for key in listed:
+                print(_show(key))
+    elif args.action == "revoke":
+        print(_show(keys.revoke(keys.find(args.key).id).public()))
+    else:
+        key, secret = keys.rotate(keys.find(args.key).id)
+        print(_show(key.public()))
+        print(f"new secret (shown once; the old one no longer works):\n{secret}")
 
 
 def register(sub: Any) -> None:

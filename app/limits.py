@@ -49,10 +49,12 @@ class BodyPace:
     grace_seconds: float = 60.0
     min_bytes_per_second: float = 1024.0
 
-    def check(self, received: int, elapsed: float) -> None:
+    def too_slow(self, received: int, elapsed: float) -> str | None:
+        """Why ``received`` bytes in ``elapsed`` seconds are too slow, or None."""
         if elapsed > self.grace_seconds and received < self.min_bytes_per_second * elapsed:
-            raise BodyTooSlow(f"the request body arrived at {received / elapsed:,.0f} bytes/s, under the "
-                              f"{self.min_bytes_per_second:,.0f} bytes/s this service needs; send it faster")
+            return (f"the request body arrived at {received / elapsed:,.0f} bytes/s, under the "
+                    f"{self.min_bytes_per_second:,.0f} bytes/s this service needs; send it faster")
+        return None
 
 
 class RouteBodyLimits:
@@ -116,20 +118,14 @@ class BodyLimitMiddleware:
             try:
                 message = await asyncio.wait_for(receive(), self.pace.idle_seconds)
             except asyncio.TimeoutError:
-                log.warning("cut off %s %s: no body bytes for %.0f s", scope["method"], scope["path"],
-                            self.pace.idle_seconds)
-                raise BodyTooSlow(f"no part of the request body arrived for {self.pace.idle_seconds:.0f} s") from None
+                raise _cut_off(scope, f"no part of the request body arrived for {self.pace.idle_seconds:.0f} s"
+                               ) from None
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
                 if received > limit:
                     raise BodyTooLarge(limit)
-                if message.get("more_body"):
-                    try:
-                        self.pace.check(received, time.monotonic() - began)
-                    except BodyTooSlow:
-                        log.warning("cut off %s %s: body too slow (%d bytes in %.0f s)", scope["method"],
-                                    scope["path"], received, time.monotonic() - began)
-                        raise
+                if message.get("more_body") and (why := self.pace.too_slow(received, time.monotonic() - began)):
+                    raise _cut_off(scope, why)
             return message
 
         async def tracking_send(message: Message) -> None:
@@ -143,6 +139,12 @@ class BodyLimitMiddleware:
         except (BodyTooLarge, BodyTooSlow) as exc:
             if not started:
                 await send_error(send, exc.status_code, str(exc.detail), exc.code)
+
+
+def _cut_off(scope: Scope, why: str) -> BodyTooSlow:
+    """The 408 of a stalled or trickling body, said in the log with its route."""
+    log.warning("cut off %s %s: %s", scope["method"], scope["path"], why)
+    return BodyTooSlow(why)
 
 
 def _too_large(limit: int) -> str:

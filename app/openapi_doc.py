@@ -43,7 +43,8 @@ UPLOAD_STATUS = {429: "the key sent its most uploads this minute (its uploads_pe
 NEW_JOB_STATUSES = {
     429: "the key has its most jobs queued or running (active_jobs quota), or sent its most uploads this minute: "
          "retry after `Retry-After` seconds",
-    507: "the job's inputs would take the key past its stored_bytes quota; nothing was stored",
+    507: "the job's inputs would take the key past its stored_bytes quota, or the service's storage is nearly "
+         "full (SWEEPCAST_MIN_FREE_STORAGE_MB); nothing was stored",
 }
 BODY_STATUSES = {
     400: "the body could not be parsed (malformed multipart or JSON), or an upload is empty or unreadable",

@@ -5,11 +5,9 @@ import asyncio
 import logging
 import os
 import shutil
-import urllib.parse
 import uuid
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, BinaryIO, Callable, TypeVar
 
 from fastapi import Request
@@ -29,7 +27,7 @@ from app.settings import Settings
 from workers.common.validation import describe_errors
 from workers.registry import JobKind
 from workers.runtime import inputs_prefix, results_prefix
-from workers.storage import BlobStore, open_store
+from workers.storage import BlobStore, DirectoryBlobStore, open_store
 
 log = logging.getLogger("sweepcast")
 M = TypeVar("M", bound=BaseModel)
@@ -90,10 +88,9 @@ async def delete_job_and_files(svc: Services, job_id: str) -> None:
 
 def storage_check(svc: Services) -> dict[str, object]:
     """Free space of a file blob store against ``min_free_storage_mb`` (an object store: not ours to measure)."""
-    url = svc.store.url
-    if not url.startswith("file://"):
+    if not isinstance(svc.store, DirectoryBlobStore):
         return {"ok": True, "detail": "object store"}
-    free = shutil.disk_usage(Path(urllib.parse.urlparse(url).path)).free
+    free = shutil.disk_usage(svc.store.root).free
     need = svc.settings.min_free_storage_mb * 2**20
     ok = free >= need
     detail = f"{free / 2**20:,.0f} MB free" + ("" if ok else f", under the {need / 2**20:,.0f} MB the service keeps "

@@ -13,7 +13,6 @@ The Ray task in :mod:`workers.ray_tasks` is a thin wrapper around this generator
 """
 from __future__ import annotations
 
-import errno
 import mimetypes
 import os
 import queue
@@ -33,7 +32,7 @@ from workers.common.jobctx import JobInputError
 from workers.common.validation import describe_errors
 from workers.registry import get_kind
 from workers.settings import worker_settings
-from workers.storage import BlobStore, check_key, open_store
+from workers.storage import BlobStore, check_key, open_store, storage_full
 
 _DONE = object()
 
@@ -165,7 +164,7 @@ def execute_job(spec: JobSpec) -> Iterator[dict[str, Any]]:
         except Exception as exc:  # noqa: BLE001 - reported as the job's error, not raised into Ray
             traceback.print_exc()
             error = f"internal error: {type(exc).__name__}: {exc}"
-            if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            if storage_full(exc):
                 error = (f"the service's storage is full ({exc.strerror}): the results could not be written and "
                          "none were published; run the job again once space is freed")
             outcome["event"] = {"type": "failed", "error": error, "user_error": False}

@@ -11,6 +11,7 @@ imports the web layer.
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import os
 import re
@@ -41,6 +42,11 @@ def check_key(key: str) -> str:
     if not key or any(not _SEGMENT.match(p) or p in {".", ".."} for p in parts):
         raise InvalidKey(f"invalid blob key {key!r}")
     return key
+
+
+def storage_full(exc: BaseException) -> bool:
+    """Whether ``exc`` says the storage is full (no space left, or a quota spent): the user's wait, not a bug."""
+    return isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
 
 
 SAFE_NAME_MAX = 100
