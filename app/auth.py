@@ -12,9 +12,11 @@ import asyncio
 
 from fastapi import Request, WebSocket
 from starlette.datastructures import Headers
+from starlette.exceptions import WebSocketException
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from app.errors import ApiError
+from app.errors import DATABASE_RETRY_AFTER_S, ApiError
+from app.jobstore import DATABASE_DOWN, database_unavailable
 from app.keys import SERVICE_ADMIN, KeyStore, Principal, env_key_matches
 from app.limits import send_error
 from app.logredact import request_key_name
@@ -119,7 +121,14 @@ class ApiKeyMiddleware:
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] == "http" and _protected(scope["path"]):
             headers = Headers(scope=scope)
-            who = await resolve(scope["app"], _bearer(headers.get("authorization")))
+            try:
+                who = await resolve(scope["app"], _bearer(headers.get("authorization")))
+            except Exception as exc:
+                if not database_unavailable(exc):
+                    raise
+                await send_error(send, 503, DATABASE_DOWN, "database_unavailable",
+                                 [(b"retry-after", str(DATABASE_RETRY_AFTER_S).encode())])
+                return
             if who is None:
                 await send_error(send, 401, _UNAUTHORIZED, "unauthorized", [(b"www-authenticate", b"Bearer")])
                 return
@@ -147,7 +156,13 @@ def _is_upload(scope: Scope, headers: Headers) -> bool:
 async def socket_principal(websocket: WebSocket) -> Principal | None:
     """A socket's principal, from the Authorization header or ``?access_token=`` (browsers cannot set headers)."""
     presented = _bearer(websocket.headers.get("authorization")) or websocket.query_params.get("access_token")
-    who = await resolve(websocket.app, presented)
+    try:
+        who = await resolve(websocket.app, presented)
+    except Exception as exc:
+        if not database_unavailable(exc):
+            raise
+        raise WebSocketException(1013, "the job database cannot be reached just now: reconnect in a few seconds"
+                                 ) from None  # 1013: try again later
     if who is not None:
         request_key_name.set(who.label)
     return who

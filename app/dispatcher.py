@@ -8,6 +8,11 @@ loss of a replica; the job table, not Ray, is the source of truth.
 Only lost workers spend a job's retry budget (``job_max_attempts``). An attempt cut short because
 the service stopped or died is counted apart (``service_restarts``, by the job store when the
 lease is given back or claimed): restarting the service never fails a healthy job.
+
+A database outage fails no job either: every job-table write waits until the database answers again
+(progress writes are skipped meanwhile), and the sweep claims nothing until the database has answered for a
+whole lease, so each replica renews the leases of the jobs it still follows (they expired during the outage)
+before another replica could take them.
 """
 from __future__ import annotations
 
@@ -27,7 +32,7 @@ import ray
 import ray.exceptions
 
 from app.events import EventHub
-from app.jobstore import Job, JobState, JobStore, job_public
+from app.jobstore import Job, JobState, JobStore, database_unavailable, job_public
 from app.settings import Settings
 from workers.registry import get_kind
 from workers.runtime import JobSpec, publish_results
@@ -45,15 +50,22 @@ _RETRYABLE = (
     ray.exceptions.RaySystemError,
 )
 _PROGRESS_WRITE_INTERVAL_S = 0.25
+_DATABASE_RETRY_MAX_S = 5.0
 
 
 class _Unschedulable(Exception):
     """No live node offers what the job needs."""
 
 
-def _gave_up(job: Job) -> str:
-    """The error of a job whose retry budget lost workers spent; restarts are named, not counted."""
-    error = f"the worker running this job was lost {_times(job.worker_losses)}; giving up"
+def _gave_up(job: Job, out_of_memory: int = 0) -> str:
+    """The error of a job whose retry budget lost workers spent; restarts are named, not counted. ``out_of_memory``:
+    how many of those losses were Ray's memory monitor stopping the job as its node ran out of memory."""
+    if out_of_memory:
+        error = (f"the job ran out of memory: its worker's node was nearly out of memory and Ray stopped it "
+                 f"{_times(out_of_memory)} (of {_times(job.worker_losses)} lost); giving up. It needs more memory "
+                 "than a worker has: give the job smaller inputs or the workers more memory")
+    else:
+        error = f"the worker running this job was lost {_times(job.worker_losses)}; giving up"
     if job.service_restarts:
         error += (f" (the service also restarted {_times(job.service_restarts)} while it ran; "
                   "restarts do not count against the attempts)")
@@ -100,6 +112,10 @@ class Dispatcher:
         self._loops: list[asyncio.Task] = []
         self.ray_ready = asyncio.Event()
         """Set once Ray is connected; attempts wait for it (a submit before that would start a stray Ray)."""
+        self._out_of_memory: dict[str, int] = {}
+        """Attempts of each job this dispatcher follows that Ray stopped for want of memory (for the error)."""
+        self._database_failed_at = -float("inf")
+        """When a job-table call last found the database unreachable (monotonic seconds)."""
 
     @property
     def lease_s(self) -> float:
@@ -158,7 +174,10 @@ class Dispatcher:
             self._tasks[job_id].cancel()
         await asyncio.gather(*[t for t in list(self._tasks.values())], return_exceptions=True)
         for job_id in held:
-            await asyncio.to_thread(self.jobs.release, job_id, self.owner)
+            try:
+                await asyncio.to_thread(self.jobs.release, job_id, self.owner)
+            except Exception as exc:  # noqa: BLE001 - unreleased, its lease lapses and the sweep resumes it
+                self._database_failed(exc, f"giving back job {job_id}")
 
     async def finish_here(self, job_id: str, results: dict[str, Path], summary: dict[str, Any]) -> bool:
         """Complete a committed job this dispatcher holds, not yet submitted, in this process, as one attempt whose
@@ -185,31 +204,63 @@ class Dispatcher:
             await asyncio.sleep(self.lease_s / 3)
             try:
                 await asyncio.to_thread(self.jobs.renew_leases, list(self._tasks), self.owner, self.lease_s)
-            except Exception:  # noqa: BLE001 - a database hiccup must not end the loop
-                log.exception("lease renewal failed")
+            except Exception as exc:  # noqa: BLE001 - a database hiccup must not end the loop
+                self._database_failed(exc, "lease renewal")
 
     async def _sweep_loop(self) -> None:
         while True:
             await asyncio.sleep(max(self.lease_s / 2, 0.5))
+            if time.monotonic() - self._database_failed_at < self.lease_s:
+                continue  # leases that lapsed in an outage are their owners' to renew first
             try:
                 await self.recover()
-            except Exception:  # noqa: BLE001
-                log.exception("recovery sweep failed")
+            except Exception as exc:  # noqa: BLE001
+                self._database_failed(exc, "recovery sweep")
+
+    def _database_failed(self, exc: Exception, what: str) -> None:
+        """Note a failed job-table call of a loop (logged: a traceback only when it is not an outage)."""
+        if database_unavailable(exc):
+            self._database_failed_at = time.monotonic()
+            log.warning("%s: the job database is unreachable (%s)", what, type(exc).__name__)
+        else:
+            log.exception("%s failed", what)
+
+    async def _db(self, call: Any, *args: Any) -> Any:
+        """``call(*args)`` on the job table off the event loop, waiting out a database outage (retried with
+        backoff up to every 5 s, for as long as it lasts: a job's bookkeeping is never dropped)."""
+        delay, since = 0.25, None
+        while True:
+            try:
+                result = await asyncio.to_thread(call, *args)
+            except Exception as exc:
+                if not database_unavailable(exc):
+                    raise
+                self._database_failed_at = time.monotonic()
+                if since is None:
+                    since = time.monotonic()
+                    log.warning("the job database is unreachable (%s: %s); %s waits for it", type(exc).__name__,
+                                str(exc).splitlines()[0][:200], getattr(call, "__name__", "a job-table call"))
+                await asyncio.sleep(delay)
+                delay = min(delay * 2, _DATABASE_RETRY_MAX_S)
+                continue
+            if since is not None:
+                log.info("the job database answers again after %.1f s", time.monotonic() - since)
+            return result
 
     async def _drive(self, job_id: str) -> None:
         try:
             await self.ray_ready.wait()
             budget = self.settings.job_max_attempts
             while True:
-                job = await asyncio.to_thread(self.jobs.begin_attempt, job_id, self.owner, self.lease_s, budget)
+                job = await self._db(self.jobs.begin_attempt, job_id, self.owner, self.lease_s, budget)
                 if job is None or job_id in self._cancelled:
                     return
                 if job.worker_losses >= budget:
-                    await self._fail(job_id, _gave_up(job))
+                    await self._fail(job_id, _gave_up(job, self._out_of_memory.get(job_id, 0)))
                     return
                 if await self._run_attempt(job):
                     return
-                await asyncio.to_thread(self.jobs.record_worker_loss, job_id, self.owner)
+                await self._db(self.jobs.record_worker_loss, job_id, self.owner)
         except asyncio.CancelledError:
             raise
         except Exception as exc:  # noqa: BLE001 - never leave a row in "running" because of a bug here
@@ -217,6 +268,7 @@ class Dispatcher:
             await self._fail(job_id, f"internal error in the dispatcher: {type(exc).__name__}: {exc}")
         finally:
             self._refs.pop(job_id, None)
+            self._out_of_memory.pop(job_id, None)
 
     async def _run_attempt(self, job: Job) -> bool:
         """Run one attempt; True when the job reached a final state, False to try again."""
@@ -241,17 +293,17 @@ class Dispatcher:
                 etype = event.get("type")
                 if etype == "started":
                     worker = {"node_id": event.get("node_id"), "pid": event.get("pid")}
-                    await asyncio.to_thread(self.jobs.mark_running, job.id, self.owner)
+                    await self._db(self.jobs.mark_running, job.id, self.owner)
                     self.hub.publish(job.id, {**event, "job_id": job.id, "state": "running"})
                 elif etype == "progress":
                     self.hub.publish(job.id, {**event, "job_id": job.id, "attempt": job.attempts})
                     now = time.monotonic()
                     if now - last_write >= _PROGRESS_WRITE_INTERVAL_S or event["fraction"] >= 1.0:
                         last_write = now
-                        await asyncio.to_thread(self.jobs.set_progress, job.id, self.owner, event["fraction"], event["stage"])
+                        await self._progress(job.id, event["fraction"], event["stage"])
                 elif etype == "succeeded":
                     result = {**event["manifest"], "attempt": job.attempts, "worker": worker}
-                    await asyncio.to_thread(self.jobs.finish, job.id, self.owner, JobState.succeeded, result, None)
+                    await self._db(self.jobs.finish, job.id, self.owner, JobState.succeeded, result, None)
                     await self._publish_final(job.id)
                     return True
                 elif etype == "failed":
@@ -262,9 +314,11 @@ class Dispatcher:
         except _Unschedulable as exc:
             await self._fail(job.id, str(exc))
             return True
-        except _RETRYABLE as exc:
+        except (*_RETRYABLE, ray.exceptions.OutOfMemoryError) as exc:
             if job.id in self._cancelled:
                 return True
+            if isinstance(exc, ray.exceptions.OutOfMemoryError):  # worth another try: the node may have been busy
+                self._out_of_memory[job.id] = self._out_of_memory.get(job.id, 0) + 1
             log.warning("job %s attempt %d lost its worker: %s", job.id, job.attempts, type(exc).__name__)
             self.hub.publish(job.id, {"type": "retrying", "job_id": job.id, "attempt": job.attempts,
                                       "reason": type(exc).__name__, "worker_losses": job.worker_losses + 1,
@@ -277,6 +331,15 @@ class Dispatcher:
             return True
         log.warning("job %s attempt %d ended without a final event", job.id, job.attempts)
         return False  # counted as a lost worker: it spends the budget, so a job cannot loop forever
+
+    async def _progress(self, job_id: str, fraction: float, stage: str) -> None:
+        """Store a job's progress; skipped while the database is unreachable (the events still reach clients)."""
+        try:
+            await asyncio.to_thread(self.jobs.set_progress, job_id, self.owner, fraction, stage)
+        except Exception as exc:
+            if not database_unavailable(exc):
+                raise
+            self._database_failed_at = time.monotonic()
 
     async def _wait_schedulable(self, options: dict[str, Any]) -> str | None:
         """Wait until some live node offers the resources; after the limit, say why it cannot run."""
@@ -313,10 +376,10 @@ class Dispatcher:
             yield ref
 
     async def _fail(self, job_id: str, error: str) -> None:
-        if await asyncio.to_thread(self.jobs.finish, job_id, self.owner, JobState.failed, None, error):
+        if await self._db(self.jobs.finish, job_id, self.owner, JobState.failed, None, error):
             await self._publish_final(job_id)
 
     async def _publish_final(self, job_id: str) -> None:
-        job = await asyncio.to_thread(self.jobs.get, job_id)
+        job = await self._db(self.jobs.get, job_id)
         if job is not None:
             self.hub.publish(job_id, {"type": "final", "job_id": job_id, "time": time.time(), "job": job_public(job)})

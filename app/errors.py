@@ -12,11 +12,15 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from boto3.exceptions import Boto3Error
+from botocore.exceptions import BotoCoreError, ClientError
+from sqlalchemy import exc as sa_exc
 from starlette.routing import Match, Mount
 
+from app.jobstore import DATABASE_DOWN, database_unavailable
 from workers.common.errors import InputError
 from workers.common.validation import describe_errors
-from workers.storage import storage_full
+from workers.storage import StoreUnavailable, storage_full, storage_unavailable
 
 _METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS", "TRACE")
 
@@ -62,6 +66,21 @@ def install_error_handlers(app: FastAPI) -> None:
         return JSONResponse(error_body(507, "the service's storage is full: nothing was stored; retry once space is "
                                             "freed", "storage_full"), 507)
 
+    @app.exception_handler(sa_exc.SQLAlchemyError)
+    async def _database_down(_request: Request, exc: sa_exc.SQLAlchemyError) -> JSONResponse:
+        if not database_unavailable(exc):
+            raise exc  # a query's own error is a server error, answered as before
+        return database_down_response()
+
+    async def _storage_down(_request: Request, exc: Exception) -> JSONResponse:
+        if not storage_unavailable(exc):
+            raise exc  # the object store refused a request of ours: a server error, answered as before
+        return JSONResponse(error_body(503, STORAGE_DOWN, "storage_unavailable"), 503,
+                            headers={"Retry-After": str(STORAGE_RETRY_AFTER_S)})
+
+    for boto_error in (BotoCoreError, ClientError, Boto3Error, StoreUnavailable):
+        app.add_exception_handler(boto_error, _storage_down)
+
     @app.exception_handler(RequestValidationError)
     async def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:
         fields = [
@@ -70,6 +89,18 @@ def install_error_handlers(app: FastAPI) -> None:
         ]
         summary = describe_errors(fields, "request", skip_loc=1)
         return JSONResponse(error_body(422, f"invalid request: {summary}", "invalid_request", fields=fields), 422)
+
+
+DATABASE_RETRY_AFTER_S = 5
+STORAGE_RETRY_AFTER_S = 10
+STORAGE_DOWN = ("the object store cannot be reached or is overloaded just now (after retries): nothing was stored or "
+                "changed; retry in a little while")
+
+
+def database_down_response() -> JSONResponse:
+    """503 while the job database cannot be reached (nothing was changed; the client may retry)."""
+    return JSONResponse(error_body(503, DATABASE_DOWN, "database_unavailable"), 503,
+                        headers={"Retry-After": str(DATABASE_RETRY_AFTER_S)})
 
 
 def allowed_methods(request: Request) -> list[str]:

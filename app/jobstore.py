@@ -19,6 +19,7 @@ from typing import Any, Iterable
 
 from sqlalchemy import (JSON, BigInteger, DateTime, Float, Index, Integer, String, Text, and_, case, create_engine,
                         event, func, select, update)
+from sqlalchemy import exc as sa_exc
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, sessionmaker
 
@@ -100,6 +101,19 @@ def as_utc(value: dt.datetime | None) -> dt.datetime | None:
     return value
 
 
+DATABASE_DOWN = ("the job database cannot be reached just now: nothing was changed; retry in a few seconds "
+                 "(`/readyz` says when it is back)")
+
+
+def database_unavailable(exc: BaseException) -> bool:
+    """Whether ``exc`` says the database cannot be reached or used just now (refused, dropped or timed-out
+    connections, a server shutting down, SQLite's busy file), as opposed to a bug in a query: worth a wait and
+    another try, and a 503 to a client meanwhile."""
+    if isinstance(exc, sa_exc.DBAPIError):
+        return exc.connection_invalidated or isinstance(exc, (sa_exc.OperationalError, sa_exc.InterfaceError))
+    return isinstance(exc, sa_exc.TimeoutError)  # the connection pool's wait
+
+
 def normalise_url(url: str) -> str:
     """Plain ``postgresql://`` (or ``postgres://``) URLs use psycopg 3, the driver we install."""
     for prefix in ("postgresql://", "postgres://"):
@@ -122,7 +136,9 @@ def make_engine(url: str) -> Engine:
             cur.close()
 
         return engine
-    return create_engine(url, pool_pre_ping=True)
+    # A server that does not answer (a frozen host, a dropped network) fails a connection within seconds rather
+    # than holding a request and a thread for as long as the operating system's TCP timeout.
+    return create_engine(url, pool_pre_ping=True, connect_args={"connect_timeout": 5})
 
 
 class JobStore:

@@ -115,14 +115,32 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     return app
 
 
+RAY_RETRY_S = 5.0
+
+
 async def _start_ray(svc: Services) -> None:
-    """Connect Ray off the event loop (it takes seconds), then recover and start dispatching."""
-    try:
-        svc.ray_owned = await asyncio.to_thread(raycluster.connect_for, svc.settings)
-    except Exception as exc:  # noqa: BLE001 - reported by /readyz and the log; the API still answers
-        svc.ray_error = f"{type(exc).__name__}: {exc}"
-        log.exception("could not start or reach Ray")
-        return
+    """Connect Ray off the event loop (it takes seconds), then recover and start dispatching. A cluster that
+    cannot be reached yet (its head is down or still starting) is tried again every few seconds: meanwhile the
+    API answers, ``/readyz`` says why it is not ready, and accepted jobs wait for it."""
+    failures = 0
+    while True:
+        try:
+            svc.ray_owned = await asyncio.to_thread(raycluster.connect_for, svc.settings)
+            break
+        except Exception as exc:  # noqa: BLE001 - reported by /readyz and the log; the API still answers
+            svc.ray_error = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+            if not svc.settings.ray_address:  # the embedded cluster failed to start: trying again will not help
+                log.exception("could not start Ray")
+                return
+            if failures % 12 == 0:  # once a minute
+                log.warning("the Ray cluster at %s cannot be reached (%s); trying again every %g s",
+                            svc.settings.ray_address, svc.ray_error, RAY_RETRY_S)
+            failures += 1
+            raycluster.forget_connect_attempt()
+            await asyncio.sleep(RAY_RETRY_S)
+    if failures:
+        log.info("connected to the Ray cluster at %s", svc.settings.ray_address)
+    svc.ray_error = None
     svc.dispatcher.ray_ready.set()
     await svc.dispatcher.start()
 

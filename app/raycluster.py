@@ -62,6 +62,20 @@ def connect_for(settings: Settings) -> bool:
     return _connect_as(settings)
 
 
+def forget_connect_attempt() -> None:
+    """After a failed :func:`connect_for`: the next one tries again (not the early start's failure), and Ray's
+    half-made state of the failed ``ray.init`` is cleared."""
+    global _early
+    _early = None
+    try:
+        import ray
+
+        if ray.is_initialized():
+            ray.shutdown()
+    except Exception:  # noqa: BLE001 - nothing to clear
+        pass
+
+
 def _connect_as(settings: Settings) -> bool:
     return connect(settings.ray_address, settings.ray_num_cpus, worker_env(settings))
 

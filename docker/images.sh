@@ -6,6 +6,7 @@
 #   sweepcast_image     localhost/sweepcast:latest        docker/Dockerfile (api, ray-head, ray-worker roles)
 #   postgres_image      localhost/sweepcast-postgres      Debian's postgresql on the same base
 #   s3_image            localhost/sweepcast-s3            moto's S3 server on the same base (stands in for MinIO)
+#   redis_image         localhost/sweepcast-redis         Debian's redis-server on the same base (Ray's GCS store)
 # Each is built only when missing (SWEEPCAST_REBUILD=1 rebuilds the app image).
 
 work="${SWEEPCAST_IMAGE_WORK:-/var/tmp/sweepcast-image}"
@@ -87,6 +88,11 @@ sweepcast_image() {
 postgres_image() {
   have_image localhost/sweepcast-postgres || "${bah[@]}" bud --isolation chroot \
     --build-arg BASE=localhost/sweepcast-base-local -f docker/verify/postgres.Dockerfile -t localhost/sweepcast-postgres docker/verify
+}
+
+redis_image() {
+  have_image localhost/sweepcast-redis || "${bah[@]}" bud --isolation chroot \
+    --build-arg BASE=localhost/sweepcast-base-local -f docker/verify/redis.Dockerfile -t localhost/sweepcast-redis docker/verify
 }
 
 s3_image() {

@@ -44,6 +44,7 @@ if ! python3 -c "import json, sys; r = json.load(open(sys.argv[1])); sys.exit(r[
 fi
 SWEEPCAST_REBUILD=${SWEEPCAST_REBUILD:-0} sweepcast_image
 postgres_image
+redis_image
 s3_image
 
 compose="$work/compose.podman.yaml"

@@ -160,9 +160,31 @@ def postgres_bin(name: str) -> str | None:
     return candidates[-1] if candidates else None
 
 
+@dataclass
+class PostgresServer:
+    """A throw-away PostgreSQL cluster (initdb + pg_ctl) that a test or benchmark can stop and start again on the
+    same port and data (a database outage); see :func:`temp_postgres`."""
+
+    url: str
+    """``postgresql://sweepcast@127.0.0.1:PORT``"""
+    data: Path
+    prefix: list[str]
+    options: str
+
+    def stop(self) -> None:
+        """Stop at once (``-m immediate``: what a crash or a killed container does; open connections break)."""
+        subprocess.run([*self.prefix, postgres_bin("pg_ctl"), "-D", str(self.data), "-m", "immediate", "stop"],
+                       capture_output=True)
+
+    def start(self) -> None:
+        subprocess.run([*self.prefix, postgres_bin("pg_ctl"), "-D", str(self.data), "-l",
+                        str(self.data.parent / "log"), "-w", "-t", "60", "start", "-o", self.options],
+                       check=True, capture_output=True)
+
+
 @contextlib.contextmanager
-def temp_postgres() -> Iterator[str]:
-    """A PostgreSQL cluster in a temp dir (initdb + pg_ctl); yields ``postgresql://sweepcast@127.0.0.1:PORT``."""
+def postgres_server() -> Iterator[PostgresServer]:
+    """A PostgreSQL cluster in a temp dir, running; stopped and removed when the block ends."""
     initdb, pg_ctl = postgres_bin("initdb"), postgres_bin("pg_ctl")
     if not initdb or not pg_ctl:
         raise Unavailable("no PostgreSQL binaries (initdb, pg_ctl): install Debian's postgresql package")
@@ -180,18 +202,25 @@ def temp_postgres() -> Iterator[str]:
             shutil.chown(path, user.pw_uid, user.pw_gid)
         prefix = ["runuser", "-u", "postgres", "--"]
     port = free_port()
+    server = PostgresServer(f"postgresql://sweepcast@127.0.0.1:{port}", data, prefix,
+                            f"-p {port} -k {sockets} -c listen_addresses=127.0.0.1 -c fsync=off")
     # pg_ctl daemonises the server: it leaves our process tree, so it is found by its data folder.
     with guarded(marker=str(base)):
         try:
             subprocess.run([*prefix, initdb, "-D", str(data), "-U", "sweepcast", "--auth=trust", "--no-sync",
                             "-E", "UTF8"], check=True, capture_output=True)
-            subprocess.run([*prefix, pg_ctl, "-D", str(data), "-l", str(base / "log"), "-w", "-t", "60", "start",
-                            "-o", f"-p {port} -k {sockets} -c listen_addresses=127.0.0.1 -c fsync=off"],
-                           check=True, capture_output=True)
-            yield f"postgresql://sweepcast@127.0.0.1:{port}"
+            server.start()
+            yield server
         finally:
-            subprocess.run([*prefix, pg_ctl, "-D", str(data), "-m", "immediate", "stop"], capture_output=True)
+            server.stop()
             shutil.rmtree(base, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def temp_postgres() -> Iterator[str]:
+    """A PostgreSQL cluster in a temp dir; yields ``postgresql://sweepcast@127.0.0.1:PORT``."""
+    with postgres_server() as server:
+        yield server.url
 
 
 def create_database(server_url: str, name: str) -> str:
@@ -302,3 +331,134 @@ def serve_app(env: dict[str, str | None], log: Path | None = None, args: tuple[s
     finally:
         if log is not None:
             out.close()
+
+
+class FaultyProxy:
+    """A TCP proxy on loopback in front of a server (an object store, a database), whose answer a test or a
+    benchmark switches at run time to inject a fault:
+
+    - ``"pass"``: forwards both ways (the server as it is);
+    - ``"refuse"``: closes every connection at once and cuts the open ones (the server unreachable);
+    - ``"hang"``: accepts connections and never answers (a frozen server: clients time out);
+    - ``"slowdown"``: answers every HTTP request ``503 SlowDown`` with S3's XML error body (an overloaded store).
+
+    Use as a context manager; ``address`` is ``127.0.0.1:PORT``."""
+
+    MODES = ("pass", "refuse", "hang", "slowdown")
+
+    def __init__(self, upstream: str) -> None:
+        import asyncio
+
+        host, port = upstream.rsplit(":", 1)
+        self.upstream = (host, int(port))
+        self.mode = "pass"
+        self.port = free_port()
+        self.address = f"127.0.0.1:{self.port}"
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._loop.run_forever, name="faulty-proxy", daemon=True)
+        self._open: set = set()
+
+    def set(self, mode: str) -> None:
+        if mode not in self.MODES:
+            raise ValueError(f"unknown mode {mode!r}")
+        self.mode = mode
+        if mode != "pass":  # open connections see the fault too, not only new ones
+            self._loop.call_soon_threadsafe(self._cut_open)
+
+    def _cut_open(self) -> None:
+        for writer in list(self._open):
+            writer.transport.abort() if self.mode == "refuse" else writer.transport.pause_reading()
+
+    def __enter__(self) -> "FaultyProxy":
+        import asyncio
+
+        self._thread.start()
+        started = asyncio.run_coroutine_threadsafe(
+            asyncio.start_server(self._client, "127.0.0.1", self.port), self._loop)
+        self._server = started.result(10)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        import asyncio
+
+        async def close() -> None:
+            self._server.close()
+            for writer in list(self._open):
+                writer.transport.abort()
+            tasks = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+
+        asyncio.run_coroutine_threadsafe(close(), self._loop).result(10)
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(10)
+
+    async def _client(self, reader, writer) -> None:
+        import asyncio
+
+        mode = self.mode
+        if mode == "refuse":
+            writer.transport.abort()
+            return
+        if mode == "hang":
+            self._open.add(writer)
+            try:
+                await reader.read()  # until the client gives up
+            finally:
+                self._open.discard(writer)
+                writer.transport.abort()
+            return
+        if mode == "slowdown":
+            await self._slow_down(reader, writer)
+            return
+        try:
+            up_reader, up_writer = await asyncio.open_connection(*self.upstream)
+        except OSError:
+            writer.transport.abort()
+            return
+        self._open.update((writer, up_writer))
+        try:
+            await asyncio.gather(self._pipe(reader, up_writer), self._pipe(up_reader, writer))
+        finally:
+            self._open.difference_update((writer, up_writer))
+            writer.transport.abort()
+            up_writer.transport.abort()
+
+    async def _pipe(self, reader, writer) -> None:
+        try:
+            while data := await reader.read(65536):
+                if self.mode == "hang":  # frozen: hold everything from now on
+                    await asyncio_forever()
+                writer.write(data)
+                await writer.drain()
+        except (ConnectionError, OSError):
+            pass
+        finally:
+            writer.transport.abort()
+
+    async def _slow_down(self, reader, writer) -> None:
+        body = (b'<?xml version="1.0" encoding="UTF-8"?><Error><Code>SlowDown</Code>'
+                b'<Message>Please reduce your request rate.</Message></Error>')
+        try:
+            while self.mode == "slowdown":  # a kept-alive connection ends with the fault
+                head = await reader.readuntil(b"\r\n\r\n")
+                length = 0
+                for line in head.split(b"\r\n"):
+                    if line.lower().startswith(b"content-length:"):
+                        length = int(line.split(b":", 1)[1])
+                if length:
+                    await reader.readexactly(length)
+                writer.write(b"HTTP/1.1 503 Slow Down\r\nContent-Type: application/xml\r\nContent-Length: "
+                             + str(len(body)).encode() + b"\r\n\r\n" + body)
+                await writer.drain()
+        except Exception:  # noqa: BLE001 - the client went away or sent something else: done with it
+            pass
+        finally:
+            writer.transport.abort()
+
+
+async def asyncio_forever() -> None:
+    import asyncio
+
+    await asyncio.Event().wait()

@@ -32,9 +32,14 @@ from workers.common.jobctx import JobInputError
 from workers.common.validation import describe_errors
 from workers.registry import get_kind
 from workers.settings import worker_settings
-from workers.storage import BlobStore, check_key, open_store, storage_full
+from workers.storage import BlobStore, check_key, open_store, storage_full, storage_unavailable
 
 _DONE = object()
+_STORAGE_RETRY_MAX_S = 5.0
+
+
+class StorageOutage(RuntimeError):
+    """The object store stayed unreachable for longer than the job waits for it."""
 
 
 @dataclass
@@ -130,6 +135,37 @@ def publish_results(store: BlobStore, job_id: str, staging: Path, summary: dict[
     return manifest
 
 
+def _outlasting_storage(step: Callable[[], Any], what: str, budget_s: float) -> Any:
+    """``step()``, tried again with backoff while the object store cannot be reached (every step here is safe to
+    repeat: reads, and a publish that replaces), for up to ``budget_s`` seconds of outage; then
+    :class:`StorageOutage`."""
+    delay, since = 1.0, None
+    while True:
+        try:
+            return step()
+        except Exception as exc:
+            if not storage_unavailable(exc):
+                raise
+            now = time.monotonic()
+            since = now if since is None else since
+            if now - since > budget_s:
+                raise StorageOutage(f"the object store could not be reached for {now - since:.0f} s while "
+                                    f"{what} ({type(exc).__name__}: {str(exc)[:200]}): nothing was published; run "
+                                    "the job again once it is back") from exc
+            print(f"sweepcast: the object store cannot be reached while {what} ({type(exc).__name__}); "
+                  f"trying again in {delay:.0f} s", flush=True)
+            time.sleep(delay)
+            delay = min(delay * 2, _STORAGE_RETRY_MAX_S)
+
+
+def _empty(folder: Path) -> None:
+    for entry in folder.iterdir():
+        if entry.is_dir():
+            shutil.rmtree(entry)
+        else:
+            entry.unlink()
+
+
 def _node_id() -> str | None:
     try:
         import ray
@@ -153,8 +189,15 @@ def execute_job(spec: JobSpec) -> Iterator[dict[str, Any]]:
             kind = get_kind(spec.kind)
             store = open_store(spec.store_url)
             ctx = StoreJobContext(spec, kind.validate(spec.params), store, staging, events.put)
-            summary = kind.entry(ctx) or {}
-            manifest = publish_results(store, spec.job_id, staging, summary)
+            budget = ctx.settings.storage_outage_seconds
+
+            def run() -> dict[str, Any]:
+                _empty(staging)  # a run cut short by the store leaves nothing for the next one
+                return kind.entry(ctx) or {}
+
+            summary = _outlasting_storage(run, "reading the job's inputs", budget)
+            manifest = _outlasting_storage(lambda: publish_results(store, spec.job_id, staging, summary),
+                                           "publishing the results", budget)
             outcome["event"] = {"type": "succeeded", "manifest": manifest}
         except JobInputError as exc:
             outcome["event"] = {"type": "failed", "error": str(exc), "user_error": True}
@@ -167,6 +210,8 @@ def execute_job(spec: JobSpec) -> Iterator[dict[str, Any]]:
             if storage_full(exc):
                 error = (f"the service's storage is full ({exc.strerror}): the results could not be written and "
                          "none were published; run the job again once space is freed")
+            elif isinstance(exc, StorageOutage):
+                error = str(exc)
             outcome["event"] = {"type": "failed", "error": error, "user_error": False}
         finally:
             events.put(_DONE)

@@ -51,6 +51,10 @@ class WorkerSettings(BaseSettings):
     exiftool: str = Field("exiftool", description="The exiftool binary the orientation engine uses for PNG eXIf, "
                                                   "XMP sidecars and RAW previews: a name on PATH or a path.")
 
+    storage_outage_seconds: float = Field(300.0, gt=0, description="How long a job waits out an object store that "
+                                                                   "cannot be reached (reading its inputs, publishing "
+                                                                   "its results) before it fails saying so.")
+
     sweep_device: Literal["auto", "cpu", "cuda"] = Field(
         "auto", description="Where the sweep renderer searches depth: cpu, cuda (an NVIDIA GPU through numba's CUDA "
                             "target; the gpu extra), or auto (the GPU when the process can see one).")

@@ -12,18 +12,23 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import io
 import os
 import re
 import shutil
 import tempfile
+import threading
+import time
 import uuid
+from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import BinaryIO, Iterator, Protocol
+from typing import Any, BinaryIO, Callable, Iterator, Protocol, TypeVar
 from urllib.parse import parse_qs, urlparse
 
-from botocore.exceptions import ClientError
+from botocore.exceptions import BotoCoreError, ClientError, ConnectionError as BotoConnectionError, HTTPClientError
 
+T = TypeVar("T")
 _SEGMENT = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9._-]{0,127}$")
 CHUNK = 1 << 20
 
@@ -47,6 +52,31 @@ def check_key(key: str) -> str:
 def storage_full(exc: BaseException) -> bool:
     """Whether ``exc`` says the storage is full (no space left, or a quota spent): the user's wait, not a bug."""
     return isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
+
+
+_UNAVAILABLE_CODES = {"SlowDown", "ServiceUnavailable", "RequestTimeout", "InternalError", "503", "500",
+                      "RequestTimeTooSkewed", "Throttling", "ThrottlingException"}
+
+
+class StoreUnavailable(RuntimeError):
+    """The object store failed just now; not tried again until its cool-down ends (see :class:`_Breaker`)."""
+
+
+def storage_unavailable(exc: BaseException) -> bool:
+    """Whether ``exc`` (or what caused it) says the object store cannot serve just now: it is unreachable, timed
+    out, dropped the connection, or answered 5xx / SlowDown after the client's own retries. Worth a wait and
+    another try; a client gets 503 meanwhile."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, (BotoConnectionError, HTTPClientError, StoreUnavailable)):
+            return True
+        if isinstance(exc, ClientError):
+            error = exc.response.get("Error", {})
+            status = exc.response.get("ResponseMetadata", {}).get("HTTPStatusCode") or 0
+            return status >= 500 or error.get("Code") in _UNAVAILABLE_CODES
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 SAFE_NAME_MAX = 100
@@ -194,6 +224,64 @@ def _walk_files(folder: Path) -> Iterator[Path]:
             yield Path(dirpath) / name
 
 
+class _Breaker:
+    """Fail fast while the object store is down: after a request found it unavailable (after the client's own
+    retries), the next ones within ``cool_s`` seconds fail at once instead of each waiting out its timeouts; then
+    one request at a time is let through to try again, and the first that succeeds closes the breaker."""
+
+    def __init__(self, cool_s: float = 5.0) -> None:
+        self.cool_s = cool_s
+        self._failed_at: float | None = None
+        self._trying = threading.RLock()  # a guarded method calling another (publish -> list) is one try
+
+    def open_for(self) -> float:
+        return 0.0 if self._failed_at is None else max(self._failed_at + self.cool_s - time.monotonic(), 0.0)
+
+    def since(self) -> float:
+        return 0.0 if self._failed_at is None else time.monotonic() - self._failed_at
+
+    @contextlib.contextmanager
+    def guard(self) -> Iterator[None]:
+        """Around one request: refused while cooling down, or while another request is trying the store again."""
+        if self._failed_at is None:
+            yield
+            return
+        left = self.open_for()
+        if left > 0 or not self._trying.acquire(blocking=False):
+            raise StoreUnavailable(f"the object store failed {self.since():.0f} s ago; not tried again for "
+                                   f"another {max(left, 1):.0f} s")
+        try:
+            yield
+        finally:
+            self._trying.release()
+
+    def failed(self) -> None:
+        self._failed_at = time.monotonic()
+
+    def succeeded(self) -> None:
+        self._failed_at = None
+
+
+def _guarded(method: Callable[..., T]) -> Callable[..., T]:
+    """An :class:`S3BlobStore` method behind the store's breaker."""
+
+    @functools.wraps(method)
+    def call(self: "S3BlobStore", *args: Any, **kwargs: Any) -> T:
+        with self._breaker.guard():
+            try:
+                result = method(self, *args, **kwargs)
+            except StoreUnavailable:
+                raise  # a nested call refused by the breaker: no new failure
+            except Exception as exc:
+                if storage_unavailable(exc):
+                    self._breaker.failed()
+                raise
+        self._breaker.succeeded()
+        return result
+
+    return call
+
+
 class S3BlobStore:
     """A blob store in an S3-compatible bucket (AWS S3, MinIO, ...), below a key prefix.
 
@@ -204,17 +292,39 @@ class S3BlobStore:
     """
 
     def __init__(self, bucket: str, prefix: str = "", endpoint_url: str | None = None,
-                 region: str | None = None, cache_dir: str | os.PathLike[str] | None = None) -> None:
+                 region: str | None = None, cache_dir: str | os.PathLike[str] | None = None,
+                 timeouts: "S3Timeouts | None" = None) -> None:
         import boto3
         from boto3.s3.transfer import TransferConfig
+        from botocore.config import Config
 
         self.bucket = bucket
         self.prefix = prefix.strip("/")
-        self._client = boto3.client("s3", endpoint_url=endpoint_url, region_name=region)
+        t = timeouts or S3Timeouts()
+        # Botocore's "standard" retries: throttling (503 SlowDown) and transient errors retried with exponential
+        # backoff and jitter; and timeouts short enough that an unreachable store answers within seconds (the
+        # default 60 s read timeout x 5 attempts held a request for 5 minutes against a frozen store).
+        config = Config(connect_timeout=t.connect_timeout, read_timeout=t.read_timeout,
+                        retries={"mode": "standard", "total_max_attempts": t.max_attempts})
+        self._client = boto3.client("s3", endpoint_url=endpoint_url, region_name=region, config=config)
         self._transfer = TransferConfig(multipart_threshold=8 * CHUNK, multipart_chunksize=8 * CHUNK)
-        query = "&".join(f"{k}={v}" for k, v in (("endpoint_url", endpoint_url), ("region", region)) if v)
+        options = (("endpoint_url", endpoint_url), ("region", region), *t.non_default())
+        query = "&".join(f"{k}={v}" for k, v in options if v)
         self.url = f"s3://{bucket}/{self.prefix}" + (f"?{query}" if query else "")
         self._cache = Path(cache_dir or Path(tempfile.gettempdir()) / "sweepcast-blob-cache")
+        self._breaker = _Breaker()
+        self._probe = boto3.client("s3", endpoint_url=endpoint_url, region_name=region, config=Config(
+            connect_timeout=2, read_timeout=2, retries={"mode": "standard", "total_max_attempts": 1}))
+
+    def check(self) -> str | None:
+        """None when the bucket answers within 2 s, else why not (for readiness: never raises)."""
+        if self._breaker.open_for() > 0:
+            return f"the object store failed {self._breaker.since():.0f} s ago"
+        try:
+            self._probe.head_bucket(Bucket=self.bucket)
+        except Exception as exc:  # noqa: BLE001 - reported, not raised
+            return f"the object store does not answer: {type(exc).__name__}: {str(exc)[:200]}"
+        return None
 
     def _key(self, key: str) -> str:
         check_key(key)
@@ -224,12 +334,14 @@ class S3BlobStore:
     def _missing(exc: ClientError) -> bool:
         return exc.response.get("Error", {}).get("Code") in ("404", "NoSuchKey", "NotFound")
 
+    @_guarded
     def put(self, key: str, data: bytes | BinaryIO) -> int:
         body = io.BytesIO(bytes(data)) if isinstance(data, (bytes, bytearray, memoryview)) else data
         counter = _CountingReader(body)
         self._client.upload_fileobj(counter, self.bucket, self._key(key), Config=self._transfer)
         return counter.count
 
+    @_guarded
     def open(self, key: str) -> BinaryIO:
         try:
             return self._client.get_object(Bucket=self.bucket, Key=self._key(key))["Body"]
@@ -249,6 +361,7 @@ class S3BlobStore:
         except BlobNotFound:
             return False
 
+    @_guarded
     def size(self, key: str) -> int:
         try:
             return int(self._client.head_object(Bucket=self.bucket, Key=self._key(key))["ContentLength"])
@@ -257,9 +370,11 @@ class S3BlobStore:
                 raise BlobNotFound(key) from None
             raise
 
+    @_guarded
     def delete(self, key: str) -> None:
         self._client.delete_object(Bucket=self.bucket, Key=self._key(key))
 
+    @_guarded
     def delete_prefix(self, prefix: str) -> int:
         keys = self.list(prefix)
         for start in range(0, len(keys), 1000):
@@ -267,6 +382,7 @@ class S3BlobStore:
             self._client.delete_objects(Bucket=self.bucket, Delete={"Objects": batch, "Quiet": True})
         return len(keys)
 
+    @_guarded
     def list(self, prefix: str) -> list[str]:
         full = self._key(prefix.rstrip("/")) + "/"
         strip = len(self.prefix) + 1 if self.prefix else 0
@@ -275,6 +391,7 @@ class S3BlobStore:
             keys += [obj["Key"][strip:] for obj in page.get("Contents", [])]
         return sorted(keys)
 
+    @_guarded
     def local_path(self, key: str) -> Path:
         """A local copy of ``key``, downloaded once per process and object version (ETag)."""
         try:
@@ -295,6 +412,7 @@ class S3BlobStore:
                 tmp.unlink(missing_ok=True)
         return path
 
+    @_guarded
     def publish(self, src_prefix: str, dst_prefix: str) -> None:
         src, dst = src_prefix.rstrip("/"), dst_prefix.rstrip("/")
         self.delete_prefix(dst)
@@ -303,6 +421,33 @@ class S3BlobStore:
             self._client.copy({"Bucket": self.bucket, "Key": self._key(key)}, self.bucket, self._key(target),
                               Config=self._transfer)
         self.delete_prefix(src)
+
+
+@dataclass(frozen=True)
+class S3Timeouts:
+    """How long the object store client waits (seconds) and how many times it tries one request; each can be set
+    in the storage URL's query (``?read_timeout=30``)."""
+
+    connect_timeout: float = 5.0
+    read_timeout: float = 10.0
+    max_attempts: int = 3
+
+    @classmethod
+    def from_query(cls, query: dict[str, str]) -> "S3Timeouts":
+        values = {}
+        for f in fields(cls):
+            if f.name in query:
+                try:
+                    values[f.name] = int(query[f.name]) if f.type in (int, "int") else float(query[f.name])
+                except ValueError:
+                    raise ValueError(f"storage URL option {f.name}={query[f.name]!r} is not a number") from None
+                if values[f.name] <= 0:
+                    raise ValueError(f"storage URL option {f.name} must be positive")
+        return cls(**values)
+
+    def non_default(self) -> list[tuple[str, object]]:
+        default = S3Timeouts()
+        return [(f.name, getattr(self, f.name)) for f in fields(self) if getattr(self, f.name) != getattr(default, f.name)]
 
 
 class _CountingReader(io.RawIOBase):
@@ -325,7 +470,8 @@ def open_store(url: str) -> BlobStore:
     """Open the blob store named by ``url``.
 
     ``file:///abs/dir`` or a plain directory path: a directory store.
-    ``s3://bucket/prefix[?endpoint_url=http://host:9000&region=eu-west-1]``: an S3 bucket.
+    ``s3://bucket/prefix[?endpoint_url=http://host:9000&region=eu-west-1]``: an S3 bucket; its client's
+    ``connect_timeout``, ``read_timeout`` (seconds) and ``max_attempts`` may be given there too (:class:`S3Timeouts`).
     """
     parsed = urlparse(url)
     if parsed.scheme in ("", "file"):
@@ -334,9 +480,11 @@ def open_store(url: str) -> BlobStore:
         if not parsed.netloc:
             raise ValueError(f"storage URL {url!r} names no bucket (expected s3://bucket/prefix)")
         query = {k: v[-1] for k, v in parse_qs(parsed.query).items()}
-        unknown = set(query) - {"endpoint_url", "region"}
+        known = {"endpoint_url", "region", *(f.name for f in fields(S3Timeouts))}
+        unknown = set(query) - known
         if unknown:
-            raise ValueError(f"unknown storage URL option(s) {', '.join(sorted(unknown))} (endpoint_url, region)")
-        return S3BlobStore(parsed.netloc, parsed.path, query.get("endpoint_url"), query.get("region"))
+            raise ValueError(f"unknown storage URL option(s) {', '.join(sorted(unknown))} ({', '.join(sorted(known))})")
+        return S3BlobStore(parsed.netloc, parsed.path, query.get("endpoint_url"), query.get("region"),
+                           timeouts=S3Timeouts.from_query(query))
     raise ValueError(f"unsupported storage URL scheme {parsed.scheme!r} (expected file:// or s3://)")
 

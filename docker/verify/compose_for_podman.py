@@ -4,6 +4,7 @@
 
 Every service keeps its definition (image, command, environment, volumes, shm_size) except:
 - postgres: the image built from Debian's packages (localhost/sweepcast-postgres), same variables and volume;
+- redis: the image built from Debian's packages (localhost/sweepcast-redis), same command and volume;
 - minio, minio-bucket: left out; the S3 stand-in runs in its own container outside the project, on the
   project's network under the name `minio`, so SWEEPCAST_STORAGE_URL is unchanged (see s3.Dockerfile);
 - api: two replicas, `api` and `api-2`, published on SWEEPCAST_PORT and SWEEPCAST_PORT+1 (one host port can
@@ -29,6 +30,7 @@ def for_podman(compose: dict, port: int) -> dict:
     for name in ("minio", "minio-bucket"):
         services.pop(name)
     services["postgres"]["image"] = "localhost/sweepcast-postgres"
+    services["redis"]["image"] = "localhost/sweepcast-redis"
     services["ray-worker"]["deploy"] = {"replicas": 2}
     services["ray-worker"]["environment"]["RAY_WORKER_CPUS"] = "1"
     api = services["api"]

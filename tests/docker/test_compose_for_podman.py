@@ -1,5 +1,5 @@
 """docker/verify/compose_for_podman.py: the compose file verify-stack.sh runs is docker/compose.yaml with only the
-stated changes (Debian's postgres image, no MinIO, two API replicas on their own ports, two one-CPU workers)."""
+stated changes (Debian's postgres and redis images, no MinIO, two API replicas on their own ports, two one-CPU workers)."""
 from __future__ import annotations
 
 import importlib.util
@@ -23,6 +23,8 @@ def test_services_are_the_compose_files_less_minio_plus_a_second_api():
     assert set(out["services"]) == set(original["services"]) - {"minio", "minio-bucket"} | {"api-2"}
     assert out["services"]["postgres"]["image"] == "localhost/sweepcast-postgres"
     assert out["services"]["postgres"]["volumes"] == original["services"]["postgres"]["volumes"]
+    assert out["services"]["redis"]["image"] == "localhost/sweepcast-redis"
+    assert out["services"]["redis"]["command"] == original["services"]["redis"]["command"]
     assert "minio-bucket" not in out["services"]["api"]["depends_on"]
     assert not any(k.startswith("x-") for k in out)
 
@@ -46,4 +48,6 @@ def test_every_app_service_keeps_the_compose_files_environment():
     for name in ("ray-head", "ray-worker", "api", "api-2"):
         env = dict(out["services"][name]["environment"])
         env.pop("RAY_WORKER_CPUS", None)
+        if name == "ray-head":  # the head alone keeps Ray's state in Redis, to come back with it after a crash
+            assert env.pop("RAY_REDIS_ADDRESS") == "redis:6379"
         assert env == shared, name

@@ -1,0 +1,399 @@
+"""Faults survived: each backend of a scaled-out deployment fails while jobs run, and what users saw.
+
+    python -m benchmarks.chaos [--faults database,storage_hang,...] [--outage SECONDS]
+
+The stack is the compose deployment's, run as processes on loopback (every part is the real server): PostgreSQL
+(initdb/pg_ctl), an S3 server (moto) behind a proxy that can break it, Redis holding the Ray head's state (Ray's GCS
+fault tolerance, as docker/compose.yaml sets it up), a Ray head without task CPUs, one Ray worker node, and the API
+(`python -m app serve`) joined to that cluster. For each fault, while a 40-photo batch runs and a client keeps
+using the API (job status, job list, a 2-photo upload, a finished job's results, `/readyz`, twice a second):
+
+- database: PostgreSQL stopped at once (`pg_ctl -m immediate`), started again after the outage;
+- storage_hang / storage_slowdown / storage_unreachable: the object store freezes (connections accepted, never
+  answered), answers every request `503 SlowDown`, or refuses connections, for the outage;
+- ray_head: every process of the Ray head killed (SIGKILL), started again after the outage;
+- out_of_memory: a job that needs more memory than its node has (a 49 MP depth map upsampled with the weighted
+  median filter, ~1.6 GB) beside ordinary batches, on a node whose Ray memory monitor stops tasks above 1 GB more
+  than the machine used at start.
+
+Reported per fault: the answers each route gave during the fault (status counts; server errors other than 503,
+connection failures and the slowest answer), whether every job accepted before, during and after it succeeded
+(none lost, none failed), and the seconds from the fault's end to `/readyz` 200 and to the batch's end.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import httpx
+import numpy as np
+
+from benchmarks._report import md_table, prog, publish
+from benchmarks._timing import load_note
+from benchmarks.cluster import photos
+from tests.servers import (FaultyProxy, ServedApp, Unavailable, create_database, exit_on_sigterm, free_port,
+                           guarded, kill_mentioning, postgres_server, serve_app)
+
+FINAL = ("succeeded", "failed", "cancelled")
+RAY = str(Path(sys.executable).parent / "ray")
+FAULTS = ("database", "storage_hang", "storage_slowdown", "storage_unreachable", "ray_head", "out_of_memory")
+
+
+def photo_files(count: int) -> list[tuple[str, tuple[str, bytes, str]]]:
+    return [("files", (name, data, "image/jpeg")) for name, data in photos(count)]
+
+
+class RayCluster:
+    """A Ray head (its state in Redis) and worker nodes, each in its own temp folder (found and killed by it)."""
+
+    def __init__(self, redis_port: int, folder: str) -> None:
+        self.parent = folder
+        self.port = free_port()
+        self.address = f"127.0.0.1:{self.port}"
+        self.env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0",
+                    "RAY_gcs_rpc_server_reconnect_timeout_s": "300"}
+        self.redis = f"127.0.0.1:{redis_port}"
+        self.folders: list[str] = []
+        self.head_folder = ""
+
+    def _folder(self, prefix: str) -> str:
+        folder = tempfile.mkdtemp(prefix=prefix, dir=self.parent)  # short: Ray's socket paths must fit 107 bytes
+        self.folders.append(folder)
+        return folder
+
+    def start_head(self) -> None:
+        # A new folder each time: `ray start --head` refuses a port its folder's last cluster used while other
+        # nodes of this machine still name it (a check for one machine; a head container restarts alike).
+        self.head_folder = self._folder("sch-")
+        subprocess.run([RAY, "start", "--head", f"--port={self.port}", "--num-cpus=0", "--include-dashboard=false",
+                        f"--temp-dir={self.head_folder}", "--disable-usage-stats"], check=True, capture_output=True,
+                       env={**self.env, "RAY_REDIS_ADDRESS": self.redis, "RAY_external_storage_namespace": "chaos"},
+                       timeout=120)
+
+    def kill_head(self) -> None:
+        kill_mentioning(self.head_folder)
+
+    def add_node(self, cpus: int = 2, env: dict[str, str] | None = None) -> str:
+        """Start a worker node; its folder (to kill it by)."""
+        folder = self._folder("scn-")
+        subprocess.run([RAY, "start", f"--address={self.address}", f"--num-cpus={cpus}",
+                        '--resources={"sweepcast_worker": 1}', f"--temp-dir={folder}", "--disable-usage-stats"],
+                       check=True, capture_output=True, env={**self.env, **(env or {})}, timeout=120)
+        return folder
+
+    def stop(self) -> None:
+        for folder in self.folders:
+            kill_mentioning(folder)
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def s3_server() -> Iterator[str]:
+    """moto's S3 server on loopback; yields its host:port."""
+    server = shutil.which("moto_server", path=str(Path(sys.executable).parent))
+    if server is None:
+        raise Unavailable("moto_server is not installed (pip install 'moto[server]')")
+    port = free_port()
+    proc = subprocess.Popen([server, "-H", "127.0.0.1", "-p", str(port)], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        wait_until(lambda: httpx.get(f"http://127.0.0.1:{port}/moto-api/", timeout=1).status_code == 200, 30,
+                   "the S3 server")
+        yield f"127.0.0.1:{port}"
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+@contextlib.contextmanager
+def redis_server() -> Iterator[int]:
+    binary = shutil.which("redis-server")
+    if binary is None:
+        raise Unavailable("redis-server is not installed (Debian: apt install redis-server)")
+    port = free_port()
+    proc = subprocess.Popen([binary, "--port", str(port), "--save", "", "--appendonly", "no"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        time.sleep(0.5)
+        yield port
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def wait_until(check: Callable[[], Any], timeout: float, what: str, interval: float = 0.5) -> Any:
+    deadline = time.monotonic() + timeout
+    last: Exception | None = None
+    while time.monotonic() < deadline:
+        try:
+            value = check()
+            if value:
+                return value
+        except (httpx.HTTPError, OSError, ValueError, KeyError) as exc:
+            last = exc
+        time.sleep(interval)
+    raise SystemExit(f"timed out after {timeout:.0f} s waiting for {what} (last error: {last})")
+
+
+class Prober:
+    """A client using the API twice a second on its own thread: each route's answers, by phase."""
+
+    def __init__(self, base: str, job_id: str, finished_id: str) -> None:
+        self.client = httpx.Client(base_url=base, timeout=120)
+        self.routes: dict[str, Callable[[], httpx.Response]] = {
+            "GET /v1/jobs/{id}": lambda: self.client.get(f"/v1/jobs/{job_id}"),
+            "GET /v1/jobs": lambda: self.client.get("/v1/jobs", params={"limit": 5}),
+            "POST /v1/photos/batches (2 photos)": lambda: self.client.post("/v1/photos/batches",
+                                                                           files=photo_files(2)),
+            "GET a finished job's results": lambda: self.client.get(f"/v1/jobs/{finished_id}/results/report.json"),
+            "GET /readyz": lambda: self.client.get("/readyz"),
+        }
+        self.phase = "before"
+        self.answers: list[dict[str, Any]] = []
+        self.accepted: list[str] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def __enter__(self) -> "Prober":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(300)
+        self.client.close()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            for route, call in self.routes.items():
+                phase, t = self.phase, time.monotonic()
+                try:
+                    r = call()
+                    outcome: Any = r.status_code
+                    if route.startswith("POST") and r.status_code == 202:
+                        self.accepted.append(r.json()["id"])
+                    body = r.json() if r.headers.get("content-type", "").startswith("application/json") else {}
+                    code = body.get("error") if isinstance(body, dict) else None
+                except httpx.HTTPError as exc:
+                    outcome, code = type(exc).__name__, None
+                self.answers.append({"route": route, "phase": phase, "outcome": outcome, "code": code,
+                                     "seconds": time.monotonic() - t})
+            self._stop.wait(0.5)
+
+    def summary(self, phase: str) -> dict[str, Any]:
+        out = {}
+        for route in self.routes:
+            got = [a for a in self.answers if a["route"] == route and a["phase"] == phase]
+            out[route] = {
+                "answers": dict(Counter(f"{a['outcome']}" + (f" {a['code']}" if a["code"] else "") for a in got)),
+                "server_errors_not_503": sum(isinstance(a["outcome"], int) and a["outcome"] >= 500
+                                             and a["outcome"] != 503 for a in got),
+                "connection_failures": sum(not isinstance(a["outcome"], int) for a in got),
+                "slowest_s": max((a["seconds"] for a in got), default=0.0),
+            }
+        return out
+
+
+def job_outcomes(base: str, ids: list[str], timeout: float) -> dict[str, Any]:
+    """Wait for every job to end; their states counted, and the errors of those that did not succeed."""
+    states: dict[str, dict] = {}
+    with httpx.Client(base_url=base, timeout=30) as c:
+        deadline = time.monotonic() + timeout
+        pending = list(ids)
+        while pending and time.monotonic() < deadline:
+            for job_id in list(pending):
+                try:
+                    job = c.get(f"/v1/jobs/{job_id}").json()
+                except httpx.HTTPError:
+                    continue
+                if job.get("state") in FINAL:
+                    states[job_id] = job
+                    pending.remove(job_id)
+            time.sleep(1.0)
+    counts = Counter(j["state"] for j in states.values())
+    counts["not finished"] = len(ids) - len(states)
+    return {"jobs": len(ids), "states": {k: v for k, v in counts.items() if v},
+            "errors": sorted({j["error"] for j in states.values() if j["state"] != "succeeded"}),
+            "attempts": sorted({j["attempts"] for j in states.values()})}
+
+
+def running_batch(base: str, count: int = 40) -> str:
+    with httpx.Client(base_url=base, timeout=120) as c:
+        job = c.post("/v1/photos/batches", files=photo_files(count)).json()
+        wait_until(lambda: c.get(f"/v1/jobs/{job['id']}").json()["progress"]["fraction"] >= 0.05, 300,
+                   "the batch to make progress", interval=0.2)
+    return job["id"]
+
+
+def run_fault(app: ServedApp, finished_id: str, name: str, begin: Callable[[], None], end: Callable[[], None],
+              outage_s: float) -> dict[str, Any]:
+    """One fault while a batch runs and a client uses the API; see the module docstring."""
+    batch = running_batch(app.base)
+    with Prober(app.base, batch, finished_id) as prober:
+        time.sleep(2.0)
+        prober.phase = "during"
+        begin()
+        time.sleep(outage_s)
+        end()
+        ended = time.monotonic()
+        prober.phase = "after"
+        ready_s = wait_until(lambda: httpx.get(f"{app.base}/readyz", timeout=10).status_code == 200 and
+                             time.monotonic() - ended, 600, f"/readyz after {name}")
+        outcomes = job_outcomes(app.base, [batch], 900)
+        batch_s = time.monotonic() - ended
+        time.sleep(3.0)  # the client's uploads after recovery
+    accepted = job_outcomes(app.base, prober.accepted, 900)
+    print(f"{name}: ready {ready_s:.1f} s after the fault, batch {outcomes}, uploads {accepted}", flush=True)
+    return {"fault": name, "outage_s": outage_s, "ready_after_s": ready_s, "batch_done_after_s": batch_s,
+            "batch": outcomes, "uploads_accepted": accepted,
+            "during": prober.summary("during"), "after": prober.summary("after"),
+            "api_alive": app.proc.poll() is None}
+
+
+def depth_bomb(side: int = 3500) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Multipart files and params of a one-frame 8-bit depth sequence ``side`` x ``side`` upsampled x2 with the
+    weighted median filter guided by its 4:2:0 texture: ~1.6 GB at its peak on a worker (74 s on these cores)."""
+    rng = np.random.default_rng(0)
+
+    def blobs(size: int) -> np.ndarray:
+        coarse = (rng.random((size // 16 + 1, size // 16 + 1)) * 255).astype(np.uint8)
+        return np.kron(coarse, np.ones((16, 16), np.uint8))[:size, :size]
+
+    out = 2 * side
+    texture = np.concatenate([blobs(out).ravel(), np.full(out * out // 2, 128, np.uint8)])
+    files = {"depth": ("big.yuv", blobs(side).tobytes(), "application/octet-stream"),
+             "texture": ("big_texture.yuv", texture.tobytes(), "application/octet-stream")}
+    return files, {"width": side, "height": side, "scale": 2, "method": "wmf"}
+
+
+def out_of_memory(app: ServedApp) -> dict[str, Any]:
+    """An oversized job beside an ordinary batch, then another batch: the first fails saying memory, the batches
+    succeed (Ray's memory monitor stops the newest task first, so the batch starts first)."""
+    files, params = depth_bomb()
+    with httpx.Client(base_url=app.base, timeout=300) as c:
+        before = running_batch(app.base, 16)
+        big = c.post("/v1/depth/videos", files=files, data={"params": json.dumps(params)})
+        if big.status_code != 202:
+            raise SystemExit(f"the oversized job was refused: {big.status_code} {big.text}")
+        big_out = job_outcomes(app.base, [big.json()["id"]], 1200)
+        after = c.post("/v1/photos/batches", files=photo_files(8)).json()["id"]
+    ordinary = job_outcomes(app.base, [before, after], 900)
+    print(f"out_of_memory: oversized {big_out}, ordinary {ordinary}", flush=True)
+    return {"fault": "out_of_memory", "oversized": big_out, "ordinary": ordinary,
+            "api_alive": app.proc.poll() is None}
+
+
+def memory_threshold(extra_gb: float) -> float:
+    """Ray's memory-monitor threshold (fraction of the machine) that trips ``extra_gb`` above what is used now."""
+    info = {line.split(":")[0]: int(line.split()[1]) * 1024 for line in Path("/proc/meminfo").read_text().splitlines()}
+    total, available = info["MemTotal"], info["MemAvailable"]
+    return min((total - available + extra_gb * 2**30) / total, 0.95)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
+    ap.add_argument("--faults", default=",".join(FAULTS),
+                    help=f"comma-separated, of {', '.join(FAULTS)} (out_of_memory runs last)")
+    ap.add_argument("--outage", type=float, default=30.0, help="seconds each fault lasts (storage_hang: twice)")
+    args = ap.parse_args()
+    faults = sorted((f for f in args.faults.split(",") if f), key=lambda f: f == "out_of_memory")
+    unknown = set(faults) - set(FAULTS)
+    if unknown:
+        ap.error(f"unknown fault(s) {', '.join(sorted(unknown))}")
+    for name in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY"):  # the S3 server takes any; set before Ray starts
+        os.environ.setdefault(name, "sweepcast-chaos")
+    load_before = os.getloadavg()[0]
+    results: dict[str, Any] = {"faults": []}
+    with exit_on_sigterm(), postgres_server() as pg, s3_server() as s3, redis_server() as redis_port, \
+            FaultyProxy(s3) as proxy, tempfile.TemporaryDirectory(prefix="sweepcast-chaos-") as data:
+        import boto3
+
+        boto3.client("s3", endpoint_url=f"http://{s3}", region_name="us-east-1").create_bucket(Bucket="chaos")
+        ray_folder = tempfile.mkdtemp(prefix="scc")
+        cluster = RayCluster(redis_port, ray_folder)
+        with guarded(marker=ray_folder):
+            try:
+                cluster.start_head()
+                node = cluster.add_node()
+                env = {"SWEEPCAST_DATA_DIR": data, "SWEEPCAST_DATABASE_URL": create_database(pg.url, "chaos"),
+                       "SWEEPCAST_STORAGE_URL": f"s3://chaos/sc?endpoint_url=http://{proxy.address}&region=us-east-1",
+                       "SWEEPCAST_RAY_ADDRESS": cluster.address, "RAY_AUTH_MODE": "disabled",
+                       "RAY_gcs_rpc_server_reconnect_timeout_s": "300", "SWEEPCAST_DEMO_RIG": "false",
+                       "SWEEPCAST_JOB_MAX_ATTEMPTS": "2"}
+                with serve_app(env, log=Path(data) / "serve.log", args=("--log-level", "warning")) as app:
+                    with httpx.Client(base_url=app.base, timeout=120) as c:
+                        finished = c.post("/v1/photos/batches", files=photo_files(4)).json()["id"]
+                    job_outcomes(app.base, [finished], 300)
+                    breaks: dict[str, tuple[Callable[[], None], Callable[[], None], float]] = {
+                        "database": (pg.stop, pg.start, args.outage),
+                        "storage_hang": (lambda: proxy.set("hang"), lambda: proxy.set("pass"), 2 * args.outage),
+                        "storage_slowdown": (lambda: proxy.set("slowdown"), lambda: proxy.set("pass"), args.outage),
+                        "storage_unreachable": (lambda: proxy.set("refuse"), lambda: proxy.set("pass"), args.outage),
+                        "ray_head": (cluster.kill_head, cluster.start_head, args.outage),
+                    }
+                    for fault in faults:
+                        if fault == "out_of_memory":  # on a node of its own, the last fault
+                            kill_mentioning(node)
+                            cluster.add_node(env={"RAY_memory_usage_threshold": f"{memory_threshold(1.0):.3f}",
+                                                  "RAY_memory_monitor_refresh_ms": "100"})
+                            results["faults"].append(out_of_memory(app))
+                        else:
+                            results["faults"].append(run_fault(app, finished, fault, *breaks[fault]))
+                    results["log_tail"] = app.log_tail(4000)
+            finally:
+                cluster.stop()
+                shutil.rmtree(ray_folder, ignore_errors=True)
+    results["load_average"] = {"before": load_before, "after": os.getloadavg()[0]}
+    publish("chaos", results, markdown(results))
+    return 0
+
+
+def _answers(summary: dict[str, Any]) -> str:
+    return "; ".join(f"{route.split(' (')[0]}: " + ", ".join(f"{k} x{v}" for k, v in s["answers"].items())
+                     for route, s in summary.items())
+
+
+def markdown(r: dict[str, Any]) -> str:
+    rows = []
+    for f in r["faults"]:
+        if f["fault"] == "out_of_memory":
+            o, s = f["oversized"], f["ordinary"]
+            rows.append(["out_of_memory", "-", f"oversized job: {o['states']} ({'; '.join(o['errors'])[:300]})",
+                         f"ordinary batch: {s['states']}", "-", "-", "yes" if f["api_alive"] else "NO"])
+            continue
+        during = f["during"]
+        bad = sum(s["server_errors_not_503"] + s["connection_failures"] for s in during.values())
+        slowest = max(s["slowest_s"] for s in during.values())
+        rows.append([f["fault"], f"{f['outage_s']:.0f}", _answers(during),
+                     f"batch {f['batch']['states']}, attempts {f['batch']['attempts']}; client uploads "
+                     f"{f['uploads_accepted']['states']}",
+                     f"{bad} (slowest answer {slowest:.1f} s)", f"{f['ready_after_s']:.1f} / {f['batch_done_after_s']:.1f}",
+                     "yes" if f["api_alive"] else "NO"])
+    la = r["load_average"]
+    return "\n".join([
+        "The compose deployment's parts as processes on loopback (PostgreSQL, moto's S3 behind a breakable proxy, "
+        "Redis for the Ray head's state, a Ray head and one 2-CPU worker node, one API); each fault while a 40-photo "
+        "batch runs and a client calls five routes twice a second. Columns: what the client's routes answered during "
+        "the fault (status and error code x count); what became of the jobs (the batch, and every upload the client "
+        "got 202 for, before, during or after the fault); answers that were neither a success nor a 503 with a "
+        "reason (server errors, dropped connections); seconds from the fault's end to `/readyz` 200 and to the "
+        "batch's end; whether the API process lived through it.", "",
+        md_table(["fault", "outage s", "answers during the fault", "jobs", "5xx other than 503 / dropped",
+                  "ready / batch done after (s)", "API alive"], rows),
+        "", load_note(la["before"], la["after"]),
+    ])
+
+
+if __name__ == "__main__":
+    sys.exit(main())
