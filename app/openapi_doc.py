@@ -38,6 +38,9 @@ _FASTAPI_422 = "#/components/schemas/HTTPValidationError"
 # Statuses every operation of a kind can answer (what causes them is the same everywhere).
 AUTH_STATUS = {401: "missing, wrong, revoked or expired API key: send `Authorization: Bearer <key>` (only when the "
                     "service has keys)"}
+BACKEND_STATUS = {503: "a backend the service needs cannot be reached just now: the job database "
+                       "(`database_unavailable`) or the object store (`storage_unavailable`); nothing was changed: "
+                       "retry after `Retry-After` seconds"}
 UPLOAD_STATUS = {429: "the key sent its most uploads this minute (its uploads_per_minute quota): retry after "
                       "`Retry-After` seconds"}
 NEW_JOB_STATUSES = {
@@ -139,8 +142,8 @@ def _document_errors(doc: dict[str, Any]) -> None:
     for method, path, op in _operations(doc):
         responses = op.setdefault("responses", {})
         statuses: dict[int, str] = {}
-        if path.startswith("/v1/"):  # app.auth guards every /v1 route
-            statuses |= AUTH_STATUS
+        if path.startswith("/v1/"):  # app.auth guards every /v1 route (reading keys from the job database)
+            statuses |= AUTH_STATUS | BACKEND_STATUS
             op["security"] = [{BEARER: []}]
         if "requestBody" in op:
             statuses |= BODY_STATUSES  # app.limits guards every body; parsing can fail on any
