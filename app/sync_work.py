@@ -20,11 +20,13 @@ import math
 import os
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
-from typing import AsyncIterator
+from typing import AsyncIterator, Awaitable, Callable, TypeVar
 
 from app.errors import ApiError
 from app.settings import MiB, Settings
 from workers.depth.cost import WorkEstimate
+
+R = TypeVar("R")
 
 
 @dataclass(frozen=True)
@@ -96,6 +98,18 @@ class SyncWorkGate:
                 self.in_flight = WorkEstimate(self.in_flight.cpu_seconds - held.cpu_seconds,
                                               self.in_flight.peak_bytes - held.peak_bytes)
                 changed.notify_all()
+
+    async def run(self, estimate: WorkEstimate, work: Callable[[], Awaitable[R]]) -> R:
+        """``await work()`` (the request's compute, on the compute threads) within :meth:`admit`. A request cancelled
+        meanwhile (its client gone) keeps its share of the budget until its thread has finished: the work goes on
+        in the thread and its memory with it."""
+        async with self.admit(estimate):
+            running = asyncio.ensure_future(work())
+            try:
+                return await asyncio.shield(running)
+            except asyncio.CancelledError:
+                await asyncio.wait({running})
+                raise
 
     def _condition(self) -> asyncio.Condition:
         if self._changed is None:

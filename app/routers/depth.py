@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import base64
-from contextlib import AbstractAsyncContextManager
+from typing import Callable, TypeVar
 
 import cv2
 
@@ -39,6 +39,7 @@ FILTER_INSTEAD = ("send it as a job instead: POST /v1/depth/videos with the dept
 SYNTHESIS_INSTEAD = "synthesise a smaller view (downscale the views, or give the target camera a smaller size)"
 router = APIRouter(prefix="/v1/depth", tags=["depth"], dependencies=[Depends(require_key)])
 
+R = TypeVar("R")
 PARAMS_HELP = "JSON object of {model} (see the schema of that name); default {{}}"
 
 
@@ -62,8 +63,8 @@ async def filter_depth(
     depth_bytes = await read_upload(depth, svc.settings.max_upload_bytes)
     texture_bytes = await read_upload(texture, svc.settings.max_upload_bytes) if texture is not None else None
     limit = svc.settings.max_image_pixels
-    async with _bounded(svc, filter_work(depth_bytes, p, texture_bytes, limit), FILTER_INSTEAD):
-        out = await run_compute(svc, lambda: filter_depth_bytes(depth_bytes, p, texture_bytes, limit))
+    out = await _bounded(svc, filter_work(depth_bytes, p, texture_bytes, limit), FILTER_INSTEAD,
+                         lambda: filter_depth_bytes(depth_bytes, p, texture_bytes, limit))
     return Response(out, media_type="image/png", headers={"X-Depth-Method": p.method_for(texture is not None)})
 
 
@@ -83,19 +84,19 @@ async def synthesize(
     views = [(await read_upload(t, svc.settings.max_upload_bytes), await read_upload(d, svc.settings.max_upload_bytes))
              for t, d in zip(textures, depths)]
     limit = svc.settings.max_image_pixels
-    async with _bounded(svc, synthesis_work(views, p, limit), SYNTHESIS_INSTEAD):
-        image, holes, fraction = await run_compute(svc, lambda: _synthesize(views, p, limit))
+    image, holes, fraction = await _bounded(svc, synthesis_work(views, p, limit), SYNTHESIS_INSTEAD,
+                                            lambda: _synthesize(views, p, limit))
     return SynthesisOut(image_png=base64.b64encode(image).decode(), holes_png=base64.b64encode(holes).decode(),
                         holes_fraction=fraction)
 
 
-def _bounded(svc: Services, work: tuple[WorkEstimate, str] | None, instead: str
-             ) -> AbstractAsyncContextManager[None]:
-    """The gate of a synchronous request (:mod:`app.sync_work`): 413 over one request's limits, else held in the
-    memory budget while it runs. ``work`` None (the engine refuses the inputs at its first checks): admitted free."""
+async def _bounded(svc: Services, work: tuple[WorkEstimate, str] | None, instead: str, compute: Callable[[], R]) -> R:
+    """``compute()`` on the compute threads through the gate of synchronous work (:mod:`app.sync_work`): 413 when
+    ``work``'s estimate is over one request's limits, else run within the memory budget. ``work`` None (the engine
+    refuses the inputs at its first checks): admitted free."""
     estimate, what = work or (WorkEstimate(0.0, 0), "")
     svc.sync_work.check(estimate, what, instead)
-    return svc.sync_work.admit(estimate)
+    return await svc.sync_work.run(estimate, lambda: run_compute(svc, compute))
 
 
 def _synthesize(views: list[tuple[bytes, bytes]], p: SynthesizeParams, limit: int) -> tuple[bytes, bytes, float]:

@@ -65,3 +65,25 @@ def test_no_room_within_the_wait_is_503_with_retry_after():
     err = asyncio.run(scenario())
     assert err.status_code == 503 and err.code == "busy"
     assert err.headers == {"Retry-After": "4"}  # 7 CPU-seconds in flight on 2 cores
+
+
+def test_a_cancelled_request_keeps_its_budget_until_its_thread_ends():
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    async def scenario() -> None:
+        g, release, pool = gate(budget_mb=10), threading.Event(), ThreadPoolExecutor(1)
+        loop = asyncio.get_running_loop()
+        work = lambda: loop.run_in_executor(pool, release.wait)  # noqa: E731
+        request = asyncio.create_task(g.run(WorkEstimate(1.0, 6 * MB), work))
+        await asyncio.sleep(0.05)
+        request.cancel()  # the client went away; the thread computes on
+        await asyncio.sleep(0.05)
+        assert not request.done() and g.in_flight.peak_bytes == 6 * MB
+        release.set()
+        with pytest.raises(asyncio.CancelledError):
+            await request
+        assert g.in_flight == WorkEstimate(0.0, 0)
+        pool.shutdown()
+
+    asyncio.run(scenario())
