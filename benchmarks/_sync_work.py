@@ -5,12 +5,15 @@ on (the default settings), and how quickly ``/healthz`` answers another client w
 The request is the issue's case, built from Middlebury Art: a 3500x3500 8-bit depth map (disp1, nearest) upsampled
 x2 onto its 7000x7000 texture (view1, cubic; JPEG 90 so that the body stays under the upload limit), method wmf.
 A 4K request (1920x1080 depth x2 onto a 3840x2160 texture) shows that a valid request within the bound is still
-answered, with the same bytes from both servers, alone and three at once (within the memory budget: all run). Per server: the API process's CPU time (utime + stime) and peak
+answered, with the same bytes from both servers, alone and three at once (within the memory budget: all run); the
+49 MP request sent where the 413 says (a one-frame raw YUV sequence to the job route) shows that the way out works,
+on a Ray worker. Per server: the API process's CPU time (utime + stime) and peak
 resident memory (VmHWM, reset through /proc/PID/clear_refs before each case) over each case.
 """
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import statistics
 import tempfile
@@ -120,7 +123,40 @@ def measured(app: ServedApp, requests: list[dict], healthz: bool) -> dict[str, A
     return out
 
 
-def one_server(env: dict[str, str | None], big: dict, small: dict) -> dict[str, Any]:
+def yuv_job_files(width: int, height: int) -> dict[str, tuple[str, bytes, str]]:
+    """The same Art request as the job route takes it: one raw 8-bit 4:0:0 depth frame and one 4:2:0 texture frame."""
+    art = dataset("multiview", "art")
+    texture = cv2.resize(cv2.imread(str(art / "view1.png")), (width, height), interpolation=cv2.INTER_CUBIC)
+    disparity = cv2.imread(str(art / "disp1.png"), cv2.IMREAD_GRAYSCALE)
+    depth = cv2.resize(disparity, (width // 2, height // 2), interpolation=cv2.INTER_NEAREST)
+    return {"depth": ("depth.yuv", depth.tobytes(), "application/octet-stream"),
+            "texture": ("texture.yuv", cv2.cvtColor(texture, cv2.COLOR_BGR2YUV_I420).tobytes(),
+                        "application/octet-stream")}
+
+
+def as_job(app: ServedApp, files: dict, width: int, height: int) -> dict[str, Any]:
+    """The 49 MP request sent where the 413 says: a one-frame sequence to POST /v1/depth/videos, run by a Ray
+    worker; the job's outcome and what the API process spent meanwhile."""
+    pid = app.proc.pid
+    Path(f"/proc/{pid}/clear_refs").write_text("5")
+    rss_before, cpu_before, load_before = _proc_status(pid, "VmRSS"), _cpu_seconds(pid), os.getloadavg()[0]
+    params = {"width": width // 2, "height": height // 2, "method": "wmf", "scale": 2}
+    t0 = time.perf_counter()
+    with httpx.Client(base_url=app.base, timeout=600) as c:
+        r = c.post("/v1/depth/videos", files=files, data={"params": json.dumps(params)})
+        job = r.json()
+        while r.status_code == 202 and job["state"] not in ("succeeded", "failed", "cancelled"):
+            time.sleep(0.5)
+            job = c.get(f"/v1/jobs/{job['id']}").json()
+        size = (len(c.get(f"/v1/jobs/{job['id']}/results/filtered.yuv").content)
+                if job.get("state") == "succeeded" else None)
+    return {"status": r.status_code, "state": job.get("state"), "error": job.get("error"), "output_bytes": size,
+            "seconds": time.perf_counter() - t0, "api_cpu_seconds": _cpu_seconds(pid) - cpu_before,
+            "api_rss_before_mb": rss_before, "api_peak_rss_mb": _proc_status(pid, "VmHWM"),
+            "load_average": [load_before, os.getloadavg()[0]], "params": params}
+
+
+def one_server(env: dict[str, str | None], big: dict, small: dict, job: dict | None = None) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="sc-syncwork-") as data_dir, \
             serve_app({"SWEEPCAST_DATA_DIR": data_dir, "SWEEPCAST_DEMO_RIG": "false", **env},
                       log=Path(data_dir) / "api.log") as app:
@@ -131,6 +167,8 @@ def one_server(env: dict[str, str | None], big: dict, small: dict) -> dict[str, 
                   "three_4k": measured(app, [small] * CONCURRENT, healthz=True),
                   "one_49mp": measured(app, [big], healthz=False),
                   "three_49mp": measured(app, [big] * CONCURRENT, healthz=True)}
+        if job is not None:
+            result["as_job"] = as_job(app, job, 7000, 7000)
     return result
 
 
@@ -145,7 +183,8 @@ def sync_work() -> dict[str, Any]:
     return {"request": {"depth": "3500x3500 8-bit PNG", "texture": "7000x7000 JPEG 90", "params": WMF,
                         "depth_bytes": len(big["depth"][1]), "texture_bytes": len(big["texture"][1])},
             "estimates": {"within_bound_4k": estimate(small), "one_49mp": estimate(big)},
-            "unbounded": one_server(UNBOUNDED, big, small), "bounded": one_server(BOUNDED, big, small)}
+            "unbounded": one_server(UNBOUNDED, big, small),
+            "bounded": one_server(BOUNDED, big, small, yuv_job_files(7000, 7000))}
 
 
 def _status(m: dict) -> str:
@@ -170,6 +209,12 @@ def markdown(r: dict[str, Any]) -> str:
                          f"{h['p50']:.0f} / {h['p95']:.0f} / {h['max']:.0f} ({h['count']} ok, {h['failed']} failed)"
                          if h else "",
                          " -> ".join(f"{x:.2f}" for x in m["load_average"])])
+    j = r["bounded"]["as_job"]
+    rows.append(["bound on (default settings)", "one 49 MP wmf as a job (POST /v1/depth/videos, one raw YUV frame)",
+                 f"{j['status']}, job {j['state']}" + (f" ({j['output_bytes']:,} bytes out)" if j["output_bytes"] else
+                                                       f": {j['error']}"),
+                 round(j["seconds"], 2), round(j["api_cpu_seconds"], 1), round(j["api_rss_before_mb"]),
+                 round(j["api_peak_rss_mb"]), "", " -> ".join(f"{x:.2f}" for x in j["load_average"])])
     same = len({r[s]["within_bound_4k"]["answers"][0]["sha256"] for s in ("unbounded", "bounded")}) == 1
     refused = next((a["detail"] for a in r["bounded"]["one_49mp"]["answers"] if a["detail"]), "")
     req = r["request"]
