@@ -65,9 +65,10 @@ class Settings(WorkerSettings):
     sync_max_memory_mb: float = Field(1024.0, gt=0, description="Most memory one synchronous depth request may hold "
                                       "(megabytes, estimated before decoding); over it: 413.")
     sync_memory_budget_mb: float = Field(2048.0, gt=0, description="Estimated memory of all synchronous depth "
-                                         "requests running at once in one API process (megabytes); others wait.")
-    sync_wait_seconds: float = Field(10.0, ge=0, description="How long a synchronous depth request waits for room "
-                                     "in sync_memory_budget_mb before it is answered 503 with Retry-After.")
+                                         "requests and face transforms running at once in one API process "
+                                         "(megabytes); others wait.")
+    sync_wait_seconds: float = Field(10.0, ge=0, description="How long such a request waits for room in "
+                                     "sync_memory_budget_mb before it is answered 503 with Retry-After.")
 
     job_max_attempts: int = Field(3, ge=1, le=10, description="Attempts per job when a worker is lost.")
     job_lease_seconds: float = Field(30.0, gt=0, description="A running job whose lease is this old is resubmitted.")

@@ -10,6 +10,10 @@ from the image headers and its parameters (:mod:`workers.depth.cost`: CPU second
 - admits the others while the estimated memory of the requests in flight stays within ``sync_memory_budget_mb``;
   a request that finds no room within ``sync_wait_seconds`` gets 503 with ``Retry-After``.
 
+``POST /v1/face-models/{id}/transform`` shares the budget (admission only: its upload limit keeps one request
+under ~800 MB, :func:`workers.faces.mesh.parse_estimate`): parsing a large mesh holds ~12 bytes per uploaded byte
+before the mesh is found to be of another topology.
+
 So the API process holds at most the budget for this work beside its own memory, and one request holds the
 compute threads for at most about the CPU limit.
 """
@@ -24,9 +28,12 @@ from typing import AsyncIterator, Awaitable, Callable, TypeVar
 
 from app.errors import ApiError
 from app.settings import MiB, Settings
-from workers.depth.cost import WorkEstimate
+from workers.common.work import WorkEstimate
 
 R = TypeVar("R")
+BUSY_RESPONSE = {"description": "other large requests hold the service's SWEEPCAST_SYNC_MEMORY_BUDGET_MB for "
+                                "longer than SWEEPCAST_SYNC_WAIT_SECONDS: retry after `Retry-After` seconds"}
+"""The 503 of the routes whose work goes through :meth:`SyncWorkGate.run` (their OpenAPI ``responses``)."""
 
 
 @dataclass(frozen=True)

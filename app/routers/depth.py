@@ -16,13 +16,14 @@ from app.errors import ApiError
 from app.limits import BATCH_BODY
 from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, parse_params, run_compute, services
+from app.sync_work import BUSY_RESPONSE
 from app.uploads import check_size, read_upload
 from workers.common.images import ImageInputError, decode_image
+from workers.common.work import WorkEstimate
 from workers.depth.errors import DepthInputError
 from workers.depth.io import YuvFormat, yuv_sequence_frames
 from workers.depth.job import VIDEO_JOB, check_video_input
 from workers.depth.params import DepthFilterParams, DepthVideoParams, SynthesizeParams
-from workers.depth.cost import WorkEstimate
 from workers.depth.encoded import filter_depth_bytes, filter_work, synthesis_work, synthesize_bytes
 from workers.depth.upsample import target_size
 from workers.depth.video import probe_depth_video
@@ -31,8 +32,6 @@ NOT_AN_IMAGE = "an upload is not an image in a format this route reads"
 TOO_MUCH_WORK = ("the request body, or one upload in it, is over the service's limit, an image is over the pixel "
                  "limit, or the request's estimated CPU time or memory is over SWEEPCAST_SYNC_MAX_CPU_SECONDS / "
                  "SWEEPCAST_SYNC_MAX_MEMORY_MB (error too_much_work: the detail says what to do instead)")
-BUSY = {"description": "other large requests hold the service's SWEEPCAST_SYNC_MEMORY_BUDGET_MB for longer than "
-                       "SWEEPCAST_SYNC_WAIT_SECONDS: retry after `Retry-After` seconds"}
 FILTER_INSTEAD = ("send it as a job instead: POST /v1/depth/videos with the depth as a one-frame raw YUV sequence "
                   "(params width and height, the same method and sizes; a texture as one 8-bit 4:2:0 frame), or ask "
                   "for a cheaper method or a smaller output")
@@ -52,7 +51,7 @@ class SynthesisOut(BaseModel):
 @router.post("/filter", response_class=Response,
              summary="Upsample and post-filter one depth map (PNG/PGM, 8 or 16 bit) -> filtered depth PNG",
              responses={200: {"content": {"image/png": {}}}, 413: {"description": TOO_MUCH_WORK},
-                        415: {"description": NOT_AN_IMAGE}, 503: BUSY})
+                        415: {"description": NOT_AN_IMAGE}, 503: BUSY_RESPONSE})
 async def filter_depth(
     depth: UploadFile = File(..., description="decoded depth map: PNG or PGM, 8 or 16 bit inverse-depth levels"),
     texture: UploadFile | None = File(None, description="texture at the output size (guided methods: wmf)"),
@@ -69,7 +68,8 @@ async def filter_depth(
 
 
 @router.post("/synthesize", response_model=SynthesisOut,
-             responses={413: {"description": TOO_MUCH_WORK}, 415: {"description": NOT_AN_IMAGE}, 503: BUSY},
+             responses={413: {"description": TOO_MUCH_WORK}, 415: {"description": NOT_AN_IMAGE},
+                        503: BUSY_RESPONSE},
              summary="Synthesise a virtual view from texture + depth of one or two views (DIBR)")
 async def synthesize(
     textures: list[UploadFile] = File(..., description="one texture per source view, in camera order"),

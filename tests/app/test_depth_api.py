@@ -238,7 +238,7 @@ def test_sync_work_over_the_memory_limit_is_413(client_factory):
 
 
 def test_sync_work_waits_for_room_then_is_503_with_retry_after(client_factory):
-    from workers.depth.cost import WorkEstimate
+    from workers.common.work import WorkEstimate
 
     client = client_factory(sync_memory_budget_mb=4.0, sync_wait_seconds=0.2)
     gate = client.app.state.services.sync_work

@@ -7,7 +7,7 @@ import pytest
 
 from app.errors import ApiError
 from app.sync_work import SyncWorkGate, SyncWorkLimits
-from workers.depth.cost import WorkEstimate
+from workers.common.work import WorkEstimate
 
 MB = 2**20
 

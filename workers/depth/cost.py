@@ -19,23 +19,12 @@ about twice, measured on random levels); the limits leave that margin.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+
+from workers.common.work import WorkEstimate
 
 from .methods import FilterOptions
 
 MP = 1_000_000
-
-
-@dataclass(frozen=True)
-class WorkEstimate:
-    """cpu_seconds: CPU time of the whole request on the reference machine (s, all threads together);
-    peak_bytes: the most memory it holds at once beyond its uploaded bytes."""
-
-    cpu_seconds: float
-    peak_bytes: int
-
-    def __add__(self, other: "WorkEstimate") -> "WorkEstimate":
-        return WorkEstimate(self.cpu_seconds + other.cpu_seconds, self.peak_bytes + other.peak_bytes)
 
 
 # Seconds per output megapixel (the reference machine) and bytes per output pixel, by method.

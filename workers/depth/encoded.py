@@ -10,9 +10,10 @@ import numpy as np
 
 from workers.camera import CameraError
 from workers.common import images
+from workers.common.work import WorkEstimate
 
 from . import dibr, io
-from .cost import WorkEstimate, filter_estimate, synthesis_estimate
+from .cost import filter_estimate, synthesis_estimate
 from .errors import DepthInputError
 from .levels import levels_to_depth, levels_to_disparity
 from .methods import postprocess
