@@ -24,6 +24,7 @@ from app.kernelcache import KernelWarmup
 from app.live_relay import LiveRelay
 from app.quotas import QuotaLimits, Quotas
 from app.settings import Settings
+from app.sync_work import SyncWorkGate, SyncWorkLimits
 from workers.common.validation import describe_errors
 from workers.registry import JobKind
 from workers.runtime import inputs_prefix, results_prefix
@@ -47,6 +48,8 @@ class Services:
     keys: KeyStore
     auth: Authenticator
     quotas: Quotas
+    sync_work: SyncWorkGate
+    """Bounds the synchronous depth routes' work and how much of it runs at once (:mod:`app.sync_work`)."""
     ray_owned: bool = False
     ray_error: str | None = None
     warmup: KernelWarmup = field(default_factory=KernelWarmup)
@@ -68,6 +71,7 @@ def build_services(settings: Settings) -> Services:
                                 settings.quota_uploads_per_minute), jobs)
     return Services(settings, jobs, store, hub, Dispatcher(settings, jobs, hub, store.url), compute,
                     keys, Authenticator(settings.api_keys, keys), quotas,
+                    SyncWorkGate(SyncWorkLimits.from_settings(settings)),
                     atlases=AtlasCache(int(settings.viewer_frame_cache_mb * 2**20)))
 
 

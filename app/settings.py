@@ -59,6 +59,16 @@ class Settings(WorkerSettings):
     max_json_bytes: int = Field(1 * MiB, ge=1, description="Largest request body of routes that take JSON (or no body).")
     max_batch_files: int = Field(500, ge=1, description="Most files in one batch upload.")
     request_threads: int | None = Field(None, ge=1, description="Threads for per-request image work in the API process (default: one per core).")
+    sync_max_cpu_seconds: float = Field(10.0, gt=0, description="Most CPU-seconds one synchronous depth request "
+                                        "(filter, synthesize) may take in the API process, estimated from its sizes "
+                                        "and parameters before decoding; over it: 413 (send it as a job).")
+    sync_max_memory_mb: float = Field(1024.0, gt=0, description="Most memory one synchronous depth request may hold "
+                                      "(megabytes, estimated before decoding); over it: 413.")
+    sync_memory_budget_mb: float = Field(2048.0, gt=0, description="Estimated memory of all synchronous depth "
+                                         "requests and face transforms running at once in one API process "
+                                         "(megabytes); others wait.")
+    sync_wait_seconds: float = Field(10.0, ge=0, description="How long such a request waits for room in "
+                                     "sync_memory_budget_mb before it is answered 503 with Retry-After.")
 
     job_max_attempts: int = Field(3, ge=1, le=10, description="Attempts per job when a worker is lost.")
     job_lease_seconds: float = Field(30.0, gt=0, description="A running job whose lease is this old is resubmitted.")

@@ -2,6 +2,7 @@
 
     python -m benchmarks.robustness [--quick]
     python -m benchmarks.robustness --tenants [--quick]    (only the section robustness_tenants)
+    python -m benchmarks.robustness --sync-work            (only the section robustness_sync_work)
 
 Sections (each against servers this script starts on loopback and stops, whatever happens):
 - kernel stress: the compiled depth searches on random rigs with misaligned arrays at 1, 2 and 4 threads
@@ -16,6 +17,9 @@ The API's peak RSS (VmHWM of its process) is read after each section.
 With ``--tenants``, only the owners-and-keys section (its own RESULTS section, robustness_tenants, from
 :mod:`benchmarks._tenants`): cross-key probes over every resource operation and socket, quota probes, and the cost
 of the owner filter and of the key lookup.
+With ``--sync-work``, only the synchronous routes' bound (its own section, robustness_sync_work, from
+:mod:`benchmarks._sync_work`): a 49 MP wmf depth request's cost to the API process with the bound off and on, and
+``/healthz`` latency while three run.
 """
 from __future__ import annotations
 
@@ -494,8 +498,16 @@ def main() -> int:
     ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer repetitions, cases, clients and cycles")
     ap.add_argument("--tenants", action="store_true", help="only the owners, keys and quotas section")
+    ap.add_argument("--sync-work", action="store_true", help="only the synchronous routes' bound (49 MP depth)")
     args = ap.parse_args()
     q = args.quick
+    if args.sync_work:
+        from benchmarks import _sync_work
+
+        found = _sync_work.sync_work()
+        publish("robustness_sync_work", found, _sync_work.markdown(found))
+        refused = {a["status"] for a in found["bounded"]["one_49mp"]["answers"]} == {413}
+        return 0 if refused and found["bounded"]["within_bound_4k"]["answers"][0]["status"] == 200 else 1
     if args.tenants:
         from benchmarks import _tenants
 

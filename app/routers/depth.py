@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import base64
+from typing import Callable, TypeVar
 
 import cv2
 
@@ -15,19 +16,29 @@ from app.errors import ApiError
 from app.limits import BATCH_BODY
 from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, parse_params, run_compute, services
+from app.sync_work import BUSY_RESPONSE
 from app.uploads import check_size, read_upload
 from workers.common.images import ImageInputError, decode_image
+from workers.common.work import WorkEstimate
 from workers.depth.errors import DepthInputError
 from workers.depth.io import YuvFormat, yuv_sequence_frames
 from workers.depth.job import VIDEO_JOB, check_video_input
 from workers.depth.params import DepthFilterParams, DepthVideoParams, SynthesizeParams
-from workers.depth.encoded import filter_depth_bytes, synthesize_bytes
+from workers.depth.encoded import filter_depth_bytes, filter_work, synthesis_work, synthesize_bytes
 from workers.depth.upsample import target_size
 from workers.depth.video import probe_depth_video
 
 NOT_AN_IMAGE = "an upload is not an image in a format this route reads"
+TOO_MUCH_WORK = ("the request body, or one upload in it, is over the service's limit, an image is over the pixel "
+                 "limit, or the request's estimated CPU time or memory is over SWEEPCAST_SYNC_MAX_CPU_SECONDS / "
+                 "SWEEPCAST_SYNC_MAX_MEMORY_MB (error too_much_work: the detail says what to do instead)")
+FILTER_INSTEAD = ("send it as a job instead: POST /v1/depth/videos with the depth as a one-frame raw YUV sequence "
+                  "(params width and height, the same method and sizes; a texture as one 8-bit 4:2:0 frame), or ask "
+                  "for a cheaper method or a smaller output")
+SYNTHESIS_INSTEAD = "synthesise a smaller view (downscale the views, or give the target camera a smaller size)"
 router = APIRouter(prefix="/v1/depth", tags=["depth"], dependencies=[Depends(require_key)])
 
+R = TypeVar("R")
 PARAMS_HELP = "JSON object of {model} (see the schema of that name); default {{}}"
 
 
@@ -39,7 +50,8 @@ class SynthesisOut(BaseModel):
 
 @router.post("/filter", response_class=Response,
              summary="Upsample and post-filter one depth map (PNG/PGM, 8 or 16 bit) -> filtered depth PNG",
-             responses={200: {"content": {"image/png": {}}}, 415: {"description": NOT_AN_IMAGE}})
+             responses={200: {"content": {"image/png": {}}}, 413: {"description": TOO_MUCH_WORK},
+                        415: {"description": NOT_AN_IMAGE}, 503: BUSY_RESPONSE})
 async def filter_depth(
     depth: UploadFile = File(..., description="decoded depth map: PNG or PGM, 8 or 16 bit inverse-depth levels"),
     texture: UploadFile | None = File(None, description="texture at the output size (guided methods: wmf)"),
@@ -50,11 +62,14 @@ async def filter_depth(
     depth_bytes = await read_upload(depth, svc.settings.max_upload_bytes)
     texture_bytes = await read_upload(texture, svc.settings.max_upload_bytes) if texture is not None else None
     limit = svc.settings.max_image_pixels
-    out = await run_compute(svc, lambda: filter_depth_bytes(depth_bytes, p, texture_bytes, limit))
+    out = await _bounded(svc, filter_work(depth_bytes, p, texture_bytes, limit), FILTER_INSTEAD,
+                         lambda: filter_depth_bytes(depth_bytes, p, texture_bytes, limit))
     return Response(out, media_type="image/png", headers={"X-Depth-Method": p.method_for(texture is not None)})
 
 
-@router.post("/synthesize", response_model=SynthesisOut, responses={415: {"description": NOT_AN_IMAGE}},
+@router.post("/synthesize", response_model=SynthesisOut,
+             responses={413: {"description": TOO_MUCH_WORK}, 415: {"description": NOT_AN_IMAGE},
+                        503: BUSY_RESPONSE},
              summary="Synthesise a virtual view from texture + depth of one or two views (DIBR)")
 async def synthesize(
     textures: list[UploadFile] = File(..., description="one texture per source view, in camera order"),
@@ -69,9 +84,19 @@ async def synthesize(
     views = [(await read_upload(t, svc.settings.max_upload_bytes), await read_upload(d, svc.settings.max_upload_bytes))
              for t, d in zip(textures, depths)]
     limit = svc.settings.max_image_pixels
-    image, holes, fraction = await run_compute(svc, lambda: _synthesize(views, p, limit))
+    image, holes, fraction = await _bounded(svc, synthesis_work(views, p, limit), SYNTHESIS_INSTEAD,
+                                            lambda: _synthesize(views, p, limit))
     return SynthesisOut(image_png=base64.b64encode(image).decode(), holes_png=base64.b64encode(holes).decode(),
                         holes_fraction=fraction)
+
+
+async def _bounded(svc: Services, work: tuple[WorkEstimate, str] | None, instead: str, compute: Callable[[], R]) -> R:
+    """``compute()`` on the compute threads through the gate of synchronous work (:mod:`app.sync_work`): 413 when
+    ``work``'s estimate is over one request's limits, else run within the memory budget. ``work`` None (the engine
+    refuses the inputs at its first checks): admitted free."""
+    estimate, what = work or (WorkEstimate(0.0, 0), "")
+    svc.sync_work.check(estimate, what, instead)
+    return await svc.sync_work.run(estimate, lambda: run_compute(svc, compute))
 
 
 def _synthesize(views: list[tuple[bytes, bytes]], p: SynthesizeParams, limit: int) -> tuple[bytes, bytes, float]:

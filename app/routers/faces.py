@@ -19,9 +19,11 @@ from app.limits import BATCH_BODY
 from app.jobstore import JobState, as_utc
 from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, parse_params, run_compute, services
+from app.sync_work import BUSY_RESPONSE
 from app.uploads import read_upload
 from workers.common.safezip import SafeZip, ZipInputError, ZipLimits
 from workers.faces.errors import FaceInputError
+from workers.faces.mesh import parse_estimate
 from workers.faces.model import FaceModel
 from workers.faces.job import (MODEL_RESULT, TRAIN_JOB, FaceTrainParams, FaceTransformParams, ensure_default_model,
                                load_model, transform_mesh_bytes)
@@ -121,7 +123,8 @@ async def list_models(svc: Services = Depends(services), who: Principal = Depend
 
 @router.post("/{model_id}/transform", response_model=TransformOut,
              responses={409: {"description": "the model's training job has not succeeded"},
-                        410: {"description": "the model's files are no longer stored"}},
+                        410: {"description": "the model's files are no longer stored"},
+                        503: BUSY_RESPONSE},
              summary="Strengthen an impression of a face mesh (OBJ/PLY): the mesh back in its format and a preview")
 async def transform(
     model_id: str,
@@ -137,9 +140,11 @@ async def transform(
     mesh_bytes = await read_upload(mesh, svc.settings.max_upload_bytes)
     neutral_bytes = await read_upload(neutral, svc.settings.max_upload_bytes) if neutral is not None else None
     neutral_name = neutral.filename if neutral is not None else None
-    # on the bounded compute pool: parsing, transfer and the preview are CPU work; a FaceInputError is a 422
-    out = await run_compute(svc, lambda: transform_mesh_bytes(
+    # on the bounded compute pool, within the memory budget of synchronous work (parsing a large upload takes ~12
+    # bytes per byte before its topology is checked): parsing, transfer and the preview; a FaceInputError is a 422
+    cost = parse_estimate(len(mesh_bytes) + len(neutral_bytes or b""))
+    out = await svc.sync_work.run(cost, lambda: run_compute(svc, lambda: transform_mesh_bytes(
         model, mesh_bytes, mesh.filename or "mesh", **p.model_dump(),
-        neutral_bytes=neutral_bytes, neutral_filename=neutral_name))
+        neutral_bytes=neutral_bytes, neutral_filename=neutral_name)))
     return TransformOut(mesh_base64=base64.b64encode(out.mesh).decode(), format=out.info["format"],
                         preview_png_base64=base64.b64encode(out.preview_png).decode(), info=out.info)

@@ -183,3 +183,71 @@ def test_yuv_without_its_size_is_422(client):
     r = client.post("/v1/depth/videos", files={"depth": ("seq.yuv", b"\x00" * 64, "application/octet-stream")},
                     data={"params": json.dumps({})})
     assert r.status_code == 422 and "width and height" in r.json()["detail"]
+
+
+def wmf_request(size: int) -> dict:
+    """A wmf request: a size/2 depth map upsampled x2 onto a size x size texture."""
+    rng = np.random.default_rng(1)
+    texture = cv2.resize(rng.integers(0, 256, (8, 8, 3), np.uint8), (size, size), interpolation=cv2.INTER_NEAREST)
+    return {"files": {"depth": ("d.png", png(square_depth(size // 2)), "image/png"),
+                      "texture": ("t.png", png(texture), "image/png")},
+            "data": {"params": json.dumps({"method": "wmf", "scale": 2})}}
+
+
+def test_filter_answers_exactly_what_the_engine_computes(client):
+    from workers.depth.encoded import filter_depth_bytes
+    from workers.depth.params import DepthFilterParams
+
+    req = wmf_request(64)
+    r = client.post("/v1/depth/filter", **req)
+    assert r.status_code == 200, r.text
+    expected = filter_depth_bytes(req["files"]["depth"][1], DepthFilterParams(method="wmf", scale=2),
+                                  req["files"]["texture"][1])
+    assert r.content == expected
+
+
+def test_sync_work_over_the_cpu_limit_is_413_naming_the_job_route(client_factory):
+    # wmf on 256x256 is estimated at ~0.04 CPU-s, dilation at ~0.001 s
+    client = client_factory(sync_max_cpu_seconds=0.01)
+    r = client.post("/v1/depth/filter", **wmf_request(256))
+    assert r.status_code == 413 and r.json()["error"] == "too_much_work"
+    detail = r.json()["detail"]
+    assert "wmf on a 256x256 output" in detail and "CPU-seconds" in detail and "/v1/depth/videos" in detail
+    cheap = wmf_request(256)
+    cheap["data"] = {"params": json.dumps({"method": "dilation", "scale": 2})}
+    del cheap["files"]["texture"]
+    assert client.post("/v1/depth/filter", **cheap).status_code == 200
+
+
+def test_sync_work_over_the_memory_limit_is_413(client_factory):
+    client = client_factory(sync_max_memory_mb=1.0)  # wmf holds ~28 bytes per output pixel: 1.8 MB at 256x256
+    r = client.post("/v1/depth/filter", **wmf_request(256))
+    assert r.status_code == 413 and r.json()["error"] == "too_much_work" and "memory" in r.json()["detail"]
+    assert client.post("/v1/depth/filter", **wmf_request(128)).status_code == 200  # 0.46 MB
+    scene = Scene()
+    (tex0, disp0), (tex2, disp2) = scene.render(0), scene.render(2)
+    files = [("textures", ("t0.png", png(tex0), "image/png")), ("textures", ("t2.png", png(tex2), "image/png")),
+             ("depths", ("d0.png", png(disp0.astype(np.uint8)), "image/png")),
+             ("depths", ("d2.png", png(disp2.astype(np.uint8)), "image/png"))]
+    params = {"depth_units": "disparity", "positions": [0, 2], "target_position": 1,
+              "geometry": "rectified"}
+    small = client_factory(sync_max_memory_mb=0.01)
+    r = small.post("/v1/depth/synthesize", files=files, data={"params": json.dumps(params)})
+    assert r.status_code == 413 and r.json()["error"] == "too_much_work"
+    assert "synthesis of a" in r.json()["detail"] and "smaller view" in r.json()["detail"]
+
+
+def test_sync_work_waits_for_room_then_is_503_with_retry_after(client_factory):
+    from workers.common.work import WorkEstimate
+
+    client = client_factory(sync_memory_budget_mb=4.0, sync_wait_seconds=0.2)
+    gate = client.app.state.services.sync_work
+    held = gate.admit(WorkEstimate(8.0, 4 * 2**20))  # another request holding the whole budget for ~8 CPU-s
+    client.portal.call(held.__aenter__)
+    try:
+        r = client.post("/v1/depth/filter", **wmf_request(64))
+        assert r.status_code == 503 and r.json()["error"] == "busy"
+        assert int(r.headers["Retry-After"]) >= 1
+    finally:
+        client.portal.call(held.__aexit__, None, None, None)
+    assert client.post("/v1/depth/filter", **wmf_request(64)).status_code == 200

@@ -128,3 +128,19 @@ def test_a_dataset_that_is_no_zip_is_refused_before_a_job_is_made(client, data):
     assert r.status_code == 422 and r.json()["error"] == "invalid_dataset", r.text
     assert "faces.zip" in r.json()["detail"]
     assert client.get("/v1/jobs", params={"kind": "faces.train"}).json()["jobs"] == before
+
+
+def test_transforms_wait_for_room_in_the_budget_of_synchronous_work(client_factory, faces):
+    from workers.common.work import WorkEstimate
+
+    client = client_factory(sync_memory_budget_mb=1.0, sync_wait_seconds=0.2)
+    request = {"files": {"mesh": ("face.obj", mesh_bytes(faces, row_of(faces, "smile_open")), "text/plain")},
+               "data": {"params": json.dumps({"impression": "smile_open", "q": 1.0})}}
+    held = client.app.state.services.sync_work.admit(WorkEstimate(3.0, 2**20))  # another request: the whole budget
+    client.portal.call(held.__aenter__)
+    try:
+        r = client.post("/v1/face-models/default/transform", **request)
+        assert r.status_code == 503 and r.json()["error"] == "busy" and int(r.headers["Retry-After"]) >= 1
+    finally:
+        client.portal.call(held.__aexit__, None, None, None)
+    assert client.post("/v1/face-models/default/transform", **request).status_code == 200

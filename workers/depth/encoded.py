@@ -10,8 +10,10 @@ import numpy as np
 
 from workers.camera import CameraError
 from workers.common import images
+from workers.common.work import WorkEstimate
 
 from . import dibr, io
+from .cost import filter_estimate, synthesis_estimate
 from .errors import DepthInputError
 from .levels import levels_to_depth, levels_to_disparity
 from .methods import postprocess
@@ -40,6 +42,53 @@ def filter_depth_bytes(
     guide = io.decode_texture(texture, limit) if texture is not None else None
     out = postprocess(levels, p.method_for(guide is not None), size=size, upsampler=p.upsampler, guide=guide, options=p.options(bits))
     return io.encode_depth(out, "png")
+
+
+def filter_work(
+    depth: bytes, params: DepthFilterParams, texture: bytes | None = None, max_pixels: int | None = None,
+) -> tuple[WorkEstimate, str] | None:
+    """What :func:`filter_depth_bytes` would cost on these inputs, read from the image headers alone (no pixel
+    decoded): (estimate, "<method> on a WxH output"). None when the engine refuses the inputs at its own first
+    checks (an unreadable header, an image or output over ``max_pixels``, a bad size), which cost no more than
+    one checked decode."""
+    limit = max_pixels if max_pixels is not None else images.max_pixels_from_env()
+    try:
+        d = images.read_image_size(depth)
+        images.check_pixels(d.width, d.height, limit)
+        out = params.out_size()
+        if params.scale is not None or out is not None:
+            out = target_size((d.height, d.width), params.scale, out, limit)
+        if texture is not None:
+            t = images.read_image_size(texture)
+            images.check_pixels(t.width, t.height, limit)
+            out = out or (t.width, t.height)
+    except (images.ImageInputError, DepthInputError):
+        return None
+    w, h = out or (d.width, d.height)
+    method = params.method_for(texture is not None)
+    return filter_estimate(w * h, method, params.options(8)), f"{method} on a {w}x{h} output"
+
+
+def synthesis_work(
+    views: Sequence[tuple[bytes, bytes]], params: SynthesizeParams, max_pixels: int | None = None,
+) -> tuple[WorkEstimate, str] | None:
+    """What :func:`synthesize_bytes` would cost on these views, read from the texture headers alone: (estimate,
+    "synthesis of a WxH view from N view(s)"). None when the engine refuses the inputs at its own first checks."""
+    limit = max_pixels if max_pixels is not None else images.max_pixels_from_env()
+    try:
+        _check_target_size(params, limit)
+        sizes = [images.read_image_size(texture) for texture, _ in views]
+        for size in sizes:
+            images.check_pixels(size.width, size.height, limit)
+    except (images.ImageInputError, DepthInputError):
+        return None
+    if not sizes or len(views) != params.view_count:
+        return None
+    cam = params.target_camera  # general geometry: a side it does not give is the first view's
+    w = (cam.width if cam is not None else None) or sizes[0].width
+    h = (cam.height if cam is not None else None) or sizes[0].height
+    estimate = synthesis_estimate([s.pixels for s in sizes], w * h, params.geometry)
+    return estimate, f"synthesis of a {w}x{h} view from {len(views)} view(s)"
 
 
 def synthesize_bytes(
