@@ -18,6 +18,7 @@ from app.kernelcache import KernelWarmup
 from app.limits import BodyLimitMiddleware, BodyPace, RouteBodyLimits
 from app.logredact import install_log_redaction
 from app.openapi_doc import install_contract
+from app.ray_watch import watch_ray
 from app.services import Services, build_services
 from app.settings import Settings
 from workers.common.models import MODELS, ModelError, install, installed
@@ -143,6 +144,8 @@ async def _start_ray(svc: Services) -> None:
     svc.ray_error = None
     svc.dispatcher.ray_ready.set()
     await svc.dispatcher.start()
+    if svc.settings.ray_address:  # a cluster of its own: its head can be lost and come back
+        await watch_ray(svc)
 
 
 async def fetch_missing_models(settings: Settings) -> None:
