@@ -34,6 +34,10 @@ previous set stays on show; a set the session failed on gets ``frame_set_failed`
 ``session_restarting`` when its process was lost meanwhile; the set is not sent again). A text
 message other than ``{"type": "ping"}`` (at most ``MAX_TEXT_CHARS`` characters) closes it with 1003.
 
+A socket whose peer stops reading (a send waits ``viewer_stall_seconds``) is closed with 1008 and a reason,
+logged once, and cut off when it still reads nothing (:class:`Channel`); the session renders nothing for it
+meanwhile, and the viewers of a session take turns at its renderer (:mod:`workers.streaming.turns`).
+
 Unknown rigs or recordings, and wrong API keys, close with 1008 and a reason. Either socket keeps
 its session alive while open; when the last one goes, the session ends after the idle timeout.
 """
@@ -56,6 +60,7 @@ from app.auth import socket_principal
 from app.errors import ApiError
 from app.keys import Principal
 from app.live_relay import LiveSet
+from app.socket_abort import abort
 from app.stored_rigs import Source, resolve_source, session_config
 from app.services import Services
 from workers.common.validation import describe_errors
@@ -71,6 +76,8 @@ ws_router = APIRouter(prefix="/v1/rigs", tags=["rigs"])
 UNSUPPORTED_DATA = 1003
 POLICY_VIOLATION = 1008
 INTERNAL_ERROR = 1011
+CLOSE_GRACE_S = 2.0
+"""How long a stalled socket's close frame may wait for room before the connection is cut off."""
 MAX_TEXT_CHARS = 8192
 """Longest text message parsed: a viewpoint or a ping is a few hundred characters. The cap also
 bounds the work of a hostile message before json.loads sees it."""
@@ -102,12 +109,21 @@ def parse_text(text: str) -> Any:
 class Channel:
     """One socket's sends, serialised (frames and errors come from different tasks). A send to a peer that has
     gone (it closed before the hello, or mid-stream) marks the channel closed instead of raising: the reader
-    sees the disconnect and ends the socket quietly, with no traceback in the log."""
+    sees the disconnect and ends the socket quietly, with no traceback in the log.
 
-    def __init__(self, websocket: WebSocket) -> None:
+    A peer that stops reading fills the connection's buffers, and then a send waits. One that waits
+    ``stall_seconds`` (the peer took nothing meanwhile) ends the socket: one log line, a close with 1008 and
+    the reason (sent if the peer makes room for it within :data:`CLOSE_GRACE_S`), else the connection is cut
+    off (:mod:`app.socket_abort`). Nothing more is queued for it meanwhile: its worker waits on this send (a
+    server-rendering viewer gets no new render; a live relay keeps only the newest set)."""
+
+    def __init__(self, websocket: WebSocket, stall_seconds: float | None = None, label: str = "socket") -> None:
         self.ws = websocket
+        self.stall_seconds = stall_seconds
+        self.label = label
         self._lock = asyncio.Lock()
         self.closed = False
+        self.stalled = False
 
     async def json(self, message: dict[str, Any]) -> None:
         await self._send(lambda: self.ws.send_text(json.dumps(message)))
@@ -127,9 +143,22 @@ class Channel:
                 return
             self.closed = closing
             try:
-                await send()
+                await asyncio.wait_for(send(), self.stall_seconds)
             except WebSocketDisconnect:
                 self.closed = True
+            except asyncio.TimeoutError:  # nothing was written: the server writes a message whole once there is room
+                self.closed = True
+                await self._cut_off()
+
+    async def _cut_off(self) -> None:
+        self.stalled = True
+        client = self.ws.client
+        reason = f"stopped reading: nothing taken for {self.stall_seconds:g} s"
+        log.warning("%s from %s %s; closing it", self.label, f"{client.host}:{client.port}" if client else "?", reason)
+        try:
+            await asyncio.wait_for(self.ws.close(code=POLICY_VIOLATION, reason=reason), CLOSE_GRACE_S)
+        except (asyncio.TimeoutError, WebSocketDisconnect, RuntimeError):
+            abort(self.ws.scope)
 
 
 class Latest:
@@ -153,17 +182,17 @@ class Latest:
         return item
 
 
-async def _open(websocket: WebSocket, rig_id: str, source: str | None,
+async def _open(websocket: WebSocket, rig_id: str, source: str | None, label: str,
                 change: bool = False) -> tuple[Channel, Source, Principal] | None:
     """Check the key, accept, resolve the rig and source the key may see (``change``: may change); None (socket
-    closed) when refused."""
+    closed) when refused. ``label`` names the socket in the log."""
     who = await socket_principal(websocket)
     if who is None:
         await websocket.close(code=POLICY_VIOLATION, reason="missing or wrong API key")
         return None
     await websocket.accept()
-    channel = Channel(websocket)
     svc: Services = websocket.app.state.services
+    channel = Channel(websocket, svc.settings.viewer_stall_seconds, label)
     try:
         target = await resolve_source(svc, rig_id, source, who, change)
     except ApiError as exc:
@@ -223,7 +252,7 @@ async def view_socket(websocket: WebSocket, rig_id: str, source: str | None = No
                       render: Literal["server", "browser"] = "server") -> None:
     """Viewpoints in (JSON text), JPEG frames out (binary: header + JPEG); with ``render=browser``, what the
     browser needs to render itself. See the module docstring."""
-    opened = await _open(websocket, rig_id, source)
+    opened = await _open(websocket, rig_id, source, "viewer socket" if render == "server" else "browser viewer socket")
     if opened is None:
         return
     channel, target, who = opened
@@ -288,6 +317,8 @@ async def _viewer(websocket: WebSocket, channel: Channel, target: Source, svc: S
             header = {**header, "skipped": mailbox.replaced,
                       "round_trip_ms": round((time.perf_counter() - t0) * 1e3, 2)}
             await channel.binary(pack_message(header, [jpeg]))
+            if channel.closed:  # it stalled (or left): render nothing more for it
+                return
 
     await _serve(websocket, channel, client, viewer, read, send_views)
 
@@ -342,6 +373,8 @@ async def _browser_live(websocket: WebSocket, channel: Channel, target: Source, 
             header = {"type": "frame_set", "seq": item.seq, "sizes": [len(j) for j in item.jpegs],
                       "background": item.background, "resync": resync, "dropped": sub.dropped}
             await channel.binary(pack_message(header, item.jpegs))
+            if channel.closed:
+                return
 
     try:
         await _serve(websocket, channel, client, viewer, read, send)
@@ -389,7 +422,7 @@ async def _viewpoint(channel: Channel, text: str) -> Viewpoint | None:
 @ws_router.websocket("/{rig_id}/live")
 async def live_socket(websocket: WebSocket, rig_id: str) -> None:
     """Synchronised frame sets in (binary: header + one JPEG per camera), acks out; see the module docstring."""
-    opened = await _open(websocket, rig_id, LIVE, change=True)
+    opened = await _open(websocket, rig_id, LIVE, "live socket", change=True)
     if opened is None:
         return
     channel, target, _ = opened
