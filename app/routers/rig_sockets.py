@@ -34,9 +34,9 @@ previous set stays on show; a set the session failed on gets ``frame_set_failed`
 ``session_restarting`` when its process was lost meanwhile; the set is not sent again). A text
 message other than ``{"type": "ping"}`` (at most ``MAX_TEXT_CHARS`` characters) closes it with 1003.
 
-A socket whose peer stops reading (a send waits ``viewer_stall_seconds``) is closed with 1008 and a reason,
-logged once, and cut off when it still reads nothing (:class:`Channel`); the session renders nothing for it
-meanwhile, and the viewers of a session take turns at its renderer (:mod:`workers.streaming.turns`).
+A socket whose peer stops reading gets no new frame once the connection holds more than a few it has not taken,
+and after ``viewer_stall_seconds`` without progress it is closed with 1008 and a reason, logged once, and cut off
+when it still reads nothing (:class:`Channel`); and the viewers of a session take turns at its renderer (:mod:`workers.streaming.turns`).
 
 Unknown rigs or recordings, and wrong API keys, close with 1008 and a reason. Either socket keeps
 its session alive while open; when the last one goes, the session ends after the idle timeout.
@@ -60,7 +60,7 @@ from app.auth import socket_principal
 from app.errors import ApiError
 from app.keys import Principal
 from app.live_relay import LiveSet
-from app.socket_abort import abort
+from app.socket_transport import abort, queued_bytes
 from app.stored_rigs import Source, resolve_source, session_config
 from app.services import Services
 from workers.common.validation import describe_errors
@@ -76,6 +76,11 @@ ws_router = APIRouter(prefix="/v1/rigs", tags=["rigs"])
 UNSUPPORTED_DATA = 1003
 POLICY_VIOLATION = 1008
 INTERNAL_ERROR = 1011
+QUEUED_LIMIT = 16 * 1024
+"""Bytes a socket may hold that its peer has not acknowledged before its next frame is made: a viewer's closed
+loop (next viewpoint after each frame) finds the queue empty, a slow link gets its frames as fast as it takes
+them (not a backlog of stale ones), and one that stopped reading gets a frame or two more (what its own
+receive buffer holds)."""
 CLOSE_GRACE_S = 2.0
 """How long a stalled socket's close frame may wait for room before the connection is cut off."""
 MAX_TEXT_CHARS = 8192
@@ -111,11 +116,13 @@ class Channel:
     gone (it closed before the hello, or mid-stream) marks the channel closed instead of raising: the reader
     sees the disconnect and ends the socket quietly, with no traceback in the log.
 
-    A peer that stops reading fills the connection's buffers, and then a send waits. One that waits
-    ``stall_seconds`` (the peer took nothing meanwhile) ends the socket: one log line, a close with 1008 and
-    the reason (sent if the peer makes room for it within :data:`CLOSE_GRACE_S`), else the connection is cut
-    off (:mod:`app.socket_abort`). Nothing more is queued for it meanwhile: its worker waits on this send (a
-    server-rendering viewer gets no new render; a live relay keeps only the newest set)."""
+    A peer that stops reading is noticed two ways. Before its worker makes the next frame it waits in
+    :meth:`taken` until the connection holds at most :data:`QUEUED_LIMIT` bytes the peer has not acknowledged
+    (:func:`app.socket_transport.queued_bytes`): a viewer's frames are not rendered faster than it takes them, and
+    one that takes nothing gets none (a server-rendering viewer's newest viewpoint waits; a browser-rendering live
+    viewer keeps only the newest set). And no send waits more than ``stall_seconds``. When either waits
+    ``stall_seconds``, the socket ends: one log line, a close with 1008 and the reason (sent if
+    the peer makes room for it within :data:`CLOSE_GRACE_S`), else the connection is cut off."""
 
     def __init__(self, websocket: WebSocket, stall_seconds: float | None = None, label: str = "socket") -> None:
         self.ws = websocket
@@ -124,6 +131,28 @@ class Channel:
         self._lock = asyncio.Lock()
         self.closed = False
         self.stalled = False
+
+    async def taken(self) -> bool:
+        """Wait until the peer has taken all but :data:`QUEUED_LIMIT` bytes of what was sent (at once where that
+        cannot be known); False when the socket is closed, or was now closed for not getting there within
+        ``stall_seconds`` (a peer that reads a trickle is no better: a kernel that merely compacts its receive
+        buffer also takes a few bytes now and then)."""
+        queued = queued_bytes(self.ws.scope)
+        if queued is None or queued <= QUEUED_LIMIT or self.stall_seconds is None:
+            return not self.closed
+        deadline, pause = time.monotonic() + self.stall_seconds, 0.005
+        while not self.closed:
+            await asyncio.sleep(pause)
+            now = queued_bytes(self.ws.scope)
+            if now is None or now <= QUEUED_LIMIT:
+                return not self.closed
+            pause = min(pause * 2, 0.1)
+            if time.monotonic() > deadline:
+                async with self._lock:
+                    if not self.closed:
+                        self.closed = True
+                        await self._cut_off()
+        return False
 
     async def json(self, message: dict[str, Any]) -> None:
         await self._send(lambda: self.ws.send_text(json.dumps(message)))
@@ -151,13 +180,18 @@ class Channel:
                 await self._cut_off()
 
     async def _cut_off(self) -> None:
+        """Log the stall once, close with 1008 and the reason, and cut the connection off unless the peer takes
+        everything (the close frame comes last) within :data:`CLOSE_GRACE_S`."""
         self.stalled = True
         client = self.ws.client
         reason = f"stopped reading: nothing taken for {self.stall_seconds:g} s"
         log.warning("%s from %s %s; closing it", self.label, f"{client.host}:{client.port}" if client else "?", reason)
-        try:
+        deadline = time.monotonic() + CLOSE_GRACE_S
+        with contextlib.suppress(asyncio.TimeoutError, WebSocketDisconnect, RuntimeError):
             await asyncio.wait_for(self.ws.close(code=POLICY_VIOLATION, reason=reason), CLOSE_GRACE_S)
-        except (asyncio.TimeoutError, WebSocketDisconnect, RuntimeError):
+        while (queued_bytes(self.ws.scope) or 0) > 0 and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+        if (queued_bytes(self.ws.scope) or 0) > 0:
             abort(self.ws.scope)
 
 
@@ -300,7 +334,7 @@ async def _viewer(websocket: WebSocket, channel: Channel, target: Source, svc: S
             await channel.close(INTERNAL_ERROR, "the session could not start")
             return
         await channel.json({"type": "ready", "session": info})
-        while True:
+        while await channel.taken():  # no frame is made for a viewer that does not take them
             vp: Viewpoint = await mailbox.take()
             t0 = time.perf_counter()
             try:
@@ -317,8 +351,6 @@ async def _viewer(websocket: WebSocket, channel: Channel, target: Source, svc: S
             header = {**header, "skipped": mailbox.replaced,
                       "round_trip_ms": round((time.perf_counter() - t0) * 1e3, 2)}
             await channel.binary(pack_message(header, [jpeg]))
-            if channel.closed:  # it stalled (or left): render nothing more for it
-                return
 
     await _serve(websocket, channel, client, viewer, read, send_views)
 
@@ -368,13 +400,11 @@ async def _browser_live(websocket: WebSocket, channel: Channel, target: Source, 
 
     async def send() -> None:
         await channel.json({"type": "ready", "session": None})
-        while True:
+        while await channel.taken():  # meanwhile only the newest set waits in the mailbox
             item, resync = await sub.take()
             header = {"type": "frame_set", "seq": item.seq, "sizes": [len(j) for j in item.jpegs],
                       "background": item.background, "resync": resync, "dropped": sub.dropped}
             await channel.binary(pack_message(header, item.jpegs))
-            if channel.closed:
-                return
 
     try:
         await _serve(websocket, channel, client, viewer, read, send)

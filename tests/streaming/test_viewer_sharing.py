@@ -65,9 +65,10 @@ def frame(ws) -> dict:
 
 
 def session_turns(base: str, rig_id: str) -> dict:
+    """The turns counters and renders of the rig's recording session (renders 0 while there is none)."""
     sessions = httpx.get(f"{base}/v1/sessions", timeout=30).json()["sessions"]
-    (ours,) = [s for s in sessions if s["rig_id"] == rig_id and s["source"] != "live"]
-    return {**ours["info"].get("turns", {}), "renders": ours["info"]["renders"]}
+    ours = [s for s in sessions if s["rig_id"] == rig_id and s["source"] != "live"]
+    return {**ours[0]["info"].get("turns", {}), "renders": ours[0]["info"]["renders"]} if ours else {"renders": 0}
 
 
 def test_viewers_of_one_session_are_served_in_turn(served):
@@ -191,11 +192,12 @@ def stall_lines(caplog) -> list[str]:
 
 
 def test_a_viewer_that_stops_reading_is_closed_and_holds_up_no_one(served, caplog):
-    """A viewer that asks for views and never reads them: its frames stop at a full buffer, it is closed after
-    STALL_S (one log line) and cut off, and a viewer beside it keeps its frames all along."""
+    """A viewer that asks for views and never reads them: it gets a frame or two, then no more renders; it is
+    closed after STALL_S (one log line) and cut off, and a viewer beside it keeps its frames all along."""
     base, rig_id = served
     caplog.set_level(logging.WARNING, logger="sweepcast.rigs")
     stop, times = threading.Event(), []
+    before = session_turns(base, rig_id)["renders"]
     healthy = threading.Thread(target=healthy_viewer, args=(base, rig_id, stop, times))
     healthy.start()
     try:
@@ -208,6 +210,8 @@ def test_a_viewer_that_stops_reading_is_closed_and_holds_up_no_one(served, caplo
         healthy.join(60)
     lines = stall_lines(caplog)
     assert len(lines) == 1 and lines[0].startswith("viewer socket from 127.0.0.1:"), lines
+    # its frames stopped once its connection held one or two it had not taken, though it kept asking
+    assert session_turns(base, rig_id)["renders"] - before - len(times) <= 4
     # while the stalled socket waited out its STALL_S and the close's grace, the healthy viewer got its frames
     assert sum(cut_at - 2.0 <= t <= cut_at for t in times) >= 3, (cut_at, times[-10:])
     assert times[-1] > cut_at
