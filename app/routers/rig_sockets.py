@@ -130,7 +130,6 @@ class Channel:
         self.label = label
         self._lock = asyncio.Lock()
         self.closed = False
-        self.stalled = False
 
     async def taken(self) -> bool:
         """Wait until the peer has taken all but :data:`QUEUED_LIMIT` bytes of what was sent (at once where that
@@ -182,7 +181,6 @@ class Channel:
     async def _cut_off(self) -> None:
         """Log the stall once, close with 1008 and the reason, and cut the connection off unless the peer takes
         everything (the close frame comes last) within :data:`CLOSE_GRACE_S`."""
-        self.stalled = True
         client = self.ws.client
         reason = f"stopped reading: nothing taken for {self.stall_seconds:g} s"
         log.warning("%s from %s %s; closing it", self.label, f"{client.host}:{client.port}" if client else "?", reason)
