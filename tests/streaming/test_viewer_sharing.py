@@ -73,8 +73,8 @@ def session_turns(base: str, rig_id: str) -> dict:
 
 def test_viewers_of_one_session_are_served_in_turn(served):
     """Four viewers asking as fast as they can, a fifth joining: between two frames of any viewer every other
-    viewer gets about one (round robin: one turn each, with one of slack for a request still on its way), and
-    the newcomer waits for about one frame of each viewer."""
+    viewer gets about one (round robin), and the newcomer waits for about one frame of each viewer; without
+    turns a viewer could wait behind every other viewer's queued work, any number of rounds."""
     base, rig_id = served
     turns: dict[int, list[int]] = {}
     newcomer: dict[str, int] = {}
@@ -108,9 +108,11 @@ def test_viewers_of_one_session_are_served_in_turn(served):
     assert sorted(len(v) for v in turns.values()) == [4, 12, 12, 12, 12]
     for index, got in turns.items():
         gaps = [b - a for a, b in zip(got, got[1:])]
-        assert max(gaps) <= 6, (index, got)  # one turn of each of the 4 others in between (+1 of slack)
-    # the newcomer's first turn: behind one request of each of the 4 others (+1 being drawn, +1 of slack)
-    assert newcomer["turn"] - newcomer["asked_after"] <= 7, newcomer
+        # one turn of each of the 4 others in between, and at most one more each while this viewer's next request
+        # was on its way (a loaded machine can hold a client thread back for a whole round)
+        assert max(gaps) <= 9, (index, got)
+    # the newcomer's first turn: behind one request of each of the 4 others (+1 being drawn), with the same slack
+    assert newcomer["turn"] - newcomer["asked_after"] <= 10, newcomer
 
 
 def test_viewers_that_left_get_nothing_rendered(served):
