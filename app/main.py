@@ -16,6 +16,7 @@ from app.auth import ApiKeyMiddleware
 from app.errors import install_error_handlers
 from app.kernelcache import KernelWarmup
 from app.limits import BodyLimitMiddleware, BodyPace, RouteBodyLimits
+from app.socket_transport import TransportApp
 from app.logredact import install_log_redaction
 from app.openapi_doc import install_contract
 from app.ray_watch import watch_ray
@@ -75,7 +76,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             svc.jobs.close()
             svc.compute.shutdown(wait=False, cancel_futures=True)
 
-    app = FastAPI(
+    app = TransportApp(
         title="sweepcast",
         version=_version(),
         description=API_DESCRIPTION,

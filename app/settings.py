@@ -98,6 +98,11 @@ class Settings(WorkerSettings):
     max_view_planes: int = Field(256, ge=2, description="Most depth planes a viewer or batch render may ask for.")
     session_idle_seconds: float = Field(60.0, gt=0, description="A virtual-view session nobody has used for this long ends.")
     session_resources: dict[str, float] = Field(default_factory=dict, description="Ray resources every session actor requires (JSON), e.g. {\"GPU\": 0.25} for a quarter of a GPU (the renderer then searches depth there) or a custom resource such as {\"renderer\": 1}.")
+    session_render_slots: int = Field(1, ge=1, le=64, description="Views a session draws at once; its other viewers "
+                                      "wait their turn, in arrival order (round robin, one place per viewer).")
+    viewer_stall_seconds: float = Field(10.0, gt=0, le=600, description="A viewer (or live) socket that has not taken "
+                                        "its frames (or any message) for this long is closed (1008 and a reason, "
+                                        "one log line) and then cut off if it still reads nothing.")
     demo_rig: bool = Field(True, description="At start-up, build the procedural demo rig and its recording when there is none.")
     viewer_size: str = Field(DEFAULT_VIEWER_SIZE, pattern=r"^[1-9][0-9]{1,4}x[1-9][0-9]{1,4}$",
                              description="The view size (WIDTHxHEIGHT px) the browser viewer starts at (sent in the "

@@ -163,4 +163,4 @@ def view_limits(settings: Settings) -> SessionLimits:
 
 def session_config(svc: Services, rig_id: str, source: str) -> SessionConfig:
     return SessionConfig(svc.store.url, rig_id, source, idle_seconds=svc.settings.session_idle_seconds,
-                         limits=view_limits(svc.settings))
+                         limits=view_limits(svc.settings), render_slots=svc.settings.session_render_slots)

@@ -462,3 +462,33 @@ async def asyncio_forever() -> None:
     import asyncio
 
     await asyncio.Event().wait()
+
+
+@contextlib.contextmanager
+def serve_in_thread(settings: object) -> Iterator[str]:
+    """The service with ``settings`` in this process (uvicorn in a thread, so a test sees its log records) on a
+    free loopback port: its base URL, once ``/readyz`` answers 200 (or after 60 s)."""
+    import httpx
+    import uvicorn
+
+    from app.main import create_app
+
+    port = free_port()
+    server = uvicorn.Server(uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    base = f"http://127.0.0.1:{port}"
+    try:
+        with httpx.Client(base_url=base, timeout=30) as http:
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:
+                try:
+                    if http.get("/readyz").status_code == 200:
+                        break
+                except httpx.TransportError:
+                    pass
+                time.sleep(0.1)
+        yield base
+    finally:
+        server.should_exit = True
+        thread.join(30)

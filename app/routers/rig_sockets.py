@@ -34,6 +34,10 @@ previous set stays on show; a set the session failed on gets ``frame_set_failed`
 ``session_restarting`` when its process was lost meanwhile; the set is not sent again). A text
 message other than ``{"type": "ping"}`` (at most ``MAX_TEXT_CHARS`` characters) closes it with 1003.
 
+A socket whose peer stops reading gets no new frame once the connection holds more than a few it has not taken,
+and after ``viewer_stall_seconds`` without progress it is closed with 1008 and a reason, logged once, and cut off
+when it still reads nothing (:class:`Channel`); and the viewers of a session take turns at its renderer (:mod:`workers.streaming.turns`).
+
 Unknown rigs or recordings, and wrong API keys, close with 1008 and a reason. Either socket keeps
 its session alive while open; when the last one goes, the session ends after the idle timeout.
 """
@@ -56,6 +60,7 @@ from app.auth import socket_principal
 from app.errors import ApiError
 from app.keys import Principal
 from app.live_relay import LiveSet
+from app.socket_transport import abort, queued_bytes
 from app.stored_rigs import Source, resolve_source, session_config
 from app.services import Services
 from workers.common.validation import describe_errors
@@ -71,6 +76,13 @@ ws_router = APIRouter(prefix="/v1/rigs", tags=["rigs"])
 UNSUPPORTED_DATA = 1003
 POLICY_VIOLATION = 1008
 INTERNAL_ERROR = 1011
+QUEUED_LIMIT = 16 * 1024
+"""Bytes a socket may hold that its peer has not acknowledged before its next frame is made: a viewer's closed
+loop (next viewpoint after each frame) finds the queue empty, a slow link gets its frames as fast as it takes
+them (not a backlog of stale ones), and one that stopped reading gets a frame or two more (what its own
+receive buffer holds)."""
+CLOSE_GRACE_S = 2.0
+"""How long a stalled socket's close frame may wait for room before the connection is cut off."""
 MAX_TEXT_CHARS = 8192
 """Longest text message parsed: a viewpoint or a ping is a few hundred characters. The cap also
 bounds the work of a hostile message before json.loads sees it."""
@@ -102,12 +114,44 @@ def parse_text(text: str) -> Any:
 class Channel:
     """One socket's sends, serialised (frames and errors come from different tasks). A send to a peer that has
     gone (it closed before the hello, or mid-stream) marks the channel closed instead of raising: the reader
-    sees the disconnect and ends the socket quietly, with no traceback in the log."""
+    sees the disconnect and ends the socket quietly, with no traceback in the log.
 
-    def __init__(self, websocket: WebSocket) -> None:
+    A peer that stops reading is noticed two ways. Before its worker makes the next frame it waits in
+    :meth:`taken` until the connection holds at most :data:`QUEUED_LIMIT` bytes the peer has not acknowledged
+    (:func:`app.socket_transport.queued_bytes`): a viewer's frames are not rendered faster than it takes them, and
+    one that takes nothing gets none (a server-rendering viewer's newest viewpoint waits; a browser-rendering live
+    viewer keeps only the newest set). And no send waits more than ``stall_seconds``. When either waits
+    ``stall_seconds``, the socket ends: one log line, a close with 1008 and the reason (sent if
+    the peer makes room for it within :data:`CLOSE_GRACE_S`), else the connection is cut off."""
+
+    def __init__(self, websocket: WebSocket, stall_seconds: float | None = None, label: str = "socket") -> None:
         self.ws = websocket
+        self.stall_seconds = stall_seconds
+        self.label = label
         self._lock = asyncio.Lock()
         self.closed = False
+
+    async def taken(self) -> bool:
+        """Wait until the peer has taken all but :data:`QUEUED_LIMIT` bytes of what was sent (at once where that
+        cannot be known); False when the socket is closed, or was now closed for not getting there within
+        ``stall_seconds`` (a peer that reads a trickle is no better: a kernel that merely compacts its receive
+        buffer also takes a few bytes now and then)."""
+        queued = queued_bytes(self.ws.scope)
+        if queued is None or queued <= QUEUED_LIMIT or self.stall_seconds is None:
+            return not self.closed
+        deadline, pause = time.monotonic() + self.stall_seconds, 0.005
+        while not self.closed:
+            await asyncio.sleep(pause)
+            now = queued_bytes(self.ws.scope)
+            if now is None or now <= QUEUED_LIMIT:
+                return not self.closed
+            pause = min(pause * 2, 0.1)
+            if time.monotonic() > deadline:
+                async with self._lock:
+                    if not self.closed:
+                        self.closed = True
+                        await self._cut_off()
+        return False
 
     async def json(self, message: dict[str, Any]) -> None:
         await self._send(lambda: self.ws.send_text(json.dumps(message)))
@@ -127,9 +171,26 @@ class Channel:
                 return
             self.closed = closing
             try:
-                await send()
+                await asyncio.wait_for(send(), self.stall_seconds)
             except WebSocketDisconnect:
                 self.closed = True
+            except asyncio.TimeoutError:  # nothing was written: the server writes a message whole once there is room
+                self.closed = True
+                await self._cut_off()
+
+    async def _cut_off(self) -> None:
+        """Log the stall once, close with 1008 and the reason, and cut the connection off unless the peer takes
+        everything (the close frame comes last) within :data:`CLOSE_GRACE_S`."""
+        client = self.ws.client
+        reason = f"stopped reading: nothing taken for {self.stall_seconds:g} s"
+        log.warning("%s from %s %s; closing it", self.label, f"{client.host}:{client.port}" if client else "?", reason)
+        deadline = time.monotonic() + CLOSE_GRACE_S
+        with contextlib.suppress(asyncio.TimeoutError, WebSocketDisconnect, RuntimeError):
+            await asyncio.wait_for(self.ws.close(code=POLICY_VIOLATION, reason=reason), CLOSE_GRACE_S)
+        while (queued_bytes(self.ws.scope) or 0) > 0 and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+        if (queued_bytes(self.ws.scope) or 0) > 0:
+            abort(self.ws.scope)
 
 
 class Latest:
@@ -153,17 +214,17 @@ class Latest:
         return item
 
 
-async def _open(websocket: WebSocket, rig_id: str, source: str | None,
+async def _open(websocket: WebSocket, rig_id: str, source: str | None, label: str,
                 change: bool = False) -> tuple[Channel, Source, Principal] | None:
     """Check the key, accept, resolve the rig and source the key may see (``change``: may change); None (socket
-    closed) when refused."""
+    closed) when refused. ``label`` names the socket in the log."""
     who = await socket_principal(websocket)
     if who is None:
         await websocket.close(code=POLICY_VIOLATION, reason="missing or wrong API key")
         return None
     await websocket.accept()
-    channel = Channel(websocket)
     svc: Services = websocket.app.state.services
+    channel = Channel(websocket, svc.settings.viewer_stall_seconds, label)
     try:
         target = await resolve_source(svc, rig_id, source, who, change)
     except ApiError as exc:
@@ -223,7 +284,7 @@ async def view_socket(websocket: WebSocket, rig_id: str, source: str | None = No
                       render: Literal["server", "browser"] = "server") -> None:
     """Viewpoints in (JSON text), JPEG frames out (binary: header + JPEG); with ``render=browser``, what the
     browser needs to render itself. See the module docstring."""
-    opened = await _open(websocket, rig_id, source)
+    opened = await _open(websocket, rig_id, source, "viewer socket" if render == "server" else "browser viewer socket")
     if opened is None:
         return
     channel, target, who = opened
@@ -271,7 +332,7 @@ async def _viewer(websocket: WebSocket, channel: Channel, target: Source, svc: S
             await channel.close(INTERNAL_ERROR, "the session could not start")
             return
         await channel.json({"type": "ready", "session": info})
-        while True:
+        while await channel.taken():  # no frame is made for a viewer that does not take them
             vp: Viewpoint = await mailbox.take()
             t0 = time.perf_counter()
             try:
@@ -337,7 +398,7 @@ async def _browser_live(websocket: WebSocket, channel: Channel, target: Source, 
 
     async def send() -> None:
         await channel.json({"type": "ready", "session": None})
-        while True:
+        while await channel.taken():  # meanwhile only the newest set waits in the mailbox
             item, resync = await sub.take()
             header = {"type": "frame_set", "seq": item.seq, "sizes": [len(j) for j in item.jpegs],
                       "background": item.background, "resync": resync, "dropped": sub.dropped}
@@ -389,7 +450,7 @@ async def _viewpoint(channel: Channel, text: str) -> Viewpoint | None:
 @ws_router.websocket("/{rig_id}/live")
 async def live_socket(websocket: WebSocket, rig_id: str) -> None:
     """Synchronised frame sets in (binary: header + one JPEG per camera), acks out; see the module docstring."""
-    opened = await _open(websocket, rig_id, LIVE, change=True)
+    opened = await _open(websocket, rig_id, LIVE, "live socket", change=True)
     if opened is None:
         return
     channel, target, _ = opened

@@ -1,11 +1,8 @@
 """The browser viewer end to end in headless Chromium (Debian's package, driven by Playwright)."""
 import base64
-import contextlib
 import json
 import os
 import shutil
-import socket
-import threading
 import time
 from pathlib import Path
 
@@ -14,6 +11,7 @@ import httpx
 import numpy as np
 import pytest
 
+from tests.servers import serve_in_thread
 from tests.streaming.capture import rig_json, zip_bytes
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (the test extra)")
@@ -23,40 +21,10 @@ CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-
                  "--disable-component-update", "--disable-sync"]
 
 
-@contextlib.contextmanager
-def serving(settings):
-    """The service with ``settings`` on a free loopback port (uvicorn in a thread): its base URL."""
-    import uvicorn
-
-    from app.main import create_app
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    base = f"http://127.0.0.1:{port}"
-    try:
-        with httpx.Client(base_url=base, timeout=30) as http:
-            deadline = time.monotonic() + 60
-            while time.monotonic() < deadline:
-                try:
-                    if http.get("/readyz").status_code == 200:
-                        break
-                except httpx.TransportError:
-                    pass
-                time.sleep(0.1)
-        yield base
-    finally:
-        server.should_exit = True
-        thread.join(30)
-
-
 @pytest.fixture
 def server(ray_local, settings_factory, take):
     """The service with a rig and a ready recording (the small take), viewer at 320x240."""
-    with serving(settings_factory(session_idle_seconds=5.0, viewer_size="320x240")) as base:
+    with serve_in_thread(settings_factory(session_idle_seconds=5.0, viewer_size="320x240")) as base:
         with httpx.Client(base_url=base, timeout=30) as http:
             rig_id = http.post("/v1/rigs", files={"files": ("rig.json", rig_json(take.rig))}).json()["id"]
             rec = http.post(f"/v1/rigs/{rig_id}/recordings", files={"archive": ("t.zip", zip_bytes(take))}).json()
@@ -148,7 +116,7 @@ def channel_agreement(image: np.ndarray, mask: np.ndarray) -> float:
 def demo_server(ray_local, settings_factory):
     """A first start with the demo rig on (the real first-run path), once its recording is ready."""
     settings = settings_factory(session_idle_seconds=10.0, demo_rig=True)
-    with serving(settings) as base:
+    with serve_in_thread(settings) as base:
         with httpx.Client(base_url=base, timeout=30) as http:
             deadline = time.monotonic() + 600
             while time.monotonic() < deadline:

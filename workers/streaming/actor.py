@@ -4,10 +4,12 @@ The first viewer creates it (a named, detached actor: every API process finds th
 others share it, and it ends itself after ``idle_seconds`` without any call (sockets send a
 ``touch`` while they are open, so only a vanished client lets it idle out). A crashed actor is
 restarted by Ray (``max_restarts``) and reloads its calibration and frames from the blob store.
-Views of several viewers are drawn at once on the actor's threads (the renderer only reads the
-frames; numba's kernels release the GIL), sharing the cores (:func:`_render_threads`); preparing a
-view and changing frames run alone (:class:`FrameLock`). Each viewer has at most one render in flight
-(the API keeps only its latest viewpoint), so no render ever waits behind a stale request.
+Viewers take turns at the renderer (:class:`~workers.streaming.turns.RenderTurns`): at most
+``render_slots`` views are drawn at once, the others wait in arrival order, one place per viewer (the API
+keeps only a viewer's latest viewpoint and sends it when the previous view came back), so the viewers of a
+session are served round robin and a viewer that leaves has its waiting request dropped undrawn. Views
+drawn at once share the cores (:func:`_render_threads`; numba's kernels release the GIL); preparing a
+view and changing frames run alone (:class:`FrameLock`).
 
 Failures cost one request, never the session: an exception in a render (or in applying a live
 frame set) is caught here and answered as an error for that request alone. A process crash during
@@ -42,6 +44,7 @@ from .params import Viewpoint
 from .recording import RecordingArchive
 from .session import LiveSession, RecordingSession, Session, SessionError, SessionLimits
 from .store import archive_key, load_live, load_rig, save_live
+from .turns import RenderTurns
 
 log = logging.getLogger("sweepcast.session")
 
@@ -54,7 +57,8 @@ MAX_RESTARTS = 3
 @dataclass(frozen=True)
 class SessionConfig:
     """Everything an actor needs to (re)build its session: store, rig, source ("live" or a
-    recording id), idle timeout (s), limits, live persistence interval (s) and background rate."""
+    recording id), idle timeout (s), limits, live persistence interval (s), background rate and how many
+    views are drawn at once (the others wait their turn)."""
 
     store_url: str
     rig_id: str
@@ -63,6 +67,7 @@ class SessionConfig:
     limits: SessionLimits = field(default_factory=SessionLimits)
     persist_seconds: float = 1.0
     bg_rate: float = 0.02
+    render_slots: int = 1
 
     @property
     def name(self) -> str:
@@ -91,6 +96,7 @@ class SessionHost:
         self.store = open_store(config.store_url)
         self.session = self._load()
         self._frames = FrameLock()
+        self.turns = RenderTurns(config.render_slots)
         self._last = time.monotonic()
         self._busy = 0
         self._viewers: dict[str, float] = {}
@@ -120,7 +126,8 @@ class SessionHost:
         SessionError (a ViewError for what the client sent) when it cannot be served."""
         self._touch(viewer)
         t0 = time.perf_counter()
-        with self._working(locked=False):
+        with self._working(locked=False), self.turns.turn(viewer) as turn:
+            waited = time.perf_counter() - t0
             self._frames.acquire_write()
             drawing = False
             try:
@@ -145,6 +152,7 @@ class SessionHost:
                 if self._frames.holds_current():
                     self._frames.release_current()
         header["session_ms"] = round((time.perf_counter() - t0) * 1e3, 2)
+        header["turn"], header["turn_wait_ms"] = turn, round(waited * 1e3, 2)
         return header, jpeg
 
     def push(self, jpegs: list[bytes], background: bool = False) -> dict[str, Any]:
@@ -229,7 +237,8 @@ class SessionHost:
         self._touch(viewer)
 
     def leave(self, viewer: str) -> None:
-        """A viewer left: forget what was kept for it."""
+        """A viewer left: drop its waiting request at once, then forget what was kept for it."""
+        self.turns.leave(viewer)
         self._viewers.pop(viewer, None)
         with self._frames.writing():
             self.session.forget(viewer)
@@ -240,7 +249,7 @@ class SessionHost:
         return {**self.session.describe(), "rig_id": self.config.rig_id, "source": self.config.source,
                 "viewers": len(active), "restarted": self.restarted, "pid": os.getpid(),
                 "idle_s": round(now - self._last, 3), "persisted_seq": self.persisted_seq,
-                "failures": self.failures}
+                "failures": self.failures, "turns": self.turns.describe()}
 
     # --- lifecycle --------------------------------------------------------------------------------
     def _touch(self, viewer: str | None) -> None:
