@@ -12,6 +12,8 @@ using the API (job status, job list, a finished job's results and `/readyz` twic
 - storage_hang / storage_slowdown / storage_unreachable: the object store freezes (connections accepted, never
   answered), answers every request `503 SlowDown`, or refuses connections, for the outage;
 - ray_head: every process of the Ray head killed (SIGKILL), started again after the outage;
+- slow_clients: 20 photo uploads trickling at 10 KB/s each for the outage (above the service's 1 KB/s floor, so
+  they are served: none may hold the event loop or a worker);
 - out_of_memory: a job that needs more memory than its node has (a 49 MP depth map upsampled with the weighted
   median filter, ~1.6 GB) beside ordinary batches, on a node whose Ray memory monitor stops tasks above 1 GB more
   than the machine used at start.
@@ -47,7 +49,10 @@ from tests.servers import (FaultyProxy, ServedApp, Unavailable, create_database,
 
 FINAL = ("succeeded", "failed", "cancelled")
 RAY = str(Path(sys.executable).parent / "ray")
-FAULTS = ("database", "storage_hang", "storage_slowdown", "storage_unreachable", "ray_head", "out_of_memory")
+FAULTS = ("database", "storage_hang", "storage_slowdown", "storage_unreachable", "ray_head", "slow_clients",
+          "out_of_memory")
+SLOW_UPLOADS = 20
+SLOW_RATE = 10_000  # bytes per second each
 
 
 def photo_files(count: int) -> list[tuple[str, tuple[str, bytes, str]]]:
@@ -232,6 +237,52 @@ def job_outcomes(base: str, ids: list[str], timeout: float) -> dict[str, Any]:
             "attempts": sorted({j["attempts"] for j in states.values()})}
 
 
+class SlowUploads:
+    """Photo-batch uploads, each sent at ``SLOW_RATE`` bytes per second on a raw socket (a phone on a bad link)."""
+
+    def __init__(self, base: str, seconds: float) -> None:
+        self.host, self.port = base.removeprefix("http://").split(":")
+        self.body_bytes = int(SLOW_RATE * seconds)
+        self.statuses: list[str] = []
+        self.accepted: list[str] = []
+        self._threads = [threading.Thread(target=self._upload, daemon=True) for _ in range(SLOW_UPLOADS)]
+
+    def begin(self) -> None:
+        for t in self._threads:
+            t.start()
+
+    def end(self) -> None:
+        for t in self._threads:
+            t.join(120)
+
+    def _upload(self) -> None:
+        import socket
+
+        name, jpeg = photos(1)[0]
+        boundary = "chaosboundary"
+        pad = max(self.body_bytes - len(jpeg), 0)  # a JPEG may carry trailing bytes: the decoder stops at EOI
+        body = (f"--{boundary}\r\nContent-Disposition: form-data; name=\"files\"; filename=\"{name}\"\r\n"
+                f"Content-Type: image/jpeg\r\n\r\n").encode() + jpeg + b"\0" * pad + f"\r\n--{boundary}--\r\n".encode()
+        head = (f"POST /v1/photos/batches HTTP/1.1\r\nHost: {self.host}\r\nContent-Type: multipart/form-data; "
+                f"boundary={boundary}\r\nContent-Length: {len(body)}\r\nConnection: close\r\n\r\n").encode()
+        try:
+            with socket.create_connection((self.host, int(self.port)), timeout=120) as sock:
+                sock.sendall(head)
+                step = SLOW_RATE // 10
+                for i in range(0, len(body), step):
+                    sock.sendall(body[i:i + step])
+                    time.sleep(0.1)
+                answer = b""
+                while chunk := sock.recv(65536):
+                    answer += chunk
+            status = answer.split(b" ", 2)[1].decode()
+            self.statuses.append(status)
+            if status == "202":
+                self.accepted.append(json.loads(answer.split(b"\r\n\r\n", 1)[1])["id"])
+        except OSError as exc:
+            self.statuses.append(type(exc).__name__)
+
+
 def running_batch(base: str, count: int = 40) -> str:
     with httpx.Client(base_url=base, timeout=120) as c:
         job = c.post("/v1/photos/batches", files=photo_files(count)).json()
@@ -241,7 +292,7 @@ def running_batch(base: str, count: int = 40) -> str:
 
 
 def run_fault(app: ServedApp, finished_id: str, name: str, begin: Callable[[], None], end: Callable[[], None],
-              outage_s: float) -> dict[str, Any]:
+              outage_s: float, extra: Callable[[], dict[str, Any]] | None = None) -> dict[str, Any]:
     """One fault while a batch runs and a client uses the API; see the module docstring."""
     batch = running_batch(app.base)
     with Prober(app.base, batch, finished_id) as prober:
@@ -260,7 +311,7 @@ def run_fault(app: ServedApp, finished_id: str, name: str, begin: Callable[[], N
     accepted = job_outcomes(app.base, prober.accepted, 900)
     print(f"{name}: ready {ready_s:.1f} s after the fault, batch {outcomes}, uploads {accepted}", flush=True)
     return {"fault": name, "outage_s": outage_s, "ready_after_s": ready_s, "batch_done_after_s": batch_s,
-            "batch": outcomes, "uploads_accepted": accepted,
+            "batch": outcomes, "uploads_accepted": accepted, **(extra() if extra else {}),
             "during": prober.summary("during"), "after": prober.summary("after"),
             "api_alive": app.proc.poll() is None}
 
@@ -346,12 +397,18 @@ def main() -> int:
                         "storage_unreachable": (lambda: proxy.set("refuse"), lambda: proxy.set("pass"), args.outage),
                         "ray_head": (cluster.kill_head, cluster.start_head, args.outage),
                     }
+                    slow = SlowUploads(app.base, args.outage)
+                    breaks["slow_clients"] = (slow.begin, slow.end, 0.0)
                     for fault in faults:
                         if fault == "out_of_memory":  # on a node of its own, the last fault
                             kill_mentioning(node)
                             cluster.add_node(env={"RAY_memory_usage_threshold": f"{memory_threshold(1.0):.3f}",
                                                   "RAY_memory_monitor_refresh_ms": "100"})
                             results["faults"].append(out_of_memory(app))
+                        elif fault == "slow_clients":
+                            results["faults"].append(run_fault(app, finished, fault, *breaks[fault], extra=lambda: {
+                                "slow_uploads": {"answers": dict(Counter(slow.statuses)),
+                                                 **job_outcomes(app.base, slow.accepted, 900)}}))
                         else:
                             results["faults"].append(run_fault(app, finished, fault, *breaks[fault]))
                     results["log_tail"] = app.log_tail(4000)
@@ -379,9 +436,13 @@ def markdown(r: dict[str, Any]) -> str:
         during = f["during"]
         bad = sum(s["server_errors_not_503"] + s["connection_failures"] for s in during.values())
         slowest = max(s["slowest_s"] for s in during.values())
-        rows.append([f["fault"], f"{f['outage_s']:.0f}", _answers(during),
+        slow = f.get("slow_uploads")
+        slow_text = (f"; the {SLOW_UPLOADS} uploads at {SLOW_RATE // 1000} KB/s answered {slow['answers']}, their "
+                     f"jobs {slow['states']}" if slow else "")
+        outage = f"{f['outage_s']:.0f}" if f["outage_s"] else "(the uploads' length)"
+        rows.append([f["fault"], outage, _answers(during),
                      f"batch {f['batch']['states']}, attempts {f['batch']['attempts']}; client uploads "
-                     f"{f['uploads_accepted']['states']}",
+                     f"{f['uploads_accepted']['states']}{slow_text}",
                      f"{bad} (slowest answer {slowest:.1f} s)", f"{f['ready_after_s']:.1f} / {f['batch_done_after_s']:.1f}",
                      "yes" if f["api_alive"] else "NO"])
     la = r["load_average"]
