@@ -159,25 +159,14 @@ class Dispatcher:
             await self._publish_final(job_id)
         return done
 
-    async def restart_attempts(self) -> int:
-        """Stop following the jobs this dispatcher holds and resume each as a new attempt (after Ray's client was
-        connected anew, their tasks' events can no longer arrive); their open attempts count as interrupted by a
-        restart. How many were resumed."""
-        held = list(self._tasks)
-        for job_id in held:
-            self._tasks[job_id].cancel()
-        await asyncio.gather(*[t for t in list(self._tasks.values())], return_exceptions=True)
-        for job_id in held:
-            await self._db(self.jobs.release, job_id, self.owner)
-        return await self.recover()
-
-    async def shutdown(self) -> None:
-        """Stop following jobs and give their leases back so the next start resumes them at once."""
+    async def shutdown(self, cancel_tasks: bool = True) -> None:
+        """Stop following jobs and give their leases back so the next start resumes them at once. ``cancel_tasks``
+        False: leave their Ray tasks alone (a client that lost its cluster's head may hang on them)."""
         for loop in self._loops:
             loop.cancel()
         held = list(self._tasks)
         for job_id in held:
-            ref = self._refs.get(job_id)
+            ref = self._refs.get(job_id) if cancel_tasks else None
             if ref is not None:
                 try:
                     ray.cancel(ref, force=True)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import os
 
 from app import raycluster
 from app.services import Services
@@ -19,6 +20,8 @@ log = logging.getLogger("sweepcast.ray")
 
 CHECK_EVERY_S = 5.0
 ANSWER_WITHIN_S = 3.0
+RESTART_EXIT_CODE = 75  # EX_TEMPFAIL: start me again
+GIVE_BACK_WITHIN_S = 30.0
 
 
 async def watch_ray(svc: Services) -> None:
@@ -41,16 +44,16 @@ async def watch_ray(svc: Services) -> None:
                              "be down; running jobs go on, new ones wait for it")
             log.warning("%s", svc.ray_error)
         elif ok and lost:
-            await _reconnect(svc)
-            lost = False
+            await _stop_to_restart(svc)
 
 
-async def _reconnect(svc: Services) -> None:
-    log.warning("the Ray cluster at %s answers again: connecting anew and resuming the jobs this replica follows",
-                svc.settings.ray_address)
-    svc.dispatcher.ray_ready.clear()
-    await asyncio.to_thread(raycluster.reconnect, svc.settings)
-    svc.dispatcher.ray_ready.set()
-    resumed = await svc.dispatcher.restart_attempts()
-    svc.ray_error = None
-    log.info("reconnected to the Ray cluster; %d job(s) resumed", resumed)
+async def _stop_to_restart(svc: Services) -> None:
+    log.warning("the Ray cluster at %s answers again after its head was lost; this process's Ray client cannot "
+                "schedule on it any more: giving its jobs back and exiting (code %d) to be started again",
+                svc.settings.ray_address, RESTART_EXIT_CODE)
+    try:
+        await asyncio.wait_for(svc.dispatcher.shutdown(cancel_tasks=False), GIVE_BACK_WITHIN_S)
+    except Exception:  # noqa: BLE001 - what was not given back is resumed when its lease runs out
+        log.exception("could not give every job back")
+    logging.shutdown()
+    os._exit(RESTART_EXIT_CODE)

@@ -76,14 +76,6 @@ def forget_connect_attempt() -> None:
         pass
 
 
-def reconnect(settings: Settings) -> None:
-    """Drop this process's Ray client and connect it again (after the cluster's head came back). Blocking."""
-    import ray
-
-    ray.shutdown()
-    _connect_as(settings)
-
-
 def _connect_as(settings: Settings) -> bool:
     return connect(settings.ray_address, settings.ray_num_cpus, worker_env(settings))
 

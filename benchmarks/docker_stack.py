@@ -81,7 +81,7 @@ def wait_for(check: Callable[[], Any], timeout: float, what: str, interval: floa
             value = check()
             if value:
                 return value
-        except (httpx.HTTPError, ValueError, KeyError) as exc:
+        except (httpx.HTTPError, OSError, ValueError, KeyError) as exc:
             last = exc
         time.sleep(interval)
     raise SystemExit(f"timed out after {timeout:.0f} s waiting for {what} (last error: {last})")

@@ -15,7 +15,6 @@ viewpoint when its frame came back):
 from __future__ import annotations
 
 import asyncio
-import base64
 import contextlib
 import json
 import os
@@ -32,7 +31,7 @@ import httpx
 import websockets
 
 from benchmarks._report import Sections, md_table
-from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app
+from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app, stalled_websocket
 from workers.streaming.framing import unpack_message
 
 SIZE = (320, 240)
@@ -193,19 +192,8 @@ def bench_share(args: Any) -> tuple[dict[str, Any], str]:
 
 # --- stalled -------------------------------------------------------------------------------------
 def stalled_reader(base: str, path: str) -> socket.socket:
-    """A viewer socket opened by hand with a small receive buffer; only the handshake's answer is ever read."""
-    url = urlsplit(base)
-    sock = socket.socket()
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-    sock.connect((url.hostname, url.port))
-    key = base64.b64encode(os.urandom(16)).decode()
-    sock.sendall(f"GET {path} HTTP/1.1\r\nHost: {url.netloc}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-                 f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n".encode())
-    answer = b""
-    while not answer.endswith(b"\r\n\r\n"):
-        answer += sock.recv(1)
-    if not answer.startswith(b"HTTP/1.1 101"):
-        raise RuntimeError(f"no WebSocket: {answer[:200]!r}")
+    """A viewer socket that never reads (tests.servers.stalled_websocket), with a timeout for the closing checks."""
+    sock = stalled_websocket(base, path)
     sock.settimeout(2.0)
     return sock
 

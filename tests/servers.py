@@ -492,3 +492,26 @@ def serve_in_thread(settings: object) -> Iterator[str]:
     finally:
         server.should_exit = True
         thread.join(30)
+
+
+def stalled_websocket(base: str, path: str) -> socket.socket:
+    """A WebSocket opened by hand on a socket with a tiny receive buffer, whose owner will never read again (a
+    frozen tab, a hostile client): only the handshake's answer is read, byte by byte, so no frame is taken off it.
+    ``base``: http://host:port; ``path``: the socket's path and query."""
+    import base64
+    from urllib.parse import urlsplit
+
+    url = urlsplit(base)
+    sock = socket.socket()
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    sock.connect((url.hostname, url.port))
+    key = base64.b64encode(os.urandom(16)).decode()
+    sock.sendall(f"GET {path} HTTP/1.1\r\nHost: {url.netloc}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                 f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n".encode())
+    answer = b""
+    while not answer.endswith(b"\r\n\r\n"):
+        answer += sock.recv(1)
+    if not answer.startswith(b"HTTP/1.1 101"):
+        sock.close()
+        raise RuntimeError(f"no WebSocket: {answer[:200]!r}")
+    return sock

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any, BinaryIO, Callable, Iterator, Protocol, TypeVar
 from urllib.parse import parse_qs, urlparse
 
-from botocore.exceptions import BotoCoreError, ClientError, ConnectionError as BotoConnectionError, HTTPClientError
+from botocore.exceptions import ClientError, ConnectionError as BotoConnectionError, HTTPClientError
 
 T = TypeVar("T")
 _SEGMENT = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9._-]{0,127}$")

@@ -99,22 +99,3 @@ def test_lost_workers_spend_the_budget_and_the_error_names_the_restarts(settings
     assert failed.error.startswith("the worker running this job was lost 2 times; giving up")
     assert "the service also restarted once while it ran" in failed.error
 
-
-def test_jobs_followed_when_ray_is_connected_anew_resume_without_spending_the_budget(settings_factory, jobs):
-    """After the Ray cluster's head came back (app/ray_watch.py), the attempt the replica was following cannot end:
-    it is counted as interrupted by a restart and the job runs again."""
-    script = {1: "hang", 2: "ok"}
-    job = jobs.create("orientation.batch", {}, {}, {}, "api-0", 0.01)
-
-    async def scenario() -> int:
-        await asyncio.sleep(0.05)
-        dispatcher = _dispatcher(settings_factory, jobs, script, max_attempts=1)
-        await dispatcher.recover()
-        await _until(lambda: jobs.get(job.id).attempts == 1)
-        resumed = await dispatcher.restart_attempts()
-        await _until(lambda: jobs.get(job.id).state == "succeeded")
-        return resumed
-
-    assert asyncio.run(scenario()) == 1
-    done = jobs.get(job.id)
-    assert (done.attempts, done.worker_losses, done.service_restarts) == (2, 0, 1)

@@ -3,20 +3,18 @@ that stops reading is closed without holding up the others (TCP's own back-press
 client)."""
 from __future__ import annotations
 
-import base64
 import json
 import logging
 import os
 import socket
 import threading
 import time
-from urllib.parse import urlsplit
 
 import httpx
 import pytest
 from websockets.sync.client import connect
 
-from tests.servers import serve_in_thread
+from tests.servers import serve_in_thread, stalled_websocket
 from tests.streaming.capture import frame_set, jpeg, rig_json, zip_bytes
 from workers.streaming.framing import unpack_message
 
@@ -139,22 +137,6 @@ def test_viewers_that_left_get_nothing_rendered(served):
     assert after["drawn_for_gone"] == before["drawn_for_gone"] == 0
 
 
-def raw_socket(base: str, path: str) -> socket.socket:
-    """A WebSocket opened by hand on a socket with a tiny receive buffer, whose owner will never read again:
-    only the handshake's answer is read, byte by byte, so no frame is taken off the socket."""
-    url = urlsplit(base)
-    sock = socket.socket()
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-    sock.connect((url.hostname, url.port))
-    key = base64.b64encode(os.urandom(16)).decode()
-    sock.sendall(f"GET {path} HTTP/1.1\r\nHost: {url.netloc}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-                 f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n".encode())
-    answer = b""
-    while not answer.endswith(b"\r\n\r\n"):
-        answer += sock.recv(1)
-    assert answer.startswith(b"HTTP/1.1 101"), answer
-    return sock
-
 
 def text_frame(text: str) -> bytes:
     """One masked WebSocket text frame (a client's frames are masked), under 64 KiB."""
@@ -203,7 +185,7 @@ def test_a_viewer_that_stops_reading_is_closed_and_holds_up_no_one(served, caplo
     healthy = threading.Thread(target=healthy_viewer, args=(base, rig_id, stop, times))
     healthy.start()
     try:
-        stalled = raw_socket(base, f"/v1/rigs/{rig_id}/view")
+        stalled = stalled_websocket(base, f"/v1/rigs/{rig_id}/view")
         cut_at = until_cut_off(stalled, text_frame(json.dumps({**BIG, "id": 1})))
         stalled.close()
         time.sleep(0.5)
@@ -228,7 +210,7 @@ def test_a_browser_viewer_that_stops_reading_the_live_stream_is_closed(served, t
     live = connect(ws_url(base, f"/v1/rigs/{rig_id}/live"), open_timeout=30)
     try:
         live.recv(timeout=60)  # hello
-        stalled = raw_socket(base, f"/v1/rigs/{rig_id}/view?source=live&render=browser")
+        stalled = stalled_websocket(base, f"/v1/rigs/{rig_id}/view?source=live&render=browser")
         sets = [[jpeg(image, 95) for image in images] for images in take.frames]
         done = threading.Event()
 
