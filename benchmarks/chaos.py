@@ -15,8 +15,8 @@ using the API (job status, job list, a finished job's results and `/readyz` twic
 - slow_clients: 20 photo uploads trickling at 10 KB/s each for the outage (above the service's 1 KB/s floor, so
   they are served: none may hold the event loop or a worker);
 - out_of_memory: a job that needs more memory than its node has (a 49 MP depth map upsampled with the weighted
-  median filter, ~1.6 GB) beside ordinary batches, on a node whose Ray memory monitor stops tasks above 1 GB more
-  than the machine used at start.
+  median filter, ~1.6 GB) beside ordinary batches, on a node whose Ray memory monitor stops tasks above 0.9 GB
+  more than the machine used when the node started.
 
 Reported per fault: the answers each route gave during the fault (status counts; server errors other than 503,
 connection failures and the slowest answer), whether every job accepted before, during and after it succeeded
@@ -436,9 +436,10 @@ def main() -> int:
                     slow = SlowUploads(app.base, args.outage)
                     breaks["slow_clients"] = (slow.begin, slow.end, 0.0)
                     for fault in faults:
+                        started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
                         if fault == "out_of_memory":  # on a node of its own, the last fault
                             kill_mentioning(node)
-                            cluster.add_node(env={"RAY_memory_usage_threshold": f"{memory_threshold(1.0):.3f}",
+                            cluster.add_node(env={"RAY_memory_usage_threshold": f"{memory_threshold(0.9):.3f}",
                                                   "RAY_memory_monitor_refresh_ms": "100"})
                             results["faults"].append(out_of_memory(app))
                         elif fault == "slow_clients":
@@ -447,13 +448,26 @@ def main() -> int:
                                                  **job_outcomes(app.base, slow.accepted, 900)}}))
                         else:
                             results["faults"].append(run_fault(app, finished, fault, *breaks[fault]))
+                        results["faults"][-1]["measured"] = started
                     results["log_tail"] = app.log_tail(4000)
             finally:
                 cluster.stop()
                 shutil.rmtree(ray_folder, ignore_errors=True)
     results["load_average"] = {"before": load_before, "after": os.getloadavg()[0]}
+    results["faults"] = kept_faults(faults) + results["faults"]
     publish("chaos", results, markdown(results))
     return 0
+
+
+def kept_faults(run: list[str]) -> list[dict[str, Any]]:
+    """The previous results of the faults not run this time (``--faults`` a subset), in the usual order."""
+    from benchmarks._report import RESULTS_DIR
+
+    previous = RESULTS_DIR / "chaos.json"
+    if not previous.exists():
+        return []
+    kept = [f for f in json.loads(previous.read_text()).get("faults", []) if f["fault"] not in run]
+    return sorted(kept, key=lambda f: FAULTS.index(f["fault"]))
 
 
 def _answers(summary: dict[str, Any]) -> str:
@@ -466,7 +480,7 @@ def markdown(r: dict[str, Any]) -> str:
     for f in r["faults"]:
         if f["fault"] == "out_of_memory":
             o, s = f["oversized"], f["ordinary"]
-            rows.append(["out_of_memory", "-", f"oversized job: {o['states']} ({'; '.join(o['errors'])[:300]})",
+            rows.append([f.get("measured", ""), "out_of_memory", "-", f"oversized job: {o['states']} ({'; '.join(o['errors'])[:300]})",
                          f"ordinary batch: {s['states']}", "-", "-", f["api_restarts"]])
             continue
         during = f["during"]
@@ -476,7 +490,7 @@ def markdown(r: dict[str, Any]) -> str:
         slow_text = (f"; the {SLOW_UPLOADS} uploads at {SLOW_RATE // 1000} KB/s answered {slow['answers']}, their "
                      f"jobs {slow['states']}" if slow else "")
         outage = f"{f['outage_s']:.0f}" if f["outage_s"] else "(the uploads' length)"
-        rows.append([f["fault"], outage, _answers(during),
+        rows.append([f.get("measured", ""), f["fault"], outage, _answers(during),
                      f"batch {f['batch']['states']}, attempts {f['batch']['attempts']}; client uploads "
                      f"{f['uploads_accepted']['states']}{slow_text}",
                      f"{bad} (slowest answer {slowest:.1f} s)", f"{f['ready_after_s']:.1f} / {f['batch_done_after_s']:.1f}",
@@ -491,7 +505,7 @@ def markdown(r: dict[str, Any]) -> str:
         "reason (server errors, dropped connections); seconds from the fault's end to `/readyz` 200 and to the "
         "batch's end; how many times the API process had stopped to be started again (it does once a lost Ray head is "
         "back: app/ray_watch.py; the harness restarts it as the compose file's restart policy does).", "",
-        md_table(["fault", "outage s", "answers during the fault", "jobs", "5xx other than 503 / dropped",
+        md_table(["measured", "fault", "outage s", "answers during the fault", "jobs", "5xx other than 503 / dropped",
                   "ready / batch done after (s)", "API restarts so far"], rows),
         "", load_note(la["before"], la["after"]),
     ])
