@@ -11,7 +11,8 @@ from tests.app.test_review_api import review_photos
 from tests.orientation.builders import split_around_app1
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (the test extra)")
-from tests.streaming.test_viewer_browser import CHROMIUM, CHROMIUM_ARGS, pytestmark, serving  # noqa: E402,F401
+from tests.servers import serve_in_thread  # noqa: E402
+from tests.streaming.test_viewer_browser import CHROMIUM, CHROMIUM_ARGS, pytestmark  # noqa: E402,F401
 
 
 def test_a_person_picks_the_upright_turn_with_the_keyboard_and_leaves_one_with_a_click(
@@ -20,7 +21,7 @@ def test_a_person_picks_the_upright_turn_with_the_keyboard_and_leaves_one_with_a
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg-cache"))
     files = review_photos()
     original = files[0][1][1]
-    with serving(settings_factory()) as base, httpx.Client(base_url=base, timeout=30) as http:
+    with serve_in_thread(settings_factory()) as base, httpx.Client(base_url=base, timeout=30) as http:
         job = http.post("/v1/photos/batches", files=files, data={"text": "false"}).json()["id"]
         deadline = time.monotonic() + 120
         while http.get(f"/v1/jobs/{job}").json()["state"] != "succeeded":
