@@ -3,9 +3,13 @@
 When the head stops answering, running tasks go on (their workers and the API talk directly) but nothing new is
 scheduled, and ``/readyz`` says so. When a head answers again, even one that came back with its state from Redis
 (Ray's GCS fault tolerance), this process's Ray client schedules nothing more (measured: a task submitted after the
-restart waited forever; after ``ray.shutdown()`` and ``ray.init()`` it ran at once). So the service connects again
-and resumes the jobs it was following: each open attempt counts as interrupted by a restart (never against the
-job's retry budget) and is submitted again.
+restart waited forever). Connecting anew in the process (``ray.shutdown()``, ``ray.init()``) made the task run, but
+a thread still holding a Ray handle at that moment (a viewer's session actor, a readiness check) ended the whole
+process ("the core worker has already been shutdown"). So the service stops instead: it gives back the jobs it was
+following (their open attempts count as interrupted by a restart, never against their retry budget) and exits with
+:data:`RESTART_EXIT_CODE` at once (a graceful server shutdown hung on requests the stale client held), for its
+service manager to start it again (the compose file's restart policy); the new process connects to the head that is
+back and resumes those jobs.
 """
 from __future__ import annotations
 
@@ -14,7 +18,7 @@ import logging
 import os
 
 from app import raycluster
-from app.services import Services
+from app.services import Services, answer_within
 
 log = logging.getLogger("sweepcast.ray")
 
@@ -25,19 +29,13 @@ GIVE_BACK_WITHIN_S = 30.0
 
 
 async def watch_ray(svc: Services) -> None:
-    """Run for as long as the service: notice the head's loss and return (see the module docstring)."""
+    """Run for as long as the service: note the head's loss (``/readyz`` says it), and stop the process once a head
+    answers again (see the module docstring)."""
     lost = False
-    pending: asyncio.Future | None = None
     while True:
         await asyncio.sleep(CHECK_EVERY_S)
-        if pending is None or pending.done():  # one check at a time: a lost head holds a thread per call
-            pending = asyncio.ensure_future(asyncio.to_thread(raycluster.ready))
-        try:
-            ok, detail = await asyncio.wait_for(asyncio.shield(pending), ANSWER_WITHIN_S)
-        except asyncio.TimeoutError:
-            ok, detail = False, f"no answer within {ANSWER_WITHIN_S:g} s"
-        except Exception as exc:  # noqa: BLE001 - a failed check is a lost cluster
-            ok, detail = False, f"{type(exc).__name__}: {exc}"
+        found = await answer_within(raycluster.ready, "the Ray cluster", ANSWER_WITHIN_S)
+        ok, detail = found if isinstance(found, tuple) else (False, found)
         if not ok and not lost:
             lost = True
             svc.ray_error = (f"the Ray cluster at {svc.settings.ray_address} does not answer ({detail}): its head may "

@@ -83,6 +83,28 @@ async def run_compute(svc: Services, fn: Callable[..., R], *args: Any) -> R:
     return await asyncio.get_running_loop().run_in_executor(svc.compute, fn, *args)
 
 
+CHECK_TIMEOUT_S = 3.0
+_checks: dict[tuple[str, int], asyncio.Future] = {}
+"""Backend checks in flight, by what they check and the object checked: at most one each."""
+
+
+async def answer_within(check: Callable[[], R], what: str, timeout: float = CHECK_TIMEOUT_S) -> R | str | None:
+    """``check()`` off the event loop, given ``timeout`` seconds: its result (None for none), or why it failed. A
+    backend that hangs (a frozen database, a Ray head that is gone) gets a reason instead of holding the caller;
+    a check still running from an earlier call is awaited rather than started again (each would hold a thread for
+    as long as the backend hangs, and two callers at once must not see a backend as lost)."""
+    key = (what, id(getattr(check, "__self__", check)))  # one app's database is not another's (tests)
+    future = _checks.get(key)
+    if future is None or future.done():
+        future = _checks[key] = asyncio.ensure_future(asyncio.to_thread(check))
+    try:
+        return await asyncio.wait_for(asyncio.shield(future), timeout)
+    except asyncio.TimeoutError:
+        return f"{what} did not answer within {timeout:g} s"
+    except Exception as exc:  # noqa: BLE001 - reported, not raised
+        return f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+
+
 async def delete_job_and_files(svc: Services, job_id: str) -> None:
     """Delete a job's row, then its results and its inputs from the blob store."""
     await asyncio.to_thread(svc.jobs.delete, job_id)
@@ -157,10 +179,11 @@ async def create_job(svc: Services, who: Principal, kind: JobKind, params: BaseM
     if not isinstance(params, kind.params):
         raise TypeError(f"{kind.name} takes {kind.params.__name__}, not {type(params).__name__}")
     await svc.quotas.check_new_job(who, sum(map(upload_size, uploads)))
-    space = await asyncio.to_thread(storage_check, svc) if isinstance(svc.store, DirectoryBlobStore) else {"ok": True}
-    if not space["ok"]:  # (an object store that is down says so at the first write: 503)
-        raise ApiError(507, f"the service's storage is nearly full ({space['detail']}); nothing was stored",
-                       "storage_full")
+    if isinstance(svc.store, DirectoryBlobStore):  # (an object store that is down says so at the first write: 503)
+        space = await asyncio.to_thread(storage_check, svc)
+        if not space["ok"]:
+            raise ApiError(507, f"the service's storage is nearly full ({space['detail']}); nothing was stored",
+                           "storage_full")
     job_id = str(uuid.uuid4())
     prefix = inputs_prefix(job_id)
     inputs: dict[str, str] = dict(stored or {})
