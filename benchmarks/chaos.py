@@ -334,15 +334,15 @@ def job_outcomes(base: str, ids: list[str], timeout: float) -> dict[str, Any]:
             "attempts": sorted({j["attempts"] for j in states.values()})}
 
 
-class SlowUploads:
-    """Photo-batch uploads, each sent at ``SLOW_RATE`` bytes per second on a raw socket (a phone on a bad link)."""
+class RawClients:
+    """``SLOW_UPLOADS`` clients on raw sockets, each on its own thread running ``client()``."""
 
-    def __init__(self, base: str, seconds: float) -> None:
+    def __init__(self, base: str) -> None:
         self.host, self.port = base.removeprefix("http://").split(":")
-        self.body_bytes = int(SLOW_RATE * seconds)
-        self.statuses: list[str] = []
-        self.accepted: list[str] = []
-        self._threads = [threading.Thread(target=self._upload, daemon=True) for _ in range(SLOW_UPLOADS)]
+        self._threads = [threading.Thread(target=self.client, daemon=True) for _ in range(SLOW_UPLOADS)]
+
+    def client(self) -> None:
+        raise NotImplementedError
 
     def begin(self) -> None:
         for t in self._threads:
@@ -352,7 +352,17 @@ class SlowUploads:
         for t in self._threads:
             t.join(120)
 
-    def _upload(self) -> None:
+
+class SlowUploads(RawClients):
+    """Photo-batch uploads, each sent at ``SLOW_RATE`` bytes per second on a raw socket (a phone on a bad link)."""
+
+    def __init__(self, base: str, seconds: float) -> None:
+        super().__init__(base)
+        self.body_bytes = int(SLOW_RATE * seconds)
+        self.statuses: list[str] = []
+        self.accepted: list[str] = []
+
+    def client(self) -> None:
         import socket
 
         name, jpeg = photos(1)[0]
@@ -380,31 +390,21 @@ class SlowUploads:
             self.statuses.append(type(exc).__name__)
 
 
-class StalledHeaders:
+class StalledHeaders(RawClients):
     """Connections that send the start of a request's headers and then nothing (a slowloris): when the server
     answered and closed each, and what it answered."""
 
-    def __init__(self, base: str, count: int = SLOW_UPLOADS) -> None:
-        self.address = base.removeprefix("http://").split(":")
-        self.count = count
+    def __init__(self, base: str) -> None:
+        super().__init__(base)
         self.answers: list[str] = []
         self.closed_after_s: list[float] = []
-        self._threads = [threading.Thread(target=self._stall, daemon=True) for _ in range(count)]
 
-    def begin(self) -> None:
-        for t in self._threads:
-            t.start()
-
-    def end(self) -> None:
-        for t in self._threads:
-            t.join(120)
-
-    def _stall(self) -> None:
+    def client(self) -> None:
         import socket
 
         t = time.monotonic()
         try:
-            with socket.create_connection((self.address[0], int(self.address[1])), timeout=120) as sock:
+            with socket.create_connection((self.host, int(self.port)), timeout=120) as sock:
                 sock.sendall(b"POST /v1/photos/batches HTTP/1.1\r\nHost: chaos\r\nContent-Type: multipart/")
                 answer = b""
                 while chunk := sock.recv(65536):
