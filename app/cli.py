@@ -65,6 +65,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     raycluster.start_connecting(settings)  # Ray's start overlaps the imports below (readyz sooner)
     import uvicorn
 
+    from app.http_protocol import http_protocol
     from app.main import create_app
 
     print(f"sweepcast: serving on http://{settings.host}:{settings.port} (data in {settings.data_dir.resolve()})",
@@ -72,7 +73,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     # no permessage-deflate on the sockets: what they carry is JPEG (frames, live sets), which deflate cannot
     # shrink, so compressing it for every viewer only spent the API process's CPU
     uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level=args.log_level,
-                ws_per_message_deflate=False)
+                ws_per_message_deflate=False, http=http_protocol(settings.header_timeout_seconds))
     return 0
 
 

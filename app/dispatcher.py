@@ -61,9 +61,10 @@ def _gave_up(job: Job, out_of_memory: int = 0) -> str:
     """The error of a job whose retry budget lost workers spent; restarts are named, not counted. ``out_of_memory``:
     how many of those losses were Ray's memory monitor stopping the job as its node ran out of memory."""
     if out_of_memory:
+        alone = ", the attempts after that alone on a node" if job.worker_losses > 1 else ""
         error = (f"the job ran out of memory: its worker's node was nearly out of memory and Ray stopped it "
-                 f"{_times(out_of_memory)} (of {_times(job.worker_losses)} lost); giving up. It needs more memory "
-                 "than a worker has: give the job smaller inputs or the workers more memory")
+                 f"{_times(out_of_memory)} (of {_times(job.worker_losses)} lost{alone}); giving up. It needs more "
+                 "memory than a worker has: give the job smaller inputs or the workers more memory")
     else:
         error = f"the worker running this job was lost {_times(job.worker_losses)}; giving up"
     if job.service_restarts:
@@ -88,6 +89,15 @@ def _schedulable(options: dict[str, Any]) -> bool:
         if all(have.get(k, 0.0) >= v for k, v in need.items() if v > 0):
             return True
     return False
+
+
+def _whole_node(options: dict[str, Any]) -> dict[str, Any]:
+    """``options`` asking for every CPU of the largest live node that offers its other resources: an attempt that
+    runs alone there (every job asks for CPUs, so none is placed beside it). Unchanged when no node offers them."""
+    extra = {k: float(v) for k, v in options.get("resources", {}).items()}
+    cpus = [node["Resources"].get("CPU", 0.0) for node in ray.nodes()
+            if node.get("Alive") and all(node.get("Resources", {}).get(k, 0.0) >= v for k, v in extra.items())]
+    return {**options, "num_cpus": max(cpus)} if cpus and max(cpus) > options.get("num_cpus", 1) else options
 
 
 def _publish_files(store_url: str, job_id: str, results: dict[str, Path], summary: dict[str, Any]) -> dict[str, Any]:
@@ -278,6 +288,10 @@ class Dispatcher:
         options: dict[str, Any] = {"num_cpus": kind.num_cpus}
         if self.settings.job_resources:
             options["resources"] = dict(self.settings.job_resources)
+        if self._out_of_memory.get(job.id):  # its node ran out of memory: alone, it has the node's memory to itself
+            options = await asyncio.to_thread(_whole_node, options)
+            log.warning("job %s: Ray stopped its last attempt as the node ran out of memory; this attempt runs alone "
+                        "on a node (%s)", job.id, _describe(options))
         from workers.ray_tasks import run_job_task
 
         missing = await self._wait_schedulable(options)

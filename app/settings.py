@@ -50,6 +50,9 @@ class Settings(WorkerSettings):
 
     min_free_storage_mb: float = Field(256.0, ge=0, description="/readyz reports not ready when the data folder "
                                        "(a file blob store) has less free space than this (megabytes).")
+    header_timeout_seconds: float = Field(20.0, gt=0, description="A request whose headers have not all arrived "
+                                          "this long after its connection opened (or its first byte, on a "
+                                          "kept-alive connection) is answered 408 and closed.")
     upload_idle_seconds: float = Field(60.0, gt=0, description="A request body with no bytes for this long is cut "
                                        "off (408).")
     min_upload_bytes_per_second: float = Field(1024.0, ge=0, description="After its first minute, a request body "

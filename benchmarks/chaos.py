@@ -6,11 +6,15 @@ The stack is the compose deployment's, run as processes on loopback (every part 
 (initdb/pg_ctl), an S3 server (moto) behind a proxy that can break it, Redis holding the Ray head's state (Ray's GCS
 fault tolerance, as docker/compose.yaml sets it up), a Ray head without task CPUs, one Ray worker node, and the API
 (`python -m app serve`) joined to that cluster. For each fault, while a 40-photo batch runs and a client keeps
-using the API (job status, job list, a finished job's results and `/readyz` twice a second, a 2-photo upload every ~3 s):
+using the API (job status, job list, a finished job's results and `/readyz` twice a second, a 2-photo upload every ~3 s) and
+a viewer orbits the demo recording (reconnecting 2 s after its socket ends, as the viewer page does):
 
 - database: PostgreSQL stopped at once (`pg_ctl -m immediate`), started again after the outage;
 - storage_hang / storage_slowdown / storage_unreachable: the object store freezes (connections accepted, never
   answered), answers every request `503 SlowDown`, or refuses connections, for the outage;
+- storage_full: a second API whose data folder (the file blob store) is a 64 MB tmpfs: filled to under the
+  service's free-space floor (uploads, /readyz, reads of results), then filled while a batch runs so its results
+  no longer fit (the job's end, its results, objects published), then freed (the time to ready, a new batch);
 - ray_head: every process of the Ray head killed (SIGKILL), started again after the outage;
 - slow_clients: 20 photo uploads trickling at 10 KB/s each for the outage (above the service's 1 KB/s floor, so
   they are served: none may hold the event loop or a worker);
@@ -51,8 +55,8 @@ from tests.servers import (ROOT, FaultyProxy, Unavailable, create_database, exit
 
 FINAL = ("succeeded", "failed", "cancelled")
 RAY = str(Path(sys.executable).parent / "ray")
-FAULTS = ("database", "storage_hang", "storage_slowdown", "storage_unreachable", "ray_head", "slow_clients",
-          "out_of_memory")
+FAULTS = ("database", "storage_hang", "storage_slowdown", "storage_unreachable", "storage_full", "ray_head",
+          "slow_clients", "out_of_memory")
 SLOW_UPLOADS = 20
 SLOW_RATE = 10_000  # bytes per second each
 
@@ -251,6 +255,62 @@ class Prober:
         return out
 
 
+class Viewer:
+    """A viewer of the demo recording behaving as the viewer page does: a viewpoint every 0.5 s (160x120); when
+    its socket closes or fails, it connects again 2 s later. Frames by the prober's phase, failures, and the
+    seconds from the fault's end to its first frame after it."""
+
+    def __init__(self, base: str, prober: "Prober") -> None:
+        from benchmarks.streaming import demo_recording
+
+        with httpx.Client(base_url=base, timeout=30) as c:
+            rig_id, recording = wait_for(lambda: demo_recording(c), 600, "the demo recording")
+        self.url = f"{base.replace('http', 'ws', 1)}/v1/rigs/{rig_id}/view?source={recording['id']}"
+        self.prober = prober
+        self.frames: list[tuple[float, str]] = []
+        self.failures: list[tuple[float, str]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def __enter__(self) -> "Viewer":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(60)
+
+    def _run(self) -> None:
+        from websockets.sync.client import connect
+
+        from benchmarks.streaming import view_message
+        from workers.streaming.framing import unpack_message
+
+        i = 0
+        while not self._stop.is_set():
+            try:
+                with connect(self.url, max_size=None, open_timeout=10) as ws:
+                    while json.loads(ws.recv(timeout=30))["type"] != "ready":
+                        pass
+                    while not self._stop.is_set():
+                        i += 1
+                        ws.send(json.dumps(view_message(i, 0.0, (160, 120))))
+                        while not (isinstance(m := ws.recv(timeout=30), bytes) and unpack_message(m)[0]["id"] == i):
+                            if isinstance(m, str) and json.loads(m).get("type") == "error":
+                                raise RuntimeError(m)
+                        self.frames.append((time.monotonic(), self.prober.phase))
+                        self._stop.wait(0.5)
+            except Exception as exc:  # noqa: BLE001 - whatever ended the socket, the page connects again
+                self.failures.append((time.monotonic(), type(exc).__name__))
+                self._stop.wait(2.0)
+
+    def summary(self, ended: float) -> dict[str, Any]:
+        after = [t for t, _ in self.frames if t >= ended]
+        return {"frames": dict(Counter(phase for _, phase in self.frames)),
+                "failures": dict(Counter(name for _, name in self.failures)),
+                "first_frame_after_s": after[0] - ended if after else None}
+
+
 def job_outcomes(base: str, ids: list[str], timeout: float) -> dict[str, Any]:
     """Wait for every job to end; their states counted, and the errors of those that did not succeed."""
     states: dict[str, dict] = {}
@@ -274,15 +334,15 @@ def job_outcomes(base: str, ids: list[str], timeout: float) -> dict[str, Any]:
             "attempts": sorted({j["attempts"] for j in states.values()})}
 
 
-class SlowUploads:
-    """Photo-batch uploads, each sent at ``SLOW_RATE`` bytes per second on a raw socket (a phone on a bad link)."""
+class RawClients:
+    """``SLOW_UPLOADS`` clients on raw sockets, each on its own thread running ``client()``."""
 
-    def __init__(self, base: str, seconds: float) -> None:
+    def __init__(self, base: str) -> None:
         self.host, self.port = base.removeprefix("http://").split(":")
-        self.body_bytes = int(SLOW_RATE * seconds)
-        self.statuses: list[str] = []
-        self.accepted: list[str] = []
-        self._threads = [threading.Thread(target=self._upload, daemon=True) for _ in range(SLOW_UPLOADS)]
+        self._threads = [threading.Thread(target=self.client, daemon=True) for _ in range(SLOW_UPLOADS)]
+
+    def client(self) -> None:
+        raise NotImplementedError
 
     def begin(self) -> None:
         for t in self._threads:
@@ -292,7 +352,17 @@ class SlowUploads:
         for t in self._threads:
             t.join(120)
 
-    def _upload(self) -> None:
+
+class SlowUploads(RawClients):
+    """Photo-batch uploads, each sent at ``SLOW_RATE`` bytes per second on a raw socket (a phone on a bad link)."""
+
+    def __init__(self, base: str, seconds: float) -> None:
+        super().__init__(base)
+        self.body_bytes = int(SLOW_RATE * seconds)
+        self.statuses: list[str] = []
+        self.accepted: list[str] = []
+
+    def client(self) -> None:
         import socket
 
         name, jpeg = photos(1)[0]
@@ -320,6 +390,35 @@ class SlowUploads:
             self.statuses.append(type(exc).__name__)
 
 
+class StalledHeaders(RawClients):
+    """Connections that send the start of a request's headers and then nothing (a slowloris): when the server
+    answered and closed each, and what it answered."""
+
+    def __init__(self, base: str) -> None:
+        super().__init__(base)
+        self.answers: list[str] = []
+        self.closed_after_s: list[float] = []
+
+    def client(self) -> None:
+        import socket
+
+        t = time.monotonic()
+        try:
+            with socket.create_connection((self.host, int(self.port)), timeout=120) as sock:
+                sock.sendall(b"POST /v1/photos/batches HTTP/1.1\r\nHost: chaos\r\nContent-Type: multipart/")
+                answer = b""
+                while chunk := sock.recv(65536):
+                    answer += chunk
+            self.answers.append(answer.split(b" ", 2)[1].decode() if answer else "closed without an answer")
+            self.closed_after_s.append(time.monotonic() - t)
+        except OSError as exc:
+            self.answers.append(type(exc).__name__)
+
+    def summary(self) -> dict[str, Any]:
+        return {"answers": dict(Counter(self.answers)),
+                "closed_after_s": [min(self.closed_after_s, default=0.0), max(self.closed_after_s, default=0.0)]}
+
+
 def running_batch(base: str, count: int = 40) -> str:
     with httpx.Client(base_url=base, timeout=120) as c:
         job = c.post("/v1/photos/batches", files=photo_files(count)).json()
@@ -332,7 +431,7 @@ def run_fault(app: SupervisedApp, finished_id: str, name: str, begin: Callable[[
               outage_s: float, extra: Callable[[], dict[str, Any]] | None = None) -> dict[str, Any]:
     """One fault while a batch runs and a client uses the API; see the module docstring."""
     batch = running_batch(app.base)
-    with Prober(app.base, batch, finished_id) as prober:
+    with Prober(app.base, batch, finished_id) as prober, Viewer(app.base, prober) as viewer:
         time.sleep(2.0)
         prober.phase = "during"
         begin()
@@ -345,11 +444,13 @@ def run_fault(app: SupervisedApp, finished_id: str, name: str, begin: Callable[[
         outcomes = job_outcomes(app.base, [batch], 900)
         batch_s = time.monotonic() - ended
         time.sleep(3.0)  # the client's uploads after recovery
+        wait_for(lambda: viewer.summary(ended)["first_frame_after_s"] is not None, 120, "the viewer's next frame")
+        watched = viewer.summary(ended)
     accepted = job_outcomes(app.base, prober.accepted, 900)
     print(f"{name}: ready {ready_s:.1f} s after the fault, batch {outcomes}, uploads {accepted}", flush=True)
     return {"fault": name, "outage_s": outage_s, "ready_after_s": ready_s, "batch_done_after_s": batch_s,
             "batch": outcomes, "uploads_accepted": accepted, **(extra() if extra else {}),
-            "during": prober.summary("during"), "after": prober.summary("after"),
+            "during": prober.summary("during"), "after": prober.summary("after"), "viewer": watched,
             "api_restarts": app.restarts}
 
 
@@ -383,6 +484,88 @@ def out_of_memory(app: SupervisedApp) -> dict[str, Any]:
     ordinary = job_outcomes(app.base, [before, after], 900)
     print(f"out_of_memory: oversized {big_out}, ordinary {ordinary}", flush=True)
     return {"fault": "out_of_memory", "oversized": big_out, "ordinary": ordinary, "api_restarts": app.restarts}
+
+
+VOLUME_MB, VOLUME_MIN_FREE_MB = 64, 16
+
+
+@contextlib.contextmanager
+def small_volume(folder: Path) -> Iterator[Path]:
+    """A ``VOLUME_MB`` tmpfs mounted at ``folder`` (needs root, as a data volume's size limit would)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={VOLUME_MB}m", "tmpfs", str(folder)], check=True)
+    try:
+        yield folder
+    finally:
+        subprocess.run(["umount", "-l", str(folder)], check=False)
+
+
+def fill(volume: Path, leave_mb: float) -> None:
+    """Grow the filler file on ``volume`` until ``leave_mb`` is free (0: as full as it gets)."""
+    filler = volume / "filler"
+    filler.touch()
+    free = shutil.disk_usage(volume).free
+    with open(filler, "r+b") as f:
+        size = os.fstat(f.fileno()).st_size + free - int(leave_mb * 2**20)
+        os.posix_fallocate(f.fileno(), 0, max(size, 1))
+
+
+def _answer(r: httpx.Response) -> str:
+    body = r.json() if r.headers.get("content-type", "").startswith("application/json") else {}
+    return f"{r.status_code} {body.get('error', '')}".strip()
+
+
+def storage_full(cluster_address: str, database_url: str, workdir: Path) -> dict[str, Any]:
+    """The blob volume full: an API whose data folder (the file blob store) is a small tmpfs, filled while it
+    works, then freed. Each step's answers, what became of a batch whose results no longer fit, and whether any
+    of its results were published."""
+    from workers.runtime import results_prefix
+    from workers.storage import open_store
+
+    out: dict[str, Any] = {"fault": "storage_full", "volume_mb": VOLUME_MB, "min_free_mb": VOLUME_MIN_FREE_MB}
+    with small_volume(workdir / "volume") as volume:
+        env = {"SWEEPCAST_DATA_DIR": str(volume), "SWEEPCAST_DATABASE_URL": database_url,
+               "SWEEPCAST_RAY_ADDRESS": cluster_address, "RAY_AUTH_MODE": "disabled", "SWEEPCAST_DEMO_RIG": "false",
+               "SWEEPCAST_MIN_FREE_STORAGE_MB": str(VOLUME_MIN_FREE_MB), "SWEEPCAST_JOB_MAX_ATTEMPTS": "2"}
+        with supervised_api(env, workdir / "full.log") as app, httpx.Client(base_url=app.base, timeout=120) as c:
+            before = c.post("/v1/photos/batches", files=photo_files(8)).json()["id"]
+            out["before"] = job_outcomes(app.base, [before], 300)["states"]
+
+            fill(volume, VOLUME_MIN_FREE_MB / 2)  # nearly full: under the service's floor
+            out["nearly_full"] = {
+                "upload": _answer(c.post("/v1/photos/batches", files=photo_files(2))),
+                "readyz": _answer(r := c.get("/readyz")) + f" ({r.json()['checks']['storage'].get('detail', '')})",
+                "read a result": _answer(c.get(f"/v1/jobs/{before}/results/report.json")),
+                "list jobs": _answer(c.get("/v1/jobs")),
+            }
+
+            (volume / "filler").unlink()  # room for a batch's inputs, then none for its results
+            fill(volume, VOLUME_MIN_FREE_MB + 12)
+            r = c.post("/v1/photos/batches", files=photo_files(60))
+            out["results_do_not_fit"] = {"upload": _answer(r)}
+            if r.status_code == 202:
+                job_id = r.json()["id"]
+                wait_for(lambda: c.get(f"/v1/jobs/{job_id}").json()["state"] != "queued", 120, "the batch to start",
+                         interval=0.1)
+                fill(volume, 0)
+                ended = job_outcomes(app.base, [job_id], 300)
+                store = open_store(volume.joinpath("blobs").as_uri())
+                out["results_do_not_fit"].update(
+                    job=ended["states"], error="; ".join(ended["errors"])[:300],
+                    results=_answer(c.get(f"/v1/jobs/{job_id}/results/report.json")),
+                    objects_published=len(store.list(results_prefix(job_id))))
+
+            (volume / "filler").unlink()
+            freed = time.monotonic()
+            ready_s = wait_for(lambda: c.get("/readyz").status_code == 200 and time.monotonic() - freed, 120,
+                               "/readyz once space is freed", interval=0.2)
+            after = c.post("/v1/photos/batches", files=photo_files(8))
+            out["freed"] = {"ready_after_s": ready_s, "upload": _answer(after),
+                            "job": job_outcomes(app.base, [after.json()["id"]], 300)["states"]
+                            if after.status_code == 202 else {}}
+            out["log_errors"] = [line for line in app.log_tail(20000).splitlines() if "Traceback" in line][:5]
+    print(f"storage_full: {out}", flush=True)
+    return out
 
 
 def memory_threshold(extra_gb: float) -> float:
@@ -420,7 +603,7 @@ def main() -> int:
                 env = {"SWEEPCAST_DATA_DIR": data, "SWEEPCAST_DATABASE_URL": create_database(pg.url, "chaos"),
                        "SWEEPCAST_STORAGE_URL": f"s3://chaos/sc?endpoint_url=http://{proxy.address}&region=us-east-1",
                        "SWEEPCAST_RAY_ADDRESS": cluster.address, "RAY_AUTH_MODE": "disabled",
-                       "RAY_gcs_rpc_server_reconnect_timeout_s": "300", "SWEEPCAST_DEMO_RIG": "false",
+                       "RAY_gcs_rpc_server_reconnect_timeout_s": "300",
                        "SWEEPCAST_JOB_MAX_ATTEMPTS": "2"}
                 with supervised_api(env, Path(data) / "serve.log") as app:
                     with httpx.Client(base_url=app.base, timeout=120) as c:
@@ -433,8 +616,9 @@ def main() -> int:
                         "storage_unreachable": (lambda: proxy.set("refuse"), lambda: proxy.set("pass"), args.outage),
                         "ray_head": (cluster.kill_head, cluster.start_head, args.outage),
                     }
-                    slow = SlowUploads(app.base, args.outage)
-                    breaks["slow_clients"] = (slow.begin, slow.end, 0.0)
+                    slow, stalled = SlowUploads(app.base, args.outage), StalledHeaders(app.base)
+                    breaks["slow_clients"] = (lambda: (slow.begin(), stalled.begin()),
+                                              lambda: (slow.end(), stalled.end()), 0.0)
                     for fault in faults:
                         started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
                         if fault == "out_of_memory":  # on a node of its own, the last fault
@@ -442,10 +626,14 @@ def main() -> int:
                             cluster.add_node(env={"RAY_memory_usage_threshold": f"{memory_threshold(0.9):.3f}",
                                                   "RAY_memory_monitor_refresh_ms": "100"})
                             results["faults"].append(out_of_memory(app))
+                        elif fault == "storage_full":  # an API of its own whose data volume fills
+                            results["faults"].append(storage_full(cluster.address, create_database(pg.url, "full"),
+                                                                  Path(data)))
                         elif fault == "slow_clients":
                             results["faults"].append(run_fault(app, finished, fault, *breaks[fault], extra=lambda: {
                                 "slow_uploads": {"answers": dict(Counter(slow.statuses)),
-                                                 **job_outcomes(app.base, slow.accepted, 900)}}))
+                                                 **job_outcomes(app.base, slow.accepted, 900)},
+                                "stalled_headers": stalled.summary()}))
                         else:
                             results["faults"].append(run_fault(app, finished, fault, *breaks[fault]))
                         results["faults"][-1]["measured"] = started
@@ -470,6 +658,14 @@ def kept_faults(run: list[str]) -> list[dict[str, Any]]:
     return sorted(kept, key=lambda f: FAULTS.index(f["fault"]))
 
 
+def _viewer(v: dict[str, Any] | None) -> str:
+    if v is None:
+        return "-"
+    frames = ", ".join(f"{k} {n}" for k, n in v["frames"].items())
+    failures = f"; socket ended x{sum(v['failures'].values())}" if v["failures"] else ""
+    return f"frames {frames}{failures}; first frame {v['first_frame_after_s']:.1f} s after the fault's end"
+
+
 def _answers(summary: dict[str, Any]) -> str:
     return "; ".join(f"{route.split(' (')[0]}: " + ", ".join(f"{k} x{v}" for k, v in s["answers"].items())
                      for route, s in summary.items())
@@ -478,10 +674,21 @@ def _answers(summary: dict[str, Any]) -> str:
 def markdown(r: dict[str, Any]) -> str:
     rows = []
     for f in r["faults"]:
+        if f["fault"] == "storage_full":
+            n, x, fr = f["nearly_full"], f["results_do_not_fit"], f["freed"]
+            rows.append([f.get("measured", ""), f"storage_full ({f['volume_mb']} MB tmpfs, floor "
+                         f"{f['min_free_mb']} MB)", "-",
+                         "nearly full: " + ", ".join(f"{k} {v}" for k, v in n.items()),
+                         f"before: {f['before']}; a 60-photo batch whose results no longer fit: upload {x['upload']}, "
+                         f"job {x.get('job')} ({x.get('error', '')}), its results {x.get('results')}, "
+                         f"{x.get('objects_published')} objects published; after freeing: upload {fr['upload']}, "
+                         f"job {fr['job']}", f"{len(f['log_errors'])} tracebacks in the log",
+                         f"{fr['ready_after_s']:.1f} / -", "-", "-"])
+            continue
         if f["fault"] == "out_of_memory":
             o, s = f["oversized"], f["ordinary"]
             rows.append([f.get("measured", ""), "out_of_memory", "-", f"oversized job: {o['states']} ({'; '.join(o['errors'])[:300]})",
-                         f"ordinary batch: {s['states']}", "-", "-", f["api_restarts"]])
+                         f"ordinary batch: {s['states']}", "-", "-", "-", f["api_restarts"]])
             continue
         during = f["during"]
         bad = sum(s["server_errors_not_503"] + s["connection_failures"] for s in during.values())
@@ -489,12 +696,16 @@ def markdown(r: dict[str, Any]) -> str:
         slow = f.get("slow_uploads")
         slow_text = (f"; the {SLOW_UPLOADS} uploads at {SLOW_RATE // 1000} KB/s answered {slow['answers']}, their "
                      f"jobs {slow['states']}" if slow else "")
+        if "stalled_headers" in f:
+            h = f["stalled_headers"]
+            slow_text += (f"; {SLOW_UPLOADS} connections that never finished their headers answered {h['answers']}, "
+                          f"closed {h['closed_after_s'][0]:.1f}-{h['closed_after_s'][1]:.1f} s after opening")
         outage = f"{f['outage_s']:.0f}" if f["outage_s"] else "(the uploads' length)"
         rows.append([f.get("measured", ""), f["fault"], outage, _answers(during),
                      f"batch {f['batch']['states']}, attempts {f['batch']['attempts']}; client uploads "
                      f"{f['uploads_accepted']['states']}{slow_text}",
                      f"{bad} (slowest answer {slowest:.1f} s)", f"{f['ready_after_s']:.1f} / {f['batch_done_after_s']:.1f}",
-                     f["api_restarts"]])
+                     _viewer(f.get("viewer")), f["api_restarts"]])
     la = r["load_average"]
     return "\n".join([
         "The compose deployment's parts as processes on loopback (PostgreSQL, moto's S3 behind a breakable proxy, "
@@ -503,10 +714,11 @@ def markdown(r: dict[str, Any]) -> str:
         "the fault (status and error code x count); what became of the jobs (the batch, and every upload the client "
         "got 202 for, before, during or after the fault); answers that were neither a success nor a 503 with a "
         "reason (server errors, dropped connections); seconds from the fault's end to `/readyz` 200 and to the "
-        "batch's end; how many times the API process had stopped to be started again (it does once a lost Ray head is "
+        "batch's end; the viewer's frames by phase and its first frame after the fault's end; how many times the API process had stopped to be started again (it does once a lost Ray head is "
         "back: app/ray_watch.py; the harness restarts it as the compose file's restart policy does).", "",
         md_table(["measured", "fault", "outage s", "answers during the fault", "jobs", "5xx other than 503 / dropped",
-                  "ready / batch done after (s)", "API restarts so far"], rows),
+                  "ready / batch done after (s)", "a viewer (reconnecting as the page does)", "API restarts so far"],
+                 rows),
         "", load_note(la["before"], la["after"]),
     ])
 

@@ -1,10 +1,14 @@
 """An hour of mixed load: does the service stay as it was at the start?
 
     python -m benchmarks.soak [--minutes 60] [--warmup-minutes 10]
+    python -m benchmarks.soak --base http://127.0.0.1:8000 --base http://127.0.0.1:8001 \
+        --podman-project sweepcast-verify --name soak_compose    # a running compose stack (docker/verify-stack.sh)
 
 Starts the service as ``make serve`` runs it (``sweepcast serve`` on the embedded default: local Ray, SQLite and
-a data folder, here a temporary one; the kernels from the user's cache), waits for the demo recording, and then
-for ``--minutes`` a bounded load generator uses it the way its users do, all at once:
+a data folder, here a temporary one; the kernels from the user's cache), or uses the running service at
+``--base`` (each replica's URL; the key from ``SWEEPCAST_API_KEYS``, as docker/.env sets it), waits for the demo
+recording, and then for ``--minutes`` a bounded load generator uses it the way its users do, all at once (the
+photo organiser and the live source on the first replica, reconstructions on the last, viewers taking turns):
 
 - a photo organiser: a batch of 8 photos every 30 s, its state polled each second until it ends, then its report
   and the job list read;
@@ -16,7 +20,8 @@ for ``--minutes`` a bounded load generator uses it the way its users do, all at 
 
 Every answer is recorded (route, status or the exception, seconds), every job's end state, and every 15 s the
 resident memory, threads and open files of every process of the service (the API, Ray's processes and its
-workers: the server's process and all its descendants). Reported: 5xx answers and connection failures, jobs
+workers: the server's process and all its descendants; on a compose stack, every process of its containers).
+Reported: 5xx answers and connection failures, jobs
 lost (never ended) or failed, each process's growth of memory, threads and files from the end of the warm-up to
 the end, and each route's p99 per 10-minute window against its first ten minutes. Plots of memory and latency
 over the run: ``benchmarks/results/soak_*.png``.
@@ -28,12 +33,13 @@ import asyncio
 import json
 import os
 import statistics
+import subprocess
 import tempfile
 import threading
 import time
 from collections import defaultdict
 from pathlib import Path
-from typing import Any, Awaitable
+from typing import Any, Awaitable, Callable
 
 import httpx
 import numpy as np
@@ -154,13 +160,17 @@ async def _frame(ws: Any, i: int) -> None:
             raise RuntimeError(message)
 
 
+HEADERS: dict[str, str] = {}
+"""The API key's header for every request and socket (empty for the embedded default, which needs none)."""
+
+
 async def viewer(log: Log, url: str, frames: int, phase: float, stop: asyncio.Event) -> None:
     """One viewer orbiting at ``VIEWER_FPS``; a new session every ``VIEWER_SESSION_S``."""
     i = 0
     while not stop.is_set():
         t = time.monotonic()
         try:
-            async with websockets.connect(url, max_size=None, open_timeout=60) as ws:
+            async with websockets.connect(url, max_size=None, open_timeout=60, additional_headers=HEADERS) as ws:
                 while json.loads(await ws.recv())["type"] != "ready":
                     pass
                 log.note("WS view: connect to ready", t, 101)
@@ -184,7 +194,7 @@ async def live_ingest(log: Log, url: str, background: list[bytes], sets: list[li
     while not stop.is_set():
         t = time.monotonic()
         try:
-            async with websockets.connect(url, max_size=None, open_timeout=60) as ws:
+            async with websockets.connect(url, max_size=None, open_timeout=60, additional_headers=HEADERS) as ws:
                 json.loads(await ws.recv())
                 seq += 1
                 await ws.send(frame_set_message(background, seq, background=True))
@@ -245,8 +255,12 @@ def process_sample(pid: int) -> dict[str, Any] | None:
             "threads": int(status["Threads"]), "files": files}
 
 
-def role(title: str) -> str:
-    """A short name for a process of the service from its command line."""
+def role(title: str, prefix: str = "") -> str:
+    """A short name for a process of the service from its command line (after ``prefix``: its container)."""
+    return f"{prefix}: {_role(title)}" if prefix else _role(title)
+
+
+def _role(title: str) -> str:
     if "app serve" in title or "sweepcast serve" in title:
         return "API"
     for name in ("gcs_server", "raylet", "dashboard", "log_monitor", "monitor.py", "runtime_env", "dashboard_agent"):
@@ -257,61 +271,103 @@ def role(title: str) -> str:
     return Path(title.split()[0]).name if title else "?"
 
 
-def sampler(log: Log, root: int, stop: threading.Event) -> None:
+def podman_roots(project: str) -> dict[int, str]:
+    """The main process of each running container of a compose project, by container name."""
+    names = subprocess.run(["podman", "ps", "--format", "{{.Names}}", "--filter",
+                            f"label=com.docker.compose.project={project}"], capture_output=True, text=True,
+                           check=True).stdout.split()
+    pids = subprocess.run(["podman", "inspect", "--format", "{{.State.Pid}}", *names], capture_output=True,
+                          text=True, check=True).stdout.split()
+    return {int(pid): name.removeprefix(f"{project}_") for name, pid in zip(names, pids)}
+
+
+def sampler(log: Log, roots: Callable[[], dict[int, str]], stop: threading.Event) -> None:
+    """Every ``SAMPLE_EVERY_S``: each process under ``roots()`` (pid -> a prefix for its role, e.g. a container)."""
     while not stop.is_set():
-        procs = [s for pid in descendants(root) if (s := process_sample(pid)) is not None]
+        procs = []
+        for root, prefix in roots().items():
+            for pid in descendants(root):
+                if (sample := process_sample(pid)) is not None:
+                    procs.append({**sample, "prefix": prefix})
         log.samples.append({"t": log.now(), "load": load_average(2), "processes": procs})
         stop.wait(SAMPLE_EVERY_S)
 
 
 # --- the run --------------------------------------------------------------------------------------
-async def load(log: Log, base: str, rig_id: str, recording: dict, flight: tuple[Path, dict],
+async def load(log: Log, bases: list[str], rig_id: str, recording: dict, flight: tuple[Path, dict],
                live: tuple[list[bytes], list[list[bytes]]], seconds: float) -> None:
     stop = asyncio.Event()
-    ws = base.replace("http", "ws", 1)
-    view_url = f"{ws}/v1/rigs/{rig_id}/view?source={recording['id']}"
-    async with httpx.AsyncClient(base_url=base, timeout=120) as http:
-        tasks = [asyncio.create_task(photo_organiser(log, http, stop)),
-                 asyncio.create_task(reconstructions(log, http, flight, stop)),
-                 asyncio.create_task(live_ingest(log, f"{ws}/v1/rigs/{rig_id}/live", *live, stop)),
-                 asyncio.create_task(readiness(log, http, stop)),
-                 *(asyncio.create_task(viewer(log, view_url, recording["frames"], 20.0 * k, stop))
-                   for k in range(VIEWERS))]
+    sockets = [base.replace("http", "ws", 1) for base in bases]
+    view = f"/v1/rigs/{rig_id}/view?source={recording['id']}"
+    async with httpx.AsyncClient(base_url=bases[0], timeout=120, headers=HEADERS) as first, \
+            httpx.AsyncClient(base_url=bases[-1], timeout=120, headers=HEADERS) as last:
+        tasks = [asyncio.create_task(photo_organiser(log, first, stop)),
+                 asyncio.create_task(reconstructions(log, last, flight, stop)),
+                 asyncio.create_task(live_ingest(log, f"{sockets[0]}/v1/rigs/{rig_id}/live", *live, stop)),
+                 asyncio.create_task(readiness(log, first, stop)),
+                 *(asyncio.create_task(viewer(log, sockets[k % len(sockets)] + view, recording["frames"], 20.0 * k,
+                                              stop)) for k in range(VIEWERS))]
         await until(stop, seconds)
         stop.set()
         await asyncio.gather(*tasks)  # jobs still running are followed to their end (10 min at most)
 
 
-def run(minutes: float) -> dict[str, Any]:
+def soak(bases: list[str], roots: Callable[[], dict[int, str]], minutes: float, workdir: Path) -> Log:
+    """The load on the service at ``bases`` for ``minutes``, sampling the processes under ``roots()``."""
     from workers.sweep.rig_io import rig_from_dict
 
+    flight = make_flight(workdir)
+    with httpx.Client(base_url=bases[0], timeout=60, headers=HEADERS) as http:
+        deadline = time.monotonic() + 900
+        while not (found := demo_recording(http)) and time.monotonic() < deadline:
+            time.sleep(1.0)
+        if not found:
+            raise SystemExit("no demo recording after 15 min")
+        rig_id, recording = found
+        rig = rig_from_dict(http.get(f"/v1/rigs/{rig_id}").json()["calibration"])
+    live = live_frame_sets(rig, 12)
+    log = Log()
+    stop = threading.Event()
+    watcher = threading.Thread(target=sampler, args=(log, roots, stop), daemon=True)
+    watcher.start()
+    try:
+        asyncio.run(load(log, bases, rig_id, recording, flight, live, 60.0 * minutes))
+    finally:
+        stop.set()
+        watcher.join()
+    return log
+
+
+def error_lines(text: str) -> list[str]:
+    return [line for line in text.splitlines() if "Traceback" in line or "ERROR" in line]
+
+
+def podman_log_errors(project: str, minutes: float) -> list[str]:
+    """The error lines every container of the compose project logged over the run."""
+    out = []
+    for name in podman_roots(project).values():
+        logs = subprocess.run(["podman", "logs", "--since", f"{int(minutes) + 20}m", f"{project}_{name}"],
+                              capture_output=True, text=True)
+        out += [f"{name}: {line}" for line in error_lines(logs.stdout + logs.stderr)]
+    return out
+
+
+def run(minutes: float, bases: list[str], podman_project: str | None) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="sweepcast-soak-") as tmp:
         tmp_path = Path(tmp)
-        flight = make_flight(tmp_path)
-        log_file = tmp_path / "server.log"
-        with serve_app({"SWEEPCAST_DATA_DIR": str(tmp_path / "data")}, log=log_file,
-                       args=("--log-level", "warning")) as app:
-            with httpx.Client(base_url=app.base, timeout=60) as http:
-                deadline = time.monotonic() + 900
-                while not (found := demo_recording(http)) and time.monotonic() < deadline:
-                    time.sleep(1.0)
-                if not found:
-                    raise SystemExit(f"no demo recording after 15 min; server log: {app.log_tail()}")
-                rig_id, recording = found
-                rig = rig_from_dict(http.get(f"/v1/rigs/{rig_id}").json()["calibration"])
-            live = live_frame_sets(rig, 12)
-            log = Log()
-            stop = threading.Event()
-            watcher = threading.Thread(target=sampler, args=(log, app.proc.pid, stop), daemon=True)
-            watcher.start()
-            try:
-                asyncio.run(load(log, app.base, rig_id, recording, flight, live, 60.0 * minutes))
-            finally:
-                stop.set()
-                watcher.join()
-            errors = [line for line in log_file.read_text(errors="replace").splitlines()
-                      if "Traceback" in line or "ERROR" in line]
-    return {"minutes": minutes, "answers": log.answers, "jobs": log.jobs, "samples": log.samples,
+        if bases:  # a running deployment
+            project = podman_project
+            log = soak(bases, (lambda: podman_roots(project)) if project else dict, minutes, tmp_path)
+            errors = podman_log_errors(project, minutes) if project else []
+            target = f"the compose stack {project or ''} at {', '.join(bases)}"
+        else:
+            log_file = tmp_path / "server.log"
+            with serve_app({"SWEEPCAST_DATA_DIR": str(tmp_path / "data")}, log=log_file,
+                           args=("--log-level", "warning")) as app:
+                log = soak([app.base], lambda: {app.proc.pid: ""}, minutes, tmp_path)
+            errors = error_lines(log_file.read_text(errors="replace"))
+            target = "the embedded default (`sweepcast serve`: local Ray, SQLite, a fresh data folder)"
+    return {"target": target, "minutes": minutes, "answers": log.answers, "jobs": log.jobs, "samples": log.samples,
             "server_log_error_lines": errors[:50], "server_log_error_count": len(errors)}
 
 
@@ -346,10 +402,11 @@ def process_growth(samples: list[dict[str, Any]], warmup_s: float) -> list[dict[
 
     rows = []
     pids = {p["pid"]: p["title"] for s in early for p in s["processes"]}
+    prefixes = {p["pid"]: p.get("prefix", "") for s in early for p in s["processes"]}
     for pid, title in pids.items():
         if not series(late, pid, "rss_mb"):
             continue
-        row = {"pid": pid, "role": role(title)}
+        row = {"pid": pid, "role": role(title, prefixes.get(pid, ""))}
         for key in ("rss_mb", "threads", "files"):
             a, b = statistics.mean(series(early, pid, key)), statistics.mean(series(late, pid, key))
             row[f"{key}_after_warmup"], row[f"{key}_end"] = a, b
@@ -447,8 +504,7 @@ def _totals(growth: dict[str, dict[str, float]]) -> list[str]:
 
 def markdown(summary: dict[str, Any], raw: dict[str, Any], pictures: list[Path]) -> str:
     loads = summary["loads"]
-    md = [f"The embedded default (`sweepcast serve`: local Ray, SQLite, a fresh data folder) for "
-          f"{raw['minutes']:g} minutes under the load generator of `benchmarks/soak.py` (photo batches of "
+    md = [f"{raw['target'][0].upper()}{raw['target'][1:]} for {raw['minutes']:g} minutes under the load generator of `benchmarks/soak.py` (photo batches of "
           f"{BATCH_PHOTOS} every {BATCH_EVERY_S:g} s, {VIEWERS} viewers orbiting at {VIEWER_FPS:g} fps at "
           f"{VIEW_SIZE[0]}x{VIEW_SIZE[1]} / {VIEW_PLANES} planes with a new session every "
           f"{VIEWER_SESSION_S / 60:g} min, a 36-frame reconstruction every {RECONSTRUCT_EVERY_S / 60:g} min, live "
@@ -486,11 +542,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup-minutes", type=float, default=None,
                         help="the warm-up left out of the growth figures (default: 10, or a sixth of a shorter run)")
     parser.add_argument("--name", default="soak_embedded", help="the results name (default soak_embedded)")
+    parser.add_argument("--base", action="append", default=[],
+                        help="a running service's URL (repeat for each API replica); the key from SWEEPCAST_API_KEYS")
+    parser.add_argument("--podman-project", help="the compose project whose containers' processes are sampled")
     parser.add_argument("--raw", help="also write every answer, job and process sample to this JSON file")
     args = parser.parse_args(argv)
     exit_on_sigterm()
     warmup = 60.0 * (args.warmup_minutes if args.warmup_minutes is not None else min(10.0, args.minutes / 6))
-    raw = run(args.minutes)
+    if args.base and os.environ.get("SWEEPCAST_API_KEYS"):
+        HEADERS["Authorization"] = f"Bearer {os.environ['SWEEPCAST_API_KEYS'].split(',')[0]}"
+    raw = run(args.minutes, args.base, args.podman_project)
     if args.raw:
         Path(args.raw).parent.mkdir(parents=True, exist_ok=True)
         Path(args.raw).write_text(json.dumps(raw))

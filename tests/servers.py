@@ -471,10 +471,12 @@ def serve_in_thread(settings: object) -> Iterator[str]:
     import httpx
     import uvicorn
 
+    from app.http_protocol import http_protocol
     from app.main import create_app
 
     port = free_port()
-    server = uvicorn.Server(uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning"))
+    server = uvicorn.Server(uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning",
+                                           http=http_protocol(settings.header_timeout_seconds)))
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()
     base = f"http://127.0.0.1:{port}"

@@ -35,7 +35,6 @@ from workers.settings import worker_settings
 from workers.storage import BlobStore, check_key, open_store, storage_full, storage_unavailable
 
 _DONE = object()
-_STORAGE_RETRY_MAX_S = 5.0
 
 
 class StorageOutage(RuntimeError):
@@ -135,11 +134,11 @@ def publish_results(store: BlobStore, job_id: str, staging: Path, summary: dict[
     return manifest
 
 
-def _outlasting_storage(step: Callable[[], Any], what: str, budget_s: float) -> Any:
-    """``step()``, tried again with backoff while the object store cannot be reached (every step here is safe to
-    repeat: reads, and a publish that replaces), for up to ``budget_s`` seconds of outage; then
-    :class:`StorageOutage`."""
-    delay, since = 1.0, None
+def _outlasting_storage(step: Callable[[], Any], what: str, budget_s: float, longest_wait_s: float) -> Any:
+    """``step()``, tried again with backoff (1 s doubling up to ``longest_wait_s``) while the object store cannot
+    be reached (every step here is safe to repeat: reads, and a publish that replaces), for up to ``budget_s``
+    seconds of outage; then :class:`StorageOutage`."""
+    delay, since = min(1.0, longest_wait_s), None
     while True:
         try:
             return step()
@@ -153,9 +152,9 @@ def _outlasting_storage(step: Callable[[], Any], what: str, budget_s: float) -> 
                                     f"{what} ({type(exc).__name__}: {str(exc)[:200]}): nothing was published; run "
                                     "the job again once it is back") from exc
             print(f"sweepcast: the object store cannot be reached while {what} ({type(exc).__name__}); "
-                  f"trying again in {delay:.0f} s", flush=True)
+                  f"trying again in {delay:g} s", flush=True)
             time.sleep(delay)
-            delay = min(delay * 2, _STORAGE_RETRY_MAX_S)
+            delay = min(delay * 2, longest_wait_s)
 
 
 def _empty(folder: Path) -> None:
@@ -195,9 +194,9 @@ def execute_job(spec: JobSpec) -> Iterator[dict[str, Any]]:
                 _empty(staging)  # a run cut short by the store leaves nothing for the next one
                 return kind.entry(ctx) or {}
 
-            summary = _outlasting_storage(run, "reading the job's inputs", budget)
+            summary = _outlasting_storage(run, "reading the job's inputs", budget, store.retry_after_s)
             manifest = _outlasting_storage(lambda: publish_results(store, spec.job_id, staging, summary),
-                                           "publishing the results", budget)
+                                           "publishing the results", budget, store.retry_after_s)
             outcome["event"] = {"type": "succeeded", "manifest": manifest}
         except JobInputError as exc:
             outcome["event"] = {"type": "failed", "error": str(exc), "user_error": True}

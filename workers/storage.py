@@ -101,6 +101,8 @@ def new_key(prefix: str) -> str:
 
 class BlobStore(Protocol):
     url: str
+    retry_after_s: float
+    """Seconds a store that could not be reached is left alone before a request tries it again."""
 
     def put(self, key: str, data: bytes | BinaryIO) -> int: ...
     def open(self, key: str) -> BinaryIO: ...
@@ -120,6 +122,8 @@ class DirectoryBlobStore:
     Writes go to a temporary file in the same directory and are renamed into place, so a
     reader never sees a partial blob and a crash leaves no half-written key behind.
     """
+
+    retry_after_s = 5.0  # a folder is not "unreachable" as a server is: its errors are not retried (storage_unavailable)
 
     def __init__(self, root: str | os.PathLike[str]) -> None:
         self.root = Path(root).resolve()
@@ -312,7 +316,8 @@ class S3BlobStore:
         query = "&".join(f"{k}={v}" for k, v in options if v)
         self.url = f"s3://{bucket}/{self.prefix}" + (f"?{query}" if query else "")
         self._cache = Path(cache_dir or Path(tempfile.gettempdir()) / "sweepcast-blob-cache")
-        self._breaker = _Breaker()
+        self.retry_after_s = t.retry_after
+        self._breaker = _Breaker(t.retry_after)
         self._probe = boto3.client("s3", endpoint_url=endpoint_url, region_name=region, config=Config(
             connect_timeout=2, read_timeout=2, retries={"mode": "standard", "total_max_attempts": 1}))
 
@@ -425,12 +430,15 @@ class S3BlobStore:
 
 @dataclass(frozen=True)
 class S3Timeouts:
-    """How long the object store client waits (seconds) and how many times it tries one request; each can be set
-    in the storage URL's query (``?read_timeout=30``)."""
+    """How long the object store client waits (seconds), how many times it tries one request, and how long a
+    store that failed is left alone; each can be set in the storage URL's query (``?read_timeout=30``)."""
 
     connect_timeout: float = 5.0
     read_timeout: float = 10.0
     max_attempts: int = 3
+    retry_after: float = 5.0
+    """After a request found the store unavailable, the others fail at once for this long, then one tries it
+    again; a job waiting out an outage tries at least this often."""
 
     @classmethod
     def from_query(cls, query: dict[str, str]) -> "S3Timeouts":

@@ -91,7 +91,8 @@ def faulty_s3(s3_endpoint):
     bucket = f"b{uuid.uuid4().hex[:12]}"
     boto3.client("s3", endpoint_url=s3_endpoint, region_name="us-east-1").create_bucket(Bucket=bucket)
     with FaultyProxy(s3_endpoint.removeprefix("http://")) as proxy:
-        yield proxy, f"s3://{bucket}/sweepcast?endpoint_url=http://{proxy.address}&region=us-east-1"
+        # a store that failed is tried again after 1 s (5 s by default): the job and /readyz notice its return sooner
+        yield proxy, f"s3://{bucket}/sweepcast?endpoint_url=http://{proxy.address}&region=us-east-1&retry_after=1"
 
 
 @pytest.mark.parametrize("fault", ["refuse", "slowdown"])

@@ -1,4 +1,5 @@
 import io
+import time
 
 import numpy as np
 import pytest
@@ -138,3 +139,21 @@ def test_a_job_whose_results_do_not_fit_fails_saying_so_and_publishes_nothing(tm
     events = list(runtime.execute_job(runtime.JobSpec("j1", "test.write", {}, {}, store_url=store.url)))
     assert events[-1]["type"] == "failed" and "storage is full" in events[-1]["error"], events[-1]
     assert store.list("jobs") == []  # nothing half-published: the staged copy is gone too
+
+
+def test_an_unreachable_store_is_left_alone_for_its_retry_after_then_tried_again():
+    from workers.storage import StoreUnavailable, storage_unavailable
+
+    store = open_store("s3://bucket/p?endpoint_url=http://127.0.0.1:9&region=us-east-1&max_attempts=1&retry_after=0.5")
+    assert store.retry_after_s == 0.5 and "retry_after=0.5" in store.url  # kept for the workers' copy of the URL
+    with pytest.raises(Exception) as first:
+        store.read("k")  # nothing listens on port 9: the connection is refused
+    assert storage_unavailable(first.value) and not isinstance(first.value, StoreUnavailable)
+    with pytest.raises(StoreUnavailable, match="not tried again"):
+        store.read("k")  # at once, without trying
+    time.sleep(0.6)
+    with pytest.raises(Exception) as again:
+        store.read("k")  # tried again after retry_after
+    assert storage_unavailable(again.value) and not isinstance(again.value, StoreUnavailable)
+    with pytest.raises(ValueError, match="retry_after must be positive"):
+        open_store("s3://bucket/p?retry_after=0")

@@ -1,0 +1,61 @@
+"""A job that runs its node out of memory: it fails with a reason that says so, and the job Ray stopped beside it
+goes on (its retry, like every retry after running out of memory, runs alone on a node)."""
+from __future__ import annotations
+
+import ray
+import ray.exceptions
+
+import workers.ray_tasks
+from tests.app.photos import FACES_ONLY, batch_files
+from tests.app.test_jobs_e2e import wait_final
+
+
+class MemoryMonitor:
+    """``run_job_task`` as Ray runs it, except that an attempt chosen by ``stops(spec)`` ends as it does when Ray's
+    memory monitor kills its worker: the caller gets OutOfMemoryError. Records each attempt's options."""
+
+    def __init__(self, real, stops) -> None:
+        self.real, self.stops, self.attempts = real, stops, []
+
+    def options(self, **options):
+        monitor = self
+
+        class Submit:
+            @staticmethod
+            def remote(spec):
+                stopped = monitor.stops(spec)
+                monitor.attempts.append((len(spec["inputs"]), spec["attempt"], options, stopped))
+                return Stopped() if stopped else monitor.real.options(**options).remote(spec)
+
+        return Submit
+
+
+class Stopped:
+    def __aiter__(self):
+        return self
+
+    async def __anext__(self):
+        raise ray.exceptions.OutOfMemoryError("Task was killed due to the node running low on memory.")
+
+
+def test_a_job_that_runs_out_of_memory_fails_saying_so_and_its_neighbour_goes_on_alone(client_factory, monkeypatch):
+    # the 3-photo batch runs out of memory every time; the 2-photo batch was stopped beside it once
+    monitor = MemoryMonitor(workers.ray_tasks.run_job_task,
+                            lambda spec: len(spec["inputs"]) == 3 or (len(spec["inputs"]) == 2 and spec["attempt"] == 1))
+    monkeypatch.setattr(workers.ray_tasks, "run_job_task", monitor)
+    client = client_factory(job_max_attempts=3)
+    oversized = client.post("/v1/photos/batches", files=batch_files(3), data=FACES_ONLY).json()["id"]
+    neighbour = client.post("/v1/photos/batches", files=batch_files(2), data=FACES_ONLY).json()["id"]
+
+    failed = wait_final(client, oversized)
+    assert failed["state"] == "failed" and failed["error"].startswith("the job ran out of memory"), failed
+    assert "stopped it 3 times (of 3 times lost, the attempts after that alone on a node)" in failed["error"]
+    done = wait_final(client, neighbour)
+    assert done["state"] == "succeeded" and done["attempts"] == 2, done
+    assert len(client.get(f"/v1/jobs/{neighbour}/results/report.json").json()) == 2
+
+    node_cpus = max(n["Resources"].get("CPU", 0) for n in ray.nodes() if n["Alive"])
+    assert node_cpus > 1
+    for inputs, attempt, options, _ in monitor.attempts:  # the first attempt as the kind asks; later ones alone
+        assert options["num_cpus"] == (1 if attempt == 1 else node_cpus), monitor.attempts
+    assert sorted((i, a) for i, a, _, _ in monitor.attempts) == [(2, 1), (2, 2), (3, 1), (3, 2), (3, 3)]
