@@ -512,11 +512,14 @@ def markdown(summary: dict[str, Any], raw: dict[str, Any], pictures: list[Path])
           f"median {statistics.median(loads):.2f}, max {max(loads):.2f} (this machine's 2 cores; the load is the "
           f"soak's own unless the closing note says otherwise). Warm-up: the first {summary['warmup_s'] / 60:g} min.",
           "", "Answers per route (p99 per 10-minute window, of the answers under 500):", "",
-          md_table(["route", "requests", "5xx", "4xx", "connection failures", "p99 first 10 min (s)",
-                    "worst later p99 (s)", "worst / first"],
-                   [[route, r["requests"], r["server_errors"], r["client_errors"], r["connection_failures"],
+          md_table(["route", "requests", "per 10 min", "5xx", "4xx", "connection failures", "p50 first 10 min (s)",
+                    "p50 last 10 min (s)", "p99 first 10 min (s)", "worst later p99 (s)", "worst / first"],
+                   [[route, r["requests"], f"{r['requests'] / len(summary['windows'][route]):.0f}",
+                     r["server_errors"], r["client_errors"], r["connection_failures"],
+                     _f(summary["windows"][route][0]["p50_s"]), _f(summary["windows"][route][-1]["p50_s"]),
                      _f(r["p99_first_window_s"]), _f(r["p99_worst_later_window_s"]), _f(r["p99_worst_ratio"], 2)]
                     for route, r in summary["routes"].items()]),
+          "", "(A p99 over a window of fewer than 100 answers is its slowest one or two.)",
           "", "Jobs (those still running at the end followed to their end):", "",
           md_table(["kind", "accepted", "succeeded", "failed", "cancelled", "never ended", "median s"],
                    [[k, j["accepted"], j["succeeded"], j["failed"], j["cancelled"], j["not_ended"],

@@ -2,6 +2,9 @@
 goes on (its retry, like every retry after running out of memory, runs alone on a node)."""
 from __future__ import annotations
 
+import os
+
+import pytest
 import ray
 import ray.exceptions
 
@@ -59,3 +62,27 @@ def test_a_job_that_runs_out_of_memory_fails_saying_so_and_its_neighbour_goes_on
     for inputs, attempt, options, _ in monitor.attempts:  # the first attempt as the kind asks; later ones alone
         assert options["num_cpus"] == (1 if attempt == 1 else node_cpus), monitor.attempts
     assert sorted((i, a) for i, a, _, _ in monitor.attempts) == [(2, 1), (2, 2), (3, 1), (3, 2), (3, 3)]
+
+
+def _resident_mb() -> float:
+    for line in open("/proc/self/status"):
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError("no VmRSS")
+
+
+def test_memory_a_finished_job_freed_goes_back_to_the_system():
+    from workers.runtime import _LIBC, give_back_freed_memory
+
+    if not os.path.exists("/proc/self/status") or not hasattr(_LIBC, "malloc_trim"):
+        pytest.skip("needs Linux with glibc")
+    before = _resident_mb()
+    blocks = [os.urandom(100_000) for _ in range(2000)]  # 200 MB in blocks under glibc's threshold for mapping alone
+    last = blocks[-1]  # still in use at the heap's top: glibc cannot shrink the heap past it
+    del blocks
+    kept = _resident_mb()
+    give_back_freed_memory()
+    after = _resident_mb()
+    assert kept - before > 150, (before, kept)  # freed, yet still resident
+    assert kept - after > 150, (kept, after)  # given back
+    assert len(last) == 100_000

@@ -83,6 +83,11 @@ class SessionInterrupted(Exception):
     one is made on the next call); the request was not served and is not sent again."""
 
 
+# The calls made for every frame and frame set (several a second per viewer) leave no task event in Ray's GCS:
+# it keeps up to 100,000 of them, so a day of viewing grew the GCS server by ~3 MB a minute (benchmarks/soak.py).
+_untracked = ray.method(enable_task_events=False)
+
+
 class SessionHost:
     """The body of the session actor around a :class:`Session` (see the module docstring);
     :data:`SessionActor` is its Ray actor class."""
@@ -121,6 +126,7 @@ class SessionHost:
         return RecordingSession(rig, archive, self.config.limits)
 
     # --- calls ------------------------------------------------------------------------------------
+    @_untracked
     def view(self, viewer: str, vp: Viewpoint) -> tuple[dict[str, Any], bytes]:
         """The frame header and JPEG of ``vp`` (validated by the socket; its limits are the session's check);
         SessionError (a ViewError for what the client sent) when it cannot be served."""
@@ -155,6 +161,7 @@ class SessionHost:
         header["turn"], header["turn_wait_ms"] = turn, round(waited * 1e3, 2)
         return header, jpeg
 
+    @_untracked
     def push(self, jpegs: list[bytes], background: bool = False) -> dict[str, Any]:
         """Apply a live frame set (JPEGs in rig order): its ack (``seq``, timings, ...); SessionError when the
         set cannot be applied (the previous set stays shown).
@@ -206,6 +213,7 @@ class SessionHost:
             save_live(self.store, self.config.rig_id, seq, jpegs, backgrounds)
             self.persisted_seq = max(self.persisted_seq, seq)
 
+    @_untracked
     def frame_set_after(self, seq: int) -> dict[str, Any] | None:
         """The latest live frame set when it is newer than ``seq``: ``{"seq", "jpegs", "background"}`` (the JPEGs
         as the live client sent them, rig order); None when there is none newer (or this shows a recording). For
@@ -232,6 +240,7 @@ class SessionHost:
             images = session.background.images()
         return [encode_png(i) for i in images]
 
+    @_untracked
     def touch(self, viewer: str | None = None) -> None:
         """Keep the session alive (sockets call this while they are open)."""
         self._touch(viewer)
