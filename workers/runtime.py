@@ -226,13 +226,14 @@ def execute_job(spec: JobSpec) -> Iterator[dict[str, Any]]:
             outcome["event"] = {"type": "failed", "error": f"invalid parameters: {describe_errors(exc)}",
                                 "user_error": True}
         except Exception as exc:  # noqa: BLE001 - reported as the job's error, not raised into Ray
-            traceback.print_exc()
-            error = f"internal error: {type(exc).__name__}: {exc}"
-            if storage_full(exc):
+            if storage_full(exc):  # the deployment's condition, said in the error: no traceback in the log
                 error = (f"the service's storage is full ({exc.strerror}): the results could not be written and "
                          "none were published; run the job again once space is freed")
             elif isinstance(exc, StorageOutage):
                 error = str(exc)
+            else:
+                traceback.print_exc()
+                error = f"internal error: {type(exc).__name__}: {exc}"
             outcome["event"] = {"type": "failed", "error": error, "user_error": False}
         finally:
             events.put(_DONE)
