@@ -81,22 +81,22 @@ def _describe(options: dict[str, Any]) -> str:
     return ", ".join(f"{k}={v:g}" for k, v in {"CPU": options.get("num_cpus", 1), **options.get("resources", {})}.items())
 
 
+def _offering(need: dict[str, float]) -> list[dict[str, float]]:
+    """The resources of each live node that has, in total, every resource in ``need``."""
+    nodes = [node.get("Resources", {}) for node in ray.nodes() if node.get("Alive")]
+    return [have for have in nodes if all(have.get(k, 0.0) >= v for k, v in need.items() if v > 0)]
+
+
 def _schedulable(options: dict[str, Any]) -> bool:
     """Whether some live node has, in total, every resource the task asks for."""
     need = {"CPU": float(options.get("num_cpus", 1)), **{k: float(v) for k, v in options.get("resources", {}).items()}}
-    for node in ray.nodes():
-        have = node.get("Resources", {}) if node.get("Alive") else {}
-        if all(have.get(k, 0.0) >= v for k, v in need.items() if v > 0):
-            return True
-    return False
+    return bool(_offering(need))
 
 
 def _whole_node(options: dict[str, Any]) -> dict[str, Any]:
     """``options`` asking for every CPU of the largest live node that offers its other resources: an attempt that
     runs alone there (every job asks for CPUs, so none is placed beside it). Unchanged when no node offers them."""
-    extra = {k: float(v) for k, v in options.get("resources", {}).items()}
-    cpus = [node["Resources"].get("CPU", 0.0) for node in ray.nodes()
-            if node.get("Alive") and all(node.get("Resources", {}).get(k, 0.0) >= v for k, v in extra.items())]
+    cpus = [have.get("CPU", 0.0) for have in _offering({k: float(v) for k, v in options.get("resources", {}).items()})]
     return {**options, "num_cpus": max(cpus)} if cpus and max(cpus) > options.get("num_cpus", 1) else options
 
 
