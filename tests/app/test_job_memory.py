@@ -11,6 +11,7 @@ import ray.exceptions
 import workers.ray_tasks
 from tests.app.photos import FACES_ONLY, batch_files
 from tests.app.test_jobs_e2e import wait_final
+from tests.servers import ROOT
 
 
 class MemoryMonitor:
@@ -93,8 +94,7 @@ def test_memory_a_finished_job_freed_goes_back_to_the_system():
     if not os.path.exists("/proc/self/status") or not hasattr(_LIBC, "malloc_trim"):
         pytest.skip("needs Linux with glibc")
     # in a process of its own: the suite's own heap has free blocks the 200 MB would partly reuse
-    out = subprocess.run([sys.executable, "-c", _FREE_AND_TRIM], capture_output=True, text=True, check=True,
-                         cwd=os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+    out = subprocess.run([sys.executable, "-c", _FREE_AND_TRIM], capture_output=True, text=True, check=True, cwd=ROOT)
     before, kept, after, size = json.loads(out.stdout)
     assert kept - before > 150, (before, kept)  # freed, yet still resident
     assert kept - after > 150, (kept, after)  # given back
