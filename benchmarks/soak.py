@@ -43,6 +43,7 @@ from typing import Any, Awaitable, Callable
 
 import httpx
 import numpy as np
+import scipy.stats
 import websockets
 
 from benchmarks._report import RESULTS_DIR, md_table, publish, shown_path
@@ -376,16 +377,30 @@ def p99(values: list[float]) -> float | None:
     return float(np.percentile(values, 99)) if values else None
 
 
+def p99_ratio_lower_bound(first: list[float], later: list[float], draws: int = 2000, seed: int = 0) -> float:
+    """The one-sided 95 % lower bound of p99(later) / p99(first), by resampling both windows (bootstrap): above
+    1.2 means the later window's p99 is more than 20 % over the first's beyond what the windows' few slowest
+    answers leave to chance (over 20 answers a p99 is their slowest one, and one slow answer doubles it)."""
+    rng = np.random.default_rng(seed)
+    a, b = np.asarray(first), np.asarray(later)
+    ratios = (np.percentile(rng.choice(b, (draws, b.size)), 99, axis=1)
+              / np.percentile(rng.choice(a, (draws, a.size)), 99, axis=1))
+    return float(np.percentile(ratios, 5))
+
+
 def route_windows(answers: list, seconds: float) -> dict[str, list[dict[str, Any]]]:
-    """Per route, per ``WINDOW_S`` window: count, p50 and p99 seconds of its answered requests."""
+    """Per route, per ``WINDOW_S`` window: count, p50 and p99 seconds of its answered requests, and (after the
+    first window) the lower bound of its p99's ratio to the first window's (:func:`p99_ratio_lower_bound`)."""
     out: dict[str, list[dict[str, Any]]] = {}
     for route in sorted({a[1] for a in answers}):
-        rows = []
+        rows, first = [], None
         for start in np.arange(0.0, seconds, WINDOW_S):
             got = [a[3] for a in answers if a[1] == route and start <= a[0] < start + WINDOW_S
                    and isinstance(a[2], int) and a[2] < 500]
-            rows.append({"from_min": start / 60, "count": len(got),
-                         "p50_s": float(np.median(got)) if got else None, "p99_s": p99(got)})
+            first = got if first is None else first
+            bound = p99_ratio_lower_bound(first, got) if start > 0 and got and first else None
+            rows.append({"from_min": start / 60, "count": len(got), "p50_s": float(np.median(got)) if got else None,
+                         "p99_s": p99(got), "p99_ratio_lower_bound": bound})
         out[route] = rows
     return out
 
@@ -415,6 +430,34 @@ def process_growth(samples: list[dict[str, Any]], warmup_s: float) -> list[dict[
     return sorted(rows, key=lambda r: -r["rss_mb_end"])
 
 
+def trend(answers: list, after_s: float) -> dict[str, float] | None:
+    """How a route's answer times move over the run after ``after_s`` (the warm-up), for routes too sparse for a
+    p99 per window (a few answers per 10 minutes): ``rising_p``, the one-sided p-value of Kendall's tau of answer
+    time against the time asked (small: they get slower), and ``growth_pct``, the Theil-Sen line's rise from the
+    first of those answers to the last, in % of their median."""
+    got = [(a[0], a[3]) for a in answers if a[0] >= after_s and isinstance(a[2], int) and a[2] < 500]
+    if len(got) < 10:
+        return None
+    asked, took = (np.asarray(v) for v in zip(*got))
+    rise = scipy.stats.theilslopes(took, asked).slope * (asked[-1] - asked[0])
+    return {"rising_p": float(scipy.stats.kendalltau(asked, took, alternative="greater").pvalue),
+            "growth_pct": float(100.0 * rise / np.median(took))}
+
+
+DENSE_WINDOW = 100
+"""Answers a window needs for its p99 to be told apart from its slowest answer."""
+
+
+def p99_grew(windows: list[dict[str, Any]], route: dict[str, Any]) -> bool | None:
+    """Whether a route's latency grew by more than 20 % over the run. Where every window holds ``DENSE_WINDOW``
+    answers: a later window's p99 over the first's has its lower bound above 1.2. Where one holds fewer (too few
+    for a p99): its answers get slower after the warm-up beyond chance (``rising_p`` < 0.05) and by more than 20 %."""
+    if all(w["count"] >= DENSE_WINDOW for w in windows):
+        return route["p99_ratio_lower_bound"] is not None and route["p99_ratio_lower_bound"] > 1.2
+    sparse = route["trend"]
+    return None if sparse is None else sparse["rising_p"] < 0.05 and sparse["growth_pct"] > 20.0
+
+
 def summarise(raw: dict[str, Any], warmup_s: float) -> dict[str, Any]:
     seconds = 60.0 * raw["minutes"]
     answers = raw["answers"]
@@ -432,6 +475,11 @@ def summarise(raw: dict[str, Any], warmup_s: float) -> dict[str, Any]:
         by_route[route]["p99_first_window_s"] = first
         by_route[route]["p99_worst_later_window_s"] = max(later) if later else None
         by_route[route]["p99_worst_ratio"] = max(later) / first if later and first else None
+        bounds = [r["p99_ratio_lower_bound"] for r in rows[1:] if r["p99_ratio_lower_bound"] is not None]
+        by_route[route]["p99_ratio_lower_bound"] = max(bounds) if bounds else None
+        dense = all(w["count"] >= DENSE_WINDOW for w in rows)
+        by_route[route]["trend"] = None if dense else trend([a for a in answers if a[1] == route], warmup_s)
+        by_route[route]["grew"] = p99_grew(rows, by_route[route])
     jobs = raw["jobs"].values()
     kinds = sorted({j["kind"] for j in jobs})
     job_rows = {k: {"accepted": sum(j["kind"] == k for j in jobs),
@@ -513,13 +561,23 @@ def markdown(summary: dict[str, Any], raw: dict[str, Any], pictures: list[Path])
           f"soak's own unless the closing note says otherwise). Warm-up: the first {summary['warmup_s'] / 60:g} min.",
           "", "Answers per route (p99 per 10-minute window, of the answers under 500):", "",
           md_table(["route", "requests", "per 10 min", "5xx", "4xx", "connection failures", "p50 first 10 min (s)",
-                    "p50 last 10 min (s)", "p99 first 10 min (s)", "worst later p99 (s)", "worst / first"],
+                    "p50 last 10 min (s)", "p99 first 10 min (s)", "worst later p99 (s)", "worst / first",
+                    "later / first, 95 % lower bound", "sparse: rising p", "sparse: growth %", "grew > 20 %"],
                    [[route, r["requests"], f"{r['requests'] / len(summary['windows'][route]):.0f}",
                      r["server_errors"], r["client_errors"], r["connection_failures"],
                      _f(summary["windows"][route][0]["p50_s"]), _f(summary["windows"][route][-1]["p50_s"]),
-                     _f(r["p99_first_window_s"]), _f(r["p99_worst_later_window_s"]), _f(r["p99_worst_ratio"], 2)]
+                     _f(r["p99_first_window_s"]), _f(r["p99_worst_later_window_s"]), _f(r["p99_worst_ratio"], 2),
+                     _f(r["p99_ratio_lower_bound"], 2), _f((r["trend"] or {}).get("rising_p"), 3),
+                     _f((r["trend"] or {}).get("growth_pct"), 1),
+                     {True: "**yes**", False: "no", None: "-"}[r["grew"]]]
                     for route, r in summary["routes"].items()]),
-          "", "(A p99 over a window of fewer than 100 answers is its slowest one or two.)",
+          "", "(A p99 over a window of fewer than 100 answers is its slowest one or two. The last column: the largest, "
+              "over the later windows, of the one-sided 95 % lower bound of that window's p99 over the first's, by "
+              "resampling both windows' answers. For a route with a window of fewer than "
+              f"{DENSE_WINDOW} answers, its answers after the warm-up instead: rising p, the one-sided p-value of "
+              "Kendall's tau of answer time against the time asked; growth, the Theil-Sen line's rise over them in % "
+              f"of their median. Grew: the lower bound above 1.20 where every window holds {DENSE_WINDOW} answers, "
+              "else rising p under 0.05 and growth over 20 %.)",
           "", "Jobs (those still running at the end followed to their end):", "",
           md_table(["kind", "accepted", "succeeded", "failed", "cancelled", "never ended", "median s"],
                    [[k, j["accepted"], j["succeeded"], j["failed"], j["cancelled"], j["not_ended"],

@@ -42,6 +42,13 @@ def test_the_service_includes_and_passes_every_worker_setting(tmp_path, monkeypa
     assert env["OPENCV_IO_MAX_IMAGE_PIXELS"] == str(settings.max_image_pixels)
 
 
+def test_workers_keep_two_malloc_arenas_unless_the_operator_says_otherwise(tmp_path, monkeypatch):
+    monkeypatch.delenv("MALLOC_ARENA_MAX", raising=False)
+    assert worker_env(Settings(data_dir=tmp_path))["MALLOC_ARENA_MAX"] == "2"
+    monkeypatch.setenv("MALLOC_ARENA_MAX", "4")
+    assert worker_env(Settings(data_dir=tmp_path))["MALLOC_ARENA_MAX"] == "4"
+
+
 def test_one_yunet_lookup_for_service_and_workers(tmp_path):
     folder = tmp_path / "models"
     assert WorkerSettings().yunet_model(folder) is None
