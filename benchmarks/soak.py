@@ -243,8 +243,8 @@ def descendants(root: int) -> list[int]:
 
 
 def process_sample(pid: int) -> dict[str, Any] | None:
-    """Resident memory (MB), threads and open files of one process, and its title (Ray names its workers by the
-    task they run)."""
+    """Resident memory (MB) and the shared memory in it, threads and open files of one process, and its title (Ray
+    names its workers by the task they run)."""
     try:
         status = dict(line.split(":", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines()
                       if ":" in line)
@@ -253,6 +253,7 @@ def process_sample(pid: int) -> dict[str, Any] | None:
     except OSError:
         return None
     return {"pid": pid, "title": title[:120], "rss_mb": int(status.get("VmRSS", "0 kB").split()[0]) / 1024,
+            "shared_mb": int(status.get("RssShmem", "0 kB").split()[0]) / 1024,
             "threads": int(status["Threads"]), "files": files}
 
 
@@ -405,6 +406,13 @@ def route_windows(answers: list, seconds: float) -> dict[str, list[dict[str, Any
     return out
 
 
+def own_mb(sample: dict[str, Any]) -> float:
+    """A process's resident memory less the shared memory in it (``RssShmem``): PostgreSQL's backends count each
+    page of the shared buffer pool they have read, so their resident memory grows with the pages they touch while
+    their own stays put."""
+    return sample["rss_mb"] - sample.get("shared_mb", 0.0)
+
+
 def process_growth(samples: list[dict[str, Any]], warmup_s: float) -> list[dict[str, Any]]:
     """Each process alive from the end of the warm-up to the end: its mean memory, threads and files over the
     5 minutes after the warm-up and over the last 5 minutes, and their growth."""
@@ -413,7 +421,7 @@ def process_growth(samples: list[dict[str, Any]], warmup_s: float) -> list[dict[
     late = [s for s in samples if s["t"] >= end - 300]
 
     def series(group: list[dict], pid: int, key: str) -> list[float]:
-        return [p[key] for s in group for p in s["processes"] if p["pid"] == pid]
+        return [own_mb(p) if key == "own_mb" else p[key] for s in group for p in s["processes"] if p["pid"] == pid]
 
     rows = []
     pids = {p["pid"]: p["title"] for s in early for p in s["processes"]}
@@ -422,7 +430,7 @@ def process_growth(samples: list[dict[str, Any]], warmup_s: float) -> list[dict[
         if not series(late, pid, "rss_mb"):
             continue
         row = {"pid": pid, "role": role(title, prefixes.get(pid, ""))}
-        for key in ("rss_mb", "threads", "files"):
+        for key in ("rss_mb", "own_mb", "threads", "files"):
             a, b = statistics.mean(series(early, pid, key)), statistics.mean(series(late, pid, key))
             row[f"{key}_after_warmup"], row[f"{key}_end"] = a, b
             row[f"{key}_growth_pct"] = 100.0 * (b - a) / a if a else 0.0
@@ -491,6 +499,7 @@ def summarise(raw: dict[str, Any], warmup_s: float) -> dict[str, Any]:
     growth = process_growth(raw["samples"], warmup_s)
     totals = {key: [sum(p[key] for p in s["processes"]) for s in raw["samples"]]
               for key in ("rss_mb", "threads", "files")}
+    totals["own_mb"] = [sum(map(own_mb, s["processes"])) for s in raw["samples"]]
     times = [s["t"] for s in raw["samples"]]
     total_growth = {}
     for key, values in totals.items():
@@ -545,7 +554,7 @@ def _f(value: float | None, digits: int = 3) -> str:
 
 def _totals(growth: dict[str, dict[str, float]]) -> list[str]:
     m, t, f = growth["rss_mb"], growth["threads"], growth["files"]
-    return [_f(m["after_warmup"], 0), _f(m["end"], 0), _f(m["growth_pct"], 1),
+    return [_f(m["after_warmup"], 0), _f(m["end"], 0), _f(m["growth_pct"], 1), _f(growth["own_mb"]["growth_pct"], 1),
             f"{t['after_warmup']:.0f} -> {t['end']:.0f}", _f(t["growth_pct"], 1),
             f"{f['after_warmup']:.0f} -> {f['end']:.0f}", _f(f["growth_pct"], 1)]
 
@@ -584,10 +593,11 @@ def markdown(summary: dict[str, Any], raw: dict[str, Any], pictures: list[Path])
                      _f(j["median_s"], 1)] for k, j in summary["jobs"].items()]),
           "", "Processes alive from the end of the warm-up to the end (means over the 5 minutes after the warm-up "
               "and the last 5 minutes):", "",
-          md_table(["process", "memory MB after warm-up", "at the end", "growth %", "threads", "growth %",
-                    "open files", "growth %"],
+          md_table(["process", "memory MB after warm-up", "at the end", "growth %", "own memory growth %", "threads",
+                    "growth %", "open files", "growth %"],
                    [[f"{p['role']} ({p['pid']})", _f(p["rss_mb_after_warmup"], 0), _f(p["rss_mb_end"], 0),
-                     _f(p["rss_mb_growth_pct"], 1), f"{p['threads_after_warmup']:.0f} -> {p['threads_end']:.0f}",
+                     _f(p["rss_mb_growth_pct"], 1), _f(p["own_mb_growth_pct"], 1),
+                     f"{p['threads_after_warmup']:.0f} -> {p['threads_end']:.0f}",
                      _f(p["threads_growth_pct"], 1), f"{p['files_after_warmup']:.0f} -> {p['files_end']:.0f}",
                      _f(p["files_growth_pct"], 1)] for p in summary["processes"]]
                    + [[f"all the service's processes ({summary['processes_seen']} seen over the run)",
