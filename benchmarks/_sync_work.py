@@ -24,8 +24,8 @@ from typing import Any
 
 import cv2
 import httpx
-import numpy as np
 
+from benchmarks._proc import cpu_seconds, status_mb
 from benchmarks._report import md_table
 from tests.servers import ServedApp, serve_app
 from workers.common.datasets import dataset
@@ -52,24 +52,6 @@ def art_request(width: int, height: int) -> dict[str, tuple[str, bytes, str]]:
                         "image/jpeg")}
 
 
-def _proc_status(pid: int, field: str) -> float:
-    """A ``VmXXX`` field of /proc/PID/status, MB."""
-    try:
-        lines = Path(f"/proc/{pid}/status").read_text().splitlines()
-    except OSError:  # the process is gone
-        return float("nan")
-    return next((int(line.split()[1]) / 1024 for line in lines if line.startswith(field + ":")), float("nan"))
-
-
-def _cpu_seconds(pid: int) -> float:
-    """utime + stime of a process (all its threads), seconds."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return float("nan")
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def _answer(r: httpx.Response) -> dict[str, Any]:
     body = r.json() if r.headers.get("content-type", "").startswith("application/json") else None
     return {"status": r.status_code, "error": body.get("error") if body else None,
@@ -84,7 +66,7 @@ def measured(app: ServedApp, requests: list[dict], healthz: bool) -> dict[str, A
     if app.proc.poll() is not None:
         raise RuntimeError(f"the API exited before this case: {app.log_tail()}")
     Path(f"/proc/{pid}/clear_refs").write_text("5")  # VmHWM := VmRSS
-    rss_before, cpu_before, load_before = _proc_status(pid, "VmRSS"), _cpu_seconds(pid), os.getloadavg()[0]
+    rss_before, cpu_before, load_before = status_mb(pid, "VmRSS"), cpu_seconds(pid), os.getloadavg()[0]
     answers: list[dict] = [{}] * len(requests)
     latencies: list[float] = []
     failures: list[float] = []
@@ -112,8 +94,8 @@ def measured(app: ServedApp, requests: list[dict], healthz: bool) -> dict[str, A
             time.sleep(0.05)
     for t in threads:
         t.join()
-    out = {"answers": answers, "seconds": time.perf_counter() - t0, "api_cpu_seconds": _cpu_seconds(pid) - cpu_before,
-           "api_rss_before_mb": rss_before, "api_peak_rss_mb": _proc_status(pid, "VmHWM"),
+    out = {"answers": answers, "seconds": time.perf_counter() - t0, "api_cpu_seconds": cpu_seconds(pid) - cpu_before,
+           "api_rss_before_mb": rss_before, "api_peak_rss_mb": status_mb(pid, "VmHWM"),
            "load_average": [load_before, os.getloadavg()[0]]}
     if healthz:
         ms = sorted(x * 1000 for x in latencies) or [float("nan")]
@@ -139,7 +121,7 @@ def as_job(app: ServedApp, files: dict, width: int, height: int) -> dict[str, An
     worker; the job's outcome and what the API process spent meanwhile."""
     pid = app.proc.pid
     Path(f"/proc/{pid}/clear_refs").write_text("5")
-    rss_before, cpu_before, load_before = _proc_status(pid, "VmRSS"), _cpu_seconds(pid), os.getloadavg()[0]
+    rss_before, cpu_before, load_before = status_mb(pid, "VmRSS"), cpu_seconds(pid), os.getloadavg()[0]
     params = {"width": width // 2, "height": height // 2, "method": "wmf", "scale": 2}
     t0 = time.perf_counter()
     with httpx.Client(base_url=app.base, timeout=600) as c:
@@ -151,8 +133,8 @@ def as_job(app: ServedApp, files: dict, width: int, height: int) -> dict[str, An
         size = (len(c.get(f"/v1/jobs/{job['id']}/results/filtered.yuv").content)
                 if job.get("state") == "succeeded" else None)
     return {"status": r.status_code, "state": job.get("state"), "error": job.get("error"), "output_bytes": size,
-            "seconds": time.perf_counter() - t0, "api_cpu_seconds": _cpu_seconds(pid) - cpu_before,
-            "api_rss_before_mb": rss_before, "api_peak_rss_mb": _proc_status(pid, "VmHWM"),
+            "seconds": time.perf_counter() - t0, "api_cpu_seconds": cpu_seconds(pid) - cpu_before,
+            "api_rss_before_mb": rss_before, "api_peak_rss_mb": status_mb(pid, "VmHWM"),
             "load_average": [load_before, os.getloadavg()[0]], "params": params}
 
 

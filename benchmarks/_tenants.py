@@ -223,7 +223,7 @@ def markdown(r: dict[str, Any]) -> str:
                       ["viewer sessions", "two viewer sockets", f"{q['viewer_sessions']['first']}, then "
                        f"{q['viewer_sessions']['second']}", ""]]))
     ol, kl, hl = r["owner_list"], r["key_lookup"], r["http_lookup_ms"]
-    parts.append(f"### What owners and keys cost\n\n" + md_table(
+    parts.append("### What owners and keys cost\n\n" + md_table(
         ["measure", "median"],
         [[f"list of one key's newest 50 jobs among {ol['jobs']:,} of {ol['keys']} keys (SQLite)",
           f"{ol['own_list_us']:.0f} µs"],

@@ -40,7 +40,8 @@ import websockets
 
 from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load_note
-from benchmarks.streaming import cpu_seconds, demo_recording, view_message, wait_for
+from benchmarks._proc import tree_cpu_seconds
+from benchmarks.streaming import demo_recording, view_message, wait_for
 from tests.servers import serve_app
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -190,7 +191,7 @@ def service_start(data_dir: Path, user_cache: Path, log: Path, photo: bytes, fli
                              and time.monotonic() - t0, 300, "the server to answer", app.proc, log)
         app.wait_ready(300)
         ready = time.monotonic() - t0
-        out = {"answering_s": answering, "ready_s": ready, "cpu_at_ready_s": cpu_seconds(app.proc.pid)}
+        out = {"answering_s": answering, "ready_s": ready, "cpu_at_ready_s": tree_cpu_seconds(app.proc.pid)}
         if httpx.get(f"{app.base}/readyz", timeout=10).json()["checks"]["kernels"]["state"] != "warming":
             out["kernels_warm_s"] = ready  # no warm-up to wait for (a stamped cache) or already over
         with httpx.Client(base_url=app.base, timeout=120) as http:

@@ -43,6 +43,7 @@ import numpy as np
 import piexif
 from websockets.sync.client import connect
 
+from benchmarks._proc import status_mb
 from benchmarks._report import md_table, prog, publish
 from tests.servers import ServedApp, serve_app
 from workers.common.datasets import data_root, dataset
@@ -51,14 +52,6 @@ ROOT = Path(__file__).resolve().parents[1]
 
 MiB = 2**20
 SYNTH_PARAMS = {"depth_units": "disparity", "positions": [0, 2], "target_position": 1}
-
-
-def peak_rss_mb(pid: int) -> float:
-    """Peak resident memory (VmHWM) of a process, MB."""
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
 
 
 # ---------------------------------------------------------------- kernel stress
@@ -526,7 +519,7 @@ def main() -> int:
         results["load"] = load(app, 50, 15 if q else 60)
         results["load"]["detector"] = "combined (YuNet model installed)" if yunet.is_file() else "the paper's (no model)"
         print(f"  load: {results['load']['requests']} requests, p95 {results['load']['p95_ms']} ms", flush=True)
-        rss = {"abuse_and_load": peak_rss_mb(app.proc.pid)}
+        rss = {"abuse_and_load": status_mb(app.proc.pid, "VmHWM")}
     key = "robustness-key"
     fuzz_dir = tempfile.mkdtemp(prefix="sc-robust-fuzz-")
     with serve_app({**FUZZ_SERVER_ENV, "SWEEPCAST_DATA_DIR": fuzz_dir, "SWEEPCAST_API_KEYS": key},
@@ -534,7 +527,7 @@ def main() -> int:
         results["abuse"]["api_key_checked_before_body"] = body_before_auth_case(app)
         results["fuzz"] = fuzz(app, key, 20 if q else 150, seed=20261125)
         print(f"  fuzz: {results['fuzz']['cases']} cases, {results['fuzz']['server_errors']} server errors", flush=True)
-        rss["fuzz"] = peak_rss_mb(app.proc.pid)
+        rss["fuzz"] = status_mb(app.proc.pid, "VmHWM")
     results["api_peak_rss_mb"] = rss
     results["kill_cycles"] = kill_cycles(3 if q else 10, 8)
     print(json.dumps(results["kill_cycles"]), flush=True)

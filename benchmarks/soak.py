@@ -37,7 +37,6 @@ import subprocess
 import tempfile
 import threading
 import time
-from collections import defaultdict
 from pathlib import Path
 from typing import Any, Awaitable, Callable
 
@@ -46,6 +45,7 @@ import numpy as np
 import scipy.stats
 import websockets
 
+from benchmarks._proc import descendants, status, status_mb
 from benchmarks._report import RESULTS_DIR, md_table, publish, shown_path
 from benchmarks._timing import load_average
 from benchmarks.chaos import photo_files
@@ -221,40 +221,18 @@ async def readiness(log: Log, http: httpx.AsyncClient, stop: asyncio.Event) -> N
 
 
 # --- the service's processes ----------------------------------------------------------------------
-def _children() -> dict[int, list[int]]:
-    out: dict[int, list[int]] = defaultdict(list)
-    for entry in os.scandir("/proc"):
-        if entry.name.isdigit():
-            try:
-                stat = Path(f"/proc/{entry.name}/stat").read_text()
-            except OSError:
-                continue
-            out[int(stat[stat.rindex(")") + 2:].split()[1])].append(int(entry.name))
-    return out
-
-
-def descendants(root: int) -> list[int]:
-    children, out, todo = _children(), [], [root]
-    while todo:
-        pid = todo.pop()
-        out.append(pid)
-        todo.extend(children.get(pid, []))
-    return out
-
-
 def process_sample(pid: int) -> dict[str, Any] | None:
     """Resident memory (MB) and the shared memory in it, threads and open files of one process, and its title (Ray
     names its workers by the task they run)."""
     try:
-        status = dict(line.split(":", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines()
-                      if ":" in line)
         title = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace").strip()
         files = len(os.listdir(f"/proc/{pid}/fd"))
     except OSError:
         return None
-    return {"pid": pid, "title": title[:120], "rss_mb": int(status.get("VmRSS", "0 kB").split()[0]) / 1024,
-            "shared_mb": int(status.get("RssShmem", "0 kB").split()[0]) / 1024,
-            "threads": int(status["Threads"]), "files": files}
+    if not (fields := status(pid)):
+        return None
+    return {"pid": pid, "title": title[:120], "rss_mb": status_mb(pid, "VmRSS", fields),
+            "shared_mb": status_mb(pid, "RssShmem", fields), "threads": int(fields["Threads"]), "files": files}
 
 
 def role(title: str, prefix: str = "") -> str:

@@ -60,6 +60,7 @@ import httpx
 import numpy as np
 import websockets
 
+from benchmarks._proc import tree_cpu_seconds
 from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load_note, wait_quiet
 from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app
@@ -82,35 +83,6 @@ TARGET = {"fps": 15.0, "latency_p95_ms": 150.0}
 
 
 # --- the server's CPU time (the process tree under the server's pid) -------------------------------
-def _tree(root: int) -> list[int]:
-    parents: dict[int, int] = {}
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-                parents[int(entry.name)] = int(fields[1])
-            except (OSError, IndexError, ValueError):
-                continue
-    tree, frontier = [root], [root]
-    while frontier:
-        frontier = [pid for pid, parent in parents.items() if parent in frontier]
-        tree += frontier
-    return tree
-
-
-def cpu_seconds(root: int) -> float:
-    """User + system CPU seconds of ``root`` and its descendants alive now."""
-    tick = os.sysconf("SC_CLK_TCK")
-    total = 0
-    for pid in _tree(root):
-        try:
-            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-            total += int(fields[11]) + int(fields[12])  # utime, stime
-        except (OSError, IndexError, ValueError):
-            continue
-    return total / tick
-
-
 # --- viewers -------------------------------------------------------------------------------------
 def view_message(i: int, phase: float, size: tuple[int, int], frames: int = 1, planes: int = PLANES) -> dict:
     """Viewpoint ``i``: a new pose on the rig's arc every time; frame 0, or frame i mod ``frames``."""
@@ -162,11 +134,11 @@ async def run_config(url: str, n: int, size: tuple[int, int], seconds: float, se
              for k in range(n)]
     for _ in range(n):
         await warm.get()
-    cpu0, t0 = cpu_seconds(server_pid), time.perf_counter()
+    cpu0, t0 = tree_cpu_seconds(server_pid), time.perf_counter()
     start.set()
     results = await asyncio.gather(*tasks)
     wall = time.perf_counter() - t0
-    cpu = (cpu_seconds(server_pid) - cpu0) / wall
+    cpu = (tree_cpu_seconds(server_pid) - cpu0) / wall
     latencies = np.concatenate([r["latencies"] for r in results])
     renders = np.concatenate([r["renders"] for r in results])
     if not len(latencies):
@@ -668,12 +640,12 @@ async def live_config(base: str, rig_id: str, sets: list[list[bytes]], viewers: 
                                                   80.0 * k / viewers))
                   for k in range(viewers)]
     await asyncio.sleep(3.0)  # sockets open, viewers past their first frames
-    cpu0, t0 = cpu_seconds(server_pid), time.perf_counter()
+    cpu0, t0 = tree_cpu_seconds(server_pid), time.perf_counter()
     start.set()
     await asyncio.sleep(seconds)
     stop.set()
     out: dict = {"server_cpu_cores": 0.0, "viewers": [await t for t in view_tasks]}
-    out["server_cpu_cores"] = (cpu_seconds(server_pid) - cpu0) / (time.perf_counter() - t0)
+    out["server_cpu_cores"] = (tree_cpu_seconds(server_pid) - cpu0) / (time.perf_counter() - t0)
     if push_task is not None:
         p = await push_task
         acks = p["acks"]

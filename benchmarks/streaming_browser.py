@@ -279,9 +279,9 @@ def fps(quick: bool, webgl: str) -> int:
 def settle(base: str, pid: int) -> dict:
     """Wait until the served app's start-up work is done (:func:`benchmarks._timing.settle_server`: its process
     tree under 0.1 CPU seconds over two seconds, at most 10 minutes)."""
-    from benchmarks.streaming import cpu_seconds
+    from benchmarks._proc import tree_cpu_seconds
 
-    return settle_server(base, pid, cpu_seconds, interval_s=2.0, timeout_s=600.0)
+    return settle_server(base, pid, tree_cpu_seconds, interval_s=2.0, timeout_s=600.0)
 
 
 # --- server cost -------------------------------------------------------------------------------------
@@ -345,16 +345,16 @@ async def paced_pusher(base: str, rig_id: str, sets: list[list[bytes]], backgrou
 
 
 async def measure_recording(base: str, pid: int, rig_id: str, rec: dict, n: int, factor: int, seconds: float) -> dict:
-    from benchmarks.streaming import cpu_seconds
+    from benchmarks._proc import tree_cpu_seconds
 
     stop, loaded = asyncio.Event(), asyncio.Queue()
-    cpu0, t0 = cpu_seconds(pid), time.perf_counter()
+    cpu0, t0 = tree_cpu_seconds(pid), time.perf_counter()
     tasks = [asyncio.create_task(recording_viewer(base, rig_id, rec["id"], factor, stop, loaded)) for _ in range(n)]
     sizes = [await loaded.get() for _ in range(n)]
-    load_cpu, load_s = cpu_seconds(pid) - cpu0, time.perf_counter() - t0
-    cpu1, t1 = cpu_seconds(pid), time.perf_counter()
+    load_cpu, load_s = tree_cpu_seconds(pid) - cpu0, time.perf_counter() - t0
+    cpu1, t1 = tree_cpu_seconds(pid), time.perf_counter()
     await asyncio.sleep(seconds)
-    steady = (cpu_seconds(pid) - cpu1) / (time.perf_counter() - t1)
+    steady = (tree_cpu_seconds(pid) - cpu1) / (time.perf_counter() - t1)
     stop.set()
     await asyncio.gather(*tasks)
     return {"viewers": n, "load_cpu_s": load_cpu, "load_s": load_s, "bytes_per_viewer": statistics.mean(sizes or [0]),
@@ -362,7 +362,7 @@ async def measure_recording(base: str, pid: int, rig_id: str, rec: dict, n: int,
 
 
 async def measure_live(base: str, pid: int, rig_id: str, sets, background, n: int, seconds: float) -> dict:
-    from benchmarks.streaming import cpu_seconds
+    from benchmarks._proc import tree_cpu_seconds
 
     stop, opened = asyncio.Event(), asyncio.Queue()
     viewers = [asyncio.create_task(live_browser_viewer(base, rig_id, stop, opened)) for _ in range(n)]
@@ -370,9 +370,9 @@ async def measure_live(base: str, pid: int, rig_id: str, sets, background, n: in
         await opened.get()
     push = asyncio.create_task(paced_pusher(base, rig_id, sets, background, LIVE_RATE, stop))
     await asyncio.sleep(2.0)
-    cpu0, t0 = cpu_seconds(pid), time.perf_counter()
+    cpu0, t0 = tree_cpu_seconds(pid), time.perf_counter()
     await asyncio.sleep(seconds)
-    cores = (cpu_seconds(pid) - cpu0) / (time.perf_counter() - t0)
+    cores = (tree_cpu_seconds(pid) - cpu0) / (time.perf_counter() - t0)
     stop.set()
     pushed = await push
     got = await asyncio.gather(*viewers)
@@ -385,10 +385,10 @@ async def measure_live(base: str, pid: int, rig_id: str, sets, background, n: in
 def chromium_recording(base: str, pid: int, rig_id: str, rec: dict, n: int, seconds: float) -> dict:
     """``n`` viewer pages in browser mode (SwiftShader) that step through the recording once (every frame set
     fetched and drawn), then stay open: server CPU while they load and step, and afterwards."""
-    from benchmarks.streaming import cpu_seconds
+    from benchmarks._proc import tree_cpu_seconds
 
     with chromium("swiftshader") as browser:
-        cpu0, t0 = cpu_seconds(pid), time.perf_counter()
+        cpu0, t0 = tree_cpu_seconds(pid), time.perf_counter()
         pages = []
         for _ in range(n):
             page = browser.new_page(viewport={"width": 1100, "height": 800})
@@ -402,11 +402,11 @@ def chromium_recording(base: str, pid: int, rig_id: str, rec: dict, n: int, seco
             for page in pages:
                 page.wait_for_function(f"() => viewerState.frame === {frame} && viewerState.local.shown?.endsWith"
                                        f"('/{frame}') && !viewerState.drawing && !viewerState.dirty", timeout=600_000)
-        load_cpu, load_s = cpu_seconds(pid) - cpu0, time.perf_counter() - t0
+        load_cpu, load_s = tree_cpu_seconds(pid) - cpu0, time.perf_counter() - t0
         fetched = [page.evaluate("viewerState.local.bytes.fetched") for page in pages]
-        cpu1, t1 = cpu_seconds(pid), time.perf_counter()
+        cpu1, t1 = tree_cpu_seconds(pid), time.perf_counter()
         time.sleep(seconds)
-        steady = (cpu_seconds(pid) - cpu1) / (time.perf_counter() - t1)
+        steady = (tree_cpu_seconds(pid) - cpu1) / (time.perf_counter() - t1)
         errors = sum(page.evaluate("viewerState.errors.length") for page in pages)
     return {"viewers": n, "load_cpu_s": load_cpu, "load_s": load_s, "bytes_per_viewer": statistics.mean(fetched),
             "steady_cores": steady, "errors": errors}

@@ -67,12 +67,11 @@ def test_a_job_that_runs_out_of_memory_fails_saying_so_and_its_neighbour_goes_on
 
 _FREE_AND_TRIM = """
 import json, os
+from benchmarks._proc import status_mb
 from workers.runtime import give_back_freed_memory
 
 def resident_mb():
-    for line in open("/proc/self/status"):
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
+    return status_mb(os.getpid(), "VmRSS")
 
 before = resident_mb()
 blocks = [os.urandom(100_000) for _ in range(2000)]  # 200 MB in blocks under glibc's threshold for mapping alone
