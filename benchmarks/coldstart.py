@@ -36,12 +36,11 @@ import time
 from pathlib import Path
 
 import httpx
-import websockets
 
 from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load_note
 from benchmarks._proc import tree_cpu_seconds
-from benchmarks.streaming import demo_recording, view_message, wait_for
+from benchmarks.streaming import demo_recording, first_frame, wait_for
 from tests.servers import serve_app
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -156,17 +155,6 @@ def make_flight(tmp: Path) -> tuple[Path, dict]:
 
 
 # --- 3: the service -------------------------------------------------------------------------------------
-async def _first_frame(url: str) -> None:
-    async with websockets.connect(url, max_size=None) as ws:
-        await ws.send(json.dumps(view_message(1, 0.0, (320, 240))))
-        while True:
-            message = await ws.recv()
-            if isinstance(message, bytes):
-                return
-            if json.loads(message).get("type") == "error":
-                raise SystemExit(f"the viewer got an error: {message}")
-
-
 def _job_done(http: httpx.Client, job_id: str) -> bool:
     state = http.get(f"/v1/jobs/{job_id}").json()["state"]
     if state == "failed":
@@ -198,7 +186,7 @@ def service_start(data_dir: Path, user_cache: Path, log: Path, photo: bytes, fli
             rig_id, recording = wait_for(lambda: demo_recording(http), 900, "the demo recording", app.proc, log)
             out["demo_ready_s"] = time.monotonic() - t0
             t = time.monotonic()
-            asyncio.run(_first_frame(f"{app.base.replace('http', 'ws')}/v1/rigs/{rig_id}/view?source={recording['id']}"))
+            asyncio.run(first_frame(f"{app.base.replace('http', 'ws')}/v1/rigs/{rig_id}/view?source={recording['id']}"))
             out["first_frame_s"] = time.monotonic() - t
             out["first_frame_after_ready_s"] = time.monotonic() - t0 - ready
             t = time.monotonic()

@@ -37,7 +37,7 @@ from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load_note
 from benchmarks.cluster import photos
 from benchmarks.coldstart import make_flight
-from benchmarks.streaming import view_message
+from benchmarks.streaming import frame_reply, view_message
 
 FINAL = ("succeeded", "failed", "cancelled")
 
@@ -188,12 +188,7 @@ def viewer(stack: Stack, frames: int = 10) -> dict:
             first = None
             for i in range(frames + 1):
                 await ws.send(json.dumps(view_message(i + 1, 0.0, (320, 240))))
-                while True:
-                    message = await asyncio.wait_for(ws.recv(), 300)
-                    if isinstance(message, bytes):
-                        break
-                    if json.loads(message).get("type") == "error":
-                        raise SystemExit(f"the viewer got an error: {message}")
+                await asyncio.wait_for(frame_reply(ws), 300)
                 first = first if first is not None else time.monotonic() - t0
             return first, frames + 1
 

@@ -50,9 +50,8 @@ from benchmarks._report import RESULTS_DIR, md_table, publish, shown_path
 from benchmarks._timing import load_average
 from benchmarks.chaos import photo_files
 from benchmarks.coldstart import make_flight
-from benchmarks.streaming import demo_recording, frame_set_message, live_frame_sets
+from benchmarks.streaming import demo_recording, frame_reply, frame_set_message, live_frame_sets
 from tests.servers import exit_on_sigterm, serve_app
-from workers.streaming.framing import unpack_message
 
 FINAL = ("succeeded", "failed", "cancelled")
 BATCH_PHOTOS, BATCH_EVERY_S = 8, 30.0
@@ -151,16 +150,6 @@ def view_message(i: int, phase: float, frames: int) -> dict:
             "frame": i % frames, "quality": 80}
 
 
-async def _frame(ws: Any, i: int) -> None:
-    while True:
-        message = await ws.recv()
-        if isinstance(message, bytes):
-            if unpack_message(message)[0]["id"] == i:
-                return
-        elif json.loads(message).get("type") == "error":
-            raise RuntimeError(message)
-
-
 HEADERS: dict[str, str] = {}
 """The API key's header for every request and socket (empty for the embedded default, which needs none)."""
 
@@ -180,7 +169,7 @@ async def viewer(log: Log, url: str, frames: int, phase: float, stop: asyncio.Ev
                     i += 1
                     sent = time.monotonic()
                     await ws.send(json.dumps(view_message(i, phase, frames)))
-                    await asyncio.wait_for(_frame(ws, i), 60)
+                    await asyncio.wait_for(frame_reply(ws, i), 60)
                     log.note("WS view: viewpoint to frame", sent, 200)
                     await until(stop, 1.0 / VIEWER_FPS - (time.monotonic() - sent))
         except (OSError, asyncio.TimeoutError, websockets.WebSocketException, RuntimeError) as exc:

@@ -54,6 +54,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import httpx
@@ -203,11 +204,23 @@ def demo_recording(http: httpx.Client) -> tuple[str, dict] | None:
     return None
 
 
+async def frame_reply(ws: Any, view_id: int | None = None) -> bytes:
+    """The next frame a view socket sends (of viewpoint ``view_id`` when given), skipping its text messages;
+    RuntimeError with the server's message when it answers an error instead."""
+    while True:
+        message = await ws.recv()
+        if isinstance(message, bytes):
+            if view_id is None or unpack_message(message)[0]["id"] == view_id:
+                return message
+        elif json.loads(message).get("type") == "error":
+            raise RuntimeError(f"the viewer got an error: {message}")
+
+
 async def first_frame(url: str) -> None:
+    """Open a view socket on ``url``, ask for one 320x240 view and wait for its frame."""
     async with websockets.connect(url, max_size=None) as ws:
         await ws.send(json.dumps(view_message(1, 0.0, (320, 240))))
-        while not isinstance(await ws.recv(), bytes):
-            pass
+        await frame_reply(ws)
 
 
 def main() -> int:
