@@ -42,6 +42,15 @@ from benchmarks.streaming import frame_reply, view_message
 FINAL = ("succeeded", "failed", "cancelled")
 
 
+def project_containers(project: str, service: str | None = None) -> list[str]:
+    """The names of a compose project's running containers (of one of its services when given), sorted."""
+    labels = [f"label=com.docker.compose.project={project}",
+              *([f"label=com.docker.compose.service={service}"] if service else [])]
+    out = subprocess.run(["podman", "ps", "--format", "{{.Names}}", *(a for label in labels for a in ("--filter", label))],
+                         capture_output=True, text=True, check=True).stdout.split()
+    return sorted(out)
+
+
 class Stack:
     """The compose project: its lifecycle commands and its API replicas' base URLs."""
 
@@ -59,11 +68,7 @@ class Stack:
             raise SystemExit(f"{' '.join(args)} failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}")
 
     def containers(self, service: str) -> list[str]:
-        out = subprocess.run(["podman", "ps", "--format", "{{.Names}}",
-                              "--filter", f"label=com.docker.compose.project={self.project}",
-                              "--filter", f"label=com.docker.compose.service={service}"],
-                             capture_output=True, text=True, check=True).stdout.split()
-        return sorted(out)
+        return project_containers(self.project, service)
 
     def client(self, replica: int) -> httpx.Client:
         return httpx.Client(base_url=self.bases[replica], headers=self.headers, timeout=120)

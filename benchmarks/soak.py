@@ -50,6 +50,7 @@ from benchmarks._report import RESULTS_DIR, md_table, publish, shown_path
 from benchmarks._timing import load_average
 from benchmarks.chaos import photo_files
 from benchmarks.coldstart import make_flight
+from benchmarks.docker_stack import project_containers
 from benchmarks.streaming import demo_recording, frame_reply, frame_set_message, live_frame_sets
 from tests.servers import exit_on_sigterm, serve_app
 
@@ -242,9 +243,7 @@ def _role(title: str) -> str:
 
 def podman_roots(project: str) -> dict[int, str]:
     """The main process of each running container of a compose project, by container name."""
-    names = subprocess.run(["podman", "ps", "--format", "{{.Names}}", "--filter",
-                            f"label=com.docker.compose.project={project}"], capture_output=True, text=True,
-                           check=True).stdout.split()
+    names = project_containers(project)
     pids = subprocess.run(["podman", "inspect", "--format", "{{.State.Pid}}", *names], capture_output=True,
                           text=True, check=True).stdout.split()
     return {int(pid): name.removeprefix(f"{project}_") for name, pid in zip(names, pids)}
