@@ -20,8 +20,10 @@ a viewer orbits the demo recording (reconnecting 2 s after its socket ends, as t
   they are served: none may hold the event loop or a worker);
 - out_of_memory: a job that needs more memory than its node has (a 49 MP depth map upsampled with the weighted
   median filter, ~1.6 GB) beside ordinary batches, on a node whose Ray memory monitor stops tasks above 0.9 GB
-  more than the machine used when the node started (out_of_memory_tight: 0.5 GB, too little for the job even
-  alone).
+  more than the machine used when the node started (out_of_memory_tight: 0.7 GB, too little for the job even
+  alone; a fresh worker running the 16-photo batch alone peaks 0.27 GB over the machine's use before it, yet at
+  0.5 GB Ray stopped that batch too, twice, once alone on the node: what else the machine took since the node
+  started is counted against the same headroom).
 
 Reported per fault: the answers each route gave during the fault (status counts; server errors other than 503,
 connection failures and the slowest answer), whether every job accepted before, during and after it succeeded
@@ -58,7 +60,7 @@ FINAL = ("succeeded", "failed", "cancelled")
 RAY = str(Path(sys.executable).parent / "ray")
 FAULTS = ("database", "storage_hang", "storage_slowdown", "storage_unreachable", "storage_full", "ray_head",
           "slow_clients", "out_of_memory", "out_of_memory_tight")
-OOM_HEADROOM_GB = {"out_of_memory": 0.9, "out_of_memory_tight": 0.5}
+OOM_HEADROOM_GB = {"out_of_memory": 0.9, "out_of_memory_tight": 0.7}
 SLOW_UPLOADS = 20
 SLOW_RATE = 10_000  # bytes per second each
 
