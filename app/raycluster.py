@@ -90,9 +90,9 @@ def worker_env(settings: Settings) -> dict[str, str]:
     env["OPENCV_IO_MAX_IMAGE_PIXELS"] = str(settings.max_image_pixels)
     env["NUMBA_CACHE_DIR"] = str(settings.resolved_numba_cache_dir)  # the kernels the warm-up compiled
     # Each job runs in a thread of its own, and glibc gives threads arenas of their own (up to 8 per core): a Ray
-    # worker's memory then wandered 445-566 MB over 140 of the soak's jobs and drifted up; with two arenas it
-    # stayed within 416-434 MB, at the same speed (benchmarks/soak.py; issue 35's closing note). An operator's
-    # own MALLOC_ARENA_MAX wins.
+    # worker's memory then wandered 445-566 MB over 140 jobs of the soak's mix and drifted up; with two arenas it
+    # stayed within 416-434 MB, at the same speed, and benchmarks/soak.py's hour found it flat (issue 35's closing
+    # note). An operator's own MALLOC_ARENA_MAX wins.
     env["MALLOC_ARENA_MAX"] = os.environ.get("MALLOC_ARENA_MAX", "2")
     return env
 
