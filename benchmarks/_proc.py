@@ -4,6 +4,7 @@ Every reader answers NaN (or an empty list) for a process that is gone instead o
 processes that may end between two reads."""
 from __future__ import annotations
 
+import math
 import os
 from collections import defaultdict
 from pathlib import Path
@@ -54,4 +55,4 @@ def descendants(root: int) -> list[int]:
 
 def tree_cpu_seconds(root: int) -> float:
     """User + system CPU seconds of ``root`` and its descendants alive now (those gone meanwhile count 0)."""
-    return sum(s for s in map(cpu_seconds, descendants(root)) if s == s)
+    return sum(s for s in map(cpu_seconds, descendants(root)) if not math.isnan(s))

@@ -422,11 +422,11 @@ DENSE_WINDOW = 100
 """Answers a window needs for its p99 to be told apart from its slowest answer."""
 
 
-def p99_grew(windows: list[dict[str, Any]], route: dict[str, Any]) -> bool | None:
-    """Whether a route's latency grew by more than 20 % over the run. Where every window holds ``DENSE_WINDOW``
-    answers: a later window's p99 over the first's has its lower bound above 1.2. Where one holds fewer (too few
-    for a p99): its answers get slower after the warm-up beyond chance (``rising_p`` < 0.05) and by more than 20 %."""
-    if all(w["count"] >= DENSE_WINDOW for w in windows):
+def p99_grew(dense: bool, route: dict[str, Any]) -> bool | None:
+    """Whether a route's latency grew by more than 20 % over the run. ``dense`` (every window holds ``DENSE_WINDOW``
+    answers): a later window's p99 over the first's has its lower bound above 1.2. Else (too few for a p99): its
+    answers get slower after the warm-up beyond chance (``rising_p`` < 0.05) and by more than 20 %."""
+    if dense:
         return route["p99_ratio_lower_bound"] is not None and route["p99_ratio_lower_bound"] > 1.2
     sparse = route["trend"]
     return None if sparse is None else sparse["rising_p"] < 0.05 and sparse["growth_pct"] > 20.0
@@ -453,7 +453,7 @@ def summarise(raw: dict[str, Any], warmup_s: float) -> dict[str, Any]:
         by_route[route]["p99_ratio_lower_bound"] = max(bounds) if bounds else None
         dense = all(w["count"] >= DENSE_WINDOW for w in rows)
         by_route[route]["trend"] = None if dense else trend([a for a in answers if a[1] == route], warmup_s)
-        by_route[route]["grew"] = p99_grew(rows, by_route[route])
+        by_route[route]["grew"] = p99_grew(dense, by_route[route])
     jobs = raw["jobs"].values()
     kinds = sorted({j["kind"] for j in jobs})
     job_rows = {k: {"accepted": sum(j["kind"] == k for j in jobs),

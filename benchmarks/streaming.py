@@ -83,7 +83,6 @@ STEP_DEG = 1.5
 TARGET = {"fps": 15.0, "latency_p95_ms": 150.0}
 
 
-# --- the server's CPU time (the process tree under the server's pid) -------------------------------
 # --- viewers -------------------------------------------------------------------------------------
 def view_message(i: int, phase: float, size: tuple[int, int], frames: int = 1, planes: int = PLANES) -> dict:
     """Viewpoint ``i``: a new pose on the rig's arc every time; frame 0, or frame i mod ``frames``."""
