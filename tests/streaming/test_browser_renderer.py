@@ -49,13 +49,18 @@ def page():
         yield p
 
 
+def server_render(rig: Rig, frames, backgrounds, camera: Camera, **options):
+    """The server's render (RenderResult) of one view from frames shrunk as the browser gets them."""
+    small = shrunk_rig(rig, source_factor(rig, camera.width, camera.height))
+    server = SweepRenderer(small, shrunk_images(frames, small), device="cpu",
+                           backgrounds=None if backgrounds is None else shrunk_images(backgrounds, small))
+    return server.render(camera, RenderOptions(**options))
+
+
 def both(page, rig: Rig, frames, backgrounds, camera: Camera, overlay: str = "none", **options):
     """The server's render (RenderResult) and the browser's (render_in_browser's dict) of one view."""
     factor = source_factor(rig, camera.width, camera.height)
-    small = shrunk_rig(rig, factor)
-    server = SweepRenderer(small, shrunk_images(frames, small), device="cpu",
-                           backgrounds=None if backgrounds is None else shrunk_images(backgrounds, small))
-    result = server.render(camera, RenderOptions(**options))
+    result = server_render(rig, frames, backgrounds, camera, **options)
     browser = render_in_browser(page, render_spec(rig), frame_atlas(frames, rig, factor),
                                 None if backgrounds is None else frame_atlas(backgrounds, rig, factor), camera,
                                 factor, options, overlay)
@@ -132,12 +137,53 @@ def test_semi_global_paths_do_not_depend_on_the_block_size(page, studio, block):
     np.testing.assert_array_equal(other["depth"], default["depth"])
 
 
+def assert_same_fill(result, browser):
+    """The pixels the cross-view check rejected and filled: the browser marks them with a NaN cost, as the server.
+    (Identical on the studio's views; a camera pixel's winner compares costs of different virtual pixels, which a
+    float32 rounding apart from the server's can swap.)"""
+    assert result.filled.any(), "the check rejected nothing here: the comparison would not test the fill"
+    filled = np.isnan(browser["depth"][:, :, 3])
+    assert (filled == result.filled).mean() >= 0.99, f"the same pixels filled on {(filled == result.filled).mean():.1%}"
+
+
+@pytest.mark.parametrize("azimuth, options", [
+    (-20.0, {"aggregation": "sgm", "occlusions": "fill"}),
+    (12.0, {"occlusions": "fill", "method": "kojima_k"}),  # the window's variance kept as a volume
+    (-8.0, {"occlusions": "fill", "coarse_to_fine": True}),  # the viewer's: the fine level's windows kept as a volume
+    (18.0, {"aggregation": "sgm", "occlusions": "fill", "coarse_to_fine": True, "method": "ulr"}),
+])
+def test_the_occlusion_fill_equals_the_servers(page, studio, azimuth, options):
+    """The cross-view check, the background fill and the visibility-aware colour that follows it (on with the fill)."""
+    rig, frames, backgrounds = studio
+    camera = orbit_camera(orbit_frame(rig), Orbit(azimuth=azimuth), 50.0, VIEW)
+    result, browser = both(page, rig, frames, backgrounds, camera, **options)
+    assert_same_view(result, browser)
+    assert_same_fill(result, browser)
+
+
+def test_visibility_aware_colour_equals_the_servers(page, studio):
+    """Visibility alone (the searched depth kept): the browser's picture is the server's with visibility, not the
+    server's without (where the two differ)."""
+    rig, frames, backgrounds = studio
+    camera = orbit_camera(orbit_frame(rig), Orbit(azimuth=-30.0), 50.0, VIEW)
+    result, browser = both(page, rig, frames, backgrounds, camera, visibility=True)
+    assert_same_view(result, browser)
+    blind = server_render(rig, frames, backgrounds, camera, visibility=False).image
+    differs = np.any(result.image != blind, axis=2)
+    assert differs.mean() > 0.005, "visibility changes nothing here: the comparison would not test it"
+    own = np.abs(browser["image"].astype(int) - result.image)[differs].mean()
+    other = np.abs(browser["image"].astype(int) - blind)[differs].mean()
+    assert own < 0.25 * other, f"where visibility matters the browser is {own:.1f} levels from it, {other:.1f} from without"
+
+
 def test_options_the_browser_does_not_render_are_refused(page, studio):
     rig, frames, backgrounds = studio
     camera = orbit_camera(orbit_frame(rig), Orbit(), 50.0, VIEW)
-    with pytest.raises(Exception, match="the occlusion fill runs on the server"):
-        render_in_browser(page, render_spec(rig), frame_atlas(frames, rig, 2), frame_atlas(backgrounds, rig, 2), camera,
-                          2, {"aggregation": "sgm", "occlusions": "fill"})
+    args = (page, render_spec(rig), frame_atlas(frames, rig, 2), frame_atlas(backgrounds, rig, 2), camera, 2)
+    with pytest.raises(Exception, match="the truncated cost runs on the server"):
+        render_in_browser(*args, {"aggregation": "none", "consistency": "truncated"})
+    with pytest.raises(Exception, match="occlusions 'fill' checks the planes on a cost volume"):  # as the server says
+        render_in_browser(*args, {"aggregation": "none", "occlusions": "fill"})
     big = orbit_camera(orbit_frame(rig), Orbit(), 50.0, (640, 480))  # 5 volumes of 128 planes: 786 MB
     with pytest.raises(Exception, match="needs 786 MB of GPU memory"):
         render_in_browser(page, render_spec(rig), frame_atlas(frames, rig, 1), frame_atlas(backgrounds, rig, 1), big,
@@ -149,9 +195,11 @@ TEDDY = dataset("multiview", "teddy")
 
 @pytest.mark.data
 @pytest.mark.skipif(TEDDY is None, reason="Middlebury Teddy not in $SWEEPCAST_DATA")
-@pytest.mark.parametrize("sources, aggregation", [([2, 6], "window"), ([0, 1, 2, 3, 5, 6, 7, 8], "window"),
-                                                  ([2, 6], "sgm")])
-def test_a_middlebury_leave_one_out_view_equals_the_servers(page, sources, aggregation):
+@pytest.mark.parametrize("sources, aggregation, occlusions", [
+    ([2, 6], "window", "keep"), ([0, 1, 2, 3, 5, 6, 7, 8], "window", "keep"), ([2, 6], "sgm", "keep"),
+    ([2, 6], "sgm", "fill"),
+])
+def test_a_middlebury_leave_one_out_view_equals_the_servers(page, sources, aggregation, occlusions):
     """Teddy's view 4 held out, synthesised from two and from all eight others at half size (real photographs: no
     backgrounds, no hull), the depth range from the ground-truth disparity as the benchmark takes it."""
     images = {k: cv2.imread(str(TEDDY / f"im{k}.png")) for k in [*sources, 4]}
@@ -164,6 +212,8 @@ def test_a_middlebury_leave_one_out_view_equals_the_servers(page, sources, aggre
     disparities = cv2.imread(str(TEDDY / "disp2.pgm"), cv2.IMREAD_UNCHANGED).astype(np.float64) / 4.0 / 4.0
     lo, hi = np.percentile(disparities[disparities > 0], [0.5, 99.5])
     result, browser = both(page, rig, [images[k] for k in sources], None, virtual, near=w / (hi * 1.1),
-                           far=w / (lo * 0.9), aggregation=aggregation)
+                           far=w / (lo * 0.9), aggregation=aggregation, occlusions=occlusions)
     assert_same_view(result, browser)
+    if occlusions == "fill":
+        assert_same_fill(result, browser)
     assert browser["info"]["coverage"] > 0.8  # two views leave the frame edge unseen

@@ -186,7 +186,7 @@ def atlas_cells(data: bytes, rig) -> list[np.ndarray]:
 def test_the_viewer_renders_in_the_browser_from_cached_frame_sets(server, take):
     """?render=browser on a machine without a GPU (SwiftShader): the page says so, draws the server's picture of
     the same viewpoint (from JPEG frame sets), fetches each frame set once, keeps the orbit on the cameras' arc
-    unless freed, renders semi-global aggregation too, starts no session on the server, and switches to server
+    unless freed, renders semi-global aggregation and the occlusion fill too, starts no session on the server, and switches to server
     rendering on request."""
     from tests.browser import chromium
     from workers.common.imagemetrics import psnr
@@ -256,6 +256,14 @@ def test_the_viewer_renders_in_the_browser_from_cached_frame_sets(server, take):
                                                             distance=view["d"]), 50.0, (320, 240))
         expected = SweepRenderer(take.rig, sent[0], backgrounds=sent[1], device="cpu").render(
             camera, coarse_to_fine=True, aggregation="sgm")
+        assert psnr(expected.image, gl_canvas(page)) > 35
+
+        received = page.evaluate("viewerState.received")
+        page.select_option("#occlusions", "fill")  # the occlusion fill and visibility-aware colour: in the browser too
+        drawn(page, received)
+        assert page.evaluate("viewerState.mode") == "browser"
+        expected = SweepRenderer(take.rig, sent[0], backgrounds=sent[1], device="cpu").render(
+            camera, coarse_to_fine=True, aggregation="sgm", occlusions="fill")
         assert psnr(expected.image, gl_canvas(page)) > 35
 
         page.select_option("#render-choice", "server")

@@ -8,13 +8,15 @@
 //   r.present("none");                                           // to the canvas
 //
 // Options are the server's RenderOptions (same names and defaults); what the browser does not implement
-// (the occlusion fill, visibility-aware colour, the truncated cost) raises an Unsupported error so that a viewer
-// can ask the server instead.
+// (the truncated cost, coarser depth sampling) raises an Unsupported error so that a viewer can ask the server
+// instead.
 import { windowedWinner, SHADERS as AGGREGATION_SHADERS } from "./aggregation.js";
 import { searchPixels, SHADERS as COST_SHADERS } from "./cost.js";
 import { MAX_PLANES as SGM_MAX_PLANES, MAX_VOLUME_BYTES, SemiGlobal, SHADERS as SGM_SHADERS, volumeBytes } from "./semiglobal.js";
 import { FrameSet, SHADERS as FRAME_SHADERS } from "./frames.js";
-import { bindTextures, drawFullscreen, framebuffer, loadShaders, program, readBytes, readFloat, release, texture2d } from "./gl.js";
+import { bindTextures, drawFullscreen, framebuffer, loadShaders, program, readBytes, readFloat, release, texture2d,
+  textureArray } from "./gl.js";
+import { fillAlongRows, Occlusions, SHADERS as OCCLUSION_SHADERS } from "./occlusion.js";
 import { colourMapTexture, present, SHADERS as OVERLAY_SHADERS } from "./overlays.js";
 import { inversePlanes, sweepGeometry } from "./planes.js";
 import { median, Rig } from "./rig.js";
@@ -23,7 +25,8 @@ import { shade, SHADERS as WEIGHTING_SHADERS } from "./weighting.js";
 export const DEFAULTS = {
   method: "kojima", d_bnd: null, k: 3, planes: 48, near: null, far: null, visual_hull: null,
   coarse_to_fine: false, refine_margin: 2, consistency: "variance", min_views: 2, aggregation: "window",
-  window: 2, cost_cap: 40, sgm_p1: 2, sgm_p2: 32, sgm_directions: 8, subplane: true, fill: [0, 0, 0], visibility: null, occlusions: "keep", subpixel_bits: 0,
+  window: 2, cost_cap: 40, sgm_p1: 2, sgm_p2: 32, sgm_directions: 8, subplane: true, fill: [0, 0, 0], visibility: null,
+  visibility_tolerance: 0.03, occlusions: "keep", subpixel_bits: 0,
 };
 const SAMPLES = 320 * 240; // depth samples read back for the statistics (every pixel up to this size)
 
@@ -33,8 +36,6 @@ export class Unsupported extends Error {}
 export function unsupported(options) {
   const o = { ...DEFAULTS, ...options };
   if (o.aggregation === "sgm" && o.planes > SGM_MAX_PLANES) return `semi-global aggregation of over ${SGM_MAX_PLANES} planes runs on the server`;
-  if (o.occlusions !== "keep") return "the occlusion fill runs on the server";
-  if (o.visibility) return "visibility-aware colour runs on the server";
   if (o.consistency !== "variance") return "the truncated cost runs on the server";
   if (o.subpixel_bits && o.subpixel_bits !== 6) return "the browser samples the depth search at 1/64 px only";
   return null;
@@ -74,7 +75,7 @@ export class BrowserRenderer {
   /** A renderer for the hello's ``render`` block (rig geometry, silhouette settings, overlay style). */
   static async create(gl, spec) {
     await loadShaders([...new Set([...COST_SHADERS, ...AGGREGATION_SHADERS, ...WEIGHTING_SHADERS, ...OVERLAY_SHADERS,
-      ...FRAME_SHADERS, ...SGM_SHADERS, "sample.frag"])]);
+      ...FRAME_SHADERS, ...SGM_SHADERS, ...OCCLUSION_SHADERS, "sample.frag"])]);
     return new BrowserRenderer(gl, spec);
   }
 
@@ -92,10 +93,16 @@ export class BrowserRenderer {
       shade: program(gl, "fullscreen.vert", "shade.frag", defines),
       present: program(gl, "fullscreen.vert", "present.frag", defines),
       sample: program(gl, "fullscreen.vert", "sample.frag", defines),
+      winners: program(gl, "winners.vert", "winners.frag", defines),
+      confirm: program(gl, "fullscreen.vert", "confirm.frag", defines),
+      fill: program(gl, "fullscreen.vert", "fill.frag", defines),
+      splat: program(gl, "splat.vert", "splat.frag", defines),
     };
     this.style = { ...spec.style, colourMap: colourMapTexture(gl, spec.style.colour_map) };
     this.placeholder = texture2d(gl, "rgba32f", 1, 1);
+    this.placeholderArray = textureArray(gl, "r32f", 1, 1, 1);
     this.semiGlobal = new SemiGlobal(gl);
+    this.occlusions = new Occlusions(gl, this.programs);
     this.factor = null;
     this.frames = null;
     this.work = null;
@@ -137,33 +144,34 @@ export class BrowserRenderer {
     const planes = inversePlanes(near, far, o.planes);
     const hull = o.visual_hull ?? this.frames.hasSilhouettes;
     if (hull && !this.frames.hasSilhouettes) throw new Error("visual_hull requested, but there are no backgrounds");
-    const sweep = { cameras: this.cameras, planes, hull, minViews: o.min_views, frames: this.frames };
+    const sweep = { cameras: this.cameras, planes, hull, minViews: o.min_views, frames: this.frames,
+      placeholder: this.placeholder, refine: null };
+    const fillOcclusions = o.occlusions === "fill";
+    if (fillOcclusions && o.aggregation === "none") {
+      throw new Error("occlusions 'fill' checks the planes on a cost volume: use aggregation 'window' or 'sgm'");
+    }
+    if (fillOcclusions && !this.occlusions.pointsOk) {
+      throw new Unsupported("this WebGL draws no 2 px points: the occlusion fill runs on the server");
+    }
     const coarseToFine = o.coarse_to_fine && Math.min(virtual.width, virtual.height) >= 8;
     const half = coarseToFine ? virtual.scaled(0.5) : null;
-    if (o.aggregation === "sgm") {
-      const level = half ?? virtual;
-      const bytes = volumeBytes(level.width, level.height, o.planes);
-      if (bytes > MAX_VOLUME_BYTES) {
-        throw new Unsupported(`semi-global aggregation of a ${level.width}x${level.height} level with ${o.planes} planes `
-          + `needs ${(bytes / 1e6).toFixed(0)} MB of GPU memory (the browser takes up to ${MAX_VOLUME_BYTES / 1e6} MB)`);
-      }
-    }
+    this.checkVolumes(virtual, half, o, fillOcclusions);
     const work = this.workspace(virtual.width, virtual.height);
+    const fine = { ...sweep, geometry: sweepGeometry(virtual, this.cameras) };
     gl.disable(gl.BLEND);
-    if (coarseToFine) {
-      const coarse = this.workspace(half.width, half.height, true);
-      const coarseSweep = { ...sweep, geometry: sweepGeometry(half, this.cameras) };
-      this.choose(coarseSweep, o, coarse, coarse.depthTarget);
-      searchPixels(gl, this.programs.search, { ...sweep, geometry: sweepGeometry(virtual, this.cameras) },
-        coarse.depth, o.refine_margin, work.depthTarget, this.placeholder);
-    } else {
-      this.choose({ ...sweep, geometry: sweepGeometry(virtual, this.cameras) }, o, work, work.depthTarget);
+    const volume = this.chooseDepth(sweep, fine, half, o, fillOcclusions, work);
+    if (fillOcclusions) {
+      this.occlusions.fill(fine, volume, { tex: work.depth, target: work.depthTarget }, o.min_views,
+        fillAlongRows(virtual, this.rig.centres));
     }
     const stats = this.depthStats(work);
     const dBnd = ["kojima", "kojima_k"].includes(o.method) ? (o.d_bnd ?? this.rig.autoDBnd(virtual, stats.median)) : null;
-    shade(gl, this.programs.shade, { ...sweep, geometry: sweepGeometry(virtual, this.cameras) }, virtual,
-      this.rig.centres, work.depth, { method: o.method, dBnd, k: o.k, globalCamera: this.rig.globalCamera(virtual),
-        fill: [o.fill[2], o.fill[1], o.fill[0]] }, work.shadeTarget);
+    const visible = o.visibility ?? fillOcclusions; // the server's RenderOptions.use_visibility
+    const visibility = visible
+      ? { zbuffers: this.occlusions.zbuffers(fine, work.depth), tolerance: o.visibility_tolerance } : null;
+    shade(gl, this.programs.shade, fine, virtual, this.rig.centres, work.depth, { method: o.method, dBnd, k: o.k,
+      globalCamera: this.rig.globalCamera(virtual), fill: [o.fill[2], o.fill[1], o.fill[0]] }, work.shadeTarget,
+    visibility, this.placeholderArray);
     this.last = { virtual, stats };
     const ms = performance.now() - t0;
     return {
@@ -172,14 +180,48 @@ export class BrowserRenderer {
     };
   }
 
+  /** The chosen planes of the view into work.depth: the coarse level first with ``half`` (its camera), then each
+   * fine pixel's window of planes, searched per pixel, or with ``keepVolume`` (the occlusion fill) aggregated
+   * into a cost volume as the server's fine level then does. Returns that volume (null without). */
+  chooseDepth(sweep, fine, half, o, keepVolume, work) {
+    if (half) {
+      const coarse = this.workspace(half.width, half.height, true);
+      this.choose({ ...sweep, geometry: sweepGeometry(half, this.cameras) }, o, coarse, coarse.depthTarget);
+      if (!keepVolume) {
+        searchPixels(this.gl, this.programs.search, fine, coarse.depth, o.refine_margin, work.depthTarget);
+        return null;
+      }
+      const refine = { coarse: coarse.depth, margin: o.refine_margin };
+      return this.semiGlobal.winner(this.programs, { ...fine, refine }, o, work, work.depthTarget);
+    }
+    if (keepVolume) return this.semiGlobal.winner(this.programs, fine, o, work, work.depthTarget);
+    this.choose(fine, o, work, work.depthTarget);
+    return null;
+  }
+
   /** Plane choice by the options' aggregation into ``target`` (a depth framebuffer of ``work``'s size). */
   choose(sweep, o, work, target) {
     if (o.aggregation === "none") {
-      searchPixels(this.gl, this.programs.search, sweep, null, 0, target, this.placeholder);
+      searchPixels(this.gl, this.programs.search, sweep, null, 0, target);
     } else if (o.aggregation === "sgm") {
       this.semiGlobal.winner(this.programs, sweep, o, work, target);
     } else {
       windowedWinner(this.gl, this.programs, sweep, o.window, o.subplane, work, target);
+    }
+  }
+
+  /** Refuse (Unsupported) cost volumes beyond MAX_VOLUME_BYTES: semi-global aggregation keeps five at the level it
+   * aggregates (the coarse one with coarse-to-fine), and the occlusion fill keeps the fine level's. */
+  checkVolumes(virtual, half, o, fillOcclusions) {
+    const levels = [];
+    if (o.aggregation === "sgm") levels.push(half ?? virtual);
+    if (fillOcclusions && (half || o.aggregation !== "sgm")) levels.push(virtual);
+    let bytes = 0;
+    for (const level of levels) bytes += volumeBytes(level.width, level.height, o.planes, o.aggregation === "sgm");
+    if (bytes > MAX_VOLUME_BYTES) {
+      const what = fillOcclusions ? "the occlusion fill's cost volumes" : "semi-global aggregation";
+      throw new Unsupported(`${what} of a ${levels.at(-1).width}x${levels.at(-1).height} view with ${o.planes} planes `
+        + `needs ${(bytes / 1e6).toFixed(0)} MB of GPU memory (the browser takes up to ${MAX_VOLUME_BYTES / 1e6} MB)`);
     }
   }
 
@@ -256,7 +298,8 @@ export class BrowserRenderer {
     for (const w of [this.work, this.coarse]) if (w) w.dispose();
     if (this.frames) this.frames.dispose();
     this.semiGlobal.dispose();
-    release(this.gl, this.placeholder, this.style.colourMap);
+    this.occlusions.dispose();
+    release(this.gl, this.placeholder, this.placeholderArray, this.style.colourMap);
     for (const p of Object.values(this.programs)) this.gl.deleteProgram(p.program);
   }
 }

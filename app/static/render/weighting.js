@@ -6,11 +6,16 @@ import { glMatrices, setRigUniforms } from "./planes.js";
 export const SHADERS = ["fullscreen.vert", "rig.glsl", "shade.frag"];
 export const METHODS = ["global", "nearest", "ulr", "kojima", "kojima_k"];
 
-/** Shade ``depth`` (a resolve output) of ``virtual`` into work.shadeTarget (colour, regions). */
-export function shade(gl, prog, sweep, virtual, centres, depth, weighting, target) {
+/** Shade ``depth`` (a resolve output) of ``virtual`` into work.shadeTarget (colour, regions). ``visibility``:
+ * { zbuffers (Occlusions.zbuffers), tolerance } for visibility-aware colour, else null; ``placeholderArray`` (any
+ * array texture) fills its sampler without. */
+export function shade(gl, prog, sweep, virtual, centres, depth, weighting, target, visibility, placeholderArray) {
   gl.useProgram(prog.program);
   setRigUniforms(gl, prog, sweep.geometry, sweep.cameras, sweep.hull);
-  bindTextures(gl, prog, { uImages: sweep.frames.images, uSilhouettes: sweep.frames.silhouettes, uDepth: depth });
+  bindTextures(gl, prog, {
+    uImages: sweep.frames.images, uSilhouettes: sweep.frames.silhouettes, uDepth: depth,
+    uZbuf: visibility ? visibility.zbuffers : placeholderArray,
+  });
   const u = prog.uniforms;
   gl.uniformMatrix3fv(u.uG, false, glMatrices([sweep.geometry.G]));
   gl.uniform3fv(u.uEye, Float32Array.from(virtual.center));
@@ -22,5 +27,7 @@ export function shade(gl, prog, sweep, virtual, centres, depth, weighting, targe
   gl.uniform1i(u.uK, weighting.k);
   gl.uniform1i(u.uGlobal, weighting.globalCamera);
   gl.uniform3fv(u.uFill, Float32Array.from(weighting.fill));
+  gl.uniform1i(u.uVisibility, visibility ? 1 : 0);
+  gl.uniform1f(u.uVisScale, 1 + (visibility ? visibility.tolerance : 0));
   drawFullscreen(gl, target);
 }

@@ -1,7 +1,7 @@
 #version 300 es
-// The cost semi-global aggregation works on (workers/sweep/costs.py windowed_variance, robust_cost) for four
-// planes: the column half of the window sums, their ratio the windowed variance, and its square root capped at
-// uCap colour levels. A plane the pixel did not vote for itself, and a padding plane past the last, is no
+// A layer of the cost volume (workers/sweep/costs.py windowed_variance, robust_cost) for four planes: the column
+// half of the window sums and their ratio, the windowed variance; for semi-global aggregation (uRobust) its square
+// root capped at uCap colour levels. A plane the pixel did not vote for itself, and a padding plane past the last, is no
 // candidate: BIG (the server's inf).
 precision highp float;
 precision highp int;
@@ -12,6 +12,7 @@ uniform int uRadius;
 uniform int uFirst;
 uniform int uPlanes;
 uniform float uCap;
+uniform bool uRobust;
 out vec4 oCost;
 #include "window.glsl"
 
@@ -22,7 +23,12 @@ void main() {
   vec4 own = texelFetch(uVotes, p, 0);
   vec4 cost;
   for (int k = 0; k < 4; k++) {
-    cost[k] = uFirst + k < uPlanes && own[k] > 0.0 ? min(sqrt(num[k] / den[k]), uCap) : BIG;
+    if (!(uFirst + k < uPlanes && own[k] > 0.0)) {
+      cost[k] = BIG;
+      continue;
+    }
+    float variance = num[k] / den[k];
+    cost[k] = uRobust ? min(sqrt(variance), uCap) : variance;
   }
   oCost = cost;
 }

@@ -22,6 +22,20 @@ bool projected(int i, vec2 xy, float s, out vec2 uv) {
   return true;
 }
 
+// The same, with the point's depth along camera i's axis (its depth over the virtual one's times 1 / s).
+bool projectedDepth(int i, vec2 xy, float s, out vec2 uv, out float depth) {
+  vec3 h = uQ[i] * vec3(xy, 1.0) + s * uB[i];
+  if (!(h.z > Z_MIN)) return false;
+  uv = h.xy / h.z;
+  depth = h.z / s;
+  return true;
+}
+
+// Whether uv lies inside camera i's image ([0, W-1] x [0, H-1]), the colour pass's test.
+bool insideImage(int i, vec2 uv) {
+  return all(greaterThanEqual(uv, vec2(0.0))) && all(lessThanEqual(uv, uLast[i]));
+}
+
 // Whether camera i's silhouette holds pixel uv (the nearest pixel, ties to even, as the server's lrint).
 bool inSilhouette(int i, vec2 uv) {
   ivec2 p = ivec2(roundEven(uv));

@@ -8,6 +8,8 @@
 //   3 kojima: primary and secondary, eqs. 1-6: D12 = cos1 - cos2 >= D_bnd: primary alone, else
 //     w1 = (1 + D12 / D_bnd) / 2, w2 = 1 - w1
 //   4 kojima_k: every camera i with D_1i < D_bnd, weight rho(D_1i) = (D_bnd - D) / (D_bnd + D), normalised
+// With uVisibility a camera that the view's own surface hides the point from (its z-buffer, splat.vert) takes no
+// part, as if its image did not contain the point; all take part where that would leave none.
 // Writes the colour and (regions = cameras with a non-zero weight, primary camera + 1) for the overlays.
 precision highp float;
 precision highp int;
@@ -22,6 +24,9 @@ uniform float uDBnd;
 uniform int uK;
 uniform int uGlobal;
 uniform vec3 uFill;              // colour where there is no surface (0..255, RGB)
+uniform bool uVisibility;
+uniform highp sampler2DArray uZbuf;  // per camera: the nearest depth of the view's surface (m along its axis)
+uniform float uVisScale;         // 1 + the visibility tolerance
 layout(location = 0) out vec4 oColour;
 layout(location = 1) out vec4 oRegions;  // r: regions / 255, g: (primary + 1) / 255
 
@@ -31,6 +36,16 @@ const int ULR = 2;
 const int KOJIMA = 3;
 const int KOJIMA_K = 4;
 
+// Whether camera i sees the point at uv and ``depth`` past the view's surface: depth <= uVisScale x the nearest
+// buffered depth over the four pixels its colour is sampled from (workers/sweep/kernels.py unhidden).
+bool unhidden(int i, vec2 uv, float depth) {
+  ivec2 a = ivec2(floor(uv));
+  ivec2 b = ivec2(uv.x < uLast[i].x ? a.x + 1 : a.x, uv.y < uLast[i].y ? a.y + 1 : a.y);
+  float near = min(min(texelFetch(uZbuf, ivec3(a, i), 0).x, texelFetch(uZbuf, ivec3(b.x, a.y, i), 0).x),
+                   min(texelFetch(uZbuf, ivec3(a.x, b.y, i), 0).x, texelFetch(uZbuf, ivec3(b, i), 0).x));
+  return depth <= near * uVisScale;
+}
+
 void main() {
   vec2 xy = gl_FragCoord.xy - 0.5;
   float s = texelFetch(uDepth, ivec2(gl_FragCoord.xy), 0).x;
@@ -38,22 +53,37 @@ void main() {
   float theta[N_CAM];
   vec2 uvs[N_CAM];
   int cam[N_CAM];
+  bool seen[N_CAM];
   int m = 0;
   if (s > 0.0) {
     vec3 ray = uG * vec3(xy, 1.0) / s;  // from the virtual centre to the surface point
     vec3 toEye = normalize(ray);
     for (int i = 0; i < N_CAM; i++) {
       vec2 uv;
-      if (!projected(i, xy, s, uv)) continue;
-      if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, uLast[i]))) continue;
+      float depth;
+      if (!projectedDepth(i, xy, s, uv, depth)) continue;
+      if (!insideImage(i, uv)) continue;
       if (uHull && !inSilhouette(i, uv)) continue;
       vec3 d = normalize(uEye + ray - uCentres[i]);
       cosv[m] = dot(d, toEye);
       theta[m] = atan(length(cross(d, toEye)), cosv[m]);
       uvs[m] = uv;
       cam[m] = i;
+      seen[m] = !uVisibility || unhidden(i, uv, depth);
       m++;
     }
+  }
+  if (uVisibility && m > 1) {  // only the cameras nothing of the view hides the point from, in camera order
+    int nv = 0;
+    for (int a = 0; a < m; a++) {
+      if (!seen[a]) continue;
+      cosv[nv] = cosv[a];
+      theta[nv] = theta[a];
+      uvs[nv] = uvs[a];
+      cam[nv] = cam[a];
+      nv++;
+    }
+    if (nv > 0) m = nv;
   }
   if (m == 0) {
     oColour = vec4(uFill / 255.0, 1.0);
