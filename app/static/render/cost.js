@@ -7,7 +7,8 @@ import { setRigUniforms } from "./planes.js";
 export const SHADERS = ["fullscreen.vert", "rig.glsl", "refine.glsl", "sweep.frag", "search.frag"];
 export const PLANES_PER_PASS = 4;
 
-function rigPass(gl, prog, sweep) {
+/** Use ``prog`` with the sweep's rig, planes and vote uniforms set (a program without some ignores them). */
+export function rigPass(gl, prog, sweep) {
   gl.useProgram(prog.program);
   setRigUniforms(gl, prog, sweep.geometry, sweep.cameras, sweep.hull);
   const u = prog.uniforms;

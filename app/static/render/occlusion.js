@@ -9,7 +9,7 @@
 // (a cost, a depth) as its depth, scaled by a power of two (exact in a float32 depth buffer), and ties keep the
 // first drawn, the server's order. 320x240 with 48 planes and 10 cameras is 37 M points a frame.
 import { bindTextures, drawFullscreen, framebuffer, release, texture2d, textureArray } from "./gl.js";
-import { setRigUniforms } from "./planes.js";
+import { rigPass } from "./cost.js";
 
 export const SHADERS = ["rig.glsl", "fullscreen.vert", "winners.vert", "winners.frag", "confirm.frag", "fill.frag",
   "splat.vert", "splat.frag"];
@@ -117,11 +117,9 @@ export class Occlusions {
     const P = sweep.planes.count;
     const winners = this.targetsFor(sweep.cameras, "rg32f");
     const wp = this.programs.winners;
-    gl.useProgram(wp.program);
-    this.rigUniforms(wp, sweep);
+    rigPass(gl, wp, sweep);
     bindTextures(gl, wp, { uVolume: volume });
     gl.uniform1i(wp.uniforms.uWidth, w);
-    gl.uniform1i(wp.uniforms.uPlanes, P);
     gl.uniform2f(wp.uniforms.uTarget, winners.width, winners.height);
     gl.uniform1f(wp.uniforms.uDepthScale, COST_SCALE);
     sweep.cameras.forEach((_, i) => {
@@ -130,8 +128,7 @@ export class Occlusions {
     });
     const view = this.viewTextures(w, h);
     const cp = this.programs.confirm;
-    gl.useProgram(cp.program);
-    this.rigUniforms(cp, sweep);
+    rigPass(gl, cp, sweep);
     bindTextures(gl, cp, { uDepth: depth.tex, uWinners: winners.colour });
     gl.uniform1i(cp.uniforms.uTolerance, TOLERANCE_PX);
     gl.uniform1i(cp.uniforms.uMinViews, minViews);
@@ -140,8 +137,6 @@ export class Occlusions {
     gl.useProgram(fp.program);
     bindTextures(gl, fp, { uDepth: depth.tex, uRejected: view.rejected });
     gl.uniform1i(fp.uniforms.uRows, rows ? 1 : 0);
-    gl.uniform1f(fp.uniforms.uS0, sweep.planes.s0);
-    gl.uniform1f(fp.uniforms.uDs, sweep.planes.ds);
     drawFullscreen(gl, view.filledTarget);
     gl.bindFramebuffer(gl.READ_FRAMEBUFFER, view.filledTarget.fb);
     gl.bindFramebuffer(gl.DRAW_FRAMEBUFFER, depth.target.fb);
@@ -156,8 +151,7 @@ export class Occlusions {
     const gl = this.gl;
     const targets = this.targetsFor(sweep.cameras, "r32f");
     const sp = this.programs.splat;
-    gl.useProgram(sp.program);
-    this.rigUniforms(sp, sweep);
+    rigPass(gl, sp, sweep);
     bindTextures(gl, sp, { uDepth: depth });
     gl.uniform2f(sp.uniforms.uTarget, targets.width, targets.height);
     gl.uniform1f(sp.uniforms.uDepthScale, DEPTH_SCALE);
@@ -171,13 +165,6 @@ export class Occlusions {
   releaseView() {
     const v = this.view;
     if (v) release(this.gl, v.rejected, v.filled, v.rejectedTarget, v.filledTarget);
-  }
-
-  rigUniforms(prog, sweep) {
-    const gl = this.gl;
-    setRigUniforms(gl, prog, sweep.geometry, sweep.cameras, sweep.hull);
-    gl.uniform1f(prog.uniforms.uS0, sweep.planes.s0); // a program without them ignores these (null locations)
-    gl.uniform1f(prog.uniforms.uDs, sweep.planes.ds);
   }
 
   dispose() {

@@ -9,8 +9,6 @@ precision highp int;
 uniform highp sampler2D uDepth;     // resolve output: (inverse depth or 0, plane or -1, offset, cost)
 uniform highp sampler2D uRejected;  // confirm.frag's output (.x 1: rejected)
 uniform bool uRows;
-uniform float uS0;
-uniform float uDs;
 out vec4 oDepth;
 
 bool rejected(ivec2 q) {
@@ -36,9 +34,8 @@ void main() {
     if (at < 0 || at >= count) continue;
     vec4 d = texelFetch(uDepth, p + (at - along) * step, 0);
     if (d.y < 0.0) continue;
-    float s = uS0 + d.y * uDs + d.z * uDs;
-    if (s < sBest) {
-      sBest = s;
+    if (d.x < sBest) {  // the inverse depth of its plane and offset
+      sBest = d.x;
       src = d;
     }
   }

@@ -40,7 +40,7 @@ const int KOJIMA_K = 4;
 // buffered depth over the four pixels its colour is sampled from (workers/sweep/kernels.py unhidden).
 bool unhidden(int i, vec2 uv, float depth) {
   ivec2 a = ivec2(floor(uv));
-  ivec2 b = ivec2(uv.x < uLast[i].x ? a.x + 1 : a.x, uv.y < uLast[i].y ? a.y + 1 : a.y);
+  ivec2 b = min(a + 1, ivec2(uLast[i]));  // as bilinear() samples
   float near = min(min(texelFetch(uZbuf, ivec3(a, i), 0).x, texelFetch(uZbuf, ivec3(b.x, a.y, i), 0).x),
                    min(texelFetch(uZbuf, ivec3(a.x, b.y, i), 0).x, texelFetch(uZbuf, ivec3(b, i), 0).x));
   return depth <= near * uVisScale;
