@@ -27,8 +27,11 @@ $(KERNELS): $(STAMP)
 serve: $(KERNELS)
 	$(BIN)/sweepcast serve
 
+# The suite in TEST_PROCESSES processes (pytest-xdist; each has its own local Ray): the kernels are compiled first,
+# one process each (tests/conftest.py). TEST_PROCESSES=0 runs it in this one process.
+TEST_PROCESSES ?= 2
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_PROCESSES)
 
 # The user documentation (docs/, mkdocs.yml) as a site in ./site: --strict fails on a broken link or anchor.
 $(DOCS_STAMP): $(STAMP)

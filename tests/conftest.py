@@ -22,6 +22,27 @@ WARM_BESIDE_THE_TESTS_MIN_ITEMS = 100
 """A run of at least this many tests compiles the kernels beside them (below); a few selected tests do not."""
 
 
+def pytest_configure(config):
+    """A parallel run (``-n N``, pytest-xdist, as ``make test`` runs the suite) compiles every engine's kernels
+    first, in the controller, one process per test worker: otherwise each worker compiles the same kernels on
+    its own critical path (a fresh clone's minutes, twice over). A serial run compiles them beside the tests."""
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+        return
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from workers.warmup import is_current
+
+    cache = Path(os.environ["NUMBA_CACHE_DIR"])
+    if is_current(cache):
+        return
+    cache.mkdir(parents=True, exist_ok=True)
+    jobs = max(1, min(int(config.option.numprocesses), os.cpu_count() or 1))
+    subprocess.run([sys.executable, "-m", "workers.warmup", "--jobs", str(jobs)], stdin=subprocess.DEVNULL,
+                   stdout=subprocess.DEVNULL, check=True)
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _kernels_compiled_beside_the_tests(request):
     """Every engine's kernels compiled into the run's cache by one low-priority process while the tests run, unless
