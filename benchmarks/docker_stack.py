@@ -17,9 +17,11 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import datetime as dt
 import hashlib
 import json
 import os
+import re
 import shlex
 import subprocess
 import sys
@@ -94,6 +96,43 @@ def wait_for(check: Callable[[], Any], timeout: float, what: str, interval: floa
 
 def ready(stack: Stack, replica: int) -> bool:
     return httpx.get(f"{stack.bases[replica]}/readyz", timeout=5).status_code == 200
+
+
+def up_timeline(stack: Stack, name: str) -> dict[str, Any]:
+    """``up -d``, then each API replica's ``/readyz`` polled every 0.2 s: ``{name}_to_ready_s`` and where the time
+    went (``{name}_timeline``: when ``up -d`` returned, when each replica first answered ready, and each container's
+    start and restart count, seconds from the start of ``up``)."""
+    t0 = time.monotonic()
+    wall0 = time.time()
+    stack.run("up", "-d")
+    returned = time.monotonic() - t0
+    ready_at = {}
+    for replica in (0, 1):
+        wait_for(lambda: ready(stack, replica), 600, f"API replica {replica + 1} /readyz ({name})", interval=0.2)
+        ready_at[f"api replica {replica + 1}"] = time.monotonic() - t0
+    total = time.monotonic() - t0
+    started = {}
+    for service in ("postgres", "redis", "ray-head", "ray-worker", "api", "api-2"):
+        for container in stack.containers(service):
+            state = json.loads(subprocess.run(["podman", "inspect", "--format", "{{json .State}}", container],
+                                              capture_output=True, text=True, check=True).stdout)
+            restarts = subprocess.run(["podman", "inspect", "--format", "{{.RestartCount}}", container],
+                                      capture_output=True, text=True, check=True).stdout.strip()
+            started[container] = {"started_s": round(_podman_time(state["StartedAt"]) - wall0, 2),
+                                  "restarts": int(restarts or 0)}
+    return {f"{name}_to_ready_s": total,
+            f"{name}_timeline": {"up_returned_s": round(returned, 2),
+                                 "ready_s": {k: round(v, 2) for k, v in ready_at.items()},
+                                 "containers": started}}
+
+
+def _podman_time(stamp: str) -> float:
+    """podman's ``2026-11-29T03:40:01.123456789Z`` (or with an offset) -> seconds since the epoch."""
+    m = re.match(r"(\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d)(\.\d+)?(Z|[+-]\d\d:?\d\d)?", stamp.replace(" ", "T", 1))
+    if not m:
+        raise ValueError(f"cannot read podman's time {stamp!r}")
+    base = dt.datetime.fromisoformat(m.group(1) + ("+00:00" if m.group(3) in (None, "Z") else m.group(3)))
+    return base.timestamp() + float(m.group(2) or 0)
 
 
 def wait_job(http: httpx.Client, job_id: str, timeout: float = 900) -> dict:
@@ -293,11 +332,7 @@ def main() -> int:
     load_before = os.getloadavg()
     res: dict[str, Any] = {"image": json.loads(args.image_record.read_text()), "podman": args.podman_version}
 
-    t = time.monotonic()
-    stack.run("up", "-d")
-    for replica in (0, 1):
-        wait_for(lambda: ready(stack, replica), 600, f"API replica {replica + 1} /readyz")
-    res["up_to_ready_s"] = time.monotonic() - t
+    res.update(up_timeline(stack, "up"))
     res["containers"] = {s: stack.containers(s) for s in ("postgres", "ray-head", "ray-worker", "api", "api-2")}
     print(json.dumps(res, indent=1), flush=True)
 
@@ -317,10 +352,10 @@ def main() -> int:
         before = {j: result_digests(http, http.get(f"/v1/jobs/{j}").json()) for j in finished}
     t = time.monotonic()
     stack.run("down")
-    stack.run("up", "-d")
-    for replica in (0, 1):
-        wait_for(lambda: ready(stack, replica), 600, f"API replica {replica + 1} /readyz after down/up")
-    res["down_up_to_ready_s"] = time.monotonic() - t
+    res["down_s"] = time.monotonic() - t
+    timeline = up_timeline(stack, "down_up")
+    res["down_up_to_ready_s"] = res.pop("down_s") + timeline.pop("down_up_to_ready_s")
+    res.update(timeline)
     with stack.client(1) as http:
         after = {j: result_digests(http, wait_job(http, j, 60)) for j in finished}
     assert after == before, (before, after)
@@ -360,9 +395,26 @@ def markdown(r: dict) -> str:
         f"container was killed finished on the other worker; replica 2 answered `/readyz` {ka['readyz_answered']} "
         f"times while replica 1 was down; after `down`/`up`, all {r['after_down_up']['files']} result files of "
         f"{r['after_down_up']['jobs']} finished jobs were fetched byte-identical.",
+        "", *timeline_lines(r),
         "",
         load_note(la["before"][0], la["after"][0]),
     ])
+
+
+def timeline_lines(r: dict) -> list[str]:
+    """Where each `up` to ready went (runs before the timeline was recorded have none)."""
+    lines = []
+    for name, what in (("up", "`up -d` on empty volumes"), ("down_up", "`up -d` after `down`")):
+        tl = r.get(f"{name}_timeline")
+        if not tl:
+            continue
+        starts = "; ".join(f"{c} {v['started_s']:.1f}"
+                           + (f" ({v['restarts']} restarts)" if v["restarts"] else "")
+                           for c, v in sorted(tl["containers"].items(), key=lambda kv: kv[1]["started_s"]))
+        ready = "; ".join(f"{k} {v:.1f}" for k, v in tl["ready_s"].items())
+        lines.append(f"Timeline of {what}, seconds from the command: it returned at {tl['up_returned_s']:.1f}; "
+                     f"ready: {ready}; each container last started at: {starts}.")
+    return lines
 
 
 if __name__ == "__main__":
