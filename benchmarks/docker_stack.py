@@ -330,7 +330,9 @@ def main() -> int:
     # the key from the environment (verify-stack.sh exports docker/.env), never on the command line RESULTS.md records
     stack = Stack(args.compose, args.project, args.port, os.environ.get("SWEEPCAST_API_KEYS", "").split(",")[0])
     load_before = os.getloadavg()
-    res: dict[str, Any] = {"image": json.loads(args.image_record.read_text()), "podman": args.podman_version}
+    res: dict[str, Any] = {"image": json.loads(args.image_record.read_text()), "podman": args.podman_version,
+                           "storage_driver": subprocess.run(["podman", "info", "--format", "{{.Store.GraphDriverName}}"],
+                                                           capture_output=True, text=True, check=True).stdout.strip()}
 
     res.update(up_timeline(stack, "up"))
     res["containers"] = {s: stack.containers(s) for s in ("postgres", "ray-head", "ray-worker", "api", "api-2")}
@@ -387,7 +389,7 @@ def markdown(r: dict) -> str:
     la = r["load_average"]
     return "\n".join([
         "`docker/verify-stack.sh` (as root): docker/compose.yaml run with podman and podman-compose "
-        f"({r['podman']}; runc, vfs storage), changed as docker/verify/compose_for_podman.py says: PostgreSQL "
+        f"({r['podman']}; runc, {r.get('storage_driver', 'vfs')} storage), changed as docker/verify/compose_for_podman.py says: PostgreSQL "
         "from Debian's packages, moto's S3 server standing in for MinIO (outside the compose project), two API "
         "replicas, a Ray head and two Ray workers of one CPU each. Checked through the API's published ports only.",
         "", md_table(["step", "seconds"], [[a, f"{b:.1f}"] for a, b in rows]), "",

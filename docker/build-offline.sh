@@ -7,12 +7,12 @@
 # 1. debootstrap makes a minimal Debian bookworm root file system with python3 (3.11) from the
 #    Debian mirror this machine's apt already uses;
 # 2. buildah imports it as the local base image `localhost/sweepcast-base`;
-# 3. buildah builds docker/Dockerfile on that base (chroot isolation, vfs storage: no daemon, no cgroups);
+# 3. buildah builds docker/Dockerfile on that base (chroot isolation, overlay or vfs storage: no daemon, no cgroups);
 # 4. the image's own entrypoint runs in a buildah container (`standalone` role: local Ray, SQLite)
 #    and /healthz and /readyz must answer.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-[ "$(id -u)" = 0 ] || { echo "run as root (buildah with vfs storage and debootstrap need it)" >&2; exit 2; }
+[ "$(id -u)" = 0 ] || { echo "run as root (buildah and debootstrap need it)" >&2; exit 2; }
 
 source docker/images.sh
 install_tools buildah debootstrap

@@ -17,7 +17,7 @@
 # The stack is taken down at the end (volumes kept unless SWEEPCAST_KEEP_VOLUMES=0).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-[ "$(id -u)" = 0 ] || { echo "run as root (podman with vfs storage, buildah and debootstrap need it)" >&2; exit 2; }
+[ "$(id -u)" = 0 ] || { echo "run as root (podman, buildah and debootstrap need it)" >&2; exit 2; }
 source docker/images.sh
 install_tools podman podman-compose buildah debootstrap runc
 [ -x .venv/bin/python ] || { echo "make the project's venv first: make .venv/.sweepcast-installed" >&2; exit 2; }
