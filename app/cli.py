@@ -194,7 +194,9 @@ def cmd_models(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(engines: bool = True) -> argparse.ArgumentParser:
+    """Every verb; ``engines=False`` leaves out the keys and engine verbs, whose modules import the engines (a second
+    of CPU: the service's own verbs, run at every container start, do without)."""
     parser = argparse.ArgumentParser(prog="sweepcast", description="sweepcast: the service and its engines from the command line.")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -244,6 +246,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data-dir", type=Path, help="data folder whose settings apply (default ./sweepcast-data)")
     p.set_defaults(func=cmd_kernel_env)
 
+    if not engines:
+        return parser
     import importlib
 
     from app import keys_cli
@@ -255,6 +259,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 SERVICE_COMMANDS = ("serve", "worker", "warmup", "kernel-env")
+OWN_COMMANDS = (*SERVICE_COMMANDS, "openapi", "models")
+"""The verbs :func:`build_parser` defines itself (no engine imported to parse them)."""
 """Commands that use the service's kernel cache (``Settings.resolved_numba_cache_dir``); the one-shot engine
 commands keep numba's default (beside the sources, or ``NUMBA_CACHE_DIR``)."""
 
@@ -285,7 +291,8 @@ def _use_service_kernel_cache(argv: list[str]) -> None:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     _use_service_kernel_cache(argv)
-    args = build_parser().parse_args(argv)
+    command = next((a for a in argv if not a.startswith("-")), None)
+    args = build_parser(engines=command not in OWN_COMMANDS).parse_args(argv)
     return int(args.func(args) or 0)
 
 

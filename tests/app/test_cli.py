@@ -1,0 +1,22 @@
+"""The ``sweepcast`` command's parser: every verb listed, the service's own verbs parsed without the engines."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+
+def test_help_lists_the_service_and_every_engine_verb():
+    out = subprocess.run([sys.executable, "-m", "app", "--help"], capture_output=True, text=True, check=True).stdout
+    for verb in ("serve", "worker", "warmup", "kernel-env", "keys", "orient", "depth", "face", "render", "reconstruct"):
+        assert verb in out
+
+
+def test_the_entrypoint_verb_imports_no_engine(tmp_path):
+    """Every container start runs ``sweepcast kernel-env`` (then its role's verb): it must not import the engines
+    (a second and a half of CPU each, five app containers booting at once on 2 cores)."""
+    code = ("import sys; from app.cli import main; "
+            f"main(['kernel-env', '--data-dir', {str(tmp_path)!r}]); "
+            "loaded = [m for m in sys.modules if m.startswith(('workers.drone', 'workers.faces', 'workers.sweep'))]; "
+            "assert not loaded, loaded")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert "export NUMBA_CACHE_DIR=" in out
