@@ -314,9 +314,11 @@ def kill_api(stack: Stack) -> dict:
         report = http.get(f"/v1/jobs/{job['id']}/results/report.json").json()
     assert len(report) == 8, report
     seconds = time.monotonic() - t
+    t = time.monotonic()
     subprocess.run(["podman", "start", victim], check=True, capture_output=True)
-    wait_for(lambda: ready(stack, 0), 300, "the killed replica to come back")
-    return {"id": job["id"], "killed": victim, "seconds": seconds, "readyz_answered": served}
+    wait_for(lambda: ready(stack, 0), 300, "the killed replica to come back", interval=0.2)
+    return {"id": job["id"], "killed": victim, "seconds": seconds, "readyz_answered": served,
+            "start_to_ready_s": time.monotonic() - t}
 
 
 def main() -> int:
@@ -384,6 +386,8 @@ def markdown(r: dict) -> str:
         [f"40-photo batch, worker `{kw['killed']}` killed {kw['killed_after_s']:.0f} s in "
          f"(attempts {kw['attempts']})", kw["seconds"]],
         [f"8-photo batch, API `{ka['killed']}` killed after accepting it; finished by replica 2", ka["seconds"]],
+        *([["the killed API container started again (`podman start`) to its `/readyz` 200, the rest of the stack "
+            "running", ka["start_to_ready_s"]]] if "start_to_ready_s" in ka else []),
         ["`down` then `up -d` to `/readyz` 200 on both replicas", r["down_up_to_ready_s"]],
     ]
     la = r["load_average"]
