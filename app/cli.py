@@ -259,10 +259,10 @@ def build_parser(engines: bool = True) -> argparse.ArgumentParser:
 
 
 SERVICE_COMMANDS = ("serve", "worker", "warmup", "kernel-env")
-OWN_COMMANDS = (*SERVICE_COMMANDS, "openapi", "models")
-"""The verbs :func:`build_parser` defines itself (no engine imported to parse them)."""
 """Commands that use the service's kernel cache (``Settings.resolved_numba_cache_dir``); the one-shot engine
 commands keep numba's default (beside the sources, or ``NUMBA_CACHE_DIR``)."""
+OWN_COMMANDS = (*SERVICE_COMMANDS, "openapi", "models")
+"""The verbs :func:`build_parser` defines itself (no engine imported to parse them)."""
 
 
 def _use_service_kernel_cache(argv: list[str]) -> None:

@@ -42,7 +42,7 @@ import tempfile
 import threading
 import time
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -75,6 +75,7 @@ class SupervisedApp:
     log: Path
     proc: subprocess.Popen | None = None
     restarts: int = 0
+    headers: dict[str, str] = field(default_factory=dict)  # the loopback API runs without keys
 
     def log_tail(self, chars: int = 3000) -> str:
         return self.log.read_text(errors="replace")[-chars:] if self.log.exists() else ""
@@ -199,8 +200,8 @@ def redis_server() -> Iterator[int]:
 class Prober:
     """A client using the API twice a second on its own thread: each route's answers, by phase."""
 
-    def __init__(self, base: str, job_id: str, finished_id: str) -> None:
-        self.client = httpx.Client(base_url=base, timeout=120)
+    def __init__(self, base: str, job_id: str, finished_id: str, headers: dict[str, str]) -> None:
+        self.client = httpx.Client(base_url=base, headers=headers, timeout=120)
         self.routes: dict[str, Callable[[], httpx.Response]] = {
             "GET /v1/jobs/{id}": lambda: self.client.get(f"/v1/jobs/{job_id}"),
             "GET /v1/jobs": lambda: self.client.get("/v1/jobs", params={"limit": 5}),
@@ -264,10 +265,11 @@ class Viewer:
     its socket closes or fails, it connects again 2 s later. Frames by the prober's phase, failures, and the
     seconds from the fault's end to its first frame after it."""
 
-    def __init__(self, base: str, prober: "Prober") -> None:
+    def __init__(self, base: str, prober: "Prober", headers: dict[str, str]) -> None:
         from benchmarks.streaming import demo_recording
 
-        with httpx.Client(base_url=base, timeout=30) as c:
+        self.headers = headers
+        with httpx.Client(base_url=base, headers=headers, timeout=30) as c:
             rig_id, recording = wait_for(lambda: demo_recording(c), 600, "the demo recording")
         self.url = f"{base.replace('http', 'ws', 1)}/v1/rigs/{rig_id}/view?source={recording['id']}"
         self.prober = prober
@@ -293,7 +295,7 @@ class Viewer:
         i = 0
         while not self._stop.is_set():
             try:
-                with connect(self.url, max_size=None, open_timeout=10) as ws:
+                with connect(self.url, additional_headers=self.headers, max_size=None, open_timeout=10) as ws:
                     while json.loads(ws.recv(timeout=30))["type"] != "ready":
                         pass
                     while not self._stop.is_set():
@@ -315,10 +317,10 @@ class Viewer:
                 "first_frame_after_s": after[0] - ended if after else None}
 
 
-def job_outcomes(base: str, ids: list[str], timeout: float) -> dict[str, Any]:
+def job_outcomes(base: str, ids: list[str], timeout: float, headers: dict[str, str] | None = None) -> dict[str, Any]:
     """Wait for every job to end; their states counted, and the errors of those that did not succeed."""
     states: dict[str, dict] = {}
-    with httpx.Client(base_url=base, timeout=30) as c:
+    with httpx.Client(base_url=base, headers=headers or {}, timeout=30) as c:
         deadline = time.monotonic() + timeout
         pending = list(ids)
         while pending and time.monotonic() < deadline:
@@ -341,8 +343,9 @@ def job_outcomes(base: str, ids: list[str], timeout: float) -> dict[str, Any]:
 class RawClients:
     """``SLOW_UPLOADS`` clients on raw sockets, each on its own thread running ``client()``."""
 
-    def __init__(self, base: str) -> None:
+    def __init__(self, base: str, headers: dict[str, str] | None = None) -> None:
         self.host, self.port = base.removeprefix("http://").split(":")
+        self.header_lines = "".join(f"{k}: {v}\r\n" for k, v in (headers or {}).items())
         self._threads = [threading.Thread(target=self.client, daemon=True) for _ in range(SLOW_UPLOADS)]
 
     def client(self) -> None:
@@ -360,8 +363,8 @@ class RawClients:
 class SlowUploads(RawClients):
     """Photo-batch uploads, each sent at ``SLOW_RATE`` bytes per second on a raw socket (a phone on a bad link)."""
 
-    def __init__(self, base: str, seconds: float) -> None:
-        super().__init__(base)
+    def __init__(self, base: str, seconds: float, headers: dict[str, str] | None = None) -> None:
+        super().__init__(base, headers)
         self.body_bytes = int(SLOW_RATE * seconds)
         self.statuses: list[str] = []
         self.accepted: list[str] = []
@@ -375,7 +378,7 @@ class SlowUploads(RawClients):
         body = (f"--{boundary}\r\nContent-Disposition: form-data; name=\"files\"; filename=\"{name}\"\r\n"
                 f"Content-Type: image/jpeg\r\n\r\n").encode() + jpeg + b"\0" * pad + f"\r\n--{boundary}--\r\n".encode()
         head = (f"POST /v1/photos/batches HTTP/1.1\r\nHost: {self.host}\r\nContent-Type: multipart/form-data; "
-                f"boundary={boundary}\r\nContent-Length: {len(body)}\r\nConnection: close\r\n\r\n").encode()
+                f"boundary={boundary}\r\nContent-Length: {len(body)}\r\n{self.header_lines}Connection: close\r\n\r\n").encode()
         try:
             with socket.create_connection((self.host, int(self.port)), timeout=120) as sock:
                 sock.sendall(head)
@@ -423,8 +426,8 @@ class StalledHeaders(RawClients):
                 "closed_after_s": [min(self.closed_after_s, default=0.0), max(self.closed_after_s, default=0.0)]}
 
 
-def running_batch(base: str, count: int = 40) -> str:
-    with httpx.Client(base_url=base, timeout=120) as c:
+def running_batch(base: str, count: int = 40, headers: dict[str, str] | None = None) -> str:
+    with httpx.Client(base_url=base, headers=headers or {}, timeout=120) as c:
         job = c.post("/v1/photos/batches", files=photo_files(count)).json()
         wait_for(lambda: c.get(f"/v1/jobs/{job['id']}").json()["progress"]["fraction"] >= 0.05, 300,
                    "the batch to make progress", interval=0.2)
@@ -434,8 +437,8 @@ def running_batch(base: str, count: int = 40) -> str:
 def run_fault(app: SupervisedApp, finished_id: str, name: str, begin: Callable[[], None], end: Callable[[], None],
               outage_s: float, extra: Callable[[], dict[str, Any]] | None = None) -> dict[str, Any]:
     """One fault while a batch runs and a client uses the API; see the module docstring."""
-    batch = running_batch(app.base)
-    with Prober(app.base, batch, finished_id) as prober, Viewer(app.base, prober) as viewer:
+    batch = running_batch(app.base, headers=app.headers)
+    with Prober(app.base, batch, finished_id, app.headers) as prober, Viewer(app.base, prober, app.headers) as viewer:
         time.sleep(2.0)
         prober.phase = "during"
         begin()
@@ -445,17 +448,28 @@ def run_fault(app: SupervisedApp, finished_id: str, name: str, begin: Callable[[
         prober.phase = "after"
         ready_s = wait_for(lambda: httpx.get(f"{app.base}/readyz", timeout=10).status_code == 200 and
                              time.monotonic() - ended, 600, f"/readyz after {name}")
-        outcomes = job_outcomes(app.base, [batch], 900)
+        outcomes = job_outcomes(app.base, [batch], 900, app.headers)
         batch_s = time.monotonic() - ended
         time.sleep(3.0)  # the client's uploads after recovery
         wait_for(lambda: viewer.summary(ended)["first_frame_after_s"] is not None, 120, "the viewer's next frame")
         watched = viewer.summary(ended)
-    accepted = job_outcomes(app.base, prober.accepted, 900)
+    accepted = job_outcomes(app.base, prober.accepted, 900, app.headers)
     print(f"{name}: ready {ready_s:.1f} s after the fault, batch {outcomes}, uploads {accepted}", flush=True)
     return {"fault": name, "outage_s": outage_s, "ready_after_s": ready_s, "batch_done_after_s": batch_s,
             "batch": outcomes, "uploads_accepted": accepted, **(extra() if extra else {}),
             "during": prober.summary("during"), "after": prober.summary("after"), "viewer": watched,
             "api_restarts": app.restarts}
+
+
+def slow_clients(app: SupervisedApp, finished_id: str, outage_s: float) -> dict[str, Any]:
+    """The slow_clients fault: :data:`SLOW_UPLOADS` uploads trickling for ``outage_s`` and as many connections that
+    never finish their headers, while a batch runs (:func:`run_fault`)."""
+    slow, stalled = SlowUploads(app.base, outage_s, app.headers), StalledHeaders(app.base)
+    return run_fault(app, finished_id, "slow_clients", lambda: (slow.begin(), stalled.begin()),
+                     lambda: (slow.end(), stalled.end()), 0.0, extra=lambda: {
+                         "slow_uploads": {"answers": dict(Counter(slow.statuses)),
+                                          **job_outcomes(app.base, slow.accepted, 900, app.headers)},
+                         "stalled_headers": stalled.summary()})
 
 
 def depth_bomb(side: int = 3500) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -621,9 +635,6 @@ def main() -> int:
                         "storage_unreachable": (lambda: proxy.set("refuse"), lambda: proxy.set("pass"), args.outage),
                         "ray_head": (cluster.kill_head, cluster.start_head, args.outage),
                     }
-                    slow, stalled = SlowUploads(app.base, args.outage), StalledHeaders(app.base)
-                    breaks["slow_clients"] = (lambda: (slow.begin(), stalled.begin()),
-                                              lambda: (slow.end(), stalled.end()), 0.0)
                     for fault in faults:
                         started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
                         if fault in OOM_HEADROOM_GB:  # on a node of its own, the last faults
@@ -637,10 +648,7 @@ def main() -> int:
                             results["faults"].append(storage_full(cluster.address, create_database(pg.url, "full"),
                                                                   Path(data)))
                         elif fault == "slow_clients":
-                            results["faults"].append(run_fault(app, finished, fault, *breaks[fault], extra=lambda: {
-                                "slow_uploads": {"answers": dict(Counter(slow.statuses)),
-                                                 **job_outcomes(app.base, slow.accepted, 900)},
-                                "stalled_headers": stalled.summary()}))
+                            results["faults"].append(slow_clients(app, finished, args.outage))
                         else:
                             results["faults"].append(run_fault(app, finished, fault, *breaks[fault]))
                         results["faults"][-1]["measured"] = started
@@ -678,9 +686,14 @@ def _answers(summary: dict[str, Any]) -> str:
                      for route, s in summary.items())
 
 
-def markdown(r: dict[str, Any]) -> str:
+FAULT_COLUMNS = ["measured", "fault", "outage s", "answers during the fault", "jobs", "5xx other than 503 / dropped",
+                 "ready / batch done after (s)", "a viewer (reconnecting as the page does)", "API restarts so far"]
+
+
+def fault_table(faults: list[dict[str, Any]]) -> str:
+    """One row per fault (:func:`run_fault`'s record, or storage_full's and out_of_memory's own)."""
     rows = []
-    for f in r["faults"]:
+    for f in faults:
         if f["fault"] == "storage_full":
             n, x, fr = f["nearly_full"], f["results_do_not_fit"], f["freed"]
             rows.append([f.get("measured", ""), f"storage_full ({f['volume_mb']} MB tmpfs, floor "
@@ -714,6 +727,10 @@ def markdown(r: dict[str, Any]) -> str:
                      f"{f['uploads_accepted']['states']}{slow_text}",
                      f"{bad} (slowest answer {slowest:.1f} s)", f"{f['ready_after_s']:.1f} / {f['batch_done_after_s']:.1f}",
                      _viewer(f.get("viewer")), f["api_restarts"]])
+    return md_table(FAULT_COLUMNS, rows)
+
+
+def markdown(r: dict[str, Any]) -> str:
     la = r["load_average"]
     return "\n".join([
         "The compose deployment's parts as processes on loopback (PostgreSQL, moto's S3 behind a breakable proxy, "
@@ -724,9 +741,7 @@ def markdown(r: dict[str, Any]) -> str:
         "reason (server errors, dropped connections); seconds from the fault's end to `/readyz` 200 and to the "
         "batch's end; the viewer's frames by phase and its first frame after the fault's end; how many times the API process had stopped to be started again (it does once a lost Ray head is "
         "back: app/ray_watch.py; the harness restarts it as the compose file's restart policy does).", "",
-        md_table(["measured", "fault", "outage s", "answers during the fault", "jobs", "5xx other than 503 / dropped",
-                  "ready / batch done after (s)", "a viewer (reconnecting as the page does)", "API restarts so far"],
-                 rows),
+        fault_table(r["faults"]),
         "", load_note(la["before"], la["after"]),
     ])
 

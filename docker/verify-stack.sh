@@ -13,6 +13,7 @@
 # 3. benchmarks/docker_stack.py submits a photo batch, a depth video and a reconstruction through the API,
 #    streams the demo rig's viewer socket, kills a Ray worker container mid-job and an API container, runs
 #    `down` and `up` and fetches every finished job's results again, and publishes the timings.
+# With SWEEPCAST_CHAOS=1, benchmarks/docker_chaos.py then fails its containers one at a time while jobs run.
 # With SWEEPCAST_SOAK_MINUTES=60, benchmarks/soak.py then runs its mixed load on the stack for that long.
 # The stack is taken down at the end (volumes kept unless SWEEPCAST_KEEP_VOLUMES=0).
 set -euo pipefail
@@ -84,6 +85,10 @@ echo "== podman-compose up ($compose)"
   --port "$port" --image-record "$work/app-image.json" \
   --podman-version "$(podman --version), podman-compose $(dpkg-query -W -f='${Version}' podman-compose)"
 echo "OK: the compose stack passed every check ($(date -u +%Y-%m-%d)); see the docker section of benchmarks/RESULTS.md"
+if [ "${SWEEPCAST_CHAOS:-0}" = 1 ]; then  # then its containers failed one at a time (benchmarks/docker_chaos.py)
+  echo "== chaos: the stack's containers failed while jobs run"
+  .venv/bin/python -m benchmarks.docker_chaos --compose "${podman_compose[*]}" --project "$project" --port "$port"
+fi
 if [ -n "${SWEEPCAST_SOAK_MINUTES:-}" ]; then  # then the hour of mixed load on the same stack (benchmarks/soak.py)
   echo "== soak: ${SWEEPCAST_SOAK_MINUTES} minutes of mixed load"
   .venv/bin/python -m benchmarks.soak --minutes "$SWEEPCAST_SOAK_MINUTES" --name soak_compose \

@@ -1,0 +1,131 @@
+"""Faults on the compose stack itself: its containers fail while jobs run, and what users saw.
+
+    SWEEPCAST_CHAOS=1 docker/verify-stack.sh      (after its checks, on the same stack; as root)
+
+The faults of ``benchmarks/chaos.py`` (which runs the same parts as loopback processes), done to the containers
+``docker/verify-stack.sh`` runs: each while a 40-photo batch runs on replica 1, a client calls five of its routes
+twice a second and a viewer orbits the demo recording (``chaos.run_fault``), through the published ports with the
+stack's API key:
+
+- database: the PostgreSQL container stopped at once (``podman stop -t 0``: SIGTERM, then SIGKILL), started again
+  after the outage (stopped, not killed: the restart policy would bring a killed one straight back);
+- storage_hang: the S3 stand-in's server stopped (SIGSTOP: its connections are accepted by the kernel and never
+  answered), continued (SIGCONT) after twice the outage;
+- storage_unreachable: the S3 stand-in's container taken off the stack's network (``podman network disconnect``:
+  its name no longer resolves), connected again under its name after the outage;
+- ray_head: the Ray head container stopped at once, started again after the outage (its state is in Redis);
+- slow_clients: 20 uploads at 10 KB/s and 20 connections that never finish their headers, for the outage.
+
+Not done here, and why: storage_slowdown (the stand-in has no 503 mode; chaos.py's proxy answers 503 SlowDown);
+storage_full (the compose stack keeps every blob in the object store: no volume of it fills); out_of_memory
+(not yet: it needs a memory limit on both worker containers, `podman update --memory`, so that the retry cannot
+land on an unlimited one, and what the kernel's OOM killer then ends is still to be measured; chaos.py stops the
+oversized job with Ray's memory monitor).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import httpx
+
+from benchmarks._report import prog, publish
+from benchmarks._timing import load_note
+from benchmarks.chaos import fault_table, job_outcomes, photo_files, run_fault, slow_clients
+from benchmarks.docker_stack import Stack, ready, wait_for
+
+FAULTS = ("database", "storage_hang", "storage_unreachable", "ray_head", "slow_clients")
+
+
+def podman(*args: str) -> str:
+    done = subprocess.run(["podman", *args], capture_output=True, text=True)
+    if done.returncode:
+        raise SystemExit(f"podman {' '.join(args)} failed: {done.stderr.strip()[-2000:]}")
+    return done.stdout.strip()
+
+
+@dataclass
+class ComposeApp:
+    """API replica 1 of the stack, as ``chaos.run_fault`` uses an app: its URL, the key, and how many times its
+    container was started again by the restart policy (it exits to be restarted once a lost Ray head is back)."""
+
+    stack: Stack
+    base: str
+    headers: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def restarts(self) -> int:
+        return sum(int(podman("inspect", "--format", "{{.RestartCount}}", c) or 0) for c in self.stack.containers("api"))
+
+
+def breaks(stack: Stack, project: str, outage_s: float) -> dict[str, tuple[Callable[[], Any], Callable[[], Any], float]]:
+    """Each fault's begin, end and length."""
+    postgres, head = stack.containers("postgres")[0], stack.containers("ray-head")[0]
+    s3, network = f"{project}-s3", f"{project}_default"
+    return {
+        "database": (lambda: podman("stop", "-t", "0", postgres), lambda: podman("start", postgres), outage_s),
+        "storage_hang": (lambda: podman("kill", "--signal", "STOP", s3),
+                         lambda: podman("kill", "--signal", "CONT", s3), 2 * outage_s),
+        "storage_unreachable": (lambda: podman("network", "disconnect", network, s3),
+                                lambda: podman("network", "connect", "--alias", "minio", network, s3), outage_s),
+        "ray_head": (lambda: podman("stop", "-t", "0", head), lambda: podman("start", head), outage_s),
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
+    ap.add_argument("--compose", required=True, help="the podman-compose command with -p and -f")
+    ap.add_argument("--project", required=True)
+    ap.add_argument("--port", type=int, default=8000)
+    ap.add_argument("--faults", default=",".join(FAULTS), help=f"comma-separated, of {', '.join(FAULTS)}")
+    ap.add_argument("--outage", type=float, default=30.0, help="seconds each fault lasts (storage_hang: twice)")
+    args = ap.parse_args()
+    faults = [f for f in args.faults.split(",") if f]
+    unknown = set(faults) - set(FAULTS)
+    if unknown:
+        ap.error(f"unknown fault(s) {', '.join(sorted(unknown))}")
+    stack = Stack(args.compose, args.project, args.port, os.environ.get("SWEEPCAST_API_KEYS", "").split(",")[0])
+    for replica in (0, 1):
+        wait_for(lambda: ready(stack, replica), 600, f"API replica {replica + 1} /readyz")
+    app = ComposeApp(stack, stack.bases[0], stack.headers)
+    load_before = os.getloadavg()[0]
+    with httpx.Client(base_url=app.base, headers=app.headers, timeout=120) as c:
+        finished = c.post("/v1/photos/batches", files=photo_files(4)).json()["id"]
+    job_outcomes(app.base, [finished], 300, app.headers)
+    ways = breaks(stack, args.project, args.outage)
+    results: dict[str, Any] = {"faults": []}
+    for fault in faults:
+        started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+        if fault == "slow_clients":
+            record = slow_clients(app, finished, args.outage)
+        else:
+            record = run_fault(app, finished, fault, *ways[fault])
+        results["faults"].append({**record, "measured": started})
+        for replica in (0, 1):  # the next fault starts on a whole stack
+            wait_for(lambda: ready(stack, replica), 600, f"API replica {replica + 1} /readyz after {fault}")
+    results["load_average"] = {"before": load_before, "after": os.getloadavg()[0]}
+    publish("chaos_compose", results, markdown(results))
+    return 0
+
+
+def markdown(r: dict[str, Any]) -> str:
+    la = r["load_average"]
+    return "\n".join([
+        "The compose stack of `docker/verify-stack.sh` (podman; PostgreSQL, the S3 stand-in, Redis, a Ray head, two "
+        "Ray workers of one CPU each, two API replicas), its containers failed as `benchmarks/docker_chaos.py` says; "
+        "each fault while a 40-photo batch runs on replica 1 and a client calls five routes twice a second there. "
+        "Columns as in the `chaos` section (the same parts as loopback processes): what the routes answered during "
+        "the fault, what became of every job accepted before, during or after it, answers that were neither a "
+        "success nor a 503 with a reason, seconds from the fault's end to `/readyz` 200 and to the batch's end, a "
+        "viewer's frames, and how many times replica 1's container had been started again by the restart policy.",
+        "", fault_table(r["faults"]), "", load_note(la["before"], la["after"]),
+    ])
+
+
+if __name__ == "__main__":
+    sys.exit(main())
