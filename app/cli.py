@@ -265,9 +265,13 @@ OWN_COMMANDS = (*SERVICE_COMMANDS, "openapi", "models")
 """The verbs :func:`build_parser` defines itself (no engine imported to parse them)."""
 
 
-def _use_service_kernel_cache(argv: list[str]) -> None:
+def _command(argv: list[str]) -> str | None:
+    """The verb of a ``sweepcast`` command line (the first argument that is not an option)."""
+    return next((a for a in argv if not a.startswith("-")), None)
+
+
+def _use_service_kernel_cache(argv: list[str], command: str | None) -> None:
     """Point numba at the service's cache before the parser imports the engines (and numba reads it)."""
-    command = next((a for a in argv if not a.startswith("-")), None)
     if command not in SERVICE_COMMANDS:
         return
     from app.kernelcache import use_cache_dir, use_prebuilt
@@ -290,8 +294,8 @@ def _use_service_kernel_cache(argv: list[str]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    _use_service_kernel_cache(argv)
-    command = next((a for a in argv if not a.startswith("-")), None)
+    command = _command(argv)
+    _use_service_kernel_cache(argv, command)
     args = build_parser(engines=command not in OWN_COMMANDS).parse_args(argv)
     return int(args.func(args) or 0)
 

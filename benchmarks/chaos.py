@@ -730,9 +730,14 @@ def fault_table(faults: list[dict[str, Any]]) -> str:
     return md_table(FAULT_COLUMNS, rows)
 
 
-def markdown(r: dict[str, Any]) -> str:
+def fault_section(intro: str, r: dict[str, Any]) -> str:
+    """A chaos section's body: ``intro``, the table of ``r["faults"]`` and the run's load note."""
     la = r["load_average"]
-    return "\n".join([
+    return "\n".join([intro, "", fault_table(r["faults"]), "", load_note(la["before"], la["after"])])
+
+
+def markdown(r: dict[str, Any]) -> str:
+    return fault_section(
         "The compose deployment's parts as processes on loopback (PostgreSQL, moto's S3 behind a breakable proxy, "
         "Redis for the Ray head's state, a Ray head and one 2-CPU worker node, one API); each fault while a 40-photo "
         "batch runs and a client calls five routes twice a second. Columns: what the client's routes answered during "
@@ -740,10 +745,7 @@ def markdown(r: dict[str, Any]) -> str:
         "got 202 for, before, during or after the fault); answers that were neither a success nor a 503 with a "
         "reason (server errors, dropped connections); seconds from the fault's end to `/readyz` 200 and to the "
         "batch's end; the viewer's frames by phase and its first frame after the fault's end; how many times the API process had stopped to be started again (it does once a lost Ray head is "
-        "back: app/ray_watch.py; the harness restarts it as the compose file's restart policy does).", "",
-        fault_table(r["faults"]),
-        "", load_note(la["before"], la["after"]),
-    ])
+        "back: app/ray_watch.py; the harness restarts it as the compose file's restart policy does).", r)
 
 
 if __name__ == "__main__":

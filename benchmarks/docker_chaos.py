@@ -35,9 +35,8 @@ from typing import Any, Callable
 import httpx
 
 from benchmarks._report import prog, publish
-from benchmarks._timing import load_note
-from benchmarks.chaos import fault_table, job_outcomes, photo_files, run_fault, slow_clients
-from benchmarks.docker_stack import Stack, ready, wait_for
+from benchmarks.chaos import fault_section, job_outcomes, photo_files, run_fault, slow_clients
+from benchmarks.docker_stack import Stack, inspect, ready, wait_for
 
 FAULTS = ("database", "storage_hang", "storage_unreachable", "ray_head", "slow_clients")
 
@@ -60,7 +59,7 @@ class ComposeApp:
 
     @property
     def restarts(self) -> int:
-        return sum(int(podman("inspect", "--format", "{{.RestartCount}}", c) or 0) for c in self.stack.containers("api"))
+        return sum(inspect(c)["RestartCount"] for c in self.stack.containers("api"))
 
 
 def breaks(stack: Stack, project: str, outage_s: float) -> dict[str, tuple[Callable[[], Any], Callable[[], Any], float]]:
@@ -77,6 +76,11 @@ def breaks(stack: Stack, project: str, outage_s: float) -> dict[str, tuple[Calla
     }
 
 
+def both_ready(stack: Stack, when: str) -> None:
+    for replica in (0, 1):
+        wait_for(lambda: ready(stack, replica), 600, f"API replica {replica + 1} /readyz{when}")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
     ap.add_argument("--compose", required=True, help="the podman-compose command with -p and -f")
@@ -90,8 +94,7 @@ def main() -> int:
     if unknown:
         ap.error(f"unknown fault(s) {', '.join(sorted(unknown))}")
     stack = Stack(args.compose, args.project, args.port, os.environ.get("SWEEPCAST_API_KEYS", "").split(",")[0])
-    for replica in (0, 1):
-        wait_for(lambda: ready(stack, replica), 600, f"API replica {replica + 1} /readyz")
+    both_ready(stack, "")
     app = ComposeApp(stack, stack.bases[0], stack.headers)
     load_before = os.getloadavg()[0]
     with httpx.Client(base_url=app.base, headers=app.headers, timeout=120) as c:
@@ -106,25 +109,21 @@ def main() -> int:
         else:
             record = run_fault(app, finished, fault, *ways[fault])
         results["faults"].append({**record, "measured": started})
-        for replica in (0, 1):  # the next fault starts on a whole stack
-            wait_for(lambda: ready(stack, replica), 600, f"API replica {replica + 1} /readyz after {fault}")
+        both_ready(stack, f" after {fault}")  # the next fault starts on a whole stack
     results["load_average"] = {"before": load_before, "after": os.getloadavg()[0]}
     publish("chaos_compose", results, markdown(results))
     return 0
 
 
 def markdown(r: dict[str, Any]) -> str:
-    la = r["load_average"]
-    return "\n".join([
+    return fault_section(
         "The compose stack of `docker/verify-stack.sh` (podman; PostgreSQL, the S3 stand-in, Redis, a Ray head, two "
         "Ray workers of one CPU each, two API replicas), its containers failed as `benchmarks/docker_chaos.py` says; "
         "each fault while a 40-photo batch runs on replica 1 and a client calls five routes twice a second there. "
         "Columns as in the `chaos` section (the same parts as loopback processes): what the routes answered during "
         "the fault, what became of every job accepted before, during or after it, answers that were neither a "
         "success nor a 503 with a reason, seconds from the fault's end to `/readyz` 200 and to the batch's end, a "
-        "viewer's frames, and how many times replica 1's container had been started again by the restart policy.",
-        "", fault_table(r["faults"]), "", load_note(la["before"], la["after"]),
-    ])
+        "viewer's frames, and how many times replica 1's container had been started again by the restart policy.", r)
 
 
 if __name__ == "__main__":

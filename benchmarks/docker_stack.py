@@ -114,16 +114,19 @@ def up_timeline(stack: Stack, name: str) -> dict[str, Any]:
     started = {}
     for service in ("postgres", "redis", "ray-head", "ray-worker", "api", "api-2"):
         for container in stack.containers(service):
-            state = json.loads(subprocess.run(["podman", "inspect", "--format", "{{json .State}}", container],
-                                              capture_output=True, text=True, check=True).stdout)
-            restarts = subprocess.run(["podman", "inspect", "--format", "{{.RestartCount}}", container],
-                                      capture_output=True, text=True, check=True).stdout.strip()
-            started[container] = {"started_s": round(_podman_time(state["StartedAt"]) - wall0, 2),
-                                  "restarts": int(restarts or 0)}
+            seen = inspect(container)
+            started[container] = {"started_s": round(_podman_time(seen["State"]["StartedAt"]) - wall0, 2),
+                                  "restarts": seen["RestartCount"]}
     return {f"{name}_to_ready_s": total,
             f"{name}_timeline": {"up_returned_s": round(returned, 2),
                                  "ready_s": {k: round(v, 2) for k, v in ready_at.items()},
                                  "containers": started}}
+
+
+def inspect(container: str) -> dict[str, Any]:
+    """``podman inspect`` of one container: its ``State``, ``RestartCount`` and the rest."""
+    return json.loads(subprocess.run(["podman", "inspect", container], capture_output=True, text=True,
+                                     check=True).stdout)[0]
 
 
 def _podman_time(stamp: str) -> float:
@@ -356,9 +359,9 @@ def main() -> int:
         before = {j: result_digests(http, http.get(f"/v1/jobs/{j}").json()) for j in finished}
     t = time.monotonic()
     stack.run("down")
-    res["down_s"] = time.monotonic() - t
+    down_s = time.monotonic() - t
     timeline = up_timeline(stack, "down_up")
-    res["down_up_to_ready_s"] = res.pop("down_s") + timeline.pop("down_up_to_ready_s")
+    timeline["down_up_to_ready_s"] += down_s
     res.update(timeline)
     with stack.client(1) as http:
         after = {j: result_digests(http, wait_job(http, j, 60)) for j in finished}
