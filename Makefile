@@ -7,7 +7,7 @@ KERNELS := $(VENV)/.sweepcast-warmed
 DOCS_STAMP := $(VENV)/.sweepcast-docs
 BENCH_STAMP := $(VENV)/.sweepcast-bench
 
-.PHONY: serve test docs bench openapi clean
+.PHONY: serve test docs bench openapi wheel clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -51,8 +51,13 @@ bench: $(BENCH_STAMP)
 	@test -n "$(NAME)" || { echo "usage: make bench NAME=<one of: $$(ls benchmarks | sed -n 's/^\([a-z][a-z_]*\)\(\.py\)\{0,1\}$$/\1/p' | grep -v '^\(results\|bd\)$$' | tr '\n' ' ')> [ARGS=...]"; exit 2; }
 	$(BIN)/python -m benchmarks.$(NAME) $(ARGS)
 
+# A wheel for `pip install` that carries every engine's kernels (compiled for x86-64-v3) and the demo recording, so
+# that its first `sweepcast serve` compiles and renders nothing: dist/sweepcast-*.whl (packaging/build-wheel.sh).
+wheel: $(STAMP)
+	PYTHON=$(BIN)/python bash packaging/build-wheel.sh dist
+
 openapi: $(STAMP)
 	$(BIN)/sweepcast openapi
 
 clean:
-	rm -rf $(VENV) sweepcast-data .pytest_cache site
+	rm -rf $(VENV) sweepcast-data .pytest_cache site dist

@@ -289,7 +289,7 @@ def _use_service_kernel_cache(argv: list[str], command: str | None) -> None:
         if known.target in TARGETS:  # (an unknown one: warmup's parser says so)
             os.environ.update(target_env(known.target))
     elif command != "warmup":  # kernels compiled ahead: their CPU target and a copy in the cache, before numba loads
-        use_prebuilt(settings.prebuilt_kernels, cache)
+        use_prebuilt(settings.resolved_prebuilt_kernels, cache)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,6 +10,7 @@ from pydantic import Field, field_validator
 from pydantic_settings import NoDecode, SettingsConfigDict
 
 from workers.common.models import models_dir
+from workers.portable_cache import SHIPPED
 from workers.common.safezip import ZipLimits
 from workers.settings import WorkerSettings
 
@@ -90,7 +91,8 @@ class Settings(WorkerSettings):
         None, description="A kernel cache compiled ahead for a portable CPU target (`sweepcast warmup --target "
                           "x86-64-v3`, e.g. in the Docker image; read-only is fine): when this CPU runs that target, "
                           "the service and its workers compile for it and copy the kernels into their cache, so "
-                          "nothing is compiled; else they compile for this CPU, and the log and /readyz say why.")
+                          "nothing is compiled; else they compile for this CPU, and the log and /readyz say why. "
+                          "Default: the kernels a wheel built by `make wheel` carries, when it carries them.")
     warm_kernels: bool = Field(True, description="At start-up, compile every engine's kernels into the cache in a "
                                                  "background process (`sweepcast warmup`), so that no request waits "
                                                  "for a compile; a warm cache makes it take seconds.")
@@ -158,6 +160,15 @@ class Settings(WorkerSettings):
         if os.environ.get("NUMBA_CACHE_DIR"):
             return Path(os.environ["NUMBA_CACHE_DIR"]).resolve()
         return (user_cache_dir() / "kernels").resolve()
+
+    @property
+    def resolved_prebuilt_kernels(self) -> Path | None:
+        """The kernels compiled ahead to use: the setting, else those the installed wheel carries
+        (:data:`workers.portable_cache.SHIPPED` ``/kernels``, stamped by its build), else None."""
+        if self.prebuilt_kernels is not None:
+            return self.prebuilt_kernels
+        shipped = SHIPPED / "kernels"
+        return shipped if (shipped / "warmed.json").is_file() else None
 
     @property
     def resolved_demo_cache_dir(self) -> Path:

@@ -12,8 +12,12 @@
      service on a fresh data folder (no demo rig yet); then restarted on the same folder;
    - a fresh data folder: another new folder on the same machine (``pip install`` + ``sweepcast serve --data-dir``
      where the service ran before, or kernels compiled ahead);
-   - empty caches: a new folder and an empty user cache (the first ``pip install`` + ``sweepcast serve`` on a
-     machine: kernels compile in the background while requests come);
+   - ``pip install`` of the wheel ``make wheel`` builds (``packaging/build-wheel.sh``, timed; it carries the kernels
+     compiled for x86-64-v3 and the demo recording) into a new virtual environment, then ``sweepcast serve`` from it
+     with a new folder and an empty user cache: the first start on a machine;
+   - empty caches without shipped kernels: this checkout with a new folder and an empty user cache (what a CPU
+     without x86-64-v3, or another Python or numba than the wheel's, gets: kernels compile in the background
+     while requests come, the demo job renders its recording);
    - the Docker image: not run here; its figures come from ``docker/verify-stack.sh`` (a freshly built image on
      empty volumes, ``benchmarks/docker_stack.py``: ``benchmarks/results/docker.json``) when that file is there.
    Each start: seconds from the process start to ``/readyz`` 200, to the demo recording ready and to the kernels'
@@ -170,11 +174,15 @@ def _reconstruct(http: httpx.Client, flight: tuple[Path, dict], app, log: Path) 
     return time.monotonic() - t
 
 
-def service_start(data_dir: Path, user_cache: Path, log: Path, photo: bytes, flight: tuple[Path, dict]) -> dict:
+def service_start(data_dir: Path, user_cache: Path, log: Path, photo: bytes, flight: tuple[Path, dict],
+                  installed: Path | None = None) -> dict:
+    """One start of the service with ``data_dir`` and ``user_cache``: this checkout's, or the install in the virtual
+    environment ``installed`` (run from a folder outside the checkout)."""
     t0 = time.monotonic()
     env = {**{k: None for k in _CACHE_VARIABLES}, "SWEEPCAST_DATA_DIR": str(data_dir),
            "XDG_CACHE_HOME": str(user_cache), "SWEEPCAST_WARM_KERNELS": "true"}
-    with serve_app(env, log=log, wait=False) as app:
+    where = {} if installed is None else {"python": str(installed / "bin" / "python"), "cwd": data_dir.parent}
+    with serve_app(env, log=log, wait=False, **where) as app:
         answering = wait_for(lambda: httpx.get(f"{app.base}/healthz", timeout=2).status_code == 200
                              and time.monotonic() - t0, 300, "the server to answer", app.proc, log)
         app.wait_ready(300)
@@ -213,7 +221,29 @@ def service(tmp: Path, flight: tuple[Path, dict]) -> dict:
             "first_start": service_start(data_dir, user, tmp / "first.log", photo, flight),
             "restart": service_start(data_dir, user, tmp / "restart.log", photo, flight),
             "fresh_data_dir": service_start(tmp / "other-data", user, tmp / "fresh.log", photo, flight),
+            "pip_install": pip_install_start(tmp, photo, flight),
             "empty_cache": service_start(tmp / "bare-data", tmp / "bare-user-cache", tmp / "bare.log", photo, flight)}
+
+
+def pip_install_start(tmp: Path, photo: bytes, flight: tuple[Path, dict]) -> dict:
+    """``make wheel``'s wheel (built here), ``pip install`` into a new virtual environment, then the first start of
+    ``sweepcast serve`` from it with a new data folder and an empty user cache; with the build's and the install's
+    seconds."""
+    t = time.monotonic()
+    subprocess.run(["bash", str(ROOT / "packaging" / "build-wheel.sh"), str(tmp / "dist")], check=True,
+                   stdout=subprocess.DEVNULL, env={**os.environ, "PYTHON": sys.executable})
+    build_s = time.monotonic() - t
+    wheel = next((tmp / "dist").glob("sweepcast-*.whl"))
+    venv = tmp / "pip-venv"
+    t = time.monotonic()
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+    subprocess.run([str(venv / "bin" / "python"), "-m", "pip", "install", "--quiet", str(wheel)], check=True,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    install_s = time.monotonic() - t
+    (tmp / "pip-home").mkdir()
+    out = service_start(tmp / "pip-home" / "data", tmp / "pip-home" / "user-cache", tmp / "pip.log", photo, flight,
+                        installed=venv)
+    return {**out, "wheel_build_s": build_s, "wheel_mb": wheel.stat().st_size / 1e6, "pip_install_s": install_s}
 
 
 def image_path() -> dict | None:
@@ -238,7 +268,8 @@ def _synthetic_photo() -> bytes:
 
 
 PATHS = [("first_start", "`make serve`: first start"), ("restart", "`make serve`: restart"),
-         ("fresh_data_dir", "a fresh data folder"), ("empty_cache", "empty caches (first pip install)")]
+         ("fresh_data_dir", "a fresh data folder"), ("pip_install", "`pip install` of the wheel, first start"),
+         ("empty_cache", "empty caches, no kernels shipped")]
 
 
 def _cell(value: float | None, digits: int = 1) -> str:
@@ -287,9 +318,14 @@ def markdown(r: dict) -> str:
               f"(`sweepcast warmup`, kernels in one process per core, then the demo recording: "
               f"**{sv['install_warmup_s']:.1f} s**, of it {sv['install_demo_recording_s']:.1f} s the recording) and "
               "starts on a fresh data folder (no demo rig), then restarts on it; a fresh data folder on the same "
-              "machine (another `--data-dir`, the same user cache); and a fresh folder with an empty user cache (the "
-              "first `sweepcast serve` after a `pip install` on a machine: kernels compile in the background while "
-              "requests come, the demo job renders its recording); seconds.", ""]
+              "machine (another `--data-dir`, the same user cache); the first `sweepcast serve` after `pip install` "
+              "of the wheel `make wheel` builds (kernels compiled for x86-64-v3 and the demo recording inside: "
+              f"built in {sv['pip_install']['wheel_build_s']:.0f} s, {sv['pip_install']['wheel_mb']:.1f} MB, "
+              f"installed into a new virtual environment in {sv['pip_install']['pip_install_s']:.0f} s from pip's "
+              "cache; run from a folder outside the checkout, new data folder, empty user cache); and this checkout "
+              "with a new folder and an empty user cache (what a CPU without x86-64-v3, or a Python or numba other "
+              "than the wheel's, gets: kernels compile in the background while requests come, the demo job renders "
+              "its recording); seconds.", ""]
     if image:
         parts += [f"The Docker image's column comes from the last `docker/verify-stack.sh` run ({image['date']}, image "
                   f"built from {image['commit']} in {image['image_build_s']} s, empty volumes; "

@@ -302,10 +302,11 @@ class ServedApp:
 
 @contextlib.contextmanager
 def serve_app(env: dict[str, str | None], log: Path | None = None, args: tuple[str, ...] = (), wait: bool = True,
-              ready_timeout: float = 180.0) -> Iterator[ServedApp]:
-    """Run the service on a free port with ``env`` over this environment (None removes a variable; model
-    fetching and Ray usage stats off), its output to ``log`` (else discarded); wait for ``/readyz`` unless
-    ``wait`` is False. On leaving the block, or when this process dies (see the module docstring), the
+              ready_timeout: float = 180.0, python: str = sys.executable, cwd: Path = ROOT) -> Iterator[ServedApp]:
+    """Run the service (``python -m app serve`` in ``cwd``: default this checkout's, another environment's
+    ``python`` in a folder outside it runs that environment's install) on a free port with ``env`` over this
+    environment (None removes a variable; model fetching and Ray usage stats off), its output to ``log`` (else
+    discarded); wait for ``/readyz`` unless ``wait`` is False. On leaving the block, or when this process dies (see the module docstring), the
     server and everything it started (its own process group: Ray's processes, workers) are stopped:
     SIGTERM, then SIGKILL to the group after 30 s (20 s when the watchdog does it)."""
     port = free_port()
@@ -313,7 +314,7 @@ def serve_app(env: dict[str, str | None], log: Path | None = None, args: tuple[s
     env = {k: v for k, v in merged.items() if v is not None}
     out = open(log, "wb") if log is not None else subprocess.DEVNULL
     try:
-        proc = subprocess.Popen([sys.executable, "-m", "app", "serve", "--port", str(port), *args], cwd=ROOT,
+        proc = subprocess.Popen([python, "-m", "app", "serve", "--port", str(port), *args], cwd=cwd,
                                 env=env, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                 start_new_session=True, preexec_fn=_die_with_parent())
         dog = start_watchdog(group=proc.pid)

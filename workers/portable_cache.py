@@ -25,6 +25,10 @@ from pathlib import Path
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 """The folder holding the ``workers`` package: cache folders are named relative to it."""
 
+SHIPPED = PACKAGE_ROOT / "workers" / "_prebuilt"
+"""What a wheel built by ``make wheel`` (``packaging/build-wheel.sh``) carries: ``kernels/`` (every engine's, compiled
+for a portable target) and ``demo/`` (the demo rig's recording). A source checkout has none of it."""
+
 _X86_64_V2 = ("cmov", "cx8", "fxsr", "mmx", "sse", "sse2", "cx16", "sahf", "popcnt", "sse3", "sse4.1", "sse4.2",
               "ssse3")
 TARGETS: dict[str, tuple[str, ...]] = {

@@ -173,6 +173,48 @@ def test_kernels_compiled_in_one_install_load_in_another_at_another_path(tmp_pat
     assert loaded["file"].startswith(str(other)) and loaded["hits"] >= 1 and loaded["misses"] == 0
 
 
+def test_the_kernels_a_wheel_carries_are_the_default_ones_compiled_ahead(tmp_path, monkeypatch):
+    from app import settings as settings_module
+
+    monkeypatch.delenv("SWEEPCAST_PREBUILT_KERNELS", raising=False)
+    shipped = tmp_path / "_prebuilt"
+    monkeypatch.setattr(settings_module, "SHIPPED", shipped)
+    assert Settings(data_dir=tmp_path).resolved_prebuilt_kernels is None  # a checkout carries none
+    (shipped / "kernels").mkdir(parents=True)
+    assert Settings(data_dir=tmp_path).resolved_prebuilt_kernels is None  # nor does a build that stamped nothing
+    (shipped / "kernels" / "warmed.json").write_text("{}")
+    assert Settings(data_dir=tmp_path).resolved_prebuilt_kernels == shipped / "kernels"
+    mine = Settings(data_dir=tmp_path, prebuilt_kernels=tmp_path / "mine")
+    assert mine.resolved_prebuilt_kernels == tmp_path / "mine"  # the setting wins
+
+
+def test_a_wheel_carries_the_kernels_and_demo_recording_its_build_puts_in_the_sources(tmp_path):
+    """pyproject's package data takes what packaging/build-wheel.sh compiles into the copy it builds the wheel
+    from (``workers/_prebuilt``: the stamp, one folder of kernels per package, the demo recording)."""
+    import zipfile
+
+    listed = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard", "--",
+                             "pyproject.toml", "README.md", "app", "workers"], cwd=ROOT, check=True,
+                            capture_output=True).stdout.decode().split("\0")
+    src = tmp_path / "src"
+    for name in filter(None, listed):
+        if (ROOT / name).is_file():
+            (src / name).parent.mkdir(parents=True, exist_ok=True)
+            (src / name).write_bytes((ROOT / name).read_bytes())
+    shipped = ["workers/_prebuilt/kernels/warmed.json", "workers/_prebuilt/kernels/workers_sweep/kernels.f-12.py311.nbi",
+               "workers/_prebuilt/kernels/workers_sweep/kernels.f-12.py311.1.nbc", "workers/_prebuilt/demo/0123abcd.zip"]
+    for name in shipped:
+        (src / name).parent.mkdir(parents=True, exist_ok=True)
+        (src / name).write_bytes(name.encode())
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--wheel-dir", str(tmp_path / "out"),
+                    str(src)], check=True, capture_output=True)
+    (wheel,) = (tmp_path / "out").glob("sweepcast-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    assert set(shipped) <= names and "workers/streaming/demo.py" in names
+    static = {name for name in listed if name.startswith("app/static/")}
+    assert "app/static/render/shaders/fill.frag" in static and static <= names  # the pages and the browser renderer
+
+
 def _prebuilt(tmp_path: Path, fingerprint: str | None = None) -> Path:
     """A read-only kernel cache stamped as ``sweepcast warmup --target x86-64-v3`` stamps it (one kernel file)."""
     from workers.portable_cache import target_features

@@ -137,3 +137,17 @@ def test_the_cached_recording_is_readable_by_others_as_any_new_file(tmp_path):
     demo_recording(rig, tmp_path / "a.zip", 2, 6.0, cache)
     (cached,) = cache.iterdir()
     assert cached.stat().st_mode & 0o777 == (tmp_path / "a.zip").stat().st_mode & 0o777
+
+
+def test_a_recording_the_wheel_carries_is_copied_when_the_cache_has_none(tmp_path, monkeypatch):
+    rig, shipped = demo_rig(2, (32, 24)), tmp_path / "shipped"
+    made = demo_recording(rig, tmp_path / "made.zip", 2, 6.0, shipped)  # as packaging/build-wheel.sh's warm-up does
+    shipped.chmod(0o555)  # an install may be read-only
+    monkeypatch.setattr(demo_module, "SHIPPED_DEMO", shipped)
+    monkeypatch.setattr(demo_module, "build_demo_recording", _no_render)
+    cache = tmp_path / "cache"
+    kept = demo_module.cached_demo_recording(cache, rig, 2, 6.0)
+    assert kept is not None and kept[0].parent == shipped and kept[1] == made
+    assert demo_recording(rig, tmp_path / "a.zip", 2, 6.0, cache) == made
+    assert (tmp_path / "a.zip").read_bytes() == (tmp_path / "made.zip").read_bytes()
+    assert demo_module.cached_demo_recording(cache, demo_rig(3, (32, 24)), 2, 6.0) is None  # another rig: rendered

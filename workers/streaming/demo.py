@@ -4,7 +4,8 @@ short recording of a small ball circling the object group.
 
 The recording is the same for the same rig, length and renderer, and takes about 20 s of two cores to
 render: :func:`demo_recording` keeps one rendered copy in a cache folder (``sweepcast warmup`` fills it
-before the first start, the demo job on the first start otherwise) and copies it from there.
+before the first start, the demo job on the first start otherwise) and copies it from there. A wheel built by
+``make wheel`` carries one too (:data:`SHIPPED_DEMO`), read-only: used when the cache folder has none.
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from typing import Callable
 
 import numpy as np
 
+from workers.portable_cache import SHIPPED
 from workers.synth import Scene, Sphere, default_arc_rig, render_moved, render_views, studio_scene
 from workers.sweep.rig import Rig
 from workers.sweep.rig_io import rig_to_dict
@@ -37,6 +39,8 @@ _WORKERS = Path(__file__).resolve().parents[1]
 RENDERER_SOURCES = (*sorted((_WORKERS / "synth").glob("*.py")), Path(__file__).resolve(),
                     _WORKERS / "streaming" / "recording.py", _WORKERS / "common" / "images.py")
 """The files whose code decides the recording's pixels and archive: a change to any of them renders it anew."""
+SHIPPED_DEMO = SHIPPED / "demo"
+"""The recording a wheel carries (``packaging/build-wheel.sh``), looked up after the cache folder."""
 
 
 def demo_rig(cameras: int = DEMO_CAMERAS, size: tuple[int, int] = DEMO_SIZE) -> Rig:
@@ -116,13 +120,15 @@ def _read_kept(cached: Path, rig: Rig, frames: int) -> RecordingInfo | None:
 
 def cached_demo_recording(cache_dir: Path | None, rig: Rig, frames: int, fps: float
                           ) -> tuple[Path, RecordingInfo] | None:
-    """The kept recording of ``rig`` (``frames`` at ``fps``) in ``cache_dir`` and its info, when it is there and
-    readable as a recording of that length and rig, else None."""
-    if cache_dir is None:
-        return None
-    cached = _cache_file(cache_dir, rig, frames, fps)
-    info = _read_kept(cached, rig, frames)
-    return None if info is None else (cached, info)
+    """The kept recording of ``rig`` (``frames`` at ``fps``) in ``cache_dir`` (None: none), else the one a wheel
+    carries (:data:`SHIPPED_DEMO`), and its info, when it is there and readable as a recording of that length and
+    rig; else None."""
+    for folder in ([] if cache_dir is None else [cache_dir]) + [SHIPPED_DEMO]:
+        cached = _cache_file(folder, rig, frames, fps)
+        info = _read_kept(cached, rig, frames) if cached.exists() else None
+        if info is not None:
+            return cached, info
+    return None
 
 
 def demo_recording(rig: Rig, out: str | Path, frames: int, fps: float, cache_dir: Path | None,
@@ -131,9 +137,9 @@ def demo_recording(rig: Rig, out: str | Path, frames: int, fps: float, cache_dir
     cached recording of the same :func:`demo_recording_key` when there is one; else rendered, and then
     kept there as the folder's only recording. The cache is only ever a shortcut: an unreadable or
     unwritable one is logged and the recording rendered."""
-    cached = None if cache_dir is None else _cache_file(cache_dir, rig, frames, fps)
-    info = None if cached is None else _read_kept(cached, rig, frames)
-    if info is not None:
+    kept = cached_demo_recording(cache_dir, rig, frames, fps)
+    if kept is not None:
+        cached, info = kept
         try:
             shutil.copyfile(cached, out)
             if progress is not None:
@@ -142,8 +148,8 @@ def demo_recording(rig: Rig, out: str | Path, frames: int, fps: float, cache_dir
         except OSError as exc:
             log.warning("the cached demo recording %s could not be copied (%s); rendering it", cached, exc)
     info = build_demo_recording(rig, out, frames, fps, progress)
-    if cached is not None:
-        _keep(Path(out), cached)
+    if cache_dir is not None:
+        _keep(Path(out), _cache_file(cache_dir, rig, frames, fps))
     return info
 
 
