@@ -3,6 +3,9 @@ from __future__ import annotations
 
 import logging
 import os
+import shutil
+import subprocess
+import sys
 import tempfile
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -47,11 +50,26 @@ _early: tuple[Settings, Future[bool]] | None = None
 _connector = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ray-connect")
 
 
+JOIN_FAILED_EXIT_CODE = 3
+"""The exit code of a service whose join as a node failed (``ray_join_node``): its supervisor starts it again."""
+
+
 def start_connecting(settings: Settings) -> None:
     """Begin :func:`connect_for` on a thread now, so that Ray's start (seconds of waiting for its
-    processes) overlaps the service's own imports; the lifespan's :func:`connect_for` then waits for it."""
+    processes) overlaps the service's own imports; the lifespan's :func:`connect_for` then waits for it. With
+    ``ray_join_node``, this machine's node joins the cluster first, on that thread too."""
     global _early
-    _early = (settings, _connector.submit(_connect_as, settings))
+    joining = join_as_node(settings.ray_address) if settings.ray_join_node and settings.ray_address else None
+    _early = (settings, _connector.submit(_connect_as, settings, joining))
+
+
+def join_as_node(address: str) -> subprocess.Popen:
+    """Start ``ray start --address ADDRESS --num-cpus=0`` (this machine joins the cluster as a node that runs no
+    tasks: the local raylet a driver connects through), and return at once: ``ray.init`` waits for the raylet."""
+    ray_bin = shutil.which("ray", path=os.path.dirname(sys.executable)) or shutil.which("ray") or "ray"
+    log.info("joining the Ray cluster at %s as a node without CPUs", address)
+    return subprocess.Popen([ray_bin, "start", f"--address={address}", "--num-cpus=0", "--disable-usage-stats"],
+                            stdin=subprocess.DEVNULL)
 
 
 def connect_for(settings: Settings) -> bool:
@@ -76,7 +94,12 @@ def forget_connect_attempt() -> None:
         pass
 
 
-def _connect_as(settings: Settings) -> bool:
+def _connect_as(settings: Settings, joining: subprocess.Popen | None = None) -> bool:
+    if joining is not None and joining.wait() != 0:  # no node of ours: ray.init would wait for one in vain
+        log.error("could not join the Ray cluster at %s (ray start exited with code %d): exiting (code %d) to be "
+                  "started again", settings.ray_address, joining.returncode, JOIN_FAILED_EXIT_CODE)
+        logging.shutdown()
+        os._exit(JOIN_FAILED_EXIT_CODE)
     return connect(settings.ray_address, settings.ray_num_cpus, worker_env(settings))
 
 

@@ -6,6 +6,7 @@ import logging
 import os
 import shutil
 import uuid
+from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, BinaryIO, Callable, TypeVar
@@ -58,6 +59,9 @@ class Services:
     """Encoded frame sets of recordings for browser-rendering viewers (:mod:`app.frame_atlases`)."""
     live_relay: LiveRelay = field(default_factory=LiveRelay)
     """Live frame sets fanned out to browser-rendering viewers (:mod:`app.live_relay`)."""
+    finished_imports: OrderedDict[str, Job] = field(default_factory=OrderedDict)
+    """Recordings' import jobs this process last read finished, newest last (:func:`app.stored_rigs.import_job`):
+    what a viewer socket is told while the database cannot be reached."""
 
 
 def build_services(settings: Settings) -> Services:

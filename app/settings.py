@@ -37,6 +37,10 @@ class Settings(WorkerSettings):
     storage_url: str | None = Field(None, description="Blob store URL; default file://<data_dir>/blobs.")
     ray_address: str | None = Field(None, description="Existing Ray cluster (host:port or ray://...); default: start a local one.")
     ray_num_cpus: int | None = Field(None, ge=1, description="CPUs of the local Ray cluster (default: all).")
+    ray_join_node: bool = Field(False, description="With ray_address: first join the cluster as a node without CPUs "
+                                "(`ray start --address --num-cpus=0`: the local raylet a driver needs), while the service "
+                                "imports itself; the Docker image's API role sets it. When the join fails (the head is "
+                                "unreachable) the process exits with code 3, for its supervisor to start it again.")
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=1, le=65535)
     api_keys: Annotated[list[str], NoDecode] = Field(default_factory=list, description="Comma-separated bearer keys "

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from app.errors import ApiError
-from app.jobstore import Job, JobState
+from app.jobstore import Job, JobState, database_unavailable
 from app.keys import Principal
 from app.services import Services, delete_job_and_files
 from app.settings import Settings
@@ -78,16 +78,41 @@ def recording_view(meta: dict[str, Any], job: Job | None) -> dict[str, Any]:
     return {**out, "state": "processing"}
 
 
+KEPT_IMPORTS = 4096
+"""Most finished import jobs a process keeps for database outages (:func:`import_job`; a few hundred bytes each)."""
+
+
+async def import_job(svc: Services, job_id: str) -> Job | None:
+    """A recording's import job, from the database; while the database cannot be reached, the one this process last
+    read there if it had finished (a finished import never changes again, and deleting it needs the database), so
+    that viewers of the recordings it served keep connecting through an outage. Else the outage's exception."""
+    try:
+        job = await asyncio.to_thread(svc.jobs.get, job_id)
+    except Exception as exc:
+        kept = svc.finished_imports.get(job_id)
+        if kept is None or not database_unavailable(exc):
+            raise
+        return kept
+    if job is not None and JobState(job.state).finished:
+        svc.finished_imports[job_id] = job
+        svc.finished_imports.move_to_end(job_id)
+        while len(svc.finished_imports) > KEPT_IMPORTS:
+            svc.finished_imports.popitem(last=False)
+    else:
+        svc.finished_imports.pop(job_id, None)
+    return job
+
+
 async def recording_views(svc: Services, rig_id: str) -> list[dict[str, Any]]:
     metas = await asyncio.to_thread(rigstore.list_recording_metas, svc.store, rig_id)
-    return [recording_view(m, await asyncio.to_thread(svc.jobs.get, m["job_id"])) for m in metas]
+    return [recording_view(m, await import_job(svc, m["job_id"])) for m in metas]
 
 
 async def recording_or_404(svc: Services, rig_id: str, recording_id: str) -> dict[str, Any]:
     meta = await asyncio.to_thread(rigstore.load_recording_meta, svc.store, rig_id, recording_id)
     if meta is None:
         raise ApiError(404, f"rig {rig_id} has no recording {recording_id!r}", "recording_not_found")
-    return recording_view(meta, await asyncio.to_thread(svc.jobs.get, meta["job_id"]))
+    return recording_view(meta, await import_job(svc, meta["job_id"]))
 
 
 def require_ready(recording: dict[str, Any]) -> None:

@@ -493,14 +493,14 @@ def out_of_memory(app: SupervisedApp) -> dict[str, Any]:
     tried again alone on the node (app/dispatcher.py): the batches succeed, and the oversized job succeeds if it
     fits alone, else fails saying memory."""
     files, params = depth_bomb()
-    with httpx.Client(base_url=app.base, timeout=300) as c:
-        before = running_batch(app.base, 16)
+    with httpx.Client(base_url=app.base, headers=app.headers, timeout=300) as c:
+        before = running_batch(app.base, 16, app.headers)
         big = c.post("/v1/depth/videos", files=files, data={"params": json.dumps(params)})
         if big.status_code != 202:
             raise SystemExit(f"the oversized job was refused: {big.status_code} {big.text}")
-        big_out = job_outcomes(app.base, [big.json()["id"]], 1200)
+        big_out = job_outcomes(app.base, [big.json()["id"]], 1200, app.headers)
         after = c.post("/v1/photos/batches", files=photo_files(8)).json()["id"]
-    ordinary = job_outcomes(app.base, [before, after], 900)
+    ordinary = job_outcomes(app.base, [before, after], 900, app.headers)
     print(f"out_of_memory: oversized {big_out}, ordinary {ordinary}", flush=True)
     return {"fault": "out_of_memory", "oversized": big_out, "ordinary": ordinary, "api_restarts": app.restarts}
 
@@ -704,6 +704,15 @@ def fault_table(faults: list[dict[str, Any]]) -> str:
                          f"{x.get('objects_published')} objects published; after freeing: upload {fr['upload']}, "
                          f"job {fr['job']}", f"{len(f['log_errors'])} tracebacks in the log",
                          f"{fr['ready_after_s']:.1f} / -", "-", "-"])
+            continue
+        if f["fault"] == "out_of_memory_container":
+            o, s = f["oversized"], f["ordinary"]
+            limits = ", ".join(f"{mb} MB" for mb in f["limits_mb"].values())
+            rows.append([f.get("measured", ""), f"out_of_memory (worker containers limited to {limits}: their use + "
+                         "1 GB)", "-", f"oversized job: {o['states']}, attempts {o['attempts']} "
+                         f"({'; '.join(o['errors'])[:300]})", f"ordinary batches: {s['states']}",
+                         f"workers OOM-killed: {sum(f['oom_killed'].values())}, restarted "
+                         f"{sum(f['worker_restarts'].values())} times", "-", "-", f["api_restarts"]])
             continue
         if f["fault"] in OOM_HEADROOM_GB:
             o, s = f["oversized"], f["ordinary"]

@@ -1,5 +1,5 @@
 #!/bin/sh
-# Roles: api (join the Ray cluster as a driver node without CPUs, then serve), ray-head, ray-worker,
+# Roles: api (serve, joining the Ray cluster as a node without CPUs meanwhile), ray-head, ray-worker,
 # standalone (embedded local Ray, SQLite, /data), or any other command.
 set -eu
 role="${1:-api}"
@@ -14,8 +14,10 @@ fi
 case "$role" in api|standalone|ray-head|ray-worker) eval "$(sweepcast kernel-env)" ;; esac
 case "$role" in
   api)
+    # with a cluster: the service joins it as a node without CPUs while it imports itself (ray_join_node), and
+    # exits (code 3) to be restarted when the head cannot be reached
     if [ -n "${SWEEPCAST_RAY_ADDRESS:-}" ]; then
-      ray start --address="$SWEEPCAST_RAY_ADDRESS" --num-cpus=0 --disable-usage-stats
+      export SWEEPCAST_RAY_JOIN_NODE=true
     fi
     exec sweepcast serve
     ;;

@@ -150,6 +150,18 @@ def postgres_server():
 
 
 @pytest.fixture
+def stoppable_postgres():
+    """A PostgreSQL server of this test's own, which it may stop and start (the session's is shared: never stopped)."""
+    from tests.servers import Unavailable, postgres_server as own_postgres_server
+
+    try:
+        with own_postgres_server() as server:
+            yield server
+    except Unavailable as exc:
+        pytest.skip(str(exc))
+
+
+@pytest.fixture
 def postgres_url(postgres_server):
     """A fresh, empty database on the test PostgreSQL server."""
     import uuid

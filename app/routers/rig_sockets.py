@@ -38,7 +38,9 @@ A socket whose peer stops reading gets no new frame once the connection holds mo
 and after ``viewer_stall_seconds`` without progress it is closed with 1008 and a reason, logged once, and cut off
 when it still reads nothing (:class:`Channel`); and the viewers of a session take turns at its renderer (:mod:`workers.streaming.turns`).
 
-Unknown rigs or recordings, and wrong API keys, close with 1008 and a reason. Either socket keeps
+Unknown rigs or recordings, and wrong API keys, close with 1008 and a reason. While the job database cannot be
+reached, a recording this process has served opens as before (frames need nothing from the database); another
+gets the error ``database_unavailable`` and a close with 1013 (try again later). Either socket keeps
 its session alive while open; when the last one goes, the session ends after the idle timeout.
 """
 from __future__ import annotations
@@ -58,6 +60,7 @@ from starlette.websockets import WebSocketDisconnect
 
 from app.auth import socket_principal
 from app.errors import ApiError
+from app.jobstore import DATABASE_DOWN, database_unavailable
 from app.keys import Principal
 from app.live_relay import LiveSet
 from app.socket_transport import abort, queued_bytes
@@ -76,6 +79,7 @@ ws_router = APIRouter(prefix="/v1/rigs", tags=["rigs"])
 UNSUPPORTED_DATA = 1003
 POLICY_VIOLATION = 1008
 INTERNAL_ERROR = 1011
+TRY_AGAIN_LATER = 1013
 QUEUED_LIMIT = 16 * 1024
 """Bytes a socket may hold that its peer has not acknowledged before its next frame is made: a viewer's closed
 loop (next viewpoint after each frame) finds the queue empty, a slow link gets its frames as fast as it takes
@@ -230,6 +234,12 @@ async def _open(websocket: WebSocket, rig_id: str, source: str | None, label: st
     except ApiError as exc:
         await channel.error(exc.code, str(exc.detail))
         await channel.close(POLICY_VIOLATION, str(exc.detail))
+        return None
+    except Exception as exc:
+        if not database_unavailable(exc):
+            raise
+        await channel.error("database_unavailable", DATABASE_DOWN)
+        await channel.close(TRY_AGAIN_LATER, "the job database cannot be reached just now: reconnect in a few seconds")
         return None
     return channel, target, who
 

@@ -70,3 +70,26 @@ def test_two_replicas_share_jobs_and_survive_a_lost_node(cluster, postgres_url, 
         assert any(e["type"] == "progress" for e in seen_on_a), seen_on_a
         report = httpx.get(f"{base_a}/v1/jobs/{job['id']}/results/report.json").json()
         assert len(report) == 16
+
+
+def test_a_replica_with_ray_join_node_joins_the_cluster_as_a_node_without_cpus(tmp_path):
+    """The image's API role: ``sweepcast serve`` starts this machine's node (`ray start --address --num-cpus=0`) while
+    it imports itself, then connects through it."""
+    import shutil
+    import tempfile
+
+    from tests.servers import guarded, kill_mentioning
+
+    with ray_cluster(worker_nodes=1) as address:
+        own = tempfile.mkdtemp(prefix="scjoin-")  # the joined node's folder, by which its processes are found
+        try:
+            with guarded(marker=own), serve_app({
+                    "RAY_AUTH_MODE": "disabled", "RAY_TMPDIR": own, "SWEEPCAST_RAY_ADDRESS": address,
+                    "SWEEPCAST_RAY_JOIN_NODE": "true", "SWEEPCAST_DATA_DIR": str(tmp_path / "data"),
+                    "SWEEPCAST_DEMO_RIG": "false"}, log=tmp_path / "serve.log", ready_timeout=120) as app:
+                ready = httpx.get(f"{app.base}/readyz", timeout=10).json()["checks"]["ray"]
+                assert ready["detail"] == "3 Ray node(s)", ready  # the head, the worker and this replica's
+                assert "joining the Ray cluster at" in app.log_tail(20000)
+        finally:
+            kill_mentioning(own)
+            shutil.rmtree(own, ignore_errors=True)

@@ -8,20 +8,10 @@ import pytest
 
 from tests.app.photos import FACES_ONLY, batch_files
 from tests.app.test_jobs_e2e import wait_final
-from tests.servers import Unavailable, create_database, postgres_server
+from tests.servers import create_database
 
 KEY = "outage-test-key"
 AUTH = {"Authorization": f"Bearer {KEY}"}
-
-
-@pytest.fixture
-def stoppable_postgres():
-    """A PostgreSQL server of this test's own (the session's is shared: never stopped)."""
-    try:
-        with postgres_server() as server:
-            yield server
-    except Unavailable as exc:
-        pytest.skip(str(exc))
 
 
 def _started(client, job_id: str, timeout: float = 60.0) -> None:
