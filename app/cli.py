@@ -9,6 +9,7 @@ import os
 import shutil
 import socket
 import sys
+import time
 from pathlib import Path
 
 ENGINE_CLIS = (
@@ -91,6 +92,14 @@ def cmd_worker(args: argparse.Namespace) -> int:
     if ray_bin is None:
         print("the 'ray' command is not installed in this environment", file=sys.stderr)
         return 2
+    from app.netwait import split_address, wait_for_port
+    from app.raycluster import HEAD_WAIT_S
+
+    try:
+        split_address(args.address)
+    except ValueError as exc:
+        print(f"--address: {exc} (the Ray head, as printed by 'ray start --head')", file=sys.stderr)
+        return 2
     argv = [ray_bin, "start", "--address", args.address, "--block"]
     if args.num_cpus is not None:
         argv += ["--num-cpus", str(args.num_cpus)]
@@ -111,6 +120,7 @@ def cmd_worker(args: argparse.Namespace) -> int:
     log_prebuilt()
     if Settings().warm_kernels:  # this node's kernels, compiled while it joins (the process outlives the exec)
         KernelWarmup.start(Path(os.environ["NUMBA_CACHE_DIR"]), report=False)
+    wait_for_port(args.address, HEAD_WAIT_S, "the Ray head")  # ray start would wait ~40 s between its own tries
     os.execv(ray_bin, argv)
 
 
@@ -126,6 +136,23 @@ def cmd_warmup(args: argparse.Namespace) -> int:
     return warmup.main([*args.engines, *(["--jobs", str(args.jobs)] if args.jobs is not None else []),
                         *(["--target", args.target] if args.target is not None else []),
                         *(["--demo-cache", str(settings.resolved_demo_cache_dir)] if demo else [])])
+
+
+def cmd_wait_for(args: argparse.Namespace) -> int:
+    """Wait until each ``host:port`` accepts a TCP connection (``sweepcast wait-for``; the image's Ray head waits for
+    its Redis): 0 when all did within the timeout, else 1."""
+    from app.netwait import split_address, wait_for_port
+
+    _log_to_stderr("info")
+    try:
+        for address in args.addresses:
+            split_address(address)
+    except ValueError as exc:
+        print(f"sweepcast wait-for: {exc}", file=sys.stderr)
+        return 2
+    deadline = time.monotonic() + args.timeout
+    return 0 if all(wait_for_port(a, max(deadline - time.monotonic(), 0.0), a) is not None
+                    for a in args.addresses) else 1
 
 
 def cmd_kernel_env(args: argparse.Namespace) -> int:
@@ -215,6 +242,11 @@ def build_parser(engines: bool = True) -> argparse.ArgumentParser:
     p.add_argument("--resources", help="custom resources as JSON, e.g. '{\"renderer\": 1}'")
     p.set_defaults(func=cmd_worker)
 
+    p = sub.add_parser("wait-for", help="wait until each HOST:PORT accepts TCP connections (exit 1 after --timeout)")
+    p.add_argument("addresses", nargs="+", metavar="HOST:PORT")
+    p.add_argument("--timeout", type=float, default=120.0, help="seconds in all (default 120)")
+    p.set_defaults(func=cmd_wait_for)
+
     p = sub.add_parser("openapi", help="write (or --check) the committed OpenAPI document")
     p.add_argument("--out", default="openapi/openapi.json")
     p.add_argument("--check", action="store_true", help="exit 1 when the file differs from the app's schema")
@@ -261,7 +293,7 @@ def build_parser(engines: bool = True) -> argparse.ArgumentParser:
 SERVICE_COMMANDS = ("serve", "worker", "warmup", "kernel-env")
 """Commands that use the service's kernel cache (``Settings.resolved_numba_cache_dir``); the one-shot engine
 commands keep numba's default (beside the sources, or ``NUMBA_CACHE_DIR``)."""
-OWN_COMMANDS = (*SERVICE_COMMANDS, "openapi", "models")
+OWN_COMMANDS = (*SERVICE_COMMANDS, "openapi", "models", "wait-for")
 """The verbs :func:`build_parser` defines itself (no engine imported to parse them)."""
 
 

@@ -17,6 +17,7 @@ before another replica could take them.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import os
 import shutil
@@ -53,17 +54,45 @@ _PROGRESS_WRITE_INTERVAL_S = 0.25
 _DATABASE_RETRY_MAX_S = 5.0
 
 
+OOM_PROBE_S = 10.0
+"""How long the dispatcher waits for a lost attempt's node to say how many OOM kills it has seen."""
+
+
+async def _killed_for_memory(node_id: str | None, kills_at_start: int | None) -> bool:
+    """Whether the kernel's OOM killer ended a process on ``node_id`` since the lost attempt started there (its
+    ``started`` event's count, ``kills_at_start``): asked of the node itself (:func:`workers.ray_tasks.node_oom_kills`,
+    pinned to it). False when it cannot tell: no count at the start, the node gone, no answer in ``OOM_PROBE_S``."""
+    if node_id is None or kills_at_start is None:
+        return False
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+    from workers.ray_tasks import node_oom_kills
+
+    ref = None
+    try:
+        ref = node_oom_kills.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node_id, soft=False)).remote()
+        now = await asyncio.wait_for(ref, OOM_PROBE_S)
+    except Exception:  # noqa: BLE001 - the node died with its worker, or does not answer: not known to be memory
+        if ref is not None:
+            with contextlib.suppress(Exception):
+                ray.cancel(ref, force=True)
+        return False
+    return now is not None and now > kills_at_start
+
+
 class _Unschedulable(Exception):
     """No live node offers what the job needs."""
 
 
 def _gave_up(job: Job, out_of_memory: int = 0) -> str:
     """The error of a job whose retry budget lost workers spent; restarts are named, not counted. ``out_of_memory``:
-    how many of those losses were Ray's memory monitor stopping the job as its node ran out of memory."""
+    how many of those losses were for want of memory (Ray's memory monitor stopped the job as its node ran out of
+    memory, or the kernel's OOM killer ended its worker at the node's memory limit)."""
     if out_of_memory:
         alone = ", the attempts after that alone on a node" if job.worker_losses > 1 else ""
-        error = (f"the job ran out of memory: its worker's node was nearly out of memory and Ray stopped it "
-                 f"{_times(out_of_memory)} (of {_times(job.worker_losses)} lost{alone}); giving up. It needs more "
+        error = (f"the job ran out of memory: its worker's node was out of memory and its worker was stopped "
+                 f"{_times(out_of_memory)} (by Ray's memory monitor or the kernel's OOM killer; of "
+                 f"{_times(job.worker_losses)} lost{alone}); giving up. It needs more "
                  "memory than a worker has: give the job smaller inputs or the workers more memory")
     else:
         error = f"the worker running this job was lost {_times(job.worker_losses)}; giving up"
@@ -302,12 +331,14 @@ class Dispatcher:
         self._refs[job.id] = gen
         last_write = 0.0
         worker: dict[str, Any] = {}
+        oom_kills_at_start: int | None = None
         try:
             async for ref in self._events(gen, options):
                 event = await ref
                 etype = event.get("type")
                 if etype == "started":
                     worker = {"node_id": event.get("node_id"), "pid": event.get("pid")}
+                    oom_kills_at_start = event.get("oom_kills")
                     await self._db(self.jobs.mark_running, job.id, self.owner)
                     self.hub.publish(job.id, {**event, "job_id": job.id, "state": "running"})
                 elif etype == "progress":
@@ -332,9 +363,12 @@ class Dispatcher:
         except (*_RETRYABLE, ray.exceptions.OutOfMemoryError) as exc:
             if job.id in self._cancelled:
                 return True
-            if isinstance(exc, ray.exceptions.OutOfMemoryError):  # worth another try: the node may have been busy
+            memory = (isinstance(exc, ray.exceptions.OutOfMemoryError)
+                      or await _killed_for_memory(worker.get("node_id"), oom_kills_at_start))
+            if memory:  # worth another try: the node may have been busy
                 self._out_of_memory[job.id] = self._out_of_memory.get(job.id, 0) + 1
-            log.warning("job %s attempt %d lost its worker: %s", job.id, job.attempts, type(exc).__name__)
+            log.warning("job %s attempt %d lost its worker: %s%s", job.id, job.attempts, type(exc).__name__,
+                        " (out of memory)" if memory else "")
             self.hub.publish(job.id, {"type": "retrying", "job_id": job.id, "attempt": job.attempts,
                                       "reason": type(exc).__name__, "worker_losses": job.worker_losses + 1,
                                       "service_restarts": job.service_restarts, "time": time.time()})

@@ -11,6 +11,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
+from app.netwait import wait_for_port
 from app.settings import Settings
 from workers.common.models import models_dir
 from workers.settings import WorkerSettings
@@ -59,17 +60,22 @@ def start_connecting(settings: Settings) -> None:
     processes) overlaps the service's own imports; the lifespan's :func:`connect_for` then waits for it. With
     ``ray_join_node``, this machine's node joins the cluster first, on that thread too."""
     global _early
-    joining = join_as_node(settings.ray_address) if settings.ray_join_node and settings.ray_address else None
-    _early = (settings, _connector.submit(_connect_as, settings, joining))
+    join = bool(settings.ray_join_node and settings.ray_address)
+    _early = (settings, _connector.submit(_connect_as, settings, join))
 
 
-def join_as_node(address: str) -> subprocess.Popen:
-    """Start ``ray start --address ADDRESS --num-cpus=0`` (this machine joins the cluster as a node that runs no
-    tasks: the local raylet a driver connects through), and return at once: ``ray.init`` waits for the raylet."""
+HEAD_WAIT_S = 300.0
+"""How long a node waits for its head's port before ``ray start`` tries anyway (and says what is wrong)."""
+
+
+def join_as_node(address: str) -> int:
+    """``ray start --address ADDRESS --num-cpus=0``: this machine joins the cluster as a node that runs no tasks (the
+    local raylet a driver connects through), once the head's port answers (:mod:`app.netwait`). Its exit code."""
+    wait_for_port(address, HEAD_WAIT_S, "the Ray head")
     ray_bin = shutil.which("ray", path=os.path.dirname(sys.executable)) or shutil.which("ray") or "ray"
     log.info("joining the Ray cluster at %s as a node without CPUs", address)
-    return subprocess.Popen([ray_bin, "start", f"--address={address}", "--num-cpus=0", "--disable-usage-stats"],
-                            stdin=subprocess.DEVNULL)
+    return subprocess.run([ray_bin, "start", f"--address={address}", "--num-cpus=0", "--disable-usage-stats"],
+                          stdin=subprocess.DEVNULL).returncode
 
 
 def connect_for(settings: Settings) -> bool:
@@ -94,10 +100,10 @@ def forget_connect_attempt() -> None:
         pass
 
 
-def _connect_as(settings: Settings, joining: subprocess.Popen | None = None) -> bool:
-    if joining is not None and joining.wait() != 0:  # no node of ours: ray.init would wait for one in vain
+def _connect_as(settings: Settings, join: bool = False) -> bool:
+    if join and (code := join_as_node(settings.ray_address)) != 0:  # no node of ours: ray.init would wait in vain
         log.error("could not join the Ray cluster at %s (ray start exited with code %d): exiting (code %d) to be "
-                  "started again", settings.ray_address, joining.returncode, JOIN_FAILED_EXIT_CODE)
+                  "started again", settings.ray_address, code, JOIN_FAILED_EXIT_CODE)
         logging.shutdown()
         os._exit(JOIN_FAILED_EXIT_CODE)
     return connect(settings.ray_address, settings.ray_num_cpus, worker_env(settings))

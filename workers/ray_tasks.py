@@ -1,10 +1,12 @@
-"""Ray entry points: the batch job task (a streaming generator of job events)."""
+"""Ray entry points: the batch job task (a streaming generator of job events), and the probe that asks a node how many
+processes the kernel's OOM killer has ended there."""
 from __future__ import annotations
 
 from typing import Any, Iterator
 
 import ray
 
+from workers.oom import oom_kills
 from workers.runtime import JobSpec, execute_job
 
 
@@ -16,3 +18,9 @@ def run_job_task(spec: dict[str, Any]) -> Iterator[dict[str, Any]]:
     attempt, and a lost worker shows up at the driver as an error of the next item.
     """
     yield from execute_job(JobSpec(**spec))
+
+
+@ray.remote(num_cpus=0, max_retries=0)
+def node_oom_kills() -> int | None:
+    """:func:`workers.oom.oom_kills` on the node this runs on (the dispatcher pins it to the node of a lost attempt)."""
+    return oom_kills()

@@ -2,7 +2,8 @@
 
 ``execute_job`` runs a job function in a thread and yields its events as plain dicts:
 
-- ``{"type": "started", "attempt", "node_id", "pid"}`` once, first;
+- ``{"type": "started", "attempt", "node_id", "pid", "oom_kills"}`` once, first (``oom_kills``: the kernel's OOM kills
+  in the node's memory cgroup so far, :func:`workers.oom.oom_kills`);
 - ``{"type": "progress", "fraction", "stage"}`` as the job reports;
 - last, ``{"type": "succeeded", "manifest"}`` or ``{"type": "failed", "error", "user_error"}``.
 
@@ -32,6 +33,7 @@ from pydantic import BaseModel, ValidationError
 
 from workers.common.jobctx import JobInputError
 from workers.common.validation import describe_errors
+from workers.oom import oom_kills
 from workers.registry import get_kind
 from workers.settings import worker_settings
 from workers.storage import BlobStore, check_key, open_store, storage_full, storage_unavailable
@@ -200,7 +202,8 @@ def _node_id() -> str | None:
 
 def execute_job(spec: JobSpec) -> Iterator[dict[str, Any]]:
     """Run one attempt of ``spec`` and yield its events (see the module docstring)."""
-    yield {"type": "started", "attempt": spec.attempt, "node_id": _node_id(), "pid": os.getpid()}
+    yield {"type": "started", "attempt": spec.attempt, "node_id": _node_id(), "pid": os.getpid(),
+           "oom_kills": oom_kills()}
     events: queue.Queue = queue.Queue()
     staging = Path(tempfile.mkdtemp(prefix=f"sweepcast-{spec.job_id[:8]}-"))
     outcome: dict[str, Any] = {}

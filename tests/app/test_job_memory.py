@@ -53,7 +53,8 @@ def test_a_job_that_runs_out_of_memory_fails_saying_so_and_its_neighbour_goes_on
 
     failed = wait_final(client, oversized)
     assert failed["state"] == "failed" and failed["error"].startswith("the job ran out of memory"), failed
-    assert "stopped it 3 times (of 3 times lost, the attempts after that alone on a node)" in failed["error"]
+    assert "stopped 3 times (by Ray's memory monitor or the kernel's OOM killer; of 3 times lost, the attempts after that " \
+           "alone on a node)" in failed["error"]
     done = wait_final(client, neighbour)
     assert done["state"] == "succeeded" and done["attempts"] == 2, done
     assert len(client.get(f"/v1/jobs/{neighbour}/results/report.json").json()) == 2
@@ -63,6 +64,83 @@ def test_a_job_that_runs_out_of_memory_fails_saying_so_and_its_neighbour_goes_on
     for inputs, attempt, options, _ in monitor.attempts:  # the first attempt as the kind asks; later ones alone
         assert options["num_cpus"] == (1 if attempt == 1 else node_cpus), monitor.attempts
     assert sorted((i, a) for i, a, _, _ in monitor.attempts) == [(2, 1), (2, 2), (3, 1), (3, 2), (3, 3)]
+
+
+NODE = "ab" * 28  # a node id as Ray writes one
+
+
+async def _value(value):
+    return value
+
+
+class KilledByTheKernel:
+    """An attempt that starts (its ``started`` event carries its node's OOM-kill count, ``kills``) and then loses its
+    worker without a word from Ray, as when the kernel's OOM killer ends it at a container's memory limit."""
+
+    def __init__(self, spec, kills: int) -> None:
+        self.started = {"type": "started", "attempt": spec["attempt"], "node_id": NODE, "pid": 1, "oom_kills": kills}
+
+    def __aiter__(self):
+        return self
+
+    async def __anext__(self):
+        if self.started is not None:
+            event, self.started = self.started, None
+            return _value(event)
+        raise ray.exceptions.WorkerCrashedError()
+
+
+class NodeProbe:
+    """``node_oom_kills`` as the dispatcher calls it: pinned to a node, it answers the node's count (``counts``)."""
+
+    def __init__(self, counts) -> None:
+        self.counts, self.nodes = iter(counts), []
+
+    def options(self, scheduling_strategy):
+        self.nodes.append((scheduling_strategy.node_id, scheduling_strategy.soft))
+        return self
+
+    def remote(self):
+        return _value(next(self.counts))
+
+
+class KernelKills:
+    """``run_job_task`` whose every attempt is :class:`KilledByTheKernel` (the node's count at its start: 10 x the
+    attempt's number); records each attempt's options."""
+
+    def __init__(self) -> None:
+        self.options_seen = []
+
+    def options(self, **options):
+        seen = self.options_seen
+
+        class Submit:
+            @staticmethod
+            def remote(spec):
+                seen.append(options)
+                return KilledByTheKernel(spec, kills=10 * spec["attempt"])
+
+        return Submit
+
+
+@pytest.mark.parametrize("killed", [True, False])
+def test_a_worker_the_kernel_killed_for_memory_is_told_apart_from_a_crash(client_factory, monkeypatch, killed):
+    """The node's OOM-kill count rose between the attempt's start and its loss (asked of that very node): the job
+    ran out of memory, and says so; else it is a lost worker as before."""
+    task, probe = KernelKills(), NodeProbe([10 * a + (1 if killed else 0) for a in (1, 2, 3)])
+    monkeypatch.setattr(workers.ray_tasks, "run_job_task", task)
+    monkeypatch.setattr(workers.ray_tasks, "node_oom_kills", probe)
+    client = client_factory(job_max_attempts=3)
+    job = wait_final(client, client.post("/v1/photos/batches", files=batch_files(2), data=FACES_ONLY).json()["id"])
+    assert job["state"] == "failed" and job["attempts"] == 3, job
+    assert probe.nodes == [(NODE, False)] * 3  # each time the lost attempt's own node, and no other
+    if killed:
+        assert job["error"].startswith("the job ran out of memory") and "OOM killer; of 3 times lost" in job["error"]
+    else:
+        assert job["error"] == "the worker running this job was lost 3 times; giving up", job
+    node_cpus = max(n["Resources"].get("CPU", 0) for n in ray.nodes() if n["Alive"])
+    cpus = [options["num_cpus"] for options in task.options_seen]
+    assert cpus == ([1, node_cpus, node_cpus] if killed else [1, 1, 1])  # after running out of memory: alone
 
 
 _FREE_AND_TRIM = """

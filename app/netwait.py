@@ -1,0 +1,48 @@
+"""Waiting for a server's port before starting what needs it (a Ray node joining its head, the head its Redis).
+
+``ray start --address`` gives a head that is not answering yet one try and then waits about 40 s before the next
+(5 s to connect, 5 s for its pubsub, 30 s for the cluster id): in the compose stack, whose containers start at once,
+a worker or API node that came up a second before its head then joined 40-60 s late, and the first job waited for
+it (docker/verify-stack.sh, 2026-11-29: the first photo batch waited 49 s to start; in 5 bare `up`s the nodes joined
+after 12, 21, 43-62, 12 s and, with the head's GCS failing once on a Redis that was still starting, not in 75 s).
+A TCP connect every half second ends the wait within half a second of the port opening.
+"""
+from __future__ import annotations
+
+import logging
+import socket
+import time
+
+log = logging.getLogger("sweepcast.netwait")
+
+
+def split_address(address: str) -> tuple[str, int]:
+    """``host:port`` (an optional ``scheme://`` prefix is dropped) as (host, port); ValueError when it is not one."""
+    host, sep, port = address.split("://", 1)[-1].rstrip("/").rpartition(":")
+    if not sep or not host or not port.isdigit():
+        raise ValueError(f"{address!r} is not host:port")
+    return host.strip("[]"), int(port)
+
+
+def wait_for_port(address: str, timeout_s: float, what: str) -> float | None:
+    """Until a TCP connection to ``address`` (``host:port``) succeeds, trying every half second (a name that does
+    not resolve yet counts as not answering); the seconds waited, or None after ``timeout_s``. Logs once when it has
+    to wait, and again when the port answers."""
+    host, port = split_address(address)
+    started = time.monotonic()
+    said = False
+    while True:
+        try:
+            with socket.create_connection((host, port), timeout=2.0):
+                waited = time.monotonic() - started
+                if said:
+                    log.info("%s at %s answers after %.1f s", what, address, waited)
+                return waited
+        except OSError as exc:
+            if not said:
+                log.info("waiting for %s at %s (%s)", what, address, exc)
+                said = True
+        if time.monotonic() - started > timeout_s:
+            log.warning("%s at %s did not answer in %.0f s", what, address, timeout_s)
+            return None
+        time.sleep(0.5)

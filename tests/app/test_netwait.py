@@ -1,0 +1,58 @@
+"""Waiting for a port (a Ray node for its head, the head for its Redis) instead of ray start's 40 s between tries."""
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+from app.netwait import split_address, wait_for_port
+from tests.servers import free_port
+
+
+def test_addresses_are_host_and_port_with_or_without_a_scheme():
+    assert split_address("ray-head:6379") == ("ray-head", 6379)
+    assert split_address("redis://redis:6379/") == ("redis", 6379)
+    assert split_address("[::1]:80") == ("::1", 80)
+    for bad in ("ray-head", ":6379", "host:port"):
+        with pytest.raises(ValueError):
+            split_address(bad)
+
+
+def test_the_wait_ends_soon_after_the_port_opens_and_gives_up_at_its_timeout(caplog):
+    port = free_port()
+    server = socket.socket()
+    opened_at: list[float] = []
+
+    def open_late() -> None:
+        time.sleep(1.5)
+        server.bind(("127.0.0.1", port))
+        server.listen()
+        opened_at.append(time.monotonic())
+
+    threading.Thread(target=open_late, daemon=True).start()
+    with caplog.at_level("INFO", logger="sweepcast.netwait"):
+        waited = wait_for_port(f"127.0.0.1:{port}", 30, "the test server")
+    try:
+        assert waited is not None and waited >= 1.4
+        assert time.monotonic() - opened_at[0] < 1.5  # within a try (0.5 s) and a connect of it
+        assert [r.getMessage().split(" at ")[0] for r in caplog.records] == ["waiting for the test server",
+                                                                             "the test server"]
+    finally:
+        server.close()
+    assert wait_for_port(f"127.0.0.1:{free_port()}", 1.0, "nothing") is None
+    assert wait_for_port(f"no-such-host.invalid:{port}", 0.5, "an unknown name") is None
+
+
+def test_wait_for_says_which_address_is_wrong_and_fails_on_a_closed_port():
+    run = lambda *a: subprocess.run([sys.executable, "-m", "app", "wait-for", *a], capture_output=True, text=True,  # noqa: E731
+                                    timeout=60)
+    bad = run("ray-head")
+    assert bad.returncode == 2 and "'ray-head' is not host:port" in bad.stderr
+    closed = run(f"127.0.0.1:{free_port()}", "--timeout", "1")
+    assert closed.returncode == 1 and "did not answer in 1 s" in closed.stderr
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        assert run(f"127.0.0.1:{server.getsockname()[1]}").returncode == 0
