@@ -254,7 +254,8 @@ def image_path() -> dict | None:
         return None
     d = json.loads(path.read_text())
     jobs, viewer = d["jobs"], d["viewer"]
-    return {"ready_s": d["up_to_ready_s"], "first_photo_s": jobs["photo_batch"]["seconds"],
+    alone = d.get("standalone")  # the image as one container, timed as a service start (docker_stack.standalone)
+    return {**({"standalone": alone} if alone else {}), "ready_s": d["up_to_ready_s"], "first_photo_s": jobs["photo_batch"]["seconds"],
             "photos": jobs["photo_batch"]["photos"], "first_reconstruction_s": jobs["reconstruction"]["seconds"],
             "first_frame_s": viewer["first_frame_s"], "date": d["meta"]["date"], "commit": d["image"]["commit"][:7],
             "image_build_s": d["image"]["seconds"], "second_reconstruction_s": d["jobs"].get("second_reconstruction", {}).get("seconds")}
@@ -291,8 +292,10 @@ def markdown(r: dict) -> str:
     for start in sv.values():
         if isinstance(start, dict):
             start["reconstruction_x"] = start["first_reconstruction_s"] / start["second_reconstruction_s"]
-    if image and image.get("second_reconstruction_s"):
-        image["reconstruction_x"] = image["first_reconstruction_s"] / image["second_reconstruction_s"]
+    alone = (image or {}).get("standalone")
+    for figures in (image, alone):
+        if figures and figures.get("second_reconstruction_s"):
+            figures["reconstruction_x"] = figures["first_reconstruction_s"] / figures["second_reconstruction_s"]
     keys = [("answering_s", "`/healthz` 200 after start (the API answers)", None),
             ("ready_s", "`/readyz` 200 after start", f"<= {GOALS['ready_s']:.0f}"),
             ("kernels_warm_s", "kernel warm-up done after start (at ready: none needed; else seen after the work below)",
@@ -305,13 +308,14 @@ def markdown(r: dict) -> str:
             ("first_reconstruction_s", "then: the first reconstruction (36 frames)", None),
             ("second_reconstruction_s", "then: the same reconstruction again (warm)", None),
             ("reconstruction_x", "first / warm reconstruction", f"<= {GOALS['first_reconstruction_x']:.0f}")]
-    header = ["", *(label for _, label in PATHS)] + (["Docker image (verify-stack.sh)"] if image else []) + ["goal"]
+    images = [*([("the Docker image alone (`podman run`, standalone)", alone)] if alone else []),
+              *([("the compose stack (verify-stack.sh)", image)] if image else [])]
+    header = ["", *(label for _, label in PATHS), *(label for label, _ in images), "goal"]
     table = []
     for key, label, goal in keys:
         digits = 2 if key == "reconstruction_x" else 1
         row = [label, *(_cell(sv[name].get(key), digits) for name, _ in PATHS)]
-        if image:
-            row.append(_cell(image.get(key), digits))
+        row += [_cell(figures.get(key), digits) for _, figures in images]
         table.append(row + [goal or ""])
     parts += ["`python -m app serve` on each install path, each with a user cache of its own (`XDG_CACHE_HOME`: the "
               "kernels and the demo recording): the first `make serve` fills it before starting the service "
@@ -327,11 +331,15 @@ def markdown(r: dict) -> str:
               "than the wheel's, gets: kernels compile in the background while requests come, the demo job renders "
               "its recording); seconds.", ""]
     if image:
-        parts += [f"The Docker image's column comes from the last `docker/verify-stack.sh` run ({image['date']}, image "
+        parts += [f"The Docker image's columns come from the last `docker/verify-stack.sh` run ({image['date']}, image "
                   f"built from {image['commit']} in {image['image_build_s']} s, empty volumes; "
-                  "`benchmarks/results/docker.json`), where the steps come in another order: ready is `up` to "
-                  f"`/readyz` on both API replicas, the first photo is a batch of {image['photos']} photos, and the "
-                  "viewer's first frame comes after the jobs.", ""]
+                  "`benchmarks/results/docker.json`): "
+                  + ("the image alone first (`podman run ... standalone` on a new volume, nothing else running: local "
+                     "Ray, SQLite; timed as a service start here), then " if alone else "")
+                  + "the compose stack, where the steps come in another order: ready is `up` to `/readyz` on both API "
+                  "replicas (eight containers booting at once on this machine, which podman-compose starts one after "
+                  f"another), the first photo is a batch of {image['photos']} photos, and the viewer's first frame "
+                  "comes after the jobs.", ""]
     parts += [md_table(header, table), ""]
     first, again = sv["first_start"], sv["restart"]
     slow = [label for name, label in PATHS

@@ -243,6 +243,52 @@ def viewer(stack: Stack, frames: int = 10) -> dict:
     return {"demo_ready_wait_s": demo_s, "first_frame_s": first, "frames": count}
 
 
+class OneContainer(Stack):
+    """The image run alone (``standalone`` role) as a :class:`Stack` of one replica, for :func:`viewer` and jobs."""
+
+    def __init__(self, port: int, key: str) -> None:
+        super().__init__("true", "standalone", port, key)
+        self.bases = [self.bases[0]] * 2
+
+
+STANDALONE = "sweepcast-verify-standalone"
+
+
+def standalone(image: str, port: int, key: str, tmp: Path) -> dict:
+    """The image as one container (``podman run IMAGE standalone``: local Ray, SQLite, a new empty volume on /data), as
+    `make serve` is the checkout's: from the run to `/readyz` 200, then the first viewer frame of the demo recording,
+    the first photo's orientation and the first 36-frame reconstruction and a second (the warm time), as
+    benchmarks/coldstart.py times a service start."""
+    volume = f"{STANDALONE}-data"
+    subprocess.run(["podman", "rm", "-f", "-t", "0", STANDALONE], capture_output=True)
+    subprocess.run(["podman", "volume", "rm", "-f", volume], capture_output=True)
+    subprocess.run(["podman", "volume", "create", volume], capture_output=True, check=True)
+    one = OneContainer(port, key)
+    t0 = time.monotonic()
+    subprocess.run(["podman", "run", "-d", "--name", STANDALONE, "-p", f"127.0.0.1:{port}:8000", "--shm-size", "2g",
+                    "-e", f"SWEEPCAST_API_KEYS={key}", "-e", "SWEEPCAST_FETCH_MODELS=false", "-v", f"{volume}:/data",
+                    image, "standalone"], capture_output=True, check=True)
+    try:
+        wait_for(lambda: ready(one, 0), 300, "the standalone container's /readyz")
+        out: dict[str, Any] = {"ready_s": time.monotonic() - t0}
+        view = viewer(one, frames=2)
+        out["first_frame_after_ready_s"] = time.monotonic() - t0 - out["ready_s"]
+        out.update(demo_ready_wait_s=view["demo_ready_wait_s"], first_frame_s=view["first_frame_s"])
+        with one.client(0) as http:
+            t = time.monotonic()
+            http.post("/v1/photos/orientation", files={"file": batch_files(1)[0][1]}).raise_for_status()
+            out["first_photo_s"] = time.monotonic() - t
+        video, intrinsics = make_flight(tmp)
+        for name in ("first_reconstruction_s", "second_reconstruction_s"):
+            _, out[name] = timed_job(one, 0, lambda h: h.post(
+                "/v1/reconstructions", files={"media": ("flight.mp4", video.read_bytes(), "video/mp4")},
+                data={"params": json.dumps({**intrinsics, "max_features": 1000})}))
+        return out
+    finally:
+        subprocess.run(["podman", "rm", "-f", "-t", "5", STANDALONE], capture_output=True)
+        subprocess.run(["podman", "volume", "rm", "-f", volume], capture_output=True)
+
+
 def container_running_a_job(stack: Stack) -> str:
     """The Ray worker container that runs a job's task (``ray::run_job_task``; one job runs at that moment). Found by
     its processes' titles: the job's ``started`` event (which names the pid) comes before a client can subscribe
@@ -331,6 +377,7 @@ def main() -> int:
     ap.add_argument("--port", type=int, default=8000)
     ap.add_argument("--image-record", type=Path, required=True, help="docker/images.sh's record of the app image build")
     ap.add_argument("--podman-version", default="")
+    ap.add_argument("--image", default="localhost/sweepcast:latest", help="the app image (for its standalone run)")
     args = ap.parse_args()
     # the key from the environment (verify-stack.sh exports docker/.env), never on the command line RESULTS.md records
     stack = Stack(args.compose, args.project, args.port, os.environ.get("SWEEPCAST_API_KEYS", "").split(",")[0])
@@ -338,6 +385,10 @@ def main() -> int:
     res: dict[str, Any] = {"image": json.loads(args.image_record.read_text()), "podman": args.podman_version,
                            "storage_driver": subprocess.run(["podman", "info", "--format", "{{.Store.GraphDriverName}}"],
                                                            capture_output=True, text=True, check=True).stdout.strip()}
+
+    with tempfile.TemporaryDirectory(prefix="sweepcast-standalone-") as tmp:  # first, alone on the machine
+        res["standalone"] = standalone(args.image, args.port + 2, stack.headers["Authorization"][7:], Path(tmp))
+    print(json.dumps(res["standalone"], indent=1), flush=True)
 
     res.update(up_timeline(stack, "up"))
     res["containers"] = {s: stack.containers(s) for s in ("postgres", "ray-head", "ray-worker", "api", "api-2")}
@@ -378,6 +429,13 @@ def markdown(r: dict) -> str:
     rows = [
         [f"app image build (buildah bud docker/Dockerfile on the debootstrapped base; built {r['image']['built_at']} "
          f"from commit {r['image']['commit'][:10]})", r["image"]["seconds"]],
+        *([["the image alone (`podman run ... standalone`: local Ray, SQLite, an empty volume) to `/readyz` 200",
+            r["standalone"]["ready_s"]],
+           ["... then its first viewer frame of the demo recording", r["standalone"]["first_frame_after_ready_s"]],
+           ["... then its first photo's orientation", r["standalone"]["first_photo_s"]],
+           ["... then its first reconstruction (36 frames)",
+            r["standalone"]["first_reconstruction_s"]],
+           ["... the same again (warm)", r["standalone"]["second_reconstruction_s"]]] if "standalone" in r else []),
         ["`podman-compose up -d` to `/readyz` 200 on both API replicas", r["up_to_ready_s"]],
         [f"photo batch, {j['photo_batch']['photos']} photos (submit to results)", j["photo_batch"]["seconds"]],
         [f"depth video, {j['depth_video']['frames']} frames 128x128 -> 256x256", j["depth_video"]["seconds"]],
