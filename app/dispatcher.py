@@ -58,26 +58,33 @@ OOM_PROBE_S = 10.0
 """How long the dispatcher waits for a lost attempt's node to say how many OOM kills it has seen."""
 
 
-async def _killed_for_memory(node_id: str | None, kills_at_start: int | None) -> bool:
+async def _killed_for_memory(exc: BaseException, node_id: str | None, kills_at_start: int | None) -> bool:
     """Whether the kernel's OOM killer ended a process on ``node_id`` since the lost attempt started there (its
-    ``started`` event's count, ``kills_at_start``): asked of the node itself (:func:`workers.ray_tasks.node_oom_kills`,
-    pinned to it). False when it cannot tell: no count at the start, the node gone, no answer in ``OOM_PROBE_S``."""
-    if node_id is None or kills_at_start is None:
+    ``started`` event's count, ``kills_at_start``): asked of the node itself (:func:`_node_oom_kills`). Only for a
+    crashed worker (``exc`` a WorkerCrashedError: its node is still there to ask). False when it cannot tell: no
+    count at the start, or no answer within ``OOM_PROBE_S``."""
+    if not isinstance(exc, ray.exceptions.WorkerCrashedError) or node_id is None or kills_at_start is None:
         return False
+    try:  # off the event loop: submitting a task waits for the cluster's head when it is away
+        now = await asyncio.wait_for(asyncio.to_thread(_node_oom_kills, node_id), OOM_PROBE_S)
+    except Exception:  # noqa: BLE001 - the node died with its worker, or does not answer: not known to be memory
+        return False
+    return now is not None and now > kills_at_start
+
+
+def _node_oom_kills(node_id: str) -> int | None:
+    """:func:`workers.ray_tasks.node_oom_kills` run on ``node_id`` (pinned to it); blocking, at most ``OOM_PROBE_S``."""
     from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
     from workers.ray_tasks import node_oom_kills
 
-    ref = None
+    ref = node_oom_kills.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node_id, soft=False)).remote()
     try:
-        ref = node_oom_kills.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node_id, soft=False)).remote()
-        now = await asyncio.wait_for(ref, OOM_PROBE_S)
-    except Exception:  # noqa: BLE001 - the node died with its worker, or does not answer: not known to be memory
-        if ref is not None:
-            with contextlib.suppress(Exception):
-                ray.cancel(ref, force=True)
-        return False
-    return now is not None and now > kills_at_start
+        return ray.get(ref, timeout=OOM_PROBE_S)
+    except Exception:
+        with contextlib.suppress(Exception):
+            ray.cancel(ref, force=True)
+        raise
 
 
 class _Unschedulable(Exception):
@@ -364,7 +371,7 @@ class Dispatcher:
             if job.id in self._cancelled:
                 return True
             memory = (isinstance(exc, ray.exceptions.OutOfMemoryError)
-                      or await _killed_for_memory(worker.get("node_id"), oom_kills_at_start))
+                      or await _killed_for_memory(exc, worker.get("node_id"), oom_kills_at_start))
             if memory:  # worth another try: the node may have been busy
                 self._out_of_memory[job.id] = self._out_of_memory.get(job.id, 0) + 1
             log.warning("job %s attempt %d lost its worker: %s%s", job.id, job.attempts, type(exc).__name__,

@@ -101,7 +101,7 @@ class NodeProbe:
         return self
 
     def remote(self):
-        return _value(next(self.counts))
+        return ray.put(next(self.counts))
 
 
 class KernelKills:
