@@ -21,6 +21,14 @@ def test_cgroup_v1_memory_oom_control_of_the_processs_own_group(tmp_path):
     assert oom_kills(proc, root) == 3
 
 
+def test_a_container_on_cgroup_v1_lists_its_host_path_and_has_its_group_at_the_root(tmp_path):
+    """podman on cgroup v1 (no cgroup namespace): /proc/self/cgroup names /libpod_parent/libpod-<id>, while the
+    container's /sys/fs/cgroup/memory is that group itself (the compose chaos run's workers: a count of 3)."""
+    (tmp_path / "memory").mkdir()
+    (tmp_path / "memory" / "memory.oom_control").write_text("oom_kill_disable 0\nunder_oom 0\noom_kill 3\n")
+    assert oom_kills(_cgroup(tmp_path, "4:memory:/libpod_parent/libpod-2eb1117d\n"), tmp_path) == 3
+
+
 def test_cgroup_v2_memory_events(tmp_path):
     root = tmp_path / "sys"
     (root / "system.slice" / "x.scope").mkdir(parents=True)
