@@ -6,7 +6,6 @@ import ipaddress
 import json
 import logging
 import os
-import shutil
 import socket
 import sys
 import time
@@ -88,12 +87,13 @@ def _managed_keys(settings: object) -> bool:
 
 def cmd_worker(args: argparse.Namespace) -> int:
     """Join this machine to a Ray cluster as a worker node (runs ``ray start --block``)."""
-    ray_bin = shutil.which("ray", path=os.path.dirname(sys.executable)) or shutil.which("ray")
+    from app.netwait import split_address, wait_for_port
+    from app.raycluster import HEAD_WAIT_S, ray_executable
+
+    ray_bin = ray_executable()
     if ray_bin is None:
         print("the 'ray' command is not installed in this environment", file=sys.stderr)
         return 2
-    from app.netwait import split_address, wait_for_port
-    from app.raycluster import HEAD_WAIT_S
 
     try:
         split_address(args.address)
@@ -139,8 +139,8 @@ def cmd_warmup(args: argparse.Namespace) -> int:
 
 
 def cmd_wait_for(args: argparse.Namespace) -> int:
-    """Wait until each ``host:port`` accepts a TCP connection (``sweepcast wait-for``; the image's Ray head waits for
-    its Redis): 0 when all did within the timeout, else 1."""
+    """Wait until each ``host:port`` accepts a TCP connection (``--redis``: and answers PING, its data loaded;
+    ``sweepcast wait-for``: the image's Ray head waits for its Redis): 0 when all did within the timeout, else 1."""
     from app.netwait import split_address, wait_for_port
 
     _log_to_stderr("info")
@@ -151,7 +151,7 @@ def cmd_wait_for(args: argparse.Namespace) -> int:
         print(f"sweepcast wait-for: {exc}", file=sys.stderr)
         return 2
     deadline = time.monotonic() + args.timeout
-    return 0 if all(wait_for_port(a, max(deadline - time.monotonic(), 0.0), a) is not None
+    return 0 if all(wait_for_port(a, max(deadline - time.monotonic(), 0.0), a, redis=args.redis) is not None
                     for a in args.addresses) else 1
 
 
@@ -245,6 +245,7 @@ def build_parser(engines: bool = True) -> argparse.ArgumentParser:
     p = sub.add_parser("wait-for", help="wait until each HOST:PORT accepts TCP connections (exit 1 after --timeout)")
     p.add_argument("addresses", nargs="+", metavar="HOST:PORT")
     p.add_argument("--timeout", type=float, default=120.0, help="seconds in all (default 120)")
+    p.add_argument("--redis", action="store_true", help="each is a Redis: wait until it has loaded its data too")
     p.set_defaults(func=cmd_wait_for)
 
     p = sub.add_parser("openapi", help="write (or --check) the committed OpenAPI document")

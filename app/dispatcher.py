@@ -326,7 +326,7 @@ class Dispatcher:
             options["resources"] = dict(self.settings.job_resources)
         if self._out_of_memory.get(job.id):  # its node ran out of memory: alone, it has the node's memory to itself
             options = await asyncio.to_thread(_whole_node, options)
-            log.warning("job %s: Ray stopped its last attempt as the node ran out of memory; this attempt runs alone "
+            log.warning("job %s: its last attempt ran out of memory (its node's); this attempt runs alone "
                         "on a node (%s)", job.id, _describe(options))
         from workers.ray_tasks import run_job_task
 

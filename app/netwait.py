@@ -5,7 +5,9 @@
 a worker or API node that came up a second before its head then joined 40-60 s late, and the first job waited for
 it (docker/verify-stack.sh, 2026-11-29: the first photo batch waited 49 s to start; in 5 bare `up`s the nodes joined
 after 12, 21, 43-62, 12 s and, with the head's GCS failing once on a Redis that was still starting, not in 75 s).
-A TCP connect every half second ends the wait within half a second of the port opening.
+A TCP connect every half second ends the wait within half a second of the port opening. A Redis is waited for
+until it has loaded its data: the compose stack's head, started as soon as Redis took connections, crashed its GCS
+on a Redis still replaying its append-only file after `down`/`up`, and was back only 85 s later.
 """
 from __future__ import annotations
 
@@ -24,16 +26,20 @@ def split_address(address: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
-def wait_for_port(address: str, timeout_s: float, what: str) -> float | None:
+def wait_for_port(address: str, timeout_s: float, what: str, redis: bool = False) -> float | None:
     """Until a TCP connection to ``address`` (``host:port``) succeeds, trying every half second (a name that does
-    not resolve yet counts as not answering); the seconds waited, or None after ``timeout_s``. Logs once when it has
-    to wait, and again when the port answers."""
+    not resolve yet counts as not answering); with ``redis``, until the server also answers a PING other than with
+    ``-LOADING`` (a Redis replaying its append-only file accepts connections and refuses every command: the Ray
+    head's GCS then fails). The seconds waited, or None after ``timeout_s``. Logs once when it has to wait, and
+    again when the server answers."""
     host, port = split_address(address)
     started = time.monotonic()
     said = False
     while True:
         try:
-            with socket.create_connection((host, port), timeout=2.0):
+            with socket.create_connection((host, port), timeout=2.0) as conn:
+                if redis and _redis_loading(conn):
+                    raise ConnectionRefusedError("Redis is loading its data")
                 waited = time.monotonic() - started
                 if said:
                     log.info("%s at %s answers after %.1f s", what, address, waited)
@@ -46,3 +52,10 @@ def wait_for_port(address: str, timeout_s: float, what: str) -> float | None:
             log.warning("%s at %s did not answer in %.0f s", what, address, timeout_s)
             return None
         time.sleep(0.5)
+
+
+def _redis_loading(conn: socket.socket) -> bool:
+    """Whether the Redis server on ``conn`` answers PING with ``-LOADING`` (or not at all)."""
+    conn.sendall(b"PING\r\n")
+    reply = conn.recv(64)
+    return not reply or reply.startswith(b"-LOADING")

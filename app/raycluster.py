@@ -64,6 +64,11 @@ def start_connecting(settings: Settings) -> None:
     _early = (settings, _connector.submit(_connect_as, settings, join))
 
 
+def ray_executable() -> str | None:
+    """The ``ray`` command of this environment (beside this Python), else the first on PATH."""
+    return shutil.which("ray", path=os.path.dirname(sys.executable)) or shutil.which("ray")
+
+
 HEAD_WAIT_S = 300.0
 """How long a node waits for its head's port before ``ray start`` tries anyway (and says what is wrong)."""
 
@@ -72,7 +77,7 @@ def join_as_node(address: str) -> int:
     """``ray start --address ADDRESS --num-cpus=0``: this machine joins the cluster as a node that runs no tasks (the
     local raylet a driver connects through), once the head's port answers (:mod:`app.netwait`). Its exit code."""
     wait_for_port(address, HEAD_WAIT_S, "the Ray head")
-    ray_bin = shutil.which("ray", path=os.path.dirname(sys.executable)) or shutil.which("ray") or "ray"
+    ray_bin = ray_executable() or "ray"
     log.info("joining the Ray cluster at %s as a node without CPUs", address)
     return subprocess.run([ray_bin, "start", f"--address={address}", "--num-cpus=0", "--disable-usage-stats"],
                           stdin=subprocess.DEVNULL).returncode

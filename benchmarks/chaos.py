@@ -502,7 +502,8 @@ def out_of_memory(app: SupervisedApp) -> dict[str, Any]:
         after = c.post("/v1/photos/batches", files=photo_files(8)).json()["id"]
     ordinary = job_outcomes(app.base, [before, after], 900, app.headers)
     print(f"out_of_memory: oversized {big_out}, ordinary {ordinary}", flush=True)
-    return {"fault": "out_of_memory", "oversized": big_out, "ordinary": ordinary, "api_restarts": app.restarts}
+    return {"fault": "out_of_memory", "oversized": big_out, "ordinary": ordinary, "api_restarts": app.restarts,
+            "oversized_id": big.json()["id"]}
 
 
 VOLUME_MB, VOLUME_MIN_FREE_MB = 64, 16
@@ -709,10 +710,12 @@ def fault_table(faults: list[dict[str, Any]]) -> str:
             o, s = f["oversized"], f["ordinary"]
             limits = ", ".join(f"{mb} MB" for mb in f["limits_mb"].values())
             rows.append([f.get("measured", ""), f"out_of_memory (worker containers limited to {limits}: their use + "
-                         "1 GB)", "-", f"oversized job: {o['states']}, attempts {o['attempts']} "
+                         f"{f.get('headroom_mb', 1000):.0f} MB)", "-", f"oversized job: {o['states']}, attempts {o['attempts']} "
                          f"({'; '.join(o['errors'])[:300]})", f"ordinary batches: {s['states']}",
                          f"workers OOM-killed: {sum(f['oom_killed'].values())}, restarted "
-                         f"{sum(f['worker_restarts'].values())} times", "-", "-", f["api_restarts"]])
+                         f"{sum(f['worker_restarts'].values())} times; the dispatcher: "
+                         + "; ".join(f.get("dispatcher_log", [])), "-", "-",
+                         f["api_restarts"]])
             continue
         if f["fault"] in OOM_HEADROOM_GB:
             o, s = f["oversized"], f["ordinary"]

@@ -87,11 +87,11 @@ def memory_mb(container: str) -> float:
     return number * {"b": 1e-6, "kb": 1e-3, "kib": 1.024e-3, "mb": 1.0, "mib": 1.048576, "gb": 1e3, "gib": 1073.741824}[unit]
 
 
-def container_out_of_memory(app: ComposeApp) -> dict[str, Any]:
-    """chaos.py's oversized job and ordinary batches on worker containers limited to their use + OOM_HEADROOM_MB;
+def container_out_of_memory(app: ComposeApp, headroom_mb: float = OOM_HEADROOM_MB) -> dict[str, Any]:
+    """chaos.py's oversized job and ordinary batches on worker containers limited to their use + ``headroom_mb``;
     with each worker's limit, whether the kernel OOM-killed its main process, and its restarts."""
     workers = app.stack.containers("ray-worker")
-    limits = {c: int(memory_mb(c) + OOM_HEADROOM_MB) for c in workers}
+    limits = {c: int(memory_mb(c) + headroom_mb) for c in workers}
     before = {c: inspect(c)["RestartCount"] for c in workers}
     for c, limit in limits.items():
         podman("update", "--memory", f"{limit}m", "--memory-swap", f"{limit}m", c)
@@ -105,7 +105,12 @@ def container_out_of_memory(app: ComposeApp) -> dict[str, Any]:
             except SystemExit as exc:  # what was measured is still worth publishing
                 print(f"warning: {c} keeps its memory limit: {exc}", file=sys.stderr)
     states = {c: inspect(c)["State"] for c in workers}
-    return {**record, "fault": "out_of_memory_container", "limits_mb": limits,
+    logs = "\n".join(done.stdout + done.stderr for service in ("api", "api-2") for c in app.stack.containers(service)
+                     if (done := subprocess.run(["podman", "logs", c], capture_output=True, text=True)))
+    job = record["oversized_id"]  # what the dispatcher said of its attempts (lost for memory or not, retried alone)
+    record["dispatcher_log"] = [line.split(f"job {job}", 1)[-1].strip(" :") for line in logs.splitlines()
+                                if job in line and ("lost its worker" in line or "alone" in line)]
+    return {**record, "fault": "out_of_memory_container", "limits_mb": limits, "headroom_mb": headroom_mb,
             "oom_killed": {c: bool(st.get("OOMKilled")) for c, st in states.items()},
             "worker_restarts": {c: inspect(c)["RestartCount"] - before[c] for c in workers}}
 
@@ -122,6 +127,8 @@ def main() -> int:
     ap.add_argument("--port", type=int, default=8000)
     ap.add_argument("--faults", default=",".join(FAULTS), help=f"comma-separated, of {', '.join(FAULTS)}")
     ap.add_argument("--outage", type=float, default=30.0, help="seconds each fault lasts (storage_hang: twice)")
+    ap.add_argument("--oom-headroom-mb", type=float, default=OOM_HEADROOM_MB,
+                    help=f"out_of_memory: each worker container's limit over its use (default {OOM_HEADROOM_MB})")
     args = ap.parse_args()
     faults = [f for f in args.faults.split(",") if f]
     unknown = set(faults) - set(FAULTS)
@@ -141,7 +148,7 @@ def main() -> int:
         if fault == "slow_clients":
             record = slow_clients(app, finished, args.outage)
         elif fault == "out_of_memory":
-            record = container_out_of_memory(app)
+            record = container_out_of_memory(app, args.oom_headroom_mb)
         else:
             record = run_fault(app, finished, fault, *ways[fault])
         results["faults"].append({**record, "measured": started})

@@ -25,9 +25,9 @@ case "$role" in
     exec sweepcast serve
     ;;
   ray-head)
-    # its state in Redis (RAY_REDIS_ADDRESS): a GCS started before Redis answers fails and the container restarts
+    # its state in Redis (RAY_REDIS_ADDRESS): a GCS started before Redis answers, or while it loads its data, fails
     if [ -n "${RAY_REDIS_ADDRESS:-}" ]; then
-      sweepcast wait-for "$RAY_REDIS_ADDRESS" --timeout 120 || true
+      sweepcast wait-for --redis "$RAY_REDIS_ADDRESS" --timeout 120 || true
     fi
     exec ray start --head --block --port=6379 --num-cpus="${RAY_HEAD_CPUS:-0}" \
       --include-dashboard=false --disable-usage-stats

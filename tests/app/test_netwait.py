@@ -56,3 +56,26 @@ def test_wait_for_says_which_address_is_wrong_and_fails_on_a_closed_port():
         server.bind(("127.0.0.1", 0))
         server.listen()
         assert run(f"127.0.0.1:{server.getsockname()[1]}").returncode == 0
+
+
+def test_a_redis_is_waited_for_until_it_has_loaded_its_data():
+    """A fake Redis that answers PING with -LOADING twice, then +PONG: the wait ends on the third connection."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen()
+    replies = [b"-LOADING Redis is loading the dataset in memory\r\n"] * 2 + [b"+PONG\r\n"]
+    served: list[bytes] = []
+
+    def serve() -> None:
+        for reply in replies:
+            conn, _ = server.accept()
+            with conn:
+                served.append(conn.recv(64))
+                conn.sendall(reply)
+
+    threading.Thread(target=serve, daemon=True).start()
+    try:
+        waited = wait_for_port(f"127.0.0.1:{server.getsockname()[1]}", 30, "the test Redis", redis=True)
+    finally:
+        server.close()
+    assert waited is not None and waited >= 0.9 and served == [b"PING\r\n"] * 3
