@@ -137,28 +137,32 @@ def _wait_ready(client, timeout: float = 60.0) -> None:
     raise AssertionError(f"app not ready: {client.get('/readyz').json()}")
 
 
-@pytest.fixture(scope="session")
-def postgres_server():
-    """A throw-away PostgreSQL cluster on loopback for this test run; skipped where no binaries exist."""
-    from tests.servers import Unavailable, temp_postgres
+def _postgres_or_skip(start):
+    """What ``start()`` (a context manager of tests.servers) yields, for a fixture; the test skipped where no
+    PostgreSQL binaries exist."""
+    from tests.servers import Unavailable
 
     try:
-        with temp_postgres() as url:
-            yield url
+        with start() as server:
+            yield server
     except Unavailable as exc:
         pytest.skip(str(exc))
+
+
+@pytest.fixture(scope="session")
+def postgres_server():
+    """A throw-away PostgreSQL cluster on loopback for this test run (its URL)."""
+    from tests.servers import temp_postgres
+
+    yield from _postgres_or_skip(temp_postgres)
 
 
 @pytest.fixture
 def stoppable_postgres():
     """A PostgreSQL server of this test's own, which it may stop and start (the session's is shared: never stopped)."""
-    from tests.servers import Unavailable, postgres_server as own_postgres_server
+    from tests.servers import postgres_server as own_postgres_server
 
-    try:
-        with own_postgres_server() as server:
-            yield server
-    except Unavailable as exc:
-        pytest.skip(str(exc))
+    yield from _postgres_or_skip(own_postgres_server)
 
 
 @pytest.fixture
