@@ -10,7 +10,7 @@ from pydantic import Field, field_validator
 from pydantic_settings import NoDecode, SettingsConfigDict
 
 from workers.common.models import models_dir
-from workers.portable_cache import SHIPPED
+from workers.portable_cache import SHIPPED_KERNELS, STAMP_NAME
 from workers.common.safezip import ZipLimits
 from workers.settings import WorkerSettings
 
@@ -168,11 +168,10 @@ class Settings(WorkerSettings):
     @property
     def resolved_prebuilt_kernels(self) -> Path | None:
         """The kernels compiled ahead to use: the setting, else those the installed wheel carries
-        (:data:`workers.portable_cache.SHIPPED` ``/kernels``, stamped by its build), else None."""
+        (:data:`workers.portable_cache.SHIPPED_KERNELS`, stamped by its build), else None."""
         if self.prebuilt_kernels is not None:
             return self.prebuilt_kernels
-        shipped = SHIPPED / "kernels"
-        return shipped if (shipped / "warmed.json").is_file() else None
+        return SHIPPED_KERNELS if (SHIPPED_KERNELS / STAMP_NAME).is_file() else None
 
     @property
     def resolved_demo_cache_dir(self) -> Path:

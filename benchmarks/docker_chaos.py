@@ -14,8 +14,7 @@ stack's API key:
 - storage_unreachable: the S3 stand-in's container taken off the stack's network (``podman network disconnect``:
   its name no longer resolves), connected again under its name after the outage;
 - ray_head: the Ray head container stopped at once, started again after the outage (its state is in Redis);
-- slow_clients: 20 uploads at 10 KB/s and 20 connections that never finish their headers, for the outage.
-
+- slow_clients: 20 uploads at 10 KB/s and 20 connections that never finish their headers, for the outage;
 - out_of_memory: both Ray worker containers given a memory limit of what they use plus ``OOM_HEADROOM_MB``
   (``podman update --memory``: the retry cannot land on an unlimited one), then chaos.py's oversized job (a 49 MP
   depth map upsampled with the weighted median filter, ~1.6 GB) beside ordinary batches; the limits lifted after.

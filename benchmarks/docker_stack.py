@@ -201,6 +201,15 @@ def keep_node_logs(stack: Stack) -> Path:
     return folder
 
 
+def timed_reconstruction(stack: Stack, flight: tuple[Path, dict]) -> tuple[dict, float]:
+    """:func:`timed_job` of a reconstruction of ``flight`` (coldstart's generated video and its intrinsics) on
+    replica 1."""
+    video, intrinsics = flight
+    return timed_job(stack, 0, lambda h: h.post(
+        "/v1/reconstructions", files={"media": ("flight.mp4", video.read_bytes(), "video/mp4")},
+        data={"params": json.dumps({**intrinsics, "max_features": 1000})}))
+
+
 def jobs(stack: Stack, tmp: Path) -> dict:
     """A photo batch (replica 1), a depth video (replica 2), a reconstruction (replica 1); results checked."""
     out: dict[str, Any] = {}
@@ -222,19 +231,15 @@ def jobs(stack: Stack, tmp: Path) -> dict:
     assert len(filtered) == 24 * 256 * 256, len(filtered)
     out["depth_video"] = {"id": job["id"], "seconds": s, "frames": 24}
 
-    video, intrinsics = make_flight(tmp)
-    job, s = timed_job(stack, 0, lambda h: h.post(
-        "/v1/reconstructions", files={"media": ("flight.mp4", video.read_bytes(), "video/mp4")},
-        data={"params": json.dumps({**intrinsics, "max_features": 1000})}))
+    flight = make_flight(tmp)
+    job, s = timed_reconstruction(stack, flight)
     with stack.client(0) as http:
         report = http.get(f"/v1/jobs/{job['id']}/results/report.json").json()
         ply = http.get(f"/v1/jobs/{job['id']}/results/points.ply").content
     assert report["frames"]["registered"] >= 20 and ply.startswith(b"ply"), report
     out["reconstruction"] = {"id": job["id"], "seconds": s, "registered": report["frames"]["registered"],
                              "points": report["points"]}
-    job, s = timed_job(stack, 0, lambda h: h.post(  # the same again: the warm time the first is compared with
-        "/v1/reconstructions", files={"media": ("flight.mp4", video.read_bytes(), "video/mp4")},
-        data={"params": json.dumps({**intrinsics, "max_features": 1000})}))
+    job, s = timed_reconstruction(stack, flight)  # the same again: the warm time the first is compared with
     out["second_reconstruction"] = {"id": job["id"], "seconds": s}
     return out
 
@@ -304,11 +309,9 @@ def standalone(image: str, port: int, key: str, tmp: Path) -> dict:
             t = time.monotonic()
             http.post("/v1/photos/orientation", files={"file": batch_files(1)[0][1]}).raise_for_status()
             out["first_photo_s"] = time.monotonic() - t
-        video, intrinsics = make_flight(tmp)
+        flight = make_flight(tmp)
         for name in ("first_reconstruction_s", "second_reconstruction_s"):
-            _, out[name] = timed_job(one, 0, lambda h: h.post(
-                "/v1/reconstructions", files={"media": ("flight.mp4", video.read_bytes(), "video/mp4")},
-                data={"params": json.dumps({**intrinsics, "max_features": 1000})}))
+            _, out[name] = timed_reconstruction(one, flight)
         return out
     finally:
         subprocess.run(["podman", "rm", "-f", "-t", "5", STANDALONE], capture_output=True)

@@ -28,6 +28,12 @@ PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = PACKAGE_ROOT / "workers" / "_prebuilt"
 """What a wheel built by ``make wheel`` (``packaging/build-wheel.sh``) carries: ``kernels/`` (every engine's, compiled
 for a portable target) and ``demo/`` (the demo rig's recording). A source checkout has none of it."""
+SHIPPED_KERNELS = SHIPPED / "kernels"
+SHIPPED_DEMO = SHIPPED / "demo"
+
+STAMP_NAME = "warmed.json"
+"""Written into the cache by a warm-up of every engine that succeeded (:mod:`workers.warmup`): the fingerprint it
+warmed and the CPU target it compiled for (``cpu_name``, ``cpu_features``)."""
 
 _X86_64_V2 = ("cmov", "cx8", "fxsr", "mmx", "sse", "sse2", "cx16", "sahf", "popcnt", "sse3", "sse4.1", "sse4.2",
               "ssse3")

@@ -32,7 +32,7 @@ from typing import Callable
 
 import numpy as np
 
-from workers.portable_cache import TARGETS, configured_target, host_supports, target_env
+from workers.portable_cache import STAMP_NAME, TARGETS, configured_target, host_supports, target_env
 
 
 def _sweep() -> None:
@@ -187,9 +187,6 @@ def shares(engines: list[str], jobs: int) -> list[list[str]]:
     return [sorted(g, key=order.index) for g in groups if g]
 
 
-STAMP_NAME = "warmed.json"
-"""Written into the cache by a warm-up of every engine that succeeded: the :func:`fingerprint` it warmed and the
-CPU target it compiled for (``cpu_name``, ``cpu_features``)."""
 _WORKERS = Path(__file__).resolve().parent
 
 

@@ -178,7 +178,7 @@ def test_the_kernels_a_wheel_carries_are_the_default_ones_compiled_ahead(tmp_pat
 
     monkeypatch.delenv("SWEEPCAST_PREBUILT_KERNELS", raising=False)
     shipped = tmp_path / "_prebuilt"
-    monkeypatch.setattr(settings_module, "SHIPPED", shipped)
+    monkeypatch.setattr(settings_module, "SHIPPED_KERNELS", shipped / "kernels")
     assert Settings(data_dir=tmp_path).resolved_prebuilt_kernels is None  # a checkout carries none
     (shipped / "kernels").mkdir(parents=True)
     assert Settings(data_dir=tmp_path).resolved_prebuilt_kernels is None  # nor does a build that stamped nothing

@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from workers.portable_cache import SHIPPED
+from workers.portable_cache import SHIPPED_DEMO
 from workers.synth import Scene, Sphere, default_arc_rig, render_moved, render_views, studio_scene
 from workers.sweep.rig import Rig
 from workers.sweep.rig_io import rig_to_dict
@@ -39,8 +39,6 @@ _WORKERS = Path(__file__).resolve().parents[1]
 RENDERER_SOURCES = (*sorted((_WORKERS / "synth").glob("*.py")), Path(__file__).resolve(),
                     _WORKERS / "streaming" / "recording.py", _WORKERS / "common" / "images.py")
 """The files whose code decides the recording's pixels and archive: a change to any of them renders it anew."""
-SHIPPED_DEMO = SHIPPED / "demo"
-"""The recording a wheel carries (``packaging/build-wheel.sh``), looked up after the cache folder."""
 
 
 def demo_rig(cameras: int = DEMO_CAMERAS, size: tuple[int, int] = DEMO_SIZE) -> Rig:
