@@ -87,7 +87,7 @@ def _managed_keys(settings: object) -> bool:
 
 def cmd_worker(args: argparse.Namespace) -> int:
     """Join this machine to a Ray cluster as a worker node (runs ``ray start --block``)."""
-    from app.netwait import split_address, wait_for_port
+    from app.netwait import split_address, wait_for_gcs
     from app.raycluster import HEAD_WAIT_S, ray_executable
 
     ray_bin = ray_executable()
@@ -120,7 +120,7 @@ def cmd_worker(args: argparse.Namespace) -> int:
     log_prebuilt()
     if Settings().warm_kernels:  # this node's kernels, compiled while it joins (the process outlives the exec)
         KernelWarmup.start(Path(os.environ["NUMBA_CACHE_DIR"]), report=False)
-    wait_for_port(args.address, HEAD_WAIT_S, "the Ray head")  # ray start would wait ~40 s between its own tries
+    wait_for_gcs(args.address, HEAD_WAIT_S, ray_bin)  # ray start would wait ~40 s between its own tries
     os.execv(ray_bin, argv)
 
 

@@ -11,7 +11,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from app.netwait import wait_for_port
+from app.netwait import wait_for_gcs
 from app.settings import Settings
 from workers.common.models import models_dir
 from workers.settings import WorkerSettings
@@ -75,9 +75,9 @@ HEAD_WAIT_S = 300.0
 
 def join_as_node(address: str) -> int:
     """``ray start --address ADDRESS --num-cpus=0``: this machine joins the cluster as a node that runs no tasks (the
-    local raylet a driver connects through), once the head's port answers (:mod:`app.netwait`). Its exit code."""
-    wait_for_port(address, HEAD_WAIT_S, "the Ray head")
+    local raylet a driver connects through), once the head's GCS answers (:mod:`app.netwait`). Its exit code."""
     ray_bin = ray_executable() or "ray"
+    wait_for_gcs(address, HEAD_WAIT_S, ray_bin)
     log.info("joining the Ray cluster at %s as a node without CPUs", address)
     return subprocess.run([ray_bin, "start", f"--address={address}", "--num-cpus=0", "--disable-usage-stats"],
                           stdin=subprocess.DEVNULL).returncode

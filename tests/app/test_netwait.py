@@ -7,7 +7,8 @@ import time
 
 import pytest
 
-from app.netwait import split_address, wait_for_port
+from app import netwait
+from app.netwait import split_address, wait_for_gcs, wait_for_port
 from tests.servers import free_port
 
 
@@ -79,3 +80,31 @@ def test_a_redis_is_waited_for_until_it_has_loaded_its_data():
     finally:
         server.close()
     assert waited is not None and waited >= 0.9 and served == [b"PING\r\n"] * 3
+
+
+def test_a_ray_head_is_waited_for_until_its_gcs_answers_not_only_its_port(tmp_path, monkeypatch, caplog):
+    """The head's port is open from the start; a stand-in ``ray`` whose health-check hangs once (cut at the check's
+    timeout), fails once and then answers: the wait ends on the third check, and says why it waited."""
+    calls = tmp_path / "calls"
+    fake_ray = tmp_path / "ray"
+    fake_ray.write_text(f"""#!/bin/sh
+echo "$*" >> {calls}
+n=$(wc -l < {calls})
+[ "$n" -eq 1 ] && exec sleep 30
+[ "$n" -eq 2 ] && exit 1
+exit 0
+""")
+    fake_ray.chmod(0o755)
+    monkeypatch.setattr(netwait, "GCS_CHECK_S", 1.0)
+    with socket.socket() as head:
+        head.bind(("127.0.0.1", 0))
+        head.listen()
+        address = f"127.0.0.1:{head.getsockname()[1]}"
+        with caplog.at_level("INFO", logger="sweepcast.netwait"):
+            waited = wait_for_gcs(address, 30, str(fake_ray))
+        assert waited is not None and waited >= 1.9  # the hung check (1 s) and two half-second pauses
+        assert calls.read_text().splitlines() == [f"health-check --address {address} --skip-version-check"] * 3
+        assert "no answer in 1 s" in caplog.text and "answers after" in caplog.text
+        assert wait_for_gcs(address, 1.5, "false") is None  # a GCS that never answers: given up at the timeout
+    assert wait_for_gcs(f"127.0.0.1:{free_port()}", 0.5, str(fake_ray)) is None  # no port, no check
+    assert len(calls.read_text().splitlines()) == 3
