@@ -120,7 +120,9 @@ def up_timeline(stack: Stack, name: str) -> dict[str, Any]:
     return {f"{name}_to_ready_s": total,
             f"{name}_timeline": {"up_returned_s": round(returned, 2),
                                  "ready_s": {k: round(v, 2) for k, v in ready_at.items()},
-                                 "containers": started}}
+                                 "containers": started,
+                                 **({"diagnostics": str(keep_node_logs(stack, name))}
+                                    if total > SLOW_UP_S or any(c["restarts"] for c in started.values()) else {})}}
 
 
 def inspect(container: str) -> dict[str, Any]:
@@ -182,10 +184,15 @@ SLOW_START_S = 20.0
 """A first job that waits longer than this to start has the stack's Ray and container logs kept (keep_node_logs)."""
 
 
-def keep_node_logs(stack: Stack) -> Path:
+SLOW_UP_S = 60.0
+"""An ``up -d`` slower than this to ready, or one in which a container restarted, has the logs kept too."""
+
+
+def keep_node_logs(stack: Stack, why: str) -> Path:
     """Each Ray container's own log and its Ray session's logs (raylet, GCS, the runtime env agent; last 400 lines
-    each), into a folder under /var/tmp/sweepcast-image/diagnostics (outside the repository); its path."""
-    folder = Path("/var/tmp/sweepcast-image/diagnostics") / time.strftime("first-job-%Y%m%dT%H%M%S")
+    each), into a folder ``{why}-{time}`` under /var/tmp/sweepcast-image/diagnostics (outside the repository); its
+    path."""
+    folder = Path("/var/tmp/sweepcast-image/diagnostics") / time.strftime(f"{why}-%Y%m%dT%H%M%S")
     folder.mkdir(parents=True, exist_ok=True)
     for service in ("ray-head", "ray-worker", "api", "api-2"):
         for name in stack.containers(service):
@@ -197,7 +204,7 @@ def keep_node_logs(stack: Stack) -> Path:
                                        "[ -f \"$f\" ] && echo \"=== $f\" && tail -n 400 \"$f\"; done"],
                                       capture_output=True, text=True)
             (folder / f"{name}.ray.log").write_text(ray_logs.stdout + ray_logs.stderr)
-    print(f"the first job waited over {SLOW_START_S:.0f} s to start: the stack's logs are in {folder}", flush=True)
+    print(f"{why}: the stack's logs are in {folder}", flush=True)
     return folder
 
 
@@ -220,7 +227,7 @@ def jobs(stack: Stack, tmp: Path) -> dict:
     wait = (dt.datetime.fromisoformat(job["started_at"]) - dt.datetime.fromisoformat(job["created_at"])).total_seconds()
     out["photo_batch"] = {"id": job["id"], "seconds": s, "photos": 12, "start_wait_s": wait}
     if wait > SLOW_START_S:  # seen twice at ~49 s (2026-11-29), not understood: keep what the nodes said
-        out["photo_batch"]["diagnostics"] = str(keep_node_logs(stack))
+        out["photo_batch"]["diagnostics"] = str(keep_node_logs(stack, "first-job"))
 
     params = {"width": 128, "height": 128, "method": "modified_morph", "scale": 2}
     job, s = timed_job(stack, 1, lambda h: h.post(
@@ -511,7 +518,8 @@ def timeline_lines(r: dict) -> list[str]:
                            for c, v in sorted(tl["containers"].items(), key=lambda kv: kv[1]["started_s"]))
         ready = "; ".join(f"{k} {v:.1f}" for k, v in tl["ready_s"].items())
         lines.append(f"Timeline of {what}, seconds from the command: it returned at {tl['up_returned_s']:.1f}; "
-                     f"ready: {ready}; each container last started at: {starts}.")
+                     f"ready: {ready}; each container last started at: {starts}."
+                     + (f" The nodes' logs were kept ({tl['diagnostics']})." if tl.get("diagnostics") else ""))
     return lines
 
 

@@ -229,9 +229,13 @@ def _bal_kernel(params, X, ci, pj, obs, want_jac, r, Jc, Jp):
 @njit(parallel=True, cache=True, fastmath=True)
 def _radial_kernel(params, shared, centre, X, ci, pj, obs, want_jac, r, Jc, Jp, Jg):
     """Shared-intrinsics radial camera: residuals (N, 2); with ``want_jac`` Jc (N, 2, 6), Jp (N, 2, 3)
-    and Jg (N, 2, 3) (derivatives by f, k1, k2)."""
+    and Jg (N, 2, g) (derivatives by f, k1, k2 and, when ``shared`` (g,) has five, the principal point cx, cy
+    that then replaces ``centre``)."""
     Rs = _rotation_matrices(params)
     f, k1, k2 = shared[0], shared[1], shared[2]
+    own_centre = shared.shape[0] == 5
+    cx = shared[3] if own_centre else centre[0]
+    cy = shared[4] if own_centre else centre[1]
     for o in prange(ci.shape[0]):
         c = ci[o]
         p = pj[o]
@@ -243,10 +247,15 @@ def _radial_kernel(params, shared, centre, X, ci, pj, obs, want_jac, r, Jc, Jp, 
         py = P1 * iz
         r2 = px * px + py * py
         d = 1.0 + r2 * (k1 + k2 * r2)
-        r[o, 0] = f * d * px + centre[0] - obs[o, 0]
-        r[o, 1] = f * d * py + centre[1] - obs[o, 1]
+        r[o, 0] = f * d * px + cx - obs[o, 0]
+        r[o, 1] = f * d * py + cy - obs[o, 1]
         if not want_jac:
             continue
+        if own_centre:
+            Jg[o, 0, 3] = 1.0
+            Jg[o, 0, 4] = 0.0
+            Jg[o, 1, 3] = 0.0
+            Jg[o, 1, 4] = 1.0
         # d(pixel)/d(x, y) = f (d I + 2 (k1 + 2 k2 r2) x x^T); d(x, y)/dP = [[iz, 0, -x iz], [0, iz, -y iz]]
         g = 2.0 * f * (k1 + 2.0 * k2 * r2)
         m00 = f * d + g * px * px
@@ -360,23 +369,26 @@ class BALModel(CameraModel):
 class RadialModel(CameraModel):
     """Self-calibration: per camera ``[rvec(3), t(3)]`` (world-to-camera, OpenCV axes); shared by all
     cameras ``f, k1, k2`` (focal length in pixels, radial distortion of the normalised image point,
-    OpenCV's k1, k2); the principal point ``centre`` (2,) pixels stays fixed.
+    OpenCV's k1, k2) and, with ``refine_centre``, the principal point ``cx, cy`` (pixels; five shared
+    parameters); without it the principal point ``centre`` (2,) pixels stays fixed.
 
     The shared parameters are passed to :meth:`evaluate_shared` (the solver refines them);
     :meth:`evaluate` uses ``shared`` given here, for callers that only want residuals.
     """
 
     n_params = 6
-    n_shared = 3
 
-    def __init__(self, centre: tuple[float, float] | np.ndarray, shared: np.ndarray | None = None) -> None:
+    def __init__(self, centre: tuple[float, float] | np.ndarray, shared: np.ndarray | None = None,
+                 refine_centre: bool = False) -> None:
+        self.n_shared = 5 if refine_centre else 3
         self.centre = np.ascontiguousarray(centre, np.float64).reshape(2)
-        self.shared = None if shared is None else np.ascontiguousarray(shared, np.float64).reshape(3)
+        self.shared = None if shared is None else np.ascontiguousarray(shared, np.float64).reshape(self.n_shared)
 
     def evaluate_shared(self, params, shared, points, cam_idx, pt_idx, obs, want_jac):
         n = len(cam_idx)
+        g = self.n_shared
         r, Jc, Jp = _buffers(n, 6, want_jac)
-        Jg = np.empty((n, 2, 3)) if want_jac else np.empty((1, 2, 3))
+        Jg = np.empty((n, 2, g)) if want_jac else np.empty((1, 2, g))
         _radial_kernel(params, np.ascontiguousarray(shared, np.float64), self.centre, points, cam_idx, pt_idx, obs,
                        want_jac, r, Jc, Jp, Jg)
         return (r, Jc, Jp, Jg) if want_jac else (r, None, None, None)

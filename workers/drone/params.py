@@ -41,8 +41,8 @@ class ReconstructionParams(BaseModel):
         None, description="OpenCV distortion coefficients k1 k2 p1 p2 [k3 ...]; frames are undistorted first.")
 
     refine_intrinsics: bool | None = Field(
-        None, description="Self-calibration: refine the focal length and radial distortion (k1, k2), shared by every "
-                          "frame, in bundle adjustment. Default: when no intrinsics are given (they then start from "
+        None, description="Self-calibration: refine the focal length, radial distortion (k1, k2) and principal "
+                          "point, shared by every frame, in bundle adjustment. Default: when no intrinsics are given (they then start from "
                           "the photos' EXIF, the video's DJI telemetry or a 72 degree field of view; the focal length "
                           "moves only where the images determine it); given intrinsics are used as they are.")
 
