@@ -37,6 +37,11 @@ from .surface import Grid
 _DEPTH_TOLERANCE = 0.01  # a cell farther than the drawn surface by more than this share of its depth is hidden
 _EDGE_SHARE = 0.05       # the outer share of the image where a frame's score falls off to zero
 _BANDS = 5               # multi-band blending levels: seams about 2^5 cells wide for the coarsest band
+_BLEND_SCALE = 16
+"""Colours enter OpenCV's multi-band blender multiplied by this (its pyramids are int16 and round at every
+level): fed 0-255, a frame blended with itself came out 1.3 grey levels darker on average, up to 9 off, and the
+synthetic survey's orthophoto 2.7 levels darker than the truth (29.3 dB; the unblended mosaic 30.0 dB); fed x16,
+0.08 levels and at most 0.8 off. 255 x 16 and the Laplacian levels of it stay inside int16."""
 
 
 @dataclass
@@ -242,12 +247,29 @@ def _through_lens(mapu: np.ndarray, mapv: np.ndarray, K: np.ndarray, dist: np.nd
     if ok.any():
         xn = (mapu[ok] - K[0, 2]) / K[0, 0]
         yn = (mapv[ok] - K[1, 2]) / K[1, 1]
-        pts = np.column_stack([xn, yn, np.ones_like(xn)]).astype(np.float64)
-        raw, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), K, np.asarray(dist, np.float64))
-        raw = raw.reshape(-1, 2)
-        u[ok], v[ok] = raw[:, 0], raw[:, 1]
+        u[ok], v[ok] = distort_normalised(xn.astype(np.float64), yn.astype(np.float64), K, dist)
     inside = ok & (u >= 0) & (v >= 0) & (u <= w - 1) & (v <= h - 1)
     return u, v, inside.astype(np.uint8)
+
+
+def distort_normalised(xn: np.ndarray, yn: np.ndarray, K: np.ndarray, dist: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised undistorted image points xn, yn (N,) float64 -> the pixels (u, v) (N,) float64 where a lens
+    with OpenCV distortion ``dist`` (k1 k2 p1 p2 [k3], or longer) and pinhole ``K`` (3, 3) shows them: OpenCV's
+    model written out for up to five coefficients (what :func:`cv2.projectPoints` computes, ~10x faster on a
+    frame's worth of points), :func:`cv2.projectPoints` itself for the rational and thin-prism models."""
+    d = np.asarray(dist, np.float64).ravel()
+    if len(d) > 5:
+        pts = np.column_stack([xn, yn, np.ones_like(xn)])
+        raw = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), np.asarray(K, np.float64), d)[0].reshape(-1, 2)
+        return raw[:, 0], raw[:, 1]
+    k1, k2, p1, p2, k3 = np.pad(d, (0, 5 - len(d)))
+    xy = xn * yn
+    r2 = xn * xn + yn * yn
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = xn * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * xn * xn)
+    yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xy
+    return K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]
 
 
 def _blend(views: Sequence[View], windows: list, label: np.ndarray, H: int, W: int) -> np.ndarray:
@@ -273,13 +295,13 @@ def _blend(views: Sequence[View], windows: list, label: np.ndarray, H: int, W: i
         r0, c0, colours, seen, mine = s
         h, w = colours.shape[:2]
         img = np.where(seen[..., None], colours, hard[r0:r0 + h, c0:c0 + w])
-        blender.feed(img.astype(np.int16), mine.astype(np.uint8) * 255, (int(c0), int(r0)))
+        blender.feed(img.astype(np.int16) * _BLEND_SCALE, mine.astype(np.uint8) * 255, (int(c0), int(r0)))
         fed = True
     rgba = np.zeros((H, W, 4), np.uint8)
     if not fed:
         return rgba
     out, _ = blender.blend(None, None)
-    bgr = np.clip(out, 0, 255).astype(np.uint8)
+    bgr = np.clip(np.rint(out / _BLEND_SCALE), 0, 255).astype(np.uint8)
     rgba[..., :3] = bgr[..., ::-1]
     rgba[..., 3] = np.where(label >= 0, 255, 0).astype(np.uint8)
     rgba[label < 0, :3] = 0
