@@ -9,8 +9,8 @@ tracked observations -> the decoded frames selection left out located by PnP aga
 map, followed by optical flow from the selected frame before them (:mod:`workers.drone.localise`).
 
 Without given intrinsics (a :class:`~workers.drone.selfcal.FocalPrior` passed to :func:`reconstruct`)
-the global bundle adjustments also refine one focal length and radial distortion shared by every frame
-(:class:`~workers.drone.camera_models.RadialModel`, the focal length held by the prior); the mapper keeps
+the global bundle adjustments also refine one focal length, radial distortion and principal point shared by
+every frame (:class:`~workers.drone.camera_models.RadialModel`, the focal length held by the prior); the mapper keeps
 the tracked pixels as the lens saw them and, after each such adjustment, their undistorted positions for
 the pinhole steps (PnP, triangulation, outlier tests).
 """
@@ -53,9 +53,10 @@ _FOCAL_CONFLICT = 3.0
 CENTRE_PRIOR_SIGMA = 0.01
 """Standard deviation of the principal point's prior (at the image centre), as a fraction of the image's larger
 side. A flight whose lines turn the camera by 180 degrees sees a principal point's offset as a sideways shift of
-every line, alternating with the heading (sfm/drone_fc350: camera centres 1.0 m to the side of their GPS, relative
-to the heading, with the principal point at the centre; 0.1 m with it ~10 px to the left), so the images
-determine it there; along one straight line it trades with the camera's tilt, and the prior holds it."""
+every line, alternating with the heading (sfm/drone_fc350: camera centres 0.97 m to the side of their GPS, relative
+to the heading, with the principal point at the centre; 0.16 m with it found 7.6 px to the left), so the images
+determine it there; along one straight line it trades with the camera's tilt, and the prior holds it. (The larger
+side is taken as twice the larger coordinate of the image centre the principal point starts from.)"""
 
 
 @dataclass

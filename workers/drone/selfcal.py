@@ -1,6 +1,7 @@
 """Self-calibration without given intrinsics: where the focal length starts and how firmly it is held,
 and the radial lens model the bundle adjustment refines (one camera for every frame, as COLMAP's
-RADIAL camera: focal length ``f``, distortion ``k1, k2``, principal point at the image centre).
+RADIAL camera: focal length ``f``, distortion ``k1, k2``; the principal point starts at the image centre and is
+refined under a weak prior, :data:`workers.drone.reconstruction.CENTRE_PRIOR_SIGMA`).
 
 The start, in order of trust:
 
