@@ -14,6 +14,8 @@ API:
   ``cam.pixel_grid()``.
 - ``Camera.look_at(name, eye, target, up, fov_deg, width, height)``, ``Camera.from_center(...)``.
 - ``interpolate(a, b, s)``: slerp of rotation, lerp of centre and intrinsics.
+- ``distort_normalised(xn, yn, K, dist) -> (u, v)``: OpenCV's lens model on normalised points (what ``project``
+  and the drone orthophoto use).
 - ``cam.scaled(f)``: the same camera for an image resized by ``f``.
 - ``cam.to_dict()`` / ``Camera.from_dict(d)`` (JSON-able).
 - quaternion helpers ``quat_to_rotation`` / ``rotation_to_quat`` (w, x, y, z; Hamilton).
@@ -111,9 +113,8 @@ class Camera:
             ok = np.isfinite(xn).all(axis=1)
             uv = np.full_like(xn, np.nan)
             if ok.any():
-                pts = np.hstack([xn[ok], np.ones((int(ok.sum()), 1))])
-                proj, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), self.K, self.dist)
-                uv[ok] = proj.reshape(-1, 2)
+                u, v = distort_normalised(xn[ok, 0], xn[ok, 1], self.K, self.dist)
+                uv[ok, 0], uv[ok, 1] = u, v
             return uv, z
         uv = xn * np.array([self.K[0, 0], self.K[1, 1]]) + np.array([self.K[0, 2], self.K[1, 2]])
         uv[:, 0] += self.K[0, 1] * xn[:, 1]
@@ -343,3 +344,24 @@ def _validated_dist(name: str, dist: Any) -> np.ndarray | None:
     if not np.all(np.isfinite(d)):
         raise CameraError(name, "dist", "contains NaN or infinity")
     return d
+
+
+def distort_normalised(xn: np.ndarray, yn: np.ndarray, K: np.ndarray, dist: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised undistorted image points xn, yn (N,) float64 -> the pixels (u, v) (N,) float64 where a lens
+    with OpenCV distortion ``dist`` (k1 k2 p1 p2 [k3], or longer) and pinhole ``K`` (3, 3) shows them, as
+    :func:`cv2.projectPoints` computes them (its fx, fy, cx, cy; no skew): OpenCV's model written out for up to five
+    coefficients (~10x faster on a frame's worth of points), projectPoints itself for the rational, thin-prism and
+    tilted models."""
+    d = np.asarray(dist, np.float64).ravel()
+    if len(d) > 5:
+        pts = np.column_stack([xn, yn, np.ones_like(xn)])
+        raw = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), np.asarray(K, np.float64), d)[0].reshape(-1, 2)
+        return raw[:, 0], raw[:, 1]
+    k1, k2, p1, p2, k3 = np.pad(d, (0, 5 - len(d)))
+    xy = xn * yn
+    r2 = xn * xn + yn * yn
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = xn * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * xn * xn)
+    yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xy
+    return K[0, 0] * xd + K[0, 2], K[1, 1] * yd + K[1, 2]

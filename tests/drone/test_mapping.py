@@ -13,7 +13,8 @@ from rasterio.io import MemoryFile
 
 from workers.drone.dense.views import View
 from workers.drone.mapfiles import DSM_NODATA, dsm_png, dsm_tif, laz_bytes, orthophoto_png, orthophoto_tif
-from workers.drone.orthophoto import _blend, distort_normalised, orthophoto
+from workers.camera import distort_normalised
+from workers.drone.orthophoto import _blend, orthophoto
 from workers.drone.surface import Grid, cell_medians, grid_over, surface_model
 from workers.synth import Material, Plane, Scene, render
 from workers.synth.survey import survey_cameras, true_orthophoto

@@ -30,6 +30,8 @@ import cv2
 import numpy as np
 from numba import njit
 
+from workers.camera import distort_normalised
+
 from .dense.views import View
 from .frames import sharpness
 from .surface import Grid
@@ -250,26 +252,6 @@ def _through_lens(mapu: np.ndarray, mapv: np.ndarray, K: np.ndarray, dist: np.nd
         u[ok], v[ok] = distort_normalised(xn.astype(np.float64), yn.astype(np.float64), K, dist)
     inside = ok & (u >= 0) & (v >= 0) & (u <= w - 1) & (v <= h - 1)
     return u, v, inside.astype(np.uint8)
-
-
-def distort_normalised(xn: np.ndarray, yn: np.ndarray, K: np.ndarray, dist: np.ndarray
-                       ) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised undistorted image points xn, yn (N,) float64 -> the pixels (u, v) (N,) float64 where a lens
-    with OpenCV distortion ``dist`` (k1 k2 p1 p2 [k3], or longer) and pinhole ``K`` (3, 3) shows them: OpenCV's
-    model written out for up to five coefficients (what :func:`cv2.projectPoints` computes, ~10x faster on a
-    frame's worth of points), :func:`cv2.projectPoints` itself for the rational and thin-prism models."""
-    d = np.asarray(dist, np.float64).ravel()
-    if len(d) > 5:
-        pts = np.column_stack([xn, yn, np.ones_like(xn)])
-        raw = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), np.asarray(K, np.float64), d)[0].reshape(-1, 2)
-        return raw[:, 0], raw[:, 1]
-    k1, k2, p1, p2, k3 = np.pad(d, (0, 5 - len(d)))
-    xy = xn * yn
-    r2 = xn * xn + yn * yn
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = xn * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * xn * xn)
-    yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xy
-    return K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]
 
 
 def _blend(views: Sequence[View], windows: list, label: np.ndarray, H: int, W: int) -> np.ndarray:

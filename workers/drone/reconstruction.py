@@ -63,7 +63,7 @@ side is taken as twice the larger coordinate of the image centre the principal p
 class Lens:
     """The self-calibrated camera at the working resolution: focal length ``f`` (pixels), radial
     distortion ``k1``, ``k2`` (OpenCV's, of the normalised image point), principal point ``centre``
-    (2,) pixels (from ``centre_start``, the image centre, refined under a weak prior when ``refine_centre``);
+    (2,) pixels (from ``centre_start``, the image centre, refined under a weak prior);
     ``prior`` where the focal length started and how firmly it is held; ``adjustments`` counts the bundle
     adjustments that refined it."""
 
@@ -72,7 +72,6 @@ class Lens:
     k2: float
     centre: np.ndarray
     prior: FocalPrior
-    refine_centre: bool = True
     centre_start: np.ndarray = field(default=None)  # type: ignore[assignment]
     adjustments: int = 0
     focal_data_sigma: float | None = None
@@ -443,18 +442,14 @@ class _Mapper:
         priors); when the images alone would put f in conflict with the prior (``_FOCAL_CONFLICT``), again
         with f held at the prior. Updates the lens; returns the solver's result."""
         lens = self.lens
-        model = RadialModel(lens.centre, refine_centre=lens.refine_centre)
+        model = RadialModel(lens.centre, refine_centre=True)
         f0 = lens.prior.focal_px
         sigma_f = lens.prior.sigma * f0
-        mean, sigma = [f0, 0.0, 0.0], [sigma_f, DISTORTION_PRIOR_SIGMA, DISTORTION_PRIOR_SIGMA]
-        shared = [lens.f, lens.k1, lens.k2]
-        if lens.refine_centre:
-            sigma_c = CENTRE_PRIOR_SIGMA * 2.0 * float(max(lens.centre_start))
-            mean, sigma = mean + list(lens.centre_start), sigma + [sigma_c, sigma_c]
-            shared = shared + list(lens.centre)
-        prior = bundle.SharedPrior(np.array(mean), np.array(sigma))
+        sigma_c = CENTRE_PRIOR_SIGMA * 2.0 * float(max(lens.centre_start))
+        prior = bundle.SharedPrior(np.array([f0, 0.0, 0.0, *lens.centre_start]),
+                                   np.array([sigma_f, DISTORTION_PRIOR_SIGMA, DISTORTION_PRIOR_SIGMA, sigma_c, sigma_c]))
         res = bundle.solve(model, start, self.X[pts], ci, pj, raw, fixed, options, callback,
-                           shared=np.array(shared), shared_prior=prior)
+                           shared=np.array([lens.f, lens.k1, lens.k2, *lens.centre]), shared_prior=prior)
         info = bundle.shared_information(model, res.params, res.points, res.shared, ci, pj, raw, fixed, options)
         sd = _marginal_sigma(info, 0)
         f = float(res.shared[0])
@@ -466,18 +461,17 @@ class _Mapper:
         if not lens.focal_refined:
             # Back to the prior's focal length along the flat-scene family (s f, s^2 k1, s^4 k2), then held there.
             s = f0 / f
-            held = np.array([f0, res.shared[1] * s**2, res.shared[2] * s**4, *res.shared[3:]])
             res = bundle.solve(model, res.params, res.points, ci, pj, raw, fixed, options, callback,
-                               shared=held, shared_fixed=np.arange(len(held)) == 0, shared_prior=prior)
+                               shared=np.array([f0, res.shared[1] * s**2, res.shared[2] * s**4, *res.shared[3:]]),
+                               shared_fixed=np.array([True, False, False, False, False]), shared_prior=prior)
         self._set_lens(*res.shared)
         return res
 
-    def _set_lens(self, f: float, k1: float, k2: float, *centre: float) -> None:
-        """Adopt a refined lens (and principal point, when refined): K and the undistorted pixels follow it."""
+    def _set_lens(self, f: float, k1: float, k2: float, cx: float, cy: float) -> None:
+        """Adopt a refined lens: K and the undistorted pixels follow it."""
         lens = self.lens
         lens.f, lens.k1, lens.k2 = float(f), float(k1), float(k2)
-        if centre:
-            lens.centre = np.array(centre, np.float64)
+        lens.centre = np.array([cx, cy], np.float64)
         lens.adjustments += 1
         self.K = lens.K
         self.xy = lens.undistort(self.xy_raw)
@@ -770,8 +764,7 @@ def _intrinsics_report(model: SparseModel, lens: Lens | None) -> dict[str, Any]:
         return {"source": "given", "self_calibrated": False, **out}
     start = lens.prior.focal_px / model.scale
     return {"source": lens.prior.source, "detail": lens.prior.detail, "self_calibrated": lens.adjustments > 0,
-            "model": "RADIAL (f, k1, k2, principal point cx, cy)" if lens.refine_centre else
-                     "RADIAL (f, k1, k2; principal point at the image centre)", **out,
+            "model": "RADIAL (f, k1, k2, principal point cx, cy)", **out,
             "principal_point_start_px": [float(v) / model.scale for v in lens.centre_start],
             "focal_start_px": start, "focal_change": native.fx / start - 1.0,
             "focal_prior_sigma_px": lens.prior.sigma * start,
