@@ -86,9 +86,10 @@ def _managed_keys(settings: object) -> bool:
 
 
 def cmd_worker(args: argparse.Namespace) -> int:
-    """Join this machine to a Ray cluster as a worker node (runs ``ray start --block``)."""
+    """Join this machine to a Ray cluster as a worker node (runs ``ray start --block`` until it ends)."""
     from app.netwait import split_address, wait_for_gcs
     from app.raycluster import HEAD_WAIT_S, ray_executable
+    from app.raystart import start_node
 
     ray_bin = ray_executable()
     if ray_bin is None:
@@ -118,10 +119,10 @@ def cmd_worker(args: argparse.Namespace) -> int:
 
     _log_to_stderr("info")
     log_prebuilt()
-    if Settings().warm_kernels:  # this node's kernels, compiled while it joins (the process outlives the exec)
+    if Settings().warm_kernels:  # this node's kernels, compiled while it joins
         KernelWarmup.start(Path(os.environ["NUMBA_CACHE_DIR"]), report=False)
     wait_for_gcs(args.address, HEAD_WAIT_S, ray_bin)  # ray start would wait ~40 s between its own tries
-    os.execv(ray_bin, argv)
+    return start_node(argv)  # started again if it stalls reaching the head (app/raystart.py)
 
 
 def cmd_warmup(args: argparse.Namespace) -> int:

@@ -4,7 +4,6 @@ from __future__ import annotations
 import logging
 import os
 import shutil
-import subprocess
 import sys
 import tempfile
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -12,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from app.netwait import wait_for_gcs
+from app.raystart import start_node
 from app.settings import Settings
 from workers.common.models import models_dir
 from workers.settings import WorkerSettings
@@ -75,12 +75,12 @@ HEAD_WAIT_S = 300.0
 
 def join_as_node(address: str) -> int:
     """``ray start --address ADDRESS --num-cpus=0``: this machine joins the cluster as a node that runs no tasks (the
-    local raylet a driver connects through), once the head's GCS answers (:mod:`app.netwait`). Its exit code."""
+    local raylet a driver connects through), once the head's GCS answers (:mod:`app.netwait`), started again if it
+    stalls reaching it (:mod:`app.raystart`). Its exit code."""
     ray_bin = ray_executable() or "ray"
     wait_for_gcs(address, HEAD_WAIT_S, ray_bin)
     log.info("joining the Ray cluster at %s as a node without CPUs", address)
-    return subprocess.run([ray_bin, "start", f"--address={address}", "--num-cpus=0", "--disable-usage-stats"],
-                          stdin=subprocess.DEVNULL).returncode
+    return start_node([ray_bin, "start", f"--address={address}", "--num-cpus=0", "--disable-usage-stats"])
 
 
 def connect_for(settings: Settings) -> bool:

@@ -311,6 +311,13 @@ class S3BlobStore:
         config = Config(connect_timeout=t.connect_timeout, read_timeout=t.read_timeout,
                         retries={"mode": "standard", "total_max_attempts": t.max_attempts})
         self._client = boto3.client("s3", endpoint_url=endpoint_url, region_name=region, config=config)
+        # Fetches and lookups (GET, HEAD, LIST) have someone waiting on them (a client reading a result, a job
+        # starting) and a store answers them at once when it answers at all: a shorter budget, so a frozen store
+        # gives its 503 in seconds rather than after 3 x 10 s. Writes keep the longer one (a real S3 may take long
+        # to complete a multipart upload).
+        self._fetcher = boto3.client("s3", endpoint_url=endpoint_url, region_name=region, config=Config(
+            connect_timeout=t.connect_timeout, read_timeout=min(t.fetch_timeout, t.read_timeout),
+            retries={"mode": "standard", "total_max_attempts": min(t.fetch_attempts, t.max_attempts)}))
         self._transfer = TransferConfig(multipart_threshold=8 * CHUNK, multipart_chunksize=8 * CHUNK)
         options = (("endpoint_url", endpoint_url), ("region", region), *t.non_default())
         query = "&".join(f"{k}={v}" for k, v in options if v)
@@ -349,7 +356,7 @@ class S3BlobStore:
     @_guarded
     def open(self, key: str) -> BinaryIO:
         try:
-            return self._client.get_object(Bucket=self.bucket, Key=self._key(key))["Body"]
+            return self._fetcher.get_object(Bucket=self.bucket, Key=self._key(key))["Body"]
         except ClientError as exc:
             if self._missing(exc):
                 raise BlobNotFound(key) from None
@@ -369,7 +376,7 @@ class S3BlobStore:
     @_guarded
     def size(self, key: str) -> int:
         try:
-            return int(self._client.head_object(Bucket=self.bucket, Key=self._key(key))["ContentLength"])
+            return int(self._fetcher.head_object(Bucket=self.bucket, Key=self._key(key))["ContentLength"])
         except ClientError as exc:
             if self._missing(exc):
                 raise BlobNotFound(key) from None
@@ -392,7 +399,7 @@ class S3BlobStore:
         full = self._key(prefix.rstrip("/")) + "/"
         strip = len(self.prefix) + 1 if self.prefix else 0
         keys = []
-        for page in self._client.get_paginator("list_objects_v2").paginate(Bucket=self.bucket, Prefix=full):
+        for page in self._fetcher.get_paginator("list_objects_v2").paginate(Bucket=self.bucket, Prefix=full):
             keys += [obj["Key"][strip:] for obj in page.get("Contents", [])]
         return sorted(keys)
 
@@ -400,7 +407,7 @@ class S3BlobStore:
     def local_path(self, key: str) -> Path:
         """A local copy of ``key``, downloaded once per process and object version (ETag)."""
         try:
-            head = self._client.head_object(Bucket=self.bucket, Key=self._key(key))
+            head = self._fetcher.head_object(Bucket=self.bucket, Key=self._key(key))
         except ClientError as exc:
             if self._missing(exc):
                 raise BlobNotFound(key) from None
@@ -411,7 +418,7 @@ class S3BlobStore:
             path.parent.mkdir(parents=True, exist_ok=True)
             tmp = path.with_name(f".{uuid.uuid4().hex}.part")
             try:
-                self._client.download_file(self.bucket, self._key(key), str(tmp), Config=self._transfer)
+                self._fetcher.download_file(self.bucket, self._key(key), str(tmp), Config=self._transfer)
                 os.replace(tmp, path)
             finally:
                 tmp.unlink(missing_ok=True)
@@ -436,6 +443,10 @@ class S3Timeouts:
     connect_timeout: float = 5.0
     read_timeout: float = 10.0
     max_attempts: int = 3
+    fetch_timeout: float = 3.0
+    """The read timeout of fetches and lookups (GET, HEAD, LIST); never longer than ``read_timeout``."""
+    fetch_attempts: int = 2
+    """Attempts of one fetch or lookup; never more than ``max_attempts``."""
     retry_after: float = 5.0
     """After a request found the store unavailable, the others fail at once for this long, then one tries it
     again; a job waiting out an outage tries at least this often."""

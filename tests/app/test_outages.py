@@ -120,3 +120,31 @@ def test_an_object_store_outage_answers_503_and_the_running_job_publishes_after_
     while client.get("/readyz").status_code != 200:  # the breaker lets a request through within seconds
         assert time.monotonic() < deadline, client.get("/readyz").json()
         time.sleep(0.5)
+
+
+def test_a_frozen_store_fails_a_fetch_within_its_shorter_budget_while_a_write_keeps_its_own(faulty_s3):
+    """A client reading a result from a frozen store gets its 503 after the fetch budget (3 s x 2 by default),
+    not after the writes' (10 s x 3), which stays long for a real S3's slow multipart completions."""
+    from workers.storage import StoreUnavailable, open_store, storage_unavailable
+
+    proxy, url = faulty_s3
+    store = open_store(url + "&read_timeout=2.5&max_attempts=1&fetch_timeout=0.3&fetch_attempts=2")
+    store.put("jobs/a/report.json", b"{}")
+    proxy.set("hang")
+    try:
+        started = time.monotonic()
+        with pytest.raises(Exception) as fetch:
+            store.read("jobs/a/report.json")
+        fetch_s = time.monotonic() - started
+        assert storage_unavailable(fetch.value) and not isinstance(fetch.value, StoreUnavailable), fetch.value
+        assert fetch_s < 2.5, fetch_s  # gave up before a single write timeout would have
+        time.sleep(1.1)  # the store is left alone for retry_after (1 s) after a failure
+        started = time.monotonic()
+        with pytest.raises(Exception) as write:
+            store.put("jobs/a/other", b"x")
+        assert storage_unavailable(write.value) and not isinstance(write.value, StoreUnavailable), write.value
+        assert time.monotonic() - started >= 2.5  # the write waited out its own read timeout
+    finally:
+        proxy.set("pass")
+    time.sleep(1.1)
+    assert store.read("jobs/a/report.json") == b"{}"

@@ -149,6 +149,20 @@ def test_small_faces_of_a_group_photo_are_found_by_the_second_yunet_scan():
     assert report.rotation_degrees == 90, report.message
 
 
+@pytest.mark.skipif(FACES is None, reason="needs $SWEEPCAST_DATA/faces/dev")
+def test_the_second_haar_search_decides_a_photo_in_which_the_first_found_no_face():
+    import cv2
+
+    from workers.orientation.detect import HAAR_MIN_NEIGHBORS, HAAR_SCALE_FACTOR, HAAR_SCAN, PaperDetector
+    from workers.orientation.faces import LongSideScan
+
+    turned = rotate_view(cv2.imread(str(FACES / REAL[0]), cv2.IMREAD_GRAYSCALE), 270)
+    blind = {"scan": LongSideScan(40, 30), "scale_factor": 1.25, "min_neighbors": 2}  # too coarse to see a face
+    assert PaperDetector(PartSpec.opencv(), **blind, second=None).upright_faces(turned) == []
+    both = PaperDetector(PartSpec.opencv(), **blind, second=(HAAR_SCAN, HAAR_SCALE_FACTOR, HAAR_MIN_NEIGHBORS))
+    assert {f.rotation for f in both.upright_faces(turned)} == {90}
+
+
 HOPPER = dataset("exif", "pillow_hopper")
 
 
