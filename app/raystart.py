@@ -3,10 +3,11 @@
 A node whose ``ray start`` runs in its head's first second or two can stall inside Ray's own GCS client: it says
 "Failed to connect to GCS at address ... within 5 seconds", then nothing for up to a minute, and then either joins
 or crashes ("Failed to get system config within the timeout setting"), while the nodes started a second later join
-at once and the same command run again joins in about 2 s. The compose stack met it in 3 of 16 fresh ``up``s on
-this machine (2026-11-29: a worker joined 36, 52 and 76 s late, and the first photo batch waited for it), each time
-the node that found the head's port still closed and its GCS answering half a second later
-(:func:`app.netwait.wait_for_gcs` does not tell the window apart: the health check passes in it).
+at once and the same command run again joins in about 2 s. On this machine (2026-11-29) the compose stack met it in
+two runs of ``docker/verify-stack.sh`` (a worker joined 36 and 52 s late, and the first photo batch waited for it)
+and in 2 of 14 bare ``up``s (a worker 76 s late, then the crash; another ~8 s late); each time in the node that
+found the head's port still closed and its GCS answering half a second later (:func:`app.netwait.wait_for_gcs` does
+not tell that window apart: the health check passes in it).
 
 So the start is watched: when it has printed that stall and has not said "Ray runtime started" within
 :data:`JOIN_TRY_S`, its process group is stopped and it is run again (at most :data:`JOIN_TRIES` times). Stopping it
