@@ -558,7 +558,7 @@ def face_size_configs() -> dict[str, tuple]:
         f"{rule}, step 1.35": (scan, 1.35, HAAR_MIN_NEIGHBORS, None),
         f"{rule} ({round(HAAR_FACE_PX / HAAR_SMALLEST_FACE)} px short side), step {HAAR_SCALE_FACTOR}, alone": (
             scan, HAAR_SCALE_FACTOR, HAAR_MIN_NEIGHBORS, None),
-        f"{rule}, step {HAAR_SCALE_FACTOR}, then the 360 px search where it finds no face; engine)": (
+        f"{rule}, step {HAAR_SCALE_FACTOR}, then the 360 px search where it finds no face (engine)": (
             scan, HAAR_SCALE_FACTOR, HAAR_MIN_NEIGHBORS, HAAR_SECOND_SEARCH),
     }
 

@@ -88,7 +88,10 @@ HAAR_SECOND_SEARCH: tuple | None = PREVIOUS_HAAR
 scan and the previous release's fixed 360 px one each find faces the other misses (RESULTS.md,
 orientation_face_sizes: the rule more at every face share, the previous scan 3 more of the dev photos at their native
 size); with both, the detector decides at least what either decides alone, and a photo that has a face pays the
-second search only when the first found none. None: the first search alone."""
+second search only when the first found none. Measured (2026-11-29): 307 of 490 face-size trials against 299 with the
+rule alone and 205 with the previous release's search; the dev photos at native size 158/176 against 151 and 154;
+none wrong; median CPU 64 ms a photo against 54 (the photos without a face pay both searches). None: the first
+search alone."""
 MAX_PART_CHECKS = 16
 """Most faces whose parts are checked per photo (the highest-scoring first)."""
 _SAME_FACE_IOU = 0.3
