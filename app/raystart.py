@@ -7,7 +7,10 @@ at once and the same command run again joins in about 2 s. On this machine (2026
 two runs of ``docker/verify-stack.sh`` (a worker joined 36 and 52 s late, and the first photo batch waited for it)
 and in 2 of 14 bare ``up``s (a worker 76 s late, then the crash; another ~8 s late); each time in the node that
 found the head's port still closed and its GCS answering half a second later (:func:`app.netwait.wait_for_gcs` does
-not tell that window apart: the health check passes in it).
+not tell that window apart: the health check passes in it). The cause there is the network's DNS: a probe resolving
+``ray-head`` every quarter second during ``up`` saw single lookups block 40 s and fail while the containers started
+(podman 4.3's aardvark-dns reopens its sockets on every container start and drops queries; this machine's second
+nameserver never answers), and Ray's client resolves the name itself (docs/deploy.md).
 
 So the start is watched: when it has printed that stall and has not said "Ray runtime started" within
 :data:`JOIN_TRY_S`, its process group is stopped and it is run again (at most :data:`JOIN_TRIES` times). Stopping it
