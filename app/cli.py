@@ -152,8 +152,13 @@ def cmd_wait_for(args: argparse.Namespace) -> int:
         print(f"sweepcast wait-for: {exc}", file=sys.stderr)
         return 2
     deadline = time.monotonic() + args.timeout
-    return 0 if all(wait_for_port(a, max(deadline - time.monotonic(), 0.0), a, redis=args.redis) is not None
-                    for a in args.addresses) else 1
+    reached: list[str] = []
+    if not all(wait_for_port(a, max(deadline - time.monotonic(), 0.0), a, redis=args.redis, reached=reached)
+               is not None for a in args.addresses):
+        return 1
+    if args.print_reached:
+        print(" ".join(reached))
+    return 0
 
 
 def cmd_kernel_env(args: argparse.Namespace) -> int:
@@ -247,6 +252,8 @@ def build_parser(engines: bool = True) -> argparse.ArgumentParser:
     p.add_argument("addresses", nargs="+", metavar="HOST:PORT")
     p.add_argument("--timeout", type=float, default=120.0, help="seconds in all (default 120)")
     p.add_argument("--redis", action="store_true", help="each is a Redis: wait until it has loaded its data too")
+    p.add_argument("--print-reached", action="store_true",
+                   help="then print each as the IP:PORT reached (so what starts next need not look the name up)")
     p.set_defaults(func=cmd_wait_for)
 
     p = sub.add_parser("openapi", help="write (or --check) the committed OpenAPI document")

@@ -31,12 +31,13 @@ def split_address(address: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
-def wait_for_port(address: str, timeout_s: float, what: str, redis: bool = False) -> float | None:
+def wait_for_port(address: str, timeout_s: float, what: str, redis: bool = False,
+                  reached: list[str] | None = None) -> float | None:
     """Until a TCP connection to ``address`` (``host:port``) succeeds, trying every half second (a name that does
     not resolve yet counts as not answering); with ``redis``, until the server also answers a PING other than with
     ``-LOADING`` (a Redis replaying its append-only file accepts connections and refuses every command: the Ray
-    head's GCS then fails). The seconds waited, or None after ``timeout_s``. Logs once when it has to wait, and
-    again when the server answers."""
+    head's GCS then fails). The seconds waited, or None after ``timeout_s``; the ``ip:port`` the connection reached
+    is appended to ``reached``. Logs once when it has to wait, and again when the server answers."""
     host, port = split_address(address)
     started = time.monotonic()
     said = False
@@ -45,6 +46,9 @@ def wait_for_port(address: str, timeout_s: float, what: str, redis: bool = False
             with socket.create_connection((host, port), timeout=2.0) as conn:
                 if redis and _redis_loading(conn):
                     raise ConnectionRefusedError("Redis is loading its data")
+                if reached is not None:
+                    ip = conn.getpeername()[0]
+                    reached.append(f"[{ip}]:{port}" if ":" in ip else f"{ip}:{port}")
                 waited = time.monotonic() - started
                 if said:
                     log.info("%s at %s answers after %.1f s", what, address, waited)

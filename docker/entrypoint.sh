@@ -25,9 +25,14 @@ case "$role" in
     exec sweepcast serve
     ;;
   ray-head)
-    # its state in Redis (RAY_REDIS_ADDRESS): a GCS started before Redis answers, or while it loads its data, fails
+    # its state in Redis (RAY_REDIS_ADDRESS): a GCS started before Redis answers, or while it loads its data, fails;
+    # and it is given Redis's IP, not its name: the GCS looks the name up once, and a lookup that a container
+    # network's DNS drops while the stack starts blocked it 40 s and crashed it (docs/deploy.md). A Redis that
+    # comes back elsewhere ends the GCS, and this container's restart looks the name up again.
     if [ -n "${RAY_REDIS_ADDRESS:-}" ]; then
-      sweepcast wait-for --redis "$RAY_REDIS_ADDRESS" --timeout 120 || true
+      if reached="$(sweepcast wait-for --redis "$RAY_REDIS_ADDRESS" --timeout 120 --print-reached)"; then
+        export RAY_REDIS_ADDRESS="$reached"
+      fi
     fi
     exec ray start --head --block --port=6379 --num-cpus="${RAY_HEAD_CPUS:-0}" \
       --include-dashboard=false --disable-usage-stats

@@ -108,3 +108,16 @@ exit 0
         assert wait_for_gcs(address, 1.5, "false") is None  # a GCS that never answers: given up at the timeout
     assert wait_for_gcs(f"127.0.0.1:{free_port()}", 0.5, str(fake_ray)) is None  # no port, no check
     assert len(calls.read_text().splitlines()) == 3
+
+
+def test_wait_for_prints_the_address_it_reached_so_the_next_program_need_not_look_it_up():
+    """``sweepcast wait-for --print-reached localhost:PORT``: the IP:PORT its connection reached, on stdout (the image's
+    Ray head hands that to its GCS instead of Redis's name)."""
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        port = server.getsockname()[1]
+        done = subprocess.run([sys.executable, "-m", "app", "wait-for", "--timeout", "5", "--print-reached",
+                               f"localhost:{port}"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == f"127.0.0.1:{port}"
