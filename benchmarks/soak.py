@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import datetime as dt
 import json
 import os
 import statistics
@@ -310,11 +311,12 @@ def error_lines(text: str) -> list[str]:
     return [line for line in text.splitlines() if "Traceback" in line or "ERROR" in line]
 
 
-def podman_log_errors(project: str, minutes: float) -> list[str]:
-    """The error lines every container of the compose project logged over the run."""
+def podman_log_errors(project: str, since: dt.datetime) -> list[str]:
+    """The error lines every container of the compose project logged since ``since`` (UTC; the soak's start: not
+    what a fault run just before it provoked)."""
     out = []
     for name in podman_roots(project).values():
-        logs = subprocess.run(["podman", "logs", "--since", f"{int(minutes) + 20}m", f"{project}_{name}"],
+        logs = subprocess.run(["podman", "logs", "--since", since.strftime("%Y-%m-%dT%H:%M:%SZ"), f"{project}_{name}"],
                               capture_output=True, text=True)
         out += [f"{name}: {line}" for line in error_lines(logs.stdout + logs.stderr)]
     return out
@@ -325,8 +327,9 @@ def run(minutes: float, bases: list[str], podman_project: str | None) -> dict[st
         tmp_path = Path(tmp)
         if bases:  # a running deployment
             project = podman_project
+            started = dt.datetime.now(dt.timezone.utc)
             log = soak(bases, (lambda: podman_roots(project)) if project else dict, minutes, tmp_path)
-            errors = podman_log_errors(project, minutes) if project else []
+            errors = podman_log_errors(project, started) if project else []
             target = f"the compose stack {project or ''} at {', '.join(bases)}"
         else:
             log_file = tmp_path / "server.log"
@@ -568,7 +571,9 @@ def markdown(summary: dict[str, Any], raw: dict[str, Any], pictures: list[Path])
                      _f(p["files_growth_pct"], 1)] for p in summary["processes"]]
                    + [[f"all the service's processes ({summary['processes_seen']} seen over the run)",
                        *_totals(summary["total_growth"])]]),
-          "", f"Server log lines naming an error: {raw['server_log_error_count']}.", "",
+          "", f"Server log lines naming an error: {raw['server_log_error_count']}"
+          + ("." if not raw["server_log_error_lines"] else ", the first of them:"), "",
+          *[f"    {line[:300]}" for line in raw["server_log_error_lines"][:10]], "",
           "Plots: " + ", ".join(f"`{shown_path(p)}`" for p in pictures) + "."]
     return "\n".join(md)
 
