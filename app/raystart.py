@@ -78,13 +78,26 @@ class _Watched:
 
 def start_node(argv: Sequence[str], try_s: float = JOIN_TRY_S, tries: int = JOIN_TRIES) -> int:
     """Run ``argv`` (a ``ray start --address ...`` command, with or without ``--block``) to its end, started again
-    when it stalls reaching the GCS (module docstring); SIGTERM and SIGINT are passed on to it. Its exit code (1
-    when every try stalled)."""
-    for attempt in range(1, tries + 1):
-        run = _Watched(argv)
-        previous = {sig: signal.signal(sig, lambda s, _f, p=run.proc: _pass_on(p, s))
-                    for sig in (signal.SIGTERM, signal.SIGINT)} if _main_thread() else {}
-        try:
+    when it stalls reaching the GCS (module docstring); SIGTERM and SIGINT are passed on to it (on the main thread:
+    caught from before the first start, so none is lost in between). Its exit code (1 when every try stalled)."""
+    runs: list[_Watched] = []
+    received: list[int] = []
+
+    def pass_on(sig: int, _frame: object) -> None:
+        received.append(sig)
+        if runs and runs[-1].proc.poll() is None:
+            runs[-1].proc.send_signal(sig)
+
+    previous = ({sig: signal.signal(sig, pass_on) for sig in (signal.SIGTERM, signal.SIGINT)}
+                if threading.current_thread() is threading.main_thread() else {})
+    try:
+        for attempt in range(1, tries + 1):
+            if received:  # told to stop while a stalled try was being stopped
+                return 128 + received[-1]
+            run = _Watched(argv)
+            runs.append(run)
+            if received:  # told to stop while it was being started
+                run.proc.send_signal(received[-1])
             begun = time.monotonic()
             while run.proc.poll() is None and not run.started.is_set():
                 if run.stalled.is_set() and time.monotonic() - begun > try_s:
@@ -95,17 +108,8 @@ def start_node(argv: Sequence[str], try_s: float = JOIN_TRY_S, tries: int = JOIN
             run.stop()
             log.warning("ray start could not reach the head's GCS in %.0f s (try %d of %d): starting it again",
                         try_s, attempt, tries)
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     log.error("ray start stalled reaching the head's GCS %d times: giving up", tries)
     return 1
-
-
-def _pass_on(proc: subprocess.Popen, sig: int) -> None:
-    if proc.poll() is None:
-        proc.send_signal(sig)
-
-
-def _main_thread() -> bool:
-    return threading.current_thread() is threading.main_thread()
