@@ -305,19 +305,22 @@ class S3BlobStore:
         self.bucket = bucket
         self.prefix = prefix.strip("/")
         t = timeouts or S3Timeouts()
-        # Botocore's "standard" retries: throttling (503 SlowDown) and transient errors retried with exponential
-        # backoff and jitter; and timeouts short enough that an unreachable store answers within seconds (the
-        # default 60 s read timeout x 5 attempts held a request for 5 minutes against a frozen store).
-        config = Config(connect_timeout=t.connect_timeout, read_timeout=t.read_timeout,
-                        retries={"mode": "standard", "total_max_attempts": t.max_attempts})
-        self._client = boto3.client("s3", endpoint_url=endpoint_url, region_name=region, config=config)
+
+        def client(connect_timeout: float, read_timeout: float, attempts: int):  # noqa: ANN202 - boto3's own type
+            # Botocore's "standard" retries: throttling (503 SlowDown) and transient errors retried with exponential
+            # backoff and jitter; and timeouts short enough that an unreachable store answers within seconds (the
+            # default 60 s read timeout x 5 attempts held a request for 5 minutes against a frozen store).
+            return boto3.client("s3", endpoint_url=endpoint_url, region_name=region, config=Config(
+                connect_timeout=connect_timeout, read_timeout=read_timeout,
+                retries={"mode": "standard", "total_max_attempts": attempts}))
+
+        self._client = client(t.connect_timeout, t.read_timeout, t.max_attempts)
         # Fetches and lookups (GET, HEAD, LIST) have someone waiting on them (a client reading a result, a job
         # starting) and a store answers them at once when it answers at all: a shorter budget, so a frozen store
         # gives its 503 in seconds rather than after 3 x 10 s. Writes keep the longer one (a real S3 may take long
         # to complete a multipart upload).
-        self._fetcher = boto3.client("s3", endpoint_url=endpoint_url, region_name=region, config=Config(
-            connect_timeout=t.connect_timeout, read_timeout=min(t.fetch_timeout, t.read_timeout),
-            retries={"mode": "standard", "total_max_attempts": min(t.fetch_attempts, t.max_attempts)}))
+        self._fetcher = client(t.connect_timeout, min(t.fetch_timeout, t.read_timeout),
+                               min(t.fetch_attempts, t.max_attempts))
         self._transfer = TransferConfig(multipart_threshold=8 * CHUNK, multipart_chunksize=8 * CHUNK)
         options = (("endpoint_url", endpoint_url), ("region", region), *t.non_default())
         query = "&".join(f"{k}={v}" for k, v in options if v)
@@ -325,8 +328,7 @@ class S3BlobStore:
         self._cache = Path(cache_dir or Path(tempfile.gettempdir()) / "sweepcast-blob-cache")
         self.retry_after_s = t.retry_after
         self._breaker = _Breaker(t.retry_after)
-        self._probe = boto3.client("s3", endpoint_url=endpoint_url, region_name=region, config=Config(
-            connect_timeout=2, read_timeout=2, retries={"mode": "standard", "total_max_attempts": 1}))
+        self._probe = client(2, 2, 1)  # readiness: one try, 2 s
 
     def check(self) -> str | None:
         """None when the bucket answers within 2 s, else why not (for readiness: never raises)."""
