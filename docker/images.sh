@@ -100,6 +100,8 @@ sweepcast_image() {
     printf '{"seconds": %s, "built_at": "%s", "commit": "%s", "sources": "%s", "dirty": %s}\n' \
       "$(( $(date +%s) - start ))" "$(date -u +%Y-%m-%dT%H:%M:%SZ)" "$(git rev-parse HEAD)" "$(image_source_tree)" \
       "$(image_source_dirty)" > "$work/app-image.json"
+    # The image this build replaced is left untagged; ~2 GB each, so repeated runs filled /var/tmp (2026-11-29).
+    "${bah[@]}" rmi --prune >/dev/null || true
   fi
 }
 
