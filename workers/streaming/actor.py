@@ -396,13 +396,16 @@ class _Busy:
 def get_or_create(config: SessionConfig, resources: dict[str, float] | None = None,
                   actor_class: Any = SessionActor) -> Any:
     """The handle of the session actor for ``config`` (created from ``actor_class`` when there is
-    none, on the node :func:`wait_for_session_node` finds). Blocking. ``resources``: what the actor needs of a node; a
+    none; with no resources asked, on the node :func:`wait_for_session_node` finds). Blocking. ``resources``: what the actor needs of a node; a
     "GPU" entry (a fraction of one, say 0.25: four sessions share a card) is Ray's own GPU resource, which also
     makes the GPU visible to the actor (Ray hides every GPU from an actor that asks for none), so that its
     renderer searches depth there."""
     resources = dict(resources or {})
     gpus = float(resources.pop("GPU", 0.0))
-    node = None if _exists(config.name) else wait_for_session_node({**resources, "GPU": gpus})
+    # a session that asks for a GPU share or a custom resource goes where Ray finds it free (an API or head node
+    # has neither); one that asks nothing is pinned to a node with CPUs
+    asks = gpus > 0 or any(v > 0 for v in resources.values())
+    node = None if asks or _exists(config.name) else wait_for_session_node()
     return actor_class.options(
         name=config.name, namespace=NAMESPACE, lifetime="detached", get_if_exists=True,
         max_restarts=MAX_RESTARTS, max_concurrency=64, num_cpus=0, num_gpus=gpus, resources=resources,
@@ -422,30 +425,26 @@ def _exists(name: str) -> bool:
         return False
 
 
-def wait_for_session_node(need: dict[str, float], timeout_s: float = SESSION_NODE_WAIT_S) -> str | None:
+def wait_for_session_node(timeout_s: float = SESSION_NODE_WAIT_S) -> str | None:
     """:func:`session_node` of the live nodes, asked every half second until one qualifies or ``timeout_s`` has
     passed (a cluster's API replica is ready before its workers have joined: the demo session it starts at once
     ran on the replica's own node for the rest of a compose soak, 2026-11-29); None after that."""
     deadline = time.monotonic() + timeout_s
     said = False
-    while (node := session_node(ray.nodes(), need)) is None and time.monotonic() < deadline:
+    while (node := session_node(ray.nodes())) is None and time.monotonic() < deadline:
         if not said:
-            log.info("waiting up to %.0f s for a node with CPUs%s to start a viewer session on", timeout_s,
-                     f" and {need}" if any(v > 0 for v in need.values()) else "")
+            log.info("waiting up to %.0f s for a node with CPUs to start a viewer session on", timeout_s)
             said = True
         time.sleep(0.5)
     if node is None:
-        log.warning("no node with CPUs%s joined in %.0f s: the session starts where Ray places it",
-                    f" and {need}" if any(v > 0 for v in need.values()) else "", timeout_s)
+        log.warning("no node with CPUs joined in %.0f s: the session starts where Ray places it", timeout_s)
     return node
 
 
-def session_node(nodes: list[dict[str, Any]], need: dict[str, float],
-                 rng: random.Random | None = None) -> str | None:
-    """The id of the node a new session actor should run on: a live one (of ``nodes``, as :func:`ray.nodes`
-    lists them) with CPUs and, in total, every resource in ``need`` (amounts; 0 asks nothing), drawn at random
-    weighted by its CPUs, so that sessions spread over the worker nodes as their cores do. None when no node
-    qualifies.
+def session_node(nodes: list[dict[str, Any]], rng: random.Random | None = None) -> str | None:
+    """The id of the node a new session actor that asks for no resource should run on: a live one (of ``nodes``,
+    as :func:`ray.nodes` lists them) with CPUs, drawn at random weighted by its CPUs, so that sessions spread over
+    the worker nodes as their cores do. None when no node qualifies.
 
     Why: a session actor reserves no CPU (a node's CPUs are for the batch jobs, and a job retried alone on a node
     asks for all of them), so Ray's own choice for it is any node, and it prefers the caller's: in the compose
@@ -456,8 +455,7 @@ def session_node(nodes: list[dict[str, Any]], need: dict[str, float],
     unschedulable (Ray frees its name within seconds of marking the node dead), and :class:`SessionClient` makes a
     new one on a live node."""
     candidates = [(node["NodeID"], float(node["Resources"]["CPU"])) for node in nodes
-                  if node.get("Alive") and node.get("Resources", {}).get("CPU", 0.0) > 0
-                  and all(node["Resources"].get(k, 0.0) >= v for k, v in need.items() if v > 0)]
+                  if node.get("Alive") and node.get("Resources", {}).get("CPU", 0.0) > 0]
     if not candidates:
         return None
     ids, cpus = zip(*candidates)
