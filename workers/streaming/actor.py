@@ -395,11 +395,11 @@ class _Busy:
 # --- the API side ---------------------------------------------------------------------------------
 def get_or_create(config: SessionConfig, resources: dict[str, float] | None = None,
                   actor_class: Any = SessionActor) -> Any:
-    """The handle of the session actor for ``config`` (created from ``actor_class`` when there is
-    none; with no resources asked, on the node :func:`wait_for_session_node` finds). Blocking. ``resources``: what the actor needs of a node; a
-    "GPU" entry (a fraction of one, say 0.25: four sessions share a card) is Ray's own GPU resource, which also
-    makes the GPU visible to the actor (Ray hides every GPU from an actor that asks for none), so that its
-    renderer searches depth there."""
+    """The handle of the session actor for ``config`` (created from ``actor_class`` when there is none; with no
+    resources asked, on the node :func:`wait_for_session_node` finds). Blocking. ``resources``: what the actor needs
+    of a node; a "GPU" entry (a fraction of one, say 0.25: four sessions share a card) is Ray's own GPU resource,
+    which also makes the GPU visible to the actor (Ray hides every GPU from an actor that asks for none), so that
+    its renderer searches depth there."""
     resources = dict(resources or {})
     gpus = float(resources.pop("GPU", 0.0))
     # a session that asks for a GPU share or a custom resource goes where Ray finds it free (an API or head node
@@ -450,7 +450,7 @@ def session_node(nodes: list[dict[str, Any]], rng: random.Random | None = None) 
     asks for all of them), so Ray's own choice for it is any node, and it prefers the caller's: in the compose
     stack one session ran on an API replica's node (``docker/verify-stack.sh`` soak, 2026-11-29), which joins
     the cluster without CPUs; the head's node has none either. Where either is a small machine of its own, a
-    renderer there starves it. The affinity is hard: Ray's soft one put 1 of 4 new sessions on the caller's node
+    renderer there starves it. The affinity is hard: Ray's soft one put 1 and 2 of 4 new sessions on the caller's node
     anyway (a cluster of a CPU-less head and one worker, 2026-11-29); a session whose node is lost then fails as
     unschedulable (Ray frees its name within seconds of marking the node dead), and :class:`SessionClient` makes a
     new one on a live node."""
