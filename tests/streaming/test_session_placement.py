@@ -11,6 +11,7 @@ import sys
 import pytest
 
 from tests.servers import ray_cluster
+from workers.streaming import actor
 from workers.streaming.actor import session_node
 
 
@@ -76,8 +77,6 @@ def test_in_a_cluster_sessions_run_on_the_worker_not_beside_the_driver(tmp_path)
 
 def test_a_new_session_waits_for_a_node_with_cpus_to_join(monkeypatch):
     """An API replica is ready before its workers join: its demo session must not start on its own node."""
-    from workers.streaming import actor
-
     lists = iter([[node("api")], [node("api")], [node("api"), node("ab" * 28, CPU=1.0)]])
     monkeypatch.setattr(actor.ray, "nodes", lambda: next(lists))
     monkeypatch.setattr(actor.time, "sleep", lambda s: None)
@@ -85,8 +84,6 @@ def test_a_new_session_waits_for_a_node_with_cpus_to_join(monkeypatch):
 
 
 def test_a_session_no_node_can_host_is_left_to_ray_after_the_wait(monkeypatch):
-    from workers.streaming import actor
-
     monkeypatch.setattr(actor.ray, "nodes", lambda: [node("api")])
     assert actor.wait_for_session_node(timeout_s=0.6) is None
 
@@ -97,8 +94,6 @@ def test_a_session_pinned_to_a_lost_node_is_made_again_on_the_next_call(monkeypa
     from types import SimpleNamespace
 
     import ray.exceptions
-
-    from workers.streaming import actor
 
     class Handle:
         def __init__(self, lost: bool) -> None:

@@ -402,8 +402,11 @@ def get_or_create(config: SessionConfig, resources: dict[str, float] | None = No
     its renderer searches depth there."""
     resources = dict(resources or {})
     gpus = float(resources.pop("GPU", 0.0))
-    # a session that asks for a GPU share or a custom resource goes where Ray finds it free (an API or head node
-    # has neither); one that asks nothing is pinned to a node with CPUs
+    # A session that asks for a GPU share or a custom resource goes where Ray finds it free (an API or head node
+    # has neither); one that asks nothing is pinned to a node with CPUs. The pin is hard: Ray's soft one put 1 and
+    # 2 of 4 new sessions on the caller's node anyway (a CPU-less head and one worker, 2026-11-29). A session whose
+    # node is lost then fails as unschedulable (Ray frees its name once it marks the node dead), and
+    # SessionClient makes a new one on a live node.
     asks = gpus > 0 or any(v > 0 for v in resources.values())
     node = None if asks or _exists(config.name) else wait_for_session_node()
     return actor_class.options(
@@ -450,10 +453,7 @@ def session_node(nodes: list[dict[str, Any]], rng: random.Random | None = None) 
     asks for all of them), so Ray's own choice for it is any node, and it prefers the caller's: in the compose
     stack one session ran on an API replica's node (``docker/verify-stack.sh`` soak, 2026-11-29), which joins
     the cluster without CPUs; the head's node has none either. Where either is a small machine of its own, a
-    renderer there starves it. The affinity is hard: Ray's soft one put 1 and 2 of 4 new sessions on the caller's node
-    anyway (a cluster of a CPU-less head and one worker, 2026-11-29); a session whose node is lost then fails as
-    unschedulable (Ray frees its name within seconds of marking the node dead), and :class:`SessionClient` makes a
-    new one on a live node."""
+    renderer there starves it."""
     candidates = [(node["NodeID"], float(node["Resources"]["CPU"])) for node in nodes
                   if node.get("Alive") and node.get("Resources", {}).get("CPU", 0.0) > 0]
     if not candidates:
