@@ -11,6 +11,8 @@ says how many images each category had), never committed (each source's licence 
 - ``foliage``: ``mate-backgrounds`` nature photos (leaves, grass, flowers, sky);
 - ``fabric/paper``: ``mypaint-data-extras`` paper and canvas textures (GPL-2+);
 - ``skimage``: scikit-image's bundled photos that ``dev noup`` does not already hold (CC0 / public domain);
+- ``leptonica``: the photos and scans with nothing to read among Leptonica's test images
+  (:mod:`benchmarks._leptonica`, fetched from Debian's archive on first use);
 - ``generated``: textures made here with fixed seeds: field patchworks seen from above with crop rows and wind
   turbines (the satellite photo that fooled the old text cue), woven fabric, foliage, crowds of heads seen from
   above, stripes, cells, fractal noise.
@@ -25,6 +27,8 @@ from typing import Callable
 
 import cv2
 import numpy as np
+
+from benchmarks._leptonica import NO_TEXT as LEPTONICA_NO_TEXT, images as leptonica_images
 
 MAX_SIDE = 2000
 """Long side (px) the installed images are reduced to (the text cue reads at most 2400 px; decoding 20 MP
@@ -70,6 +74,7 @@ def sources(data_root: Path) -> dict[str, list[Path]]:
         "foliage": _files(Path("/usr/share/backgrounds/mate/nature")),
         "fabric/paper": [p for sub in sorted(mypaint.glob("*")) for p in _files(sub)] if mypaint.is_dir() else [],
         "skimage": _files(skimage_data, _SKIMAGE),
+        "leptonica": [lept / name for name in LEPTONICA_NO_TEXT] if (lept := leptonica_images()) else [],
     }
 
 

@@ -710,6 +710,7 @@ def markdown(results: dict) -> str:
 def run_text_section(face_photos: list[Path], yunet: Path | None, records_path: Path, quick: bool) -> int:
     """Section orientation_text (issue 33): the text cue's rule on the text photos, by split, and on the no-text set,
     by category (:mod:`benchmarks._text_records`, :mod:`benchmarks._notext`); per-photo CPU of each cue."""
+    from benchmarks._leptonica import SOURCE as LEPTONICA, TEXT as LEPTONICA_TEXT, images as leptonica_images
     from benchmarks._notext import DEBIAN_PACKAGES, describe, no_text_images
     from benchmarks._text_records import collect, section, select_rule
 
@@ -721,6 +722,9 @@ def run_text_section(face_photos: list[Path], yunet: Path | None, records_path: 
     every = 3 if quick else 1
     jobs = [("text", p.name, lambda p=p: cv2.imread(str(p), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION))
             for p in find_photos(root)[::every]]
+    lept = leptonica_images()
+    jobs += [("text", f"{LEPTONICA}__{name}", lambda p=lept / name: cv2.imread(str(p), cv2.IMREAD_GRAYSCALE))
+             for name in (LEPTONICA_TEXT[::every] if lept else ())]
     jobs += [(cat, name, lambda load=load: cv2.cvtColor(load(), cv2.COLOR_BGR2GRAY))
              for cat, name, load in no_text_images(data_root(), every)]
     records_path.parent.mkdir(parents=True, exist_ok=True)
@@ -730,8 +734,10 @@ def run_text_section(face_photos: list[Path], yunet: Path | None, records_path: 
     selected, grid_rows = select_rule(records, vocabulary)
     counts = describe(data_root())
     note = (f"No-text set: {sum(counts.values())} images here ({', '.join(f'{k} {v}' for k, v in counts.items())}), "
-            f"from $SWEEPCAST_DATA, the Debian packages {', '.join(DEBIAN_PACKAGES)}, scikit-image's bundled photos "
-            "and textures generated with fixed seeds (benchmarks/_notext.py says which and why; none is committed). "
+            f"from $SWEEPCAST_DATA, the Debian packages {', '.join(DEBIAN_PACKAGES)}, scikit-image's bundled photos, "
+            "Leptonica's test photos and textures generated with fixed seeds (benchmarks/_notext.py says which and "
+            f"why; none is committed). Text photos: {sum(job[0] == 'text' for job in jobs)} here, of them "
+            f"{len(LEPTONICA_TEXT[::every]) if lept else 0} Leptonica test images (benchmarks/_leptonica.py). "
             f"Word lists: {len(vocabulary)} words in {text.wordlists}; tesseract {text.version} ({text.backend}).")
     results, markdown_text = section(records, vocabulary, selected, grid_rows, note)
     results["cue_cpu"] = cue_cpu(face_photos, yunet)
