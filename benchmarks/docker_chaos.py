@@ -19,7 +19,10 @@ stack's API key:
   (``podman update --memory``: the retry cannot land on an unlimited one), then chaos.py's oversized job (a 49 MP
   depth map upsampled with the weighted median filter, ~1.6 GB) beside ordinary batches; the limits lifted after.
   Whatever stops it (Ray's memory monitor, which reads the container's limit, or the kernel's OOM killer), the
-  ordinary batches must succeed and the oversized job fail saying memory.
+  ordinary batches must succeed, and the oversized job, tried again alone on a node (app/dispatcher.py), succeed if
+  it fits there, else fail saying memory. Which of the two depends on what the node it runs alone on has free under
+  its limit (seen both ways on 2026-11-29: failed after 3 attempts under limits of 1758 and 1491 MB, succeeded on its
+  second under 1613 and 1876 MB).
 
 Not done here, and why: storage_slowdown (the stand-in has no 503 mode; chaos.py's proxy answers 503 SlowDown);
 storage_full (the compose stack keeps every blob in the object store: no volume of it fills).
