@@ -723,7 +723,8 @@ def run_text_section(face_photos: list[Path], yunet: Path | None, records_path: 
     jobs = [("text", p.name, lambda p=p: cv2.imread(str(p), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION))
             for p in find_photos(root)[::every]]
     lept = leptonica_images()
-    jobs += [("text", f"{LEPTONICA}__{name}", lambda p=lept / name: cv2.imread(str(p), cv2.IMREAD_GRAYSCALE))
+    jobs += [("text", f"{LEPTONICA}__{name}", lambda p=lept / name: cv2.imread(
+        str(p), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION))
              for name in (LEPTONICA_TEXT[::every] if lept else ())]
     jobs += [(cat, name, lambda load=load: cv2.cvtColor(load(), cv2.COLOR_BGR2GRAY))
              for cat, name, load in no_text_images(data_root(), every)]
