@@ -22,6 +22,7 @@ book spines or calligraphy rule one out: wet-day, dave-orig, marge, fish24 are l
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import tarfile
@@ -57,9 +58,11 @@ def cache_dir() -> Path:
     return Path(os.environ.get("SWEEPCAST_BENCH_CACHE", Path.home() / ".cache" / "sweepcast-bench")) / SOURCE
 
 
+@functools.cache
 def images(timeout_s: float = 120) -> Path | None:
     """The folder holding every file of :data:`TEXT` and :data:`NO_TEXT`, fetched and unpacked on first use; None
-    (with the reason printed) when the archive cannot be reached or does not match its checksum."""
+    (with the reason printed) when the archive cannot be reached or does not match its checksum. Decided once per
+    process: the text section and the no-text set's listing both ask."""
     folder = cache_dir() / "prog"
     wanted = set(TEXT) | set(NO_TEXT)
     if folder.is_dir() and wanted <= {p.name for p in folder.iterdir()}:

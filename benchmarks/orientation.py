@@ -723,9 +723,9 @@ def run_text_section(face_photos: list[Path], yunet: Path | None, records_path: 
     jobs = [("text", p.name, lambda p=p: cv2.imread(str(p), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION))
             for p in find_photos(root)[::every]]
     lept = leptonica_images()
+    lept_names = LEPTONICA_TEXT[::every] if lept else ()
     jobs += [("text", f"{LEPTONICA}__{name}", lambda p=lept / name: cv2.imread(
-        str(p), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION))
-             for name in (LEPTONICA_TEXT[::every] if lept else ())]
+        str(p), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)) for name in lept_names]
     jobs += [(cat, name, lambda load=load: cv2.cvtColor(load(), cv2.COLOR_BGR2GRAY))
              for cat, name, load in no_text_images(data_root(), every)]
     records_path.parent.mkdir(parents=True, exist_ok=True)
@@ -738,7 +738,7 @@ def run_text_section(face_photos: list[Path], yunet: Path | None, records_path: 
             f"from $SWEEPCAST_DATA, the Debian packages {', '.join(DEBIAN_PACKAGES)}, scikit-image's bundled photos, "
             "Leptonica's test photos and textures generated with fixed seeds (benchmarks/_notext.py says which and "
             f"why; none is committed). Text photos: {sum(job[0] == 'text' for job in jobs)} here, of them "
-            f"{len(LEPTONICA_TEXT[::every]) if lept else 0} Leptonica test images (benchmarks/_leptonica.py). "
+            f"{len(lept_names)} Leptonica test images (benchmarks/_leptonica.py). "
             f"Word lists: {len(vocabulary)} words in {text.wordlists}; tesseract {text.version} ({text.backend}).")
     results, markdown_text = section(records, vocabulary, selected, grid_rows, note)
     results["cue_cpu"] = cue_cpu(face_photos, yunet)
