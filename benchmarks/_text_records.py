@@ -150,6 +150,16 @@ out. Fixed before any figure was seen. Leptonica's test images (:mod:`benchmarks
 sources on 2026-11-29, after the others had been measured."""
 ADDED_LATER = (LEPTONICA,)
 """Held-out sources added after the first held-out figure: the goal line also gives the figure without them."""
+INFORMED = {
+    "tesstest__hebtypo.jpg": "2026-11-29",
+    "leptonica__arabic.png": "2026-11-29",
+    "leptonica__arabic2.png": "2026-11-29",
+}
+"""Held-out images whose failure in a held-out figure informed a later change of the engine, with the change's date:
+the three pages in scripts no installed word list holds (Hebrew, Arabic), left undecided once words had to be
+known to a dictionary, led to the script model's dictionary deciding for such scripts
+(:func:`workers.orientation.words.known`). They are held out no longer in the strict sense: the goal line also
+gives the figure without them."""
 TUNE_NO_TEXT = ("dev noup",)
 """The no-text category the rule may be tuned on; every other category is held out."""
 GRID = {"min_real": (2, 3, 4, 5), "osd_real": (1, 2, 3), "scene_words": (1, 2, 3), "scene_letters": (6, 8, 12),
@@ -288,6 +298,12 @@ def section(records: list[dict], vocabulary, selected: Rule, grid_rows: list[dic
     first_sources = [c for k, c in engine.get("text", {}).items()
                      if k.startswith("held out") and k.split(": ", 1)[1] not in ADDED_LATER]
     held_first = {f: sum(c[f] for c in first_sources) for f in ("trials", "decided", "wrong")}
+    uninformed = [rec for rec in records if rec["set"] == "text" and part(rec) == "held out"
+                  and rec["image"] not in INFORMED]
+    clean = {"trials": 4 * len(uninformed),
+             "decided": sum(decide(rec, t, vocabulary, Rule())[0] == t for rec in uninformed for t in ROTATIONS),
+             "wrong": sum(decide(rec, t, vocabulary, Rule())[0] not in (None, t) for rec in uninformed
+                          for t in ROTATIONS)}
     goals = [
         f"- No decision where there is nothing to read: the engine decided {no_text['wrong']} of {no_text['trials']} "
         f"no-text trials: **{'met' if no_text['trials'] and no_text['wrong'] == 0 else 'not met'}**.",
@@ -296,6 +312,9 @@ def section(records: list[dict], vocabulary, selected: Rule, grid_rows: list[dic
         + (f" Without the sources added later ({', '.join(ADDED_LATER)}): {held_first['decided']}/"
            f"{held_first['trials']} ({_pct(held_first)}), {held_first['wrong']} wrong."
            if held_first['trials'] != held['trials'] else "")
+        + (f" Without the held-out images whose failures informed a later change of the engine "
+           f"({', '.join(f'{k} ({v})' for k, v in INFORMED.items())}): {clean['decided']}/{clean['trials']} "
+           f"({_pct(clean)}), {clean['wrong']} wrong." if clean['trials'] != held['trials'] else "")
         + (f" Left undecided: {'; '.join(missed)}." if missed else ""),
     ]
     chosen = {k: getattr(Rule(), k) for k in GRID}

@@ -738,8 +738,10 @@ def run_text_section(face_photos: list[Path], yunet: Path | None, records_path: 
             f"from $SWEEPCAST_DATA, the Debian packages {', '.join(DEBIAN_PACKAGES)}, scikit-image's bundled photos, "
             "Leptonica's test photos and textures generated with fixed seeds (benchmarks/_notext.py says which and "
             f"why; none is committed). Text photos: {sum(job[0] == 'text' for job in jobs)} here, of them "
-            f"{len(lept_names)} Leptonica test images (benchmarks/_leptonica.py). "
-            f"Word lists: {len(vocabulary)} words in {text.wordlists}; tesseract {text.version} ({text.backend}).")
+            f"{len(lept_names)} Leptonica test images (benchmarks/_leptonica.py; one taken out of its list after a "
+            "run showed it stored turned, which its docstring says). "
+            f"Word lists: {len(vocabulary)} words in {text.wordlists}; tesseract {text.version} ({text.backend}); "
+            f"script models: {', '.join(text.script_models) or 'none'}.")
     results, markdown_text = section(records, vocabulary, selected, grid_rows, note)
     results["cue_cpu"] = cue_cpu(face_photos, yunet)
     results["load_average"] = [load_before, os.getloadavg()[0]]

@@ -31,6 +31,17 @@ def test_dense_scripts_are_known_by_tesseracts_dictionary_from_two_characters():
     assert not known(w("RTA", dictionary=True), VOCABULARY)
 
 
+def test_a_script_no_word_list_holds_is_known_by_tesseracts_dictionary():
+    # Debian ships no Hebrew or Arabic word list: the script model's dictionary decides, from four letters
+    assert known(w("שלום", dictionary=True), VOCABULARY) and not known(w("שלום", dictionary=False), VOCABULARY)
+    assert known(w("(محمد)", dictionary=True), VOCABULARY)
+    assert [x.text for x in real_words([w("שלום", dictionary=True), w("של", dictionary=True)], VOCABULARY)] == ["שלום"]
+    # once a word list of the script is installed, it decides, as for Latin
+    with_hebrew = VOCABULARY | {"שלום"}
+    assert known(w("שלום", dictionary=False), with_hebrew) and not known(w("שלוס", dictionary=True), with_hebrew)
+    assert known(w("Paris", dictionary=False), with_hebrew)
+
+
 def test_evidence_maps_real_words_back_onto_the_stored_page():
     # a 200 x 100 page read turned 90 degrees clockwise (the view is 100 x 200): a word at the view's top left
     ev = evidence([w("Receipt", box=(0, 0, 50, 10)), w("lll")], 90, 200, 100, VOCABULARY)

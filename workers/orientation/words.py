@@ -6,11 +6,13 @@ in every direction. A *real word* (:func:`real_words`) is one that
 
 - Tesseract read confidently (``TEXT_WORD_MIN_CONFIDENCE``), made mostly of letters, at least
   ``REAL_WORD_MIN_LETTERS`` of them (two for the scripts whose words are one or two characters: CJK, Hangul, Thai);
-- a dictionary knows: for alphabetic scripts the word lists installed for people (Debian's ``wamerican``,
-  ``wngerman``, ``wfrench``, ...: every file in ``SWEEPCAST_ORIENTATION_WORDLISTS``, default ``/usr/share/dict``);
-  for the dense scripts the reading script model's own dictionary (Tesseract's word DAWG, ``WordIsFromDictionary``;
-  only through tesserocr). Tesseract's flag is not used for Latin words: read with a script model first, "LITTER"
-  and "CITY" were not flagged, and it flags strings such as "np", "RTA" or "DAE" read from textures or sideways;
+- a dictionary knows: for an alphabetic script the word lists installed for people hold words of (Debian's
+  ``wamerican``, ``wngerman``, ``wfrench``, ...: every file in ``SWEEPCAST_ORIENTATION_WORDLISTS``, default
+  ``/usr/share/dict``), those word lists; for the dense scripts, and for a script no installed word list holds
+  (Debian ships none for Hebrew or Arabic), the reading script model's own dictionary (Tesseract's word DAWG,
+  ``WordIsFromDictionary``; only through tesserocr). Tesseract's flag is not used where word lists exist: read with
+  a script model first, "LITTER" and "CITY" were not flagged, and it flags strings such as "np", "RTA" or "DAE"
+  read from textures or sideways;
 - is not made of vertical strokes only (``i``, ``l``, ``j``, ``t``, ``f``: what a pattern of lines reads as), and has
   two different letters at least;
 - lies along the reading direction: its box is wider than tall, as a horizontal word of two or more letters is;
@@ -23,6 +25,7 @@ with the opposite view's, region by region (:func:`overlapping`): text read upri
 from __future__ import annotations
 
 import statistics
+import unicodedata
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -45,6 +48,9 @@ REAL_WORD_MIN_LETTERS_DENSE = 2
 REAL_WORD_HEIGHT_RATIO = 2.5
 """A real word's box height is within this factor of the median height of the view's real words."""
 _STROKES = frozenset("iljtf")
+_NON_LATIN_FROM = 0x0370
+"""Code points from Greek upwards are not Latin (Latin, its extensions and IPA lie below)."""
+_NON_LATIN_CHAR = chr(_NON_LATIN_FROM)
 _DENSE_SCRIPTS_FROM = 0x0E00
 """Code points from Thai upwards (Thai, Hangul, CJK, kana) are the dense scripts; Latin, Greek, Cyrillic, Hebrew and
 Arabic lie below."""
@@ -109,15 +115,32 @@ def _core(text: str) -> str:
 
 
 def known(word: OcrWord, vocabulary: AbstractSet[str]) -> bool:
-    """A dictionary knows ``word``: Tesseract's own for the dense scripts, else the word lists (lower case,
-    punctuation around it stripped)."""
-    if _is_dense(word.text):
+    """A dictionary knows ``word``: the word lists (``vocabulary``, lower case; punctuation around the word stripped)
+    when they hold words of its script, else Tesseract's own (the dense scripts always)."""
+    script = _script(word.text)
+    if _is_dense(word.text) or (script != "LATIN" and script not in _scripts_of(frozenset(vocabulary))):
         return word.dictionary is True
     return _core(word.text).lower() in vocabulary
 
 
 def letter_count(text: str) -> int:
     return sum(ch.isalpha() for ch in text)
+
+
+def _script(text: str) -> str:
+    """The script of ``text``'s first letter beyond Latin (the first word of its Unicode name: ``GREEK``, ``CYRILLIC``,
+    ``HEBREW``, ``ARABIC``, ...), else ``LATIN``."""
+    for ch in text:
+        if ch.isalpha() and ord(ch) >= _NON_LATIN_FROM:
+            return unicodedata.name(ch, "UNKNOWN").split(" ", 1)[0]
+    return "LATIN"
+
+
+@lru_cache(maxsize=4)
+def _scripts_of(vocabulary: AbstractSet[str]) -> frozenset[str]:
+    """The scripts the word lists hold words of (``LATIN`` always: the English OCR's words are looked up in them,
+    installed or not)."""
+    return frozenset({"LATIN"} | {_script(word) for word in vocabulary if word and max(word) >= _NON_LATIN_CHAR})
 
 
 def _is_dense(text: str) -> bool:
