@@ -145,9 +145,19 @@ def ready() -> tuple[bool, str]:
 
         if not ray.is_initialized():
             return False, "Ray is not connected yet"
-        nodes = [n for n in ray.nodes() if n.get("Alive")]
-        if not nodes:
-            return False, "no live Ray node"
-        return True, f"{len(nodes)} Ray node(s)"
+        return describe_nodes(ray.nodes())
     except Exception as exc:  # noqa: BLE001 - readiness reports, it never raises
         return False, f"Ray unreachable: {type(exc).__name__}: {exc}"
+
+
+def describe_nodes(nodes: list[dict]) -> tuple[bool, str]:
+    """Readiness from ``ray.nodes()``: ready with a live node. A cluster whose live nodes offer no CPU (its workers
+    gone) is still ready, since uploads are accepted and jobs wait for a worker (failing after
+    ``SWEEPCAST_JOB_UNSCHEDULABLE_SECONDS``), but says so: an operator's probe then shows why nothing runs."""
+    live = [n for n in nodes if n.get("Alive")]
+    if not live:
+        return False, "no live Ray node"
+    cpus = sum(float((n.get("Resources") or {}).get("CPU", 0)) for n in live)
+    if cpus <= 0:
+        return True, f"{len(live)} Ray node(s), none with CPUs: jobs wait until a worker joins"
+    return True, f"{len(live)} Ray node(s), {cpus:g} CPU(s) for jobs"

@@ -88,7 +88,8 @@ def test_a_replica_with_ray_join_node_joins_the_cluster_as_a_node_without_cpus(t
                     "SWEEPCAST_RAY_JOIN_NODE": "true", "SWEEPCAST_DATA_DIR": str(tmp_path / "data"),
                     "SWEEPCAST_DEMO_RIG": "false"}, log=tmp_path / "serve.log", ready_timeout=120) as app:
                 ready = httpx.get(f"{app.base}/readyz", timeout=10).json()["checks"]["ray"]
-                assert ready["detail"] == "3 Ray node(s)", ready  # the head, the worker and this replica's
+                # the head, the worker and this replica's; only the worker's CPU runs jobs
+                assert ready["detail"] == "3 Ray node(s), 1 CPU(s) for jobs", ready
                 assert "joining the Ray cluster at" in app.log_tail(20000)
         finally:
             kill_mentioning(own)

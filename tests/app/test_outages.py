@@ -148,3 +148,17 @@ def test_a_frozen_store_fails_a_fetch_within_its_shorter_budget_while_a_write_ke
         proxy.set("pass")
     time.sleep(1.1)
     assert store.read("jobs/a/report.json") == b"{}"
+
+
+def test_readiness_says_when_no_live_node_offers_a_cpu():
+    """Every worker gone: still ready (uploads are taken, jobs wait for a worker), but the probe says why nothing
+    runs; no live node at all: not ready."""
+    from app.raycluster import describe_nodes
+
+    head = {"Alive": True, "Resources": {"memory": 1e9}}  # `ray start --head --num-cpus=0`: no CPU key at all
+    api = {"Alive": True, "Resources": {"CPU": 0.0, "node:10.0.0.3": 1.0}}
+    worker = {"Alive": True, "Resources": {"CPU": 2.0, "sweepcast_worker": 1.0}}
+    assert describe_nodes([head, api, worker]) == (True, "3 Ray node(s), 2 CPU(s) for jobs")
+    assert describe_nodes([head, api, {**worker, "Alive": False}]) == (
+        True, "2 Ray node(s), none with CPUs: jobs wait until a worker joins")
+    assert describe_nodes([{**head, "Alive": False}]) == (False, "no live Ray node")
