@@ -31,8 +31,8 @@ and what guards each:
   ``TEXT_VERIFY_MIN_WORDS`` confident words and ``TEXT_VERIFY_RATIO`` times as many as the other is
   accepted (so a candidate OSD got upside down is turned round by reading); else the candidate on OSD
   alone only when every vote agrees with a mean confidence of at least ``TEXT_MIN_CONFIDENCE`` and
-  OCR does not read the other way up clearly better (non-Latin scripts, which the English OCR cannot
-  read, are decided this way);
+  OCR does not read the other way up clearly better (and, since issue 33, reads real words this way up: pages
+  in a script the English OCR cannot read are left to the scene reading with that script's model);
 - *uneven light, faint print*: OSD sees the view binarised with a local threshold (Tesseract's own
   global threshold lost thermal receipts, which OSD then read upside down in every view); OCR reads
   the grey page first and, when that does not verify, the binarised one;
