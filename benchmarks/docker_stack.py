@@ -102,6 +102,7 @@ def up_timeline(stack: Stack, name: str) -> dict[str, Any]:
     """``up -d``, then each API replica's ``/readyz`` polled every 0.2 s: ``{name}_to_ready_s`` and where the time
     went (``{name}_timeline``: when ``up -d`` returned, when each replica first answered ready, and each container's
     start and restart count, seconds from the start of ``up``)."""
+    busy0 = machine_busy_cpu_s()
     t0 = time.monotonic()
     wall0 = time.time()
     stack.run("up", "-d")
@@ -111,18 +112,47 @@ def up_timeline(stack: Stack, name: str) -> dict[str, Any]:
         wait_for(lambda: ready(stack, replica), 600, f"API replica {replica + 1} /readyz ({name})", interval=0.2)
         ready_at[f"api replica {replica + 1}"] = time.monotonic() - t0
     total = time.monotonic() - t0
+    busy = machine_busy_cpu_s() - busy0
     started = {}
     for service in ("postgres", "redis", "ray-head", "ray-worker", "api", "api-2"):
         for container in stack.containers(service):
             seen = inspect(container)
             started[container] = {"started_s": round(_podman_time(seen["State"]["StartedAt"]) - wall0, 2),
-                                  "restarts": seen["RestartCount"]}
+                                  "restarts": seen["RestartCount"], "cpu_s": container_cpu_s(seen)}
     return {f"{name}_to_ready_s": total,
             f"{name}_timeline": {"up_returned_s": round(returned, 2),
                                  "ready_s": {k: round(v, 2) for k, v in ready_at.items()},
+                                 "machine_cpu_s": round(busy, 2), "cores": os.cpu_count(),
                                  "containers": started,
                                  **({"diagnostics": str(keep_node_logs(stack, name))}
                                     if total > SLOW_UP_S or any(c["restarts"] for c in started.values()) else {})}}
+
+
+def machine_busy_cpu_s() -> float:
+    """The CPU seconds this machine has spent busy since boot, all cores together (``/proc/stat``: user, nice,
+    system, irq, softirq)."""
+    with open("/proc/stat") as f:
+        fields = f.readline().split()
+    return sum(int(fields[i]) for i in (1, 2, 3, 6, 7)) / os.sysconf("SC_CLK_TCK")
+
+
+def container_cpu_s(seen: dict[str, Any]) -> float | None:
+    """The CPU seconds a running container (its ``podman inspect``) has used since it started, from its cgroup (v1
+    ``cpuacct.usage`` or v2 ``cpu.stat``); None when neither can be read."""
+    path = seen.get("State", {}).get("CgroupPath")
+    if not path:
+        return None
+    v1 = Path(f"/sys/fs/cgroup/cpuacct{path}/cpuacct.usage")
+    v2 = Path(f"/sys/fs/cgroup{path}/cpu.stat")
+    try:
+        if v1.exists():
+            return round(int(v1.read_text()) / 1e9, 2)
+        if v2.exists():
+            usage = dict(line.split() for line in v2.read_text().splitlines())
+            return round(int(usage["usage_usec"]) / 1e6, 2)
+    except (OSError, KeyError, ValueError):
+        pass
+    return None
 
 
 def inspect(container: str) -> dict[str, Any]:
@@ -517,8 +547,16 @@ def timeline_lines(r: dict) -> list[str]:
                            + (f" ({v['restarts']} restarts)" if v["restarts"] else "")
                            for c, v in sorted(tl["containers"].items(), key=lambda kv: kv[1]["started_s"]))
         ready = "; ".join(f"{k} {v:.1f}" for k, v in tl["ready_s"].items())
+        cpu = ""
+        if tl.get("machine_cpu_s") is not None:
+            used = {c: v["cpu_s"] for c, v in tl["containers"].items() if v.get("cpu_s") is not None}
+            cpu = (f" CPU spent from the command to ready: the machine {tl['machine_cpu_s']:.1f} s, so at least "
+                   f"{tl['machine_cpu_s'] / tl['cores']:.1f} s on its {tl['cores']} cores whatever the order of the "
+                   "starts" + (f"; the containers {sum(used.values()):.1f} s of it ("
+                               + ", ".join(f"{c} {v:.1f}" for c, v in sorted(used.items(), key=lambda kv: -kv[1]))
+                               + ")" if used else "") + ".")
         lines.append(f"Timeline of {what}, seconds from the command: it returned at {tl['up_returned_s']:.1f}; "
-                     f"ready: {ready}; each container last started at: {starts}."
+                     f"ready: {ready}; each container last started at: {starts}.{cpu}"
                      + (f" The nodes' logs were kept ({tl['diagnostics']})." if tl.get("diagnostics") else ""))
     return lines
 
