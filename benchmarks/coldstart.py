@@ -335,7 +335,10 @@ def markdown(r: dict) -> str:
                   f"built from {image['commit']} in {image['image_build_s']} s, empty volumes; "
                   "`benchmarks/results/docker.json`): "
                   + ("the image alone first (`podman run ... standalone` on a new volume, nothing else running: local "
-                     "Ray, SQLite; timed as a service start here), then " if alone else "")
+                     "Ray, SQLite; timed as a service start here"
+                     + (f"; ready is the median of {len(alone['ready_samples_s'])} starts, "
+                        + ", ".join(f"{v:.1f}" for v in alone["ready_samples_s"]) + " s"
+                        if alone.get("ready_samples_s") else "") + "), then " if alone else "")
                   + "the compose stack, where the steps come in another order: ready is `up` to `/readyz` on both API "
                   "replicas (eight containers booting at once on this machine, which podman-compose starts one after "
                   f"another), the first photo is a batch of {image['photos']} photos, and the viewer's first frame "
