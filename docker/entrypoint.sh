@@ -10,8 +10,10 @@ if [ -z "${SWEEPCAST_ORIENTATION_YUNET_MODEL:-}" ] && [ -f "$yunet" ]; then
 fi
 # The kernels compiled into the image (SWEEPCAST_PREBUILT_KERNELS, for x86-64-v3): copied into /data's cache and
 # numba's CPU target set to theirs, for every process of this container (Ray's included); on a CPU without that
-# baseline, nothing set: they compile for this CPU into /data instead (the log says why, and /readyz).
-case "$role" in api|standalone|ray-head|ray-worker) eval "$(sweepcast kernel-env)" ;; esac
+# baseline, nothing set: they compile for this CPU into /data instead (the log says why, and /readyz). `sweepcast
+# serve` and `sweepcast worker` do it themselves before they start Ray's processes; the head's `ray start` is given
+# it here (a Python start of its own: a third of a second before the API's could begin).
+case "$role" in ray-head) eval "$(sweepcast kernel-env)" ;; esac
 case "$role" in
   api)
     # with a cluster: the service joins it as a node without CPUs while it imports itself (ray_join_node), and

@@ -12,8 +12,8 @@ def test_help_lists_the_service_and_every_engine_verb():
 
 
 def test_the_entrypoint_verb_imports_no_engine(tmp_path):
-    """Every container start runs ``sweepcast kernel-env`` (then its role's verb): it must not import the engines
-    (a second and a half of CPU each, five app containers booting at once on 2 cores)."""
+    """The Ray head's container start runs ``sweepcast kernel-env`` (then ``ray start``): it must not import the
+    engines (a second and a half of CPU, beside the other containers booting at once on 2 cores)."""
     code = ("import sys; from app.cli import main; "
             f"main(['kernel-env', '--data-dir', {str(tmp_path)!r}]); "
             "loaded = [m for m in sys.modules if m.startswith(('workers.drone', 'workers.faces', 'workers.sweep'))]; "
