@@ -101,7 +101,8 @@ def ready(stack: Stack, replica: int) -> bool:
 def up_timeline(stack: Stack, name: str) -> dict[str, Any]:
     """``up -d``, then each API replica's ``/readyz`` polled every 0.2 s: ``{name}_to_ready_s`` and where the time
     went (``{name}_timeline``: when ``up -d`` returned, when each replica first answered ready, and each container's
-    start and restart count, seconds from the start of ``up``)."""
+    start and restart count, seconds from the start of ``up``; the CPU seconds the machine spent busy meanwhile and
+    each container's own: their sum over the cores is a floor under the wall time that no order of starts beats)."""
     busy0 = machine_busy_cpu_s()
     t0 = time.monotonic()
     wall0 = time.time()
