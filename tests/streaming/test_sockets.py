@@ -110,6 +110,7 @@ def test_bad_input_gets_an_error_and_other_viewers_keep_their_session(recorded):
 
         assert wait_until(lambda: listed()["info"]["viewers"] == 1)  # a left when it was closed
         assert listed()["source"] == rec and listed()["info"]["restarted"] is False
+        assert listed()["info"]["node_id"] == ray.get_runtime_context().get_node_id()  # the one local node
         assert listed()["info"]["renders"] >= 2
 
 

@@ -98,6 +98,8 @@ class SessionHost:
     def __init__(self, config: SessionConfig) -> None:
         ctx = ray.get_runtime_context()
         self.config = config
+        self.node = {"node_id": ctx.get_node_id(), "node_ip": ray.util.get_node_ip_address()}
+        """Where the session runs (``GET /v1/sessions``: which worker an operator looks at for a slow viewer)."""
         with warnings.catch_warnings():  # Ray reads its own deprecated actor_id property here
             warnings.simplefilter("ignore", DeprecationWarning)
             self.restarted = ctx.was_current_actor_reconstructed
@@ -259,7 +261,7 @@ class SessionHost:
         now = time.monotonic()
         active = [v for v, t in self._viewers.items() if now - t <= self.config.idle_seconds]
         return {**self.session.describe(), "rig_id": self.config.rig_id, "source": self.config.source,
-                "viewers": len(active), "restarted": self.restarted, "pid": os.getpid(),
+                "viewers": len(active), "restarted": self.restarted, "pid": os.getpid(), **self.node,
                 "idle_s": round(now - self._last, 3), "persisted_seq": self.persisted_seq,
                 "failures": self.failures, "turns": self.turns.describe()}
 
