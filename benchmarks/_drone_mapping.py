@@ -504,13 +504,11 @@ def _real_md(o: dict[str, Any]) -> str:
 
 def _height_pattern_md(o: dict[str, Any]) -> str:
     """Table and reading of the lines' height pattern against the focal length and the GPS prior's weight."""
-    keys = [*(f"ours_focal_held_{f:g}" for f in HELD_FOCALS), "ours_selfcal", "pycolmap_selfcal",
-            "ours_selfcal_gps_prior_2m", *(f"ours_selfcal_gps_prior_{m:g}m" for m in PRIOR_SIGMAS)]
     labels = {**{f"ours_focal_held_{f:g}": f"ours, focal length held at {f:g} px" for f in HELD_FOCALS},
               "ours_selfcal": "ours, self-calibrated", "pycolmap_selfcal": "pycolmap, self-calibrated",
-              "ours_selfcal_gps_prior_2m": "ours, self-calibrated + GPS prior 2 m",
-              **{f"ours_selfcal_gps_prior_{m:g}m": f"ours, self-calibrated + GPS prior {m:g} m" for m in PRIOR_SIGMAS}}
-    runs = [(k, o[k]) for k in keys if k in o and o[k].get("height_by_direction_m") is not None]
+              **{f"ours_selfcal_gps_prior_{m:g}m": f"ours, self-calibrated + GPS prior {m:g} m"
+                 for m in (2.0, *PRIOR_SIGMAS)}}  # in the table's order
+    runs = [(k, o[k]) for k in labels if k in o and o[k].get("height_by_direction_m") is not None]
     if len(runs) < 3:
         return ""
     rows = [[labels[k], r["focal_px"], r["height_by_direction_m"], 100 * r["height_by_direction_m"] / r["focal_px"],

@@ -56,3 +56,9 @@ def descendants(root: int) -> list[int]:
 def tree_cpu_seconds(root: int) -> float:
     """User + system CPU seconds of ``root`` and its descendants alive now (those gone meanwhile count 0)."""
     return sum(s for s in map(cpu_seconds, descendants(root)) if not math.isnan(s))
+
+
+def machine_busy_seconds() -> float:
+    """CPU seconds all cores of this machine have spent busy (not idle, not waiting for I/O) since boot."""
+    values = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    return (sum(values) - values[3] - values[4]) / os.sysconf("SC_CLK_TCK")

@@ -35,6 +35,7 @@ import numpy as np
 import websockets
 from websockets.sync.client import connect
 
+from benchmarks._proc import machine_busy_seconds
 from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load_note, settle_load
 from benchmarks.cluster import photos
@@ -103,7 +104,7 @@ def up_timeline(stack: Stack, name: str) -> dict[str, Any]:
     went (``{name}_timeline``: when ``up -d`` returned, when each replica first answered ready, and each container's
     start and restart count, seconds from the start of ``up``; the CPU seconds the machine spent busy meanwhile and
     each container's own: their sum over the cores is a floor under the wall time that no order of starts beats)."""
-    busy0 = machine_busy_cpu_s()
+    busy0 = machine_busy_seconds()
     t0 = time.monotonic()
     wall0 = time.time()
     stack.run("up", "-d")
@@ -113,7 +114,7 @@ def up_timeline(stack: Stack, name: str) -> dict[str, Any]:
         wait_for(lambda: ready(stack, replica), 600, f"API replica {replica + 1} /readyz ({name})", interval=0.2)
         ready_at[f"api replica {replica + 1}"] = time.monotonic() - t0
     total = time.monotonic() - t0
-    busy = machine_busy_cpu_s() - busy0
+    busy = machine_busy_seconds() - busy0
     started = {}
     for service in ("postgres", "redis", "ray-head", "ray-worker", "api", "api-2"):
         for container in stack.containers(service):
@@ -127,14 +128,6 @@ def up_timeline(stack: Stack, name: str) -> dict[str, Any]:
                                  "containers": started,
                                  **({"diagnostics": str(keep_node_logs(stack, name))}
                                     if total > SLOW_UP_S or any(c["restarts"] for c in started.values()) else {})}}
-
-
-def machine_busy_cpu_s() -> float:
-    """The CPU seconds this machine has spent busy since boot, all cores together (``/proc/stat``: user, nice,
-    system, irq, softirq)."""
-    with open("/proc/stat") as f:
-        fields = f.readline().split()
-    return sum(int(fields[i]) for i in (1, 2, 3, 6, 7)) / os.sysconf("SC_CLK_TCK")
 
 
 def container_cpu_s(seen: dict[str, Any]) -> float | None:

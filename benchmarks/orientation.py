@@ -67,6 +67,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from benchmarks._proc import machine_busy_seconds
 from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load_note, settle_server
 from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app
@@ -305,12 +306,6 @@ def _proc_cpu_s(pid: int, tree: bool) -> float:
     return sum(stats[p][1] for p in members if p in stats)
 
 
-def _machine_busy_s() -> float:
-    """CPU seconds all cores of this machine have spent busy (not idle, not waiting for I/O) since boot."""
-    values = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
-    return (sum(values) - values[3] - values[4]) / os.sysconf("SC_CLK_TCK")
-
-
 def _settle(base: str, pid: int) -> dict:
     """Wait until the served app's start-up work is done (:func:`benchmarks._timing.settle_server`: the server's
     process tree below 0.1 core over one second)."""
@@ -365,13 +360,13 @@ def _post_all(base: str, pid: int, large: list[bytes], clients: int, repeats: in
         decisions.clear()
         if probe is not None:
             probe.start()
-        cpu0 = (_proc_cpu_s(pid, tree=False), _proc_cpu_s(pid, tree=True), time.process_time(), _machine_busy_s(),
+        cpu0 = (_proc_cpu_s(pid, tree=False), _proc_cpu_s(pid, tree=True), time.process_time(), machine_busy_seconds(),
                 time.perf_counter())
         for _ in range(repeats):
             start = time.perf_counter()
             list(pool.map(post, work))
             rates.append(len(work) / (time.perf_counter() - start))
-        cpu1 = (_proc_cpu_s(pid, tree=False), _proc_cpu_s(pid, tree=True), time.process_time(), _machine_busy_s(),
+        cpu1 = (_proc_cpu_s(pid, tree=False), _proc_cpu_s(pid, tree=True), time.process_time(), machine_busy_seconds(),
                 time.perf_counter())
     health = probe.stop() if probe is not None else None
     photos = len(work) * repeats
