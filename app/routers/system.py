@@ -43,7 +43,8 @@ async def readyz(svc: Services = Depends(services)) -> JSONResponse:
         found = await answer_within(raycluster.ready, "the Ray cluster")
         ok, detail = found if isinstance(found, tuple) else (False, found)
         checks["ray"] = {"ok": ok and svc.dispatcher.ray_ready.is_set(), "detail": detail}
-    # The orientation engine's optional parts (YuNet, tesseract): reported, never a reason to be unready.
+    # The orientation engine's optional parts (YuNet; the text cue and where its data came from): reported, never a
+    # reason to be unready.
     checks["orientation"] = await asyncio.to_thread(engine_status, orientation_config(svc.settings))
     checks["storage"] = await asyncio.to_thread(storage_check, svc)
     checks["kernels"] = svc.warmup.status()  # compiled ahead of the first request: reported, never unready

@@ -188,3 +188,81 @@ def test_the_haar_scan_follows_the_photos_short_side():
     assert HAAR_SCAN.plan(240, 320) == (1.0, 26, 240)
     # the previous release shrank the long side to 360 px: the panorama's faces to 0.4x
     assert LongSideScan(360, 22).plan(300, 900) == (pytest.approx(0.4), 22, 0)
+
+
+# ---- never a decision on nothing: a Haar face YuNet did not see (issue 54) --------------------------------------------
+
+class _SeesNothing:
+    """A YuNet finder that finds no face anywhere (what YuNet does on aerial photos and textures)."""
+
+    def find(self, view, scan_size):
+        return []
+
+
+class _SpyPaper:
+    """The paper's detector, recording the searches asked of it and answering a face accepted at view 90."""
+
+    name = "paper"
+
+    def __init__(self, faces):
+        self.faces, self.calls = faces, []
+
+    def upright_faces(self, gray, regions=None):
+        self.calls.append(regions)
+        return list(self.faces)
+
+
+def _combined_with(finder, paper):
+    from workers.orientation.detect import YuNetDetector
+
+    detector = YuNetDetector.__new__(YuNetDetector)
+    detector.name, detector.min_score, detector.margin, detector.scan_sizes = "combined", 0.8, 0.1, (320, 640)
+    detector.paper, detector._verifier = paper, None
+    detector._finder = type("PerThread", (), {"get": staticmethod(lambda: finder)})()
+    return detector
+
+
+def test_the_papers_search_does_not_run_where_yunet_sees_no_face():
+    from workers.orientation.detect import Face
+
+    haar = Face((40, 40, 60, 60), 90, None, ("eyes", "mouth"), "haar")
+    paper = _SpyPaper([haar])
+    faces = _combined_with(_SeesNothing(), paper).upright_faces(np.zeros((300, 400), np.uint8))
+    assert faces == [] and paper.calls == []  # not even searched: a Haar face alone could not decide
+
+
+def test_a_haar_face_yunet_did_not_see_votes_but_cannot_decide():
+    from workers.orientation.detect import Face, decide, haar_only_not_decisive, search_regions
+
+    seen = [Track((100, 100, 50, 60))]
+    on_it = Face((95, 90, 60, 70), 0, None, ("eyes",), "haar")
+    elsewhere = Face((300, 20, 40, 40), 90, None, ("eyes", "mouth"), "haar")
+    kept = haar_only_not_decisive([on_it, elsewhere], seen)
+    assert kept[0].decisive and not kept[1].decisive
+    assert decide(kept[1:]).rotation is None and decide(kept[1:]).reason == "low_confidence"
+    (x, y, w, h), = search_regions(seen, (300, 400))
+    assert x < 100 and y < 100 and x + w > 150 and y + h > 160 and x >= 0 and y >= 0  # around YuNet's face, grown
+
+
+def _noup_images():
+    folder = dataset("orientation", "noup")
+    aerial = dataset("sfm", "drone_fc350", "images")
+    found = sorted(folder.iterdir()) if folder else []
+    found += sorted(aerial.iterdir())[:3] if aerial else []
+    return [p for p in found if p.suffix.lower() in (".jpg", ".jpeg", ".png")]
+
+
+@pytest.mark.data
+@pytest.mark.skipif(not YUNET.is_file() or not _noup_images(), reason="needs the YuNet model and $SWEEPCAST_DATA's "
+                                                                     "aerial and texture images")
+def test_aerial_photos_and_textures_are_never_decided_by_a_face():
+    import cv2
+
+    engine = get_detector(DetectorConfig(method="combined", yunet_model=YUNET, text=False))
+    for path in _noup_images():
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
+        image = cv2.resize(image, None, fx=min(1.0, 1200 / max(image.shape)), fy=min(1.0, 1200 / max(image.shape)),
+                           interpolation=cv2.INTER_AREA)
+        for rotation in ROTATIONS:
+            report = analyze(jpeg(rotate_view(image, rotation)), engine)
+            assert report.rotation_degrees is None and report.cue == "none", (path.name, rotation, report.faces)

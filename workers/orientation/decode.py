@@ -22,7 +22,8 @@ from workers.orientation.headers import ImageHeader, check_header, parse_header
 
 __all__ = [
     "CorruptImage", "DEFAULT_MAX_PIXELS", "DecodedImage", "EmptyFile", "NotAnImage", "OrientationInputError",
-    "TooManyPixels", "TruncatedImage", "UnsupportedFormat", "UnwritableExif", "WORKING_SIZE", "decode_gray",
+    "TooManyPixels", "TruncatedImage", "UnsupportedFormat", "UnwritableExif", "WORKING_SIZE", "decode_at_least",
+    "decode_gray",
     "reduction_factor",
 ]
 
@@ -98,6 +99,18 @@ def decode_gray(data: bytes, max_pixels: int = DEFAULT_MAX_PIXELS, working_size:
     if gray.dtype != np.uint8:  # 16-bit TIFF
         gray = (gray.astype(np.float32) * (255.0 / max(1.0, float(np.iinfo(gray.dtype).max)))).astype(np.uint8)
     return _fit(gray, header, working_size)
+
+
+def decode_at_least(data: bytes, long_side: float, max_pixels: int = DEFAULT_MAX_PIXELS, filename: str | None = None,
+                    header: ImageHeader | None = None) -> DecodedImage:
+    """``data`` decoded to grey with its long side at least ``long_side`` px (or its full size when smaller): a JPEG
+    at the smallest DCT scale (1/8, 1/4, 1/2, 1) that is large enough, any other format in full then reduced. The
+    same checks as :func:`decode_gray`."""
+    if header is None:
+        header = parse_header(data, filename)
+    full = max(header.width, header.height)
+    factor = next((f for f in (8, 4, 2) if -(-full // f) >= long_side), 1)
+    return decode_gray(data, max_pixels, max(1, -(-full // factor)), filename=filename, header=header)
 
 
 def _fit(gray: np.ndarray, header: ImageHeader, working_size: int) -> DecodedImage:

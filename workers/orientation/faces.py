@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Sequence
 
 import cv2
 import numpy as np
@@ -79,8 +80,10 @@ class HaarFaceFinder:
         self.scale_factor = scale_factor
         self.min_neighbors = min_neighbors
 
-    def find(self, view: np.ndarray) -> list[Candidate]:
-        """Faces in ``view`` ((H, W) uint8 grey), boxes in view px."""
+    def find(self, view: np.ndarray, within: Sequence[Box] | None = None) -> list[Candidate]:
+        """Faces in ``view`` ((H, W) uint8 grey), boxes in view px; with ``within`` (boxes in view px), only the
+        faces inside those regions: the scan is planned and equalised as for the whole view, and searched only there
+        (windows wholly inside a region give the same detections)."""
         s, smallest, largest = self.scan.plan(*view.shape[:2])
         if s < 1.0:
             size = (max(1, round(view.shape[1] * s)), max(1, round(view.shape[0] * s)))
@@ -88,10 +91,25 @@ class HaarFaceFinder:
             s = size[0] / view.shape[1]
         else:
             scan = view
-        boxes = self._cascade.detectMultiScale(cv2.equalizeHist(scan), scaleFactor=self.scale_factor,
-                                               minNeighbors=self.min_neighbors, minSize=(smallest, smallest),
-                                               maxSize=(largest, largest))
-        return [Candidate((x / s, y / s, w / s, h / s), None) for x, y, w, h in boxes]
+        scan = cv2.equalizeHist(scan)
+        regions = [(0, 0, scan.shape[1], scan.shape[0])] if within is None else [
+            _scaled_region(box, s, scan.shape) for box in within]
+        found = []
+        for x0, y0, x1, y1 in regions:
+            if x1 - x0 < smallest or y1 - y0 < smallest:
+                continue
+            boxes = self._cascade.detectMultiScale(scan[y0:y1, x0:x1], scaleFactor=self.scale_factor,
+                                                   minNeighbors=self.min_neighbors, minSize=(smallest, smallest),
+                                                   maxSize=(largest, largest))
+            found += [Candidate(((x + x0) / s, (y + y0) / s, w / s, h / s), None) for x, y, w, h in boxes]
+        return found
+
+
+def _scaled_region(box: Box, s: float, shape: tuple[int, ...]) -> tuple[int, int, int, int]:
+    """``box`` (view px) in the scan scaled by ``s`` (clipped to ``shape``) as (x0, y0, x1, y1) ints."""
+    x, y, w, h = box
+    return (max(0, int(x * s)), max(0, int(y * s)), min(shape[1], int(np.ceil((x + w) * s))),
+            min(shape[0], int(np.ceil((y + h) * s))))
 
 
 class YuNetFaceFinder:

@@ -49,6 +49,13 @@ def view_box_to_image(box: Sequence[float], rotation: int, width: int, height: i
     return float(x0), float(y0), float(x1 - x0), float(y1 - y0)
 
 
+def image_box_to_view(box: Sequence[float], rotation: int, width: int, height: int) -> Box:
+    """Box ``(x, y, w, h)`` in the image of size ``width`` x ``height`` -> the box covering the same pixels in view
+    ``rotation`` (the inverse of :func:`view_box_to_image`)."""
+    view_w, view_h = (height, width) if rotation in (90, 270) else (width, height)
+    return view_box_to_image(box, (360 - rotation) % 360, view_w, view_h)
+
+
 def iou(a: Box, b: Box) -> float:
     """Intersection over union of two boxes (0 when disjoint)."""
     iw = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))

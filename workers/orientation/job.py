@@ -168,6 +168,7 @@ def summary_of(entries: list[dict[str, Any]]) -> dict[str, Any]:
         "upright": decisions.count("upright"),
         "rotated": decisions.count("rotated"),
         "rejected": decisions.count("rejected"),
+        "not_analysed": decisions.count("not_analysed"),
         "decided_by_faces": cues.count("faces"),
         "decided_by_text": cues.count("text"),
         "errors": sum(e["error"] is not None for e in entries),

@@ -16,18 +16,19 @@ from __future__ import annotations
 import time
 from typing import Literal
 
+import numpy as np
 from pydantic import BaseModel, Field
 
-from workers.orientation.decode import DEFAULT_MAX_PIXELS, decode_gray
+from workers.orientation.decode import DEFAULT_MAX_PIXELS, decode_at_least, decode_gray
 from workers.orientation.detect import (Decision, DecisionKind, DetectorConfig, Engine, Face, OrientationDetector,
                                         decide, get_detector)
 from workers.orientation.exif import VALID_ORIENTATIONS, ExifInfo, orientation_for_rotation
 from workers.orientation.geometry import turn_orientation
-from workers.orientation.headers import ImageFormat, parse_header
+from workers.orientation.headers import ImageFormat, check_header, parse_header
 from workers.orientation.metadata import (Inspection, OrientationSource, WriteMode, WritePlan, inspect, sidecar_for,
                                           target_for, write_in_file)
 from workers.orientation.xmp import SidecarNaming, sidecar_name
-from workers.orientation.text import TEXT_MAX_SIDE, RejectReason, TextResult
+from workers.orientation.text import RejectReason, TextResult
 
 __all__ = ["DetectorConfig", "FaceReport", "OrientOutcome", "OrientationReport", "TextReport", "analyze",
            "engine_status", "get_detector", "orient_file", "plan_write"]
@@ -50,34 +51,43 @@ class FaceReport(BaseModel):
                                        "(YuNet's best view by too small a margin, parts not confirmed)")
 
 
-class TextViewReport(BaseModel):
-    """Tesseract's orientation and script detection (OSD) on one view of the photo."""
+class TextReadingReport(BaseModel):
+    """One reading of the text lines of one axis, one way up."""
 
-    view_degrees: int = Field(description="clockwise degrees the stored image was turned for this view")
-    ran: bool = Field(description="false: OSD did not run on this view (too few characters, an error)")
-    rotation_degrees: int | None = Field(description="clockwise rotation of the stored image this view votes for")
-    confidence: float = Field(description="OSD's orientation confidence (0 when it did not run)")
-    script: str | None = Field(description="the script OSD recognised (Latin, Han, Arabic, ...)")
-    detail: str | None = Field(None, description="why OSD did not run")
+    reader: Literal["tesseract", "recognizer", "script"] = Field(
+        description="who read: tesseract (English), recognizer (PaddleOCR's PP-OCRv6), script (a Tesseract script "
+                    "model, for the script Tesseract's OSD saw)")
+    rotation_degrees: int = Field(description="the clockwise rotation of the stored image this reading tests")
+    words: int = Field(description="words read (with a letter)")
+    real_words: int = Field(description="words a dictionary knows, confident, on lines of one letter size")
+    lines: int = Field(description="how many of the lines read hold a real word")
+    sample: list[str] = Field(default_factory=list, description="a few of the real words")
 
 
 class TextReport(BaseModel):
     """The text cue (second stage, used when the faces decide nothing)."""
 
-    status: TextStatus = Field(description="ran; not_needed (the faces decided); unavailable (tesseract or its osd "
-                                           "data is not installed: faces only); off (switched off)")
+    status: TextStatus = Field(description="ran; not_needed (the faces decided); unavailable (its models could not be "
+                                           "loaded: faces only); off (switched off)")
     rotation_degrees: int | None = Field(None, description="clockwise rotation the text decided; null when it "
                                                            "decided nothing")
     reject_reason: RejectReason | None = Field(None, description="why the text decided nothing, when it ran")
-    views: list[TextViewReport] = Field(default_factory=list, description="OSD on each of the four views")
+    lines: int = Field(0, description="text lines the text detector found (0: no text, nothing was read)")
+    zoomed: bool = Field(False, description="whether the detector looked again, closer, for small print")
+    readings: list[TextReadingReport] = Field(default_factory=list, description="the readings of the lines, both "
+                                                                                "ways up, in the order they ran")
+    script: str | None = Field(None, description="the script Tesseract's OSD saw on the lines, when the script "
+                                                 "reader ran")
     detail: str | None = Field(None, description="why the text cue is unavailable")
 
 
 class OrientationReport(BaseModel):
     """Which way is up in a photo, and what was done to its EXIF Orientation tag."""
 
-    decision: DecisionKind = Field(description="upright, rotated, or rejected (no cue, conflicting cues, or a cue "
-                                               "not clear enough: see reject_reason)")
+    decision: DecisionKind | Literal["not_analysed"] = Field(
+        description="upright, rotated, or rejected (no cue, conflicting cues, or a cue not clear enough: see "
+                    "reject_reason); not_analysed: a write that keeps the file's own orientation (other than 1; "
+                    "force not set) does not analyse the photo")
     orientation: int | None = Field(description="EXIF Orientation (1-8) that shows the stored pixels upright: 1, 6, "
                                                 "3, 8 for the detected rotation; for HEIF/AVIF the turn found on "
                                                 "the displayed image combined with the file's irot/imir (it may "
@@ -87,15 +97,15 @@ class OrientationReport(BaseModel):
                                                      "null when rejected")
     accepted_rotations: list[int] = Field(description="the views (clockwise degrees) in which a face was accepted")
     faces: list[FaceReport]
-    cue: Cue = Field(description="what decided: faces (the paper's detector), text (Tesseract OSD, when the faces "
-                                 "decided nothing), or none (rejected)")
+    cue: Cue = Field(description="what decided: faces (the paper's detector), text (its lines read both ways up, "
+                                 "when the faces decided nothing), or none (rejected)")
     needs_review: bool = Field(description="true when rejected: a person has to say which way is up")
     confidence: float | None = Field(None, description="how clear the deciding cue was: the best YuNet score of the "
-                                                       "decisive faces (0-1; null for the paper's Haar faces), or the "
-                                                       "mean Tesseract OSD confidence of the agreeing text views; "
-                                                       "null when rejected")
+                                                       "decisive faces (0-1; null for the paper's Haar faces), or, "
+                                                       "for text, the deciding reading's share of the real words "
+                                                       "read both ways up (0.5-1); null when rejected")
     reject_reason: RejectReason | None = Field(description="why it was rejected: no_cue (no face and no readable "
-                                                           "text), conflicting_rotations (faces or text views, or "
+                                                           "text), conflicting_rotations (faces in several views, or "
                                                            "faces and text, disagree), low_confidence (a cue "
                                                            "pointed one way but not clearly enough); null when "
                                                            "decided")
@@ -139,13 +149,22 @@ def analyze(image_bytes: bytes, detector: OrientationDetector, max_pixels: int =
 
 def _analyze(image_bytes: bytes, detector: OrientationDetector, max_pixels: int, filename: str | None,
              sidecars: dict[str, bytes] | None, mode: WriteMode, naming: SidecarNaming, force: bool,
-             inspection: Inspection | None) -> tuple[OrientationReport, Inspection, Action, int | None]:
+             inspection: Inspection | None, skip_kept: bool = False
+             ) -> tuple[OrientationReport, Inspection, Action, int | None]:
     """(the :func:`analyze` report, the photo's inspection, the action and value its plan writes): the header
-    parsed once, the metadata read once, for the report and the write."""
+    parsed once, the metadata read once, for the report and the write. ``skip_kept``: a photo whose existing
+    orientation a write would keep (:func:`kept_orientation`) is not analysed at all."""
     start = time.perf_counter()
     parsed = inspection.header if inspection is not None else None
     if parsed is None:
         parsed = parse_header(image_bytes, filename)
+    if skip_kept and not force:
+        insp = inspection if inspection is not None else inspect(image_bytes, parsed, sidecars)
+        kept = kept_orientation(insp, mode, naming, filename)
+        if kept is not None:
+            check_header(parsed, max_pixels)
+            return _not_analysed(insp, parsed, kept, detector, mode, naming, filename, start), insp, "kept_existing", None
+        inspection = insp
     decoded = decode_gray(image_bytes, max_pixels, filename=filename, header=parsed)
     faces = detector.upright_faces(decoded.gray)
     decision = decide(faces)
@@ -154,8 +173,8 @@ def _analyze(image_bytes: bytes, detector: OrientationDetector, max_pixels: int,
     text_result: TextResult | None = None
     engine = detector if isinstance(detector, Engine) else None
     if rotation is None and engine is not None and engine.text is not None:
-        text_result = engine.text.upright(decode_gray(image_bytes, max_pixels, TEXT_MAX_SIDE, filename=filename,
-                                                      header=parsed).gray)
+        text_result = engine.text.upright(decoded.gray, _larger_decode(image_bytes, max_pixels, filename, parsed,
+                                                                      decoded.gray))
         text = _text_report(text_result)
         rotation, cue, reason = combine_cues(decision, text_result)
     header = decoded.header  # a RAW file's: its preview's size
@@ -200,14 +219,66 @@ def _analyze(image_bytes: bytes, detector: OrientationDetector, max_pixels: int,
     return report.model_copy(update={"write": plan}), insp, action, value
 
 
+def kept_orientation(insp: Inspection, mode: WriteMode = "file", naming: SidecarNaming = "ext",
+                     filename: str | None = None) -> int | None:
+    """The existing orientation a write would keep without ``force`` (what the target sidecar holds, else what viewers
+    show now, when it is a valid value other than 1), else None: the same rule as :func:`plan_write`, known before any
+    detection, since a kept value is kept whatever the photo shows."""
+    target, _ = target_for(insp.format, mode, insp)
+    if target == "xmp-sidecar":
+        state = insp.sidecars.get(sidecar_name(filename or "photo", naming))
+        if state is not None and state.value in VALID_ORIENTATIONS:
+            return state.value if state.value != 1 else None
+    shown = insp.shown()
+    return shown if shown in VALID_ORIENTATIONS and shown != 1 else None
+
+
+def _not_analysed(insp: Inspection, header, kept: int, detector: OrientationDetector, mode: WriteMode,
+                  naming: SidecarNaming, filename: str | None, start: float) -> OrientationReport:
+    """The report of a photo not analysed because its existing orientation ``kept`` is kept."""
+    tag, detail = _valid_tag(insp.exif)
+    shown = insp.shown()
+    target, note = target_for(insp.format, mode, insp)
+    why = f"the existing orientation {kept} is kept (force analyses the photo and replaces it)"
+    plan = WritePlan(target="none", where=None, value=None, also=[], writer=None,
+                     note="; ".join(n for n in (note, why) if n))
+    return OrientationReport(
+        decision="not_analysed", orientation=None, rotation_degrees=None, accepted_rotations=[], faces=[], cue="none",
+        needs_review=False, confidence=None, reject_reason=None, text=TextReport(status="not_needed"),
+        width=header.width, height=header.height, format=header.format, detector=detector.name,
+        existing_orientation=shown if shown in VALID_ORIENTATIONS else tag,
+        exif_status=insp.exif.status if insp.exif is not None else "not_applicable", exif_detail=detail,
+        sources=insp.sources, conflicts=insp.conflicts(), write=plan, action="kept_existing", written=False,
+        written_orientation=None, file_orientation=shown if header.format in ("heif", "avif") else tag,
+        message=f"not analysed: {why}", elapsed_ms=_ms_since(start))
+
+
+def _larger_decode(data: bytes, max_pixels: int, filename: str | None, header, gray):
+    """The text cue's ``load``: the photo decoded ``factor`` times larger than ``gray`` (or as large as it is), for
+    lines too small to see or read there; JPEGs at the smallest DCT scale that is large enough. The largest decode
+    made is kept for the next request it serves."""
+    made: list[np.ndarray] = []
+
+    def load(factor: float):
+        want = max(gray.shape) * factor
+        if not made or max(made[0].shape) < min(want, max(header.width, header.height)):
+            made[:] = [decode_at_least(data, want, max_pixels, filename=filename, header=header).gray]
+        return made[0], made[0].shape[1] / gray.shape[1]
+    return load
+
+
 def _confidence(cue: Cue, rotation: int | None, faces: list[Face], text: TextReport) -> float | None:
     if rotation is None:
         return None
     if cue == "faces":
         scores = [f.score for f in faces if f.rotation == rotation and f.decisive and f.score is not None]
         return round(max(scores), 4) if scores else None
-    votes = [v.confidence for v in text.views if v.ran and v.rotation_degrees == rotation]
-    return round(sum(votes) / len(votes), 2) if votes else None
+    agreeing = [r for r in text.readings if r.rotation_degrees == rotation]
+    against = [r for r in text.readings if r.rotation_degrees == (rotation + 180) % 360]
+    if not agreeing:
+        return None
+    real, other = agreeing[-1].real_words, against[-1].real_words if against else 0
+    return round(real / (real + other), 2) if real + other else None
 
 
 def _kind(rotation: int | None) -> DecisionKind:
@@ -244,11 +315,11 @@ def _text_not_read(detector: OrientationDetector) -> TextReport:
 
 
 def _text_report(result: TextResult) -> TextReport:
-    return TextReport(
-        status="ran", rotation_degrees=result.rotation, reject_reason=result.reason,
-        views=[TextViewReport(view_degrees=v.view, ran=v.ran, rotation_degrees=v.rotation,
-                              confidence=round(v.confidence, 2), script=v.script, detail=v.detail)
-               for v in result.views])
+    readings = [TextReadingReport(reader=r.reader, rotation_degrees=r.turn, words=r.words, real_words=r.real,
+                                  lines=r.lines, sample=list(r.sample))
+                for v in result.readings for r in (v.first, v.second)]
+    return TextReport(status="ran", rotation_degrees=result.rotation, reject_reason=result.reason, lines=result.lines,
+                      zoomed=result.zoomed, readings=readings, script=result.script)
 
 
 def engine_status(config: DetectorConfig) -> dict[str, object]:
@@ -298,10 +369,12 @@ def orient_file(data: bytes, detector: OrientationDetector, force: bool = False,
     """Detect the upright rotation and produce what writing it takes: the photo's new bytes (JPEG, WebP,
     TIFF, PNG in ``file`` mode), or a sidecar's (HEIF, AVIF, RAW, or ``sidecar`` mode), plus the existing
     ``sidecars`` that must change to agree. Nothing is written to disk here; a rejected photo, a kept
-    tag and an orientation already shown produce no bytes. ``inspection``: as for :func:`analyze`."""
+    tag and an orientation already shown produce no bytes; a photo whose existing orientation would be kept (other
+    than 1, and ``force`` not set) is not analysed at all: its report says ``not_analysed``. ``inspection``: as for
+    :func:`analyze`."""
     start = time.perf_counter()
     report, insp, action, value = _analyze(data, detector, max_pixels, filename, sidecars, mode, naming, force,
-                                           inspection)
+                                           inspection, skip_kept=True)
     plan = report.write
     outcome = OrientOutcome(report=report)
     if action == "written" and value is not None:
@@ -322,7 +395,7 @@ def orient_file(data: bytes, detector: OrientationDetector, force: bool = False,
         "written_orientation": value if action == "written" else None,
         "file_orientation": file_value,
         "write": plan,
-        "message": f"{report.message}; {_ACTION_TEXT[action]}",
+        "message": report.message if report.decision == "not_analysed" else f"{report.message}; {_ACTION_TEXT[action]}",
         "elapsed_ms": _ms_since(start),
     })
     return outcome
@@ -395,10 +468,9 @@ def _describe(decision: Decision, faces: list[Face], text: TextReport, rotation:
               reason: RejectReason | None, text_result: TextResult | None = None) -> str:
     if cue == "text" and rotation is not None:
         if text_result is not None:
-            what = f"text read upright by Tesseract: {text_result.summary()} (no decisive face)"
+            what = f"text read upright: {text_result.summary()} (no decisive face)"
         else:
-            agreeing = sum(v.ran and v.rotation_degrees == rotation for v in text.views)
-            what = f"text read upright by Tesseract OSD in {agreeing} of 4 views (no decisive face)"
+            what = "text read upright (no decisive face)"
         if rotation == 0:
             return f"upright as stored: {what}"
         return (f"rotated: turn {rotation} deg clockwise to show it upright "
@@ -408,7 +480,7 @@ def _describe(decision: Decision, faces: list[Face], text: TextReport, rotation:
         if text.rotation_degrees is not None:
             return (f"{faces_part}; the text points to {text.rotation_degrees} deg, which conflicts with the faces "
                     "(needs review)")
-        why = {"no_cue": "no readable text", "conflicting_rotations": "the text's views (or OSD and OCR) disagree",
+        why = {"no_cue": "no readable text", "conflicting_rotations": "the text's readings disagree",
                "low_confidence": "the text's orientation is not clear enough"}[text.reject_reason or "no_cue"]
         return f"{faces_part}; {why} (needs review)"
     if decision.rotation is None:

