@@ -16,13 +16,10 @@ four views were accepted) and Table III (success / reject / error). Configuratio
 - ``combined``: YuNet faces confirmed by Haar parts or by a decisive YuNet margin (the default
   when a YuNet model is configured).
 
-Text (``--text-section``, section orientation_text; issue 33). The text photos of
-``$SWEEPCAST_DATA/orientation/text`` and the no-text set (:mod:`benchmarks._notext`: ``noup/``, the drone's nadir
-stills, Debian's wallpapers, foliage and paper textures, scikit-image's photos, generated fields, fabric, foliage,
-crowds, stripes, cells and noise) are each read once by the text cue in all four views and every stage, kept in
-``--records`` (:mod:`benchmarks._text_records`), and decided as if stored at each of the four turns: by the engine's
-rule, by a grid's selection tuned on a split by source (the tuning sources and category named there), and by the
-previous release's rule, per source and category. Then the CPU per photo of each cue.
+Per photo (``--text-section``, section orientation_text; issue 54): what a photo costs and what is decided, by class
+(faces, text, neither faces nor text: the text photos of ``$SWEEPCAST_DATA/orientation/text`` and Leptonica's pages,
+the no-text set of :mod:`benchmarks._notext`), this checkout beside the previous release, each engine in a process of
+its own, and the text-line gate's recall and cost (:mod:`benchmarks._orientation_cost`).
 
 Faces of every size (``--face-sizes``, section orientation_face_sizes; issue 33): the paper's detector with the Haar
 scans of the last releases and the short-side rule on the dev faces scaled to 5-45 % of a 2048 x 1365 photo
@@ -80,8 +77,6 @@ from workers.orientation.faces import LongSideScan, ShortSideScan
 from workers.orientation.parts import PartSpec
 from workers.orientation.orient import analyze
 from workers.orientation.detect import Engine
-from workers.orientation.text import get_text_detector
-from workers.orientation.words import word_lists
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp")
 NEGATIVES = {"dogs.jpg"}
@@ -702,82 +697,6 @@ def markdown(results: dict) -> str:
     return "\n".join(parts)
 
 
-def run_text_section(face_photos: list[Path], yunet: Path | None, records_path: Path, quick: bool) -> int:
-    """Section orientation_text (issue 33): the text cue's rule on the text photos, by split, and on the no-text set,
-    by category (:mod:`benchmarks._text_records`, :mod:`benchmarks._notext`); per-photo CPU of each cue."""
-    from benchmarks._leptonica import SOURCE as LEPTONICA, TEXT as LEPTONICA_TEXT, images as leptonica_images
-    from benchmarks._notext import DEBIAN_PACKAGES, describe, no_text_images
-    from benchmarks._text_records import collect, section, select_rule
-
-    text = get_text_detector()
-    root = dataset("orientation", "text")
-    if text is None or root is None:
-        print("skipped: the text section needs tesseract and $SWEEPCAST_DATA/orientation/text")
-        return 0
-    every = 3 if quick else 1
-    jobs = [("text", p.name, lambda p=p: cv2.imread(str(p), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION))
-            for p in find_photos(root)[::every]]
-    lept = leptonica_images()
-    lept_names = LEPTONICA_TEXT[::every] if lept else ()
-    jobs += [("text", f"{LEPTONICA}__{name}", lambda p=lept / name: cv2.imread(
-        str(p), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)) for name in lept_names]
-    jobs += [(cat, name, lambda load=load: cv2.cvtColor(load(), cv2.COLOR_BGR2GRAY))
-             for cat, name, load in no_text_images(data_root(), every)]
-    records_path.parent.mkdir(parents=True, exist_ok=True)
-    load_before = os.getloadavg()[0]
-    records = collect(text, jobs, records_path)
-    vocabulary = word_lists(text.wordlists)
-    selected, grid_rows = select_rule(records, vocabulary)
-    counts = describe(data_root())
-    note = (f"No-text set: {sum(counts.values())} images here ({', '.join(f'{k} {v}' for k, v in counts.items())}), "
-            f"from $SWEEPCAST_DATA, the Debian packages {', '.join(DEBIAN_PACKAGES)}, scikit-image's bundled photos, "
-            "Leptonica's test photos and textures generated with fixed seeds (benchmarks/_notext.py says which and "
-            f"why; none is committed). Text photos: {sum(job[0] == 'text' for job in jobs)} here, of them "
-            f"{len(lept_names)} Leptonica test images (benchmarks/_leptonica.py; one taken out of its list after a "
-            "run showed it stored turned, which its docstring says). "
-            f"Word lists: {len(vocabulary)} words in {text.wordlists}; tesseract {text.version} ({text.backend}); "
-            f"script models: {', '.join(text.script_models) or 'none'}.")
-    results, markdown_text = section(records, vocabulary, selected, grid_rows, note)
-    results["cue_cpu"] = cue_cpu(face_photos, yunet)
-    results["load_average"] = [load_before, os.getloadavg()[0]]
-    publish("orientation_text", results, markdown_text + "\n\n" + cue_cpu_markdown(results["cue_cpu"], results["load_average"]))
-    return 0
-
-
-def cue_cpu(face_photos: list[Path], yunet: Path | None, count: int = 6) -> dict:
-    """Median CPU ms per photo (this thread, OpenCV single-threaded) of each cue: the faces alone (text off) and the
-    service's engine (faces, then text) on a few face photos, text photos and no-text images."""
-    from benchmarks._notext import no_text_images
-
-    sets = {"faces": [rotated_inputs(p)[90] for p in [p for p in face_photos if p.name not in NEGATIVES][:count]]}
-    text_root = dataset("orientation", "text")
-    sets["text"] = [rotated_inputs(p)[90] for p in find_photos(text_root)[::max(1, 50 // count)][:count]]
-    encoded = []
-    for _, _, load in no_text_images(data_root())[::20][:count]:
-        ok, buf = cv2.imencode(".jpg", load(), [cv2.IMWRITE_JPEG_QUALITY, 95])
-        encoded.append(buf.tobytes())
-    sets["no text"] = encoded
-    faces = get_detector(DetectorConfig(yunet_model=yunet, text=False))
-    engine = get_detector(DetectorConfig(yunet_model=yunet, text=True))
-    out = {}
-    for name, items in sets.items():
-        out[name] = {"photos": len(items), "faces_only_ms": cpu_ms_per_photo(lambda d: analyze(d, faces), items),
-                     "engine_ms": cpu_ms_per_photo(lambda d: analyze(d, engine), items)}
-        print(f"cue cpu {name}: {out[name]}", flush=True)
-    out["detector"] = engine.name
-    return out
-
-
-def cue_cpu_markdown(cpu: dict, load: list[float]) -> str:
-    rows = [[name, c["photos"], f"{c['faces_only_ms']:.0f}", f"{c['engine_ms']:.0f}",
-             f"{c['engine_ms'] - c['faces_only_ms']:.0f}"] for name, c in cpu.items() if isinstance(c, dict)]
-    return "\n".join([
-        f"CPU per photo of each cue ({cpu['detector']} faces; median ms of this thread, OpenCV single-threaded, "
-        f"decode included; each photo turned 90 degrees, JPEG q95). " + load_note(load[0], load[1])
-        + " CPU ms grow with the load: compare within the table.", "",
-        md_table(["photos", "n", "faces only", "faces, then text (engine)", "the text cue's share"], rows)])
-
-
 def changed_bytes(before: bytes, after: bytes) -> int:
     """Bytes a write changed: differing bytes when the length is kept, else the changed span of both versions
     (everything between the common prefix and the common suffix, before plus after)."""
@@ -919,11 +838,12 @@ def main() -> int:
     parser.add_argument("--no-speed", action="store_true", help="accuracy only")
     parser.add_argument("--clients", type=int, default=4, help="concurrent HTTP clients (default 4)")
     parser.add_argument("--text-section", action="store_true",
-                        help="only the text cue on the text photos and the no-text set, published as the section "
-                             "orientation_text (reads each image once into --records; an hour or more on 2 cores)")
-    parser.add_argument("--records", type=Path, default=ROOT / "sweepcast-data" / "cache" / "orientation_text.jsonl",
-                        help="where the text section keeps its readings (JSON lines; a rerun reads only what is "
-                             "missing; delete it after changing how the cue reads)")
+                        help="only what each photo costs and what is decided, by class (faces, text, neither), beside "
+                             "the previous release: section orientation_text (benchmarks/_orientation_cost.py; about "
+                             "25 minutes on 2 cores)")
+    parser.add_argument("--previous-turns", type=int, choices=(1, 4), default=1,
+                        help="with --text-section: the previous release reads the no-text images at 1 turn (90 "
+                             "degrees; default: it costs seconds a photo) or at all 4")
     args = parser.parse_args()
 
     if args.throughput:
@@ -961,7 +881,13 @@ def main() -> int:
     if args.quick:
         photos = [p for i, p in enumerate(photos) if i % 3 == 0 or p.name in NEGATIVES]
     if args.text_section:
-        return run_text_section(photos, yunet, args.records, args.quick)
+        from benchmarks._orientation_cost import measure
+
+        load_before = os.getloadavg()[0]
+        results, text = measure(args, yunet)
+        results["load_average"] = [load_before, os.getloadavg()[0]]
+        publish("orientation_text", results, text + "\n\n" + load_note(load_before, os.getloadavg()[0]))
+        return 0
     detectors = {name: get_detector(cfg) for name, cfg in configurations(yunet, mcs).items()}
     tallies = run_accuracy(photos, detectors)
     print(f"--- the same photos upscaled to ~{MEGAPIXELS:.0f} MP (the speed test's size)", flush=True)

@@ -12,10 +12,10 @@ from workers.orientation import text as text_mod
 from workers.orientation import textdata, textlines
 from workers.orientation.detect import Decision, DetectorConfig, Engine, Face, decide, fuse_paper, get_detector
 from workers.orientation.geometry import ROTATIONS, rotate_view
-from workers.orientation.linereader import LineReading, cut_strip, decide_pair, turn_of
+from workers.orientation.linereader import LineReading, cut_strip, dark_on_light, decide_pair, turn_of
 from workers.orientation.orient import analyze, combine_cues
 from workers.orientation.text import TextCue, TextResult, get_text_cue, text_status
-from workers.orientation.textlines import TextLine, get_line_detector, ink_region, lines_from_map
+from workers.orientation.textlines import TextLine, gate_side, get_line_detector, ink_region, lines_from_map
 
 CUE = get_text_cue()
 
@@ -61,6 +61,18 @@ def receipt_on_a4(width: int = 2480, height: int = 3508) -> np.ndarray:
     for i, line in enumerate(LINES):
         cv2.putText(page, line, (820, 1300 + 52 * i), cv2.FONT_HERSHEY_SIMPLEX, 0.75, 20, 2, cv2.LINE_AA)
     return page
+
+
+def till_roll(lines: int = 48) -> np.ndarray:
+    """A long till receipt scanned on grey paper (grey uint8, 3000 x 800): close lines of small print, the words a
+    shop's receipt holds among prices and codes."""
+    words = ["Thank you for shopping", "Total amount", "Receipt number", "Cash payment", "Change given",
+             "Customer service", "Opening hours daily", "Return within days", "Please keep receipt"]
+    roll = np.full((3000, 800), 205, np.uint8)
+    for i in range(lines):
+        text = words[i % len(words)] if i % 3 else f"ART {4000000 + 977 * i} {i * 1.25:6.2f} EUR"
+        cv2.putText(roll, text, (40, 60 + 60 * i), cv2.FONT_HERSHEY_SIMPLEX, 1.1, 40, 2, cv2.LINE_AA)
+    return roll
 
 
 def turned(image: np.ndarray, rotation: int) -> np.ndarray:
@@ -116,6 +128,14 @@ def test_the_ink_of_a_mostly_blank_page_is_found_and_photos_are_not_pages():
     assert ink_region(np.full((400, 300), 40, np.uint8)) is None  # a dark uniform image is not paper
 
 
+def test_the_gate_looks_at_a_fixed_number_of_pixels_whatever_the_shape():
+    assert gate_side((3000, 4000)) == 480  # a 4:3 photo: 480 x 360
+    assert gate_side((1000, 1000)) == 416
+    receipt = gate_side((3000, 800))  # a till roll keeps its lines as tall as a photo's
+    assert 800 <= receipt <= 830 and receipt * receipt * 800 / 3000 == pytest.approx(480 * 360, rel=0.02)
+    assert gate_side((100, 8000)) == 1024  # but is not drawn out into a thread
+
+
 # ---- the readers' rule --------------------------------------------------------------------------------------------
 
 def _reading(turn: int, real: int, lines: int) -> LineReading:
@@ -128,6 +148,25 @@ def test_a_reading_decides_with_real_words_on_several_lines_many_times_the_other
     assert decide_pair(_reading(0, 2, 2), _reading(180, 0, 0)).turn is None  # too few words
     assert decide_pair(_reading(0, 5, 1), _reading(180, 0, 0)).turn is None  # one line: a logo, a border
     assert decide_pair(_reading(0, 6, 3), _reading(180, 3, 2)).turn is None  # not clearly more one way up
+
+
+def test_without_a_dictionary_many_confident_words_one_way_up_decide():
+    def reading(turn, confident, lines, real=0):
+        return LineReading("tesseract", turn, confident, real, 0, (), confident, lines)
+
+    assert decide_pair(reading(0, 9, 4), reading(180, 1, 1)).turn == 0  # Latin, an old spelling: no word list
+    assert decide_pair(reading(0, 9, 2), reading(180, 0, 0)).turn is None  # on too few lines
+    assert decide_pair(reading(0, 5, 4), reading(180, 0, 0)).turn is None  # too few
+    assert decide_pair(reading(0, 9, 4), reading(180, 3, 2)).turn is None  # not clearly more one way up
+    assert decide_pair(reading(0, 9, 4), reading(180, 1, 1, real=2)).turn is None  # the other way reads real words
+
+
+def test_a_strip_on_grey_paper_becomes_black_on_white_and_light_text_is_inverted():
+    strip = np.full((32, 200), 200, np.uint8)
+    cv2.putText(strip, "Receipt", (5, 25), cv2.FONT_HERSHEY_SIMPLEX, 0.9, 90, 2)
+    out = dark_on_light(strip)
+    assert out.max() == 255 and out.min() == 0 and np.median(out) == 255
+    assert np.median(dark_on_light(255 - strip)) == 255  # light print on a dark sign
 
 
 def test_a_strip_cut_as_read_names_the_turn_that_shows_the_photo_upright():
@@ -181,6 +220,14 @@ def test_small_print_on_a_large_page_is_read_closer(rotation):
 
     result = CUE.upright(small, load)
     assert result.zoomed and result.rotation == rotation, result
+
+
+@pytest.mark.parametrize("rotation", ROTATIONS)
+def test_a_till_roll_of_close_small_lines_is_read(rotation):
+    """A receipt's close lines run together in the gate's first copy: it looks again closer, and, turned sideways,
+    with the photo turned a quarter."""
+    result = CUE.upright(turned(till_roll(), rotation))
+    assert result.rotation == rotation, result
 
 
 @pytest.mark.parametrize("rotation", [0, 90])

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from workers.orientation.textlines import TextLine
-from workers.orientation.words import OcrWord, real_words
+from workers.orientation.words import OcrWord, confident, real_words
 
 Reader = Literal["tesseract", "recognizer", "script"]
 
@@ -34,10 +34,16 @@ STRIP_GAP = 16
 """White space (px) between and around the strips on the page Tesseract reads."""
 RECOGNIZER_HEIGHT = 48
 """Height (px) of the strips the PP-OCR recogniser reads (its input height)."""
-TESSERACT_LINES = 8
-"""Most lines of one axis Tesseract reads (the longest and surest first)."""
+TESSERACT_LINES = (8, 16)
+"""The batches of lines of one axis Tesseract reads, in turn, until the readings so far decide (the longest and surest
+first): 8 lines decide most pages; a receipt's long lines are often numbers and codes, so 16 more may be read."""
+STRIP_FILL = 0.85
+"""A strip takes this share of its line's rectangle across the line (centred): DB's rectangles of close lines
+overlap, and a strip with the edges of the neighbouring lines in it reads worse."""
 RECOGNIZER_LINES = 4
 """Most lines of one axis the recogniser reads (it costs several times Tesseract's per line)."""
+RECOGNIZER_MAX_ASPECT = 16.0
+"""... and of each, the first this many heights (a sign's line is shorter; a page's first words are enough)."""
 STRIP_MAX_ASPECT = 40.0
 """A strip longer than this many times its height is cut to that length: a line of a page wide scan holds enough
 words in its first part, and the reading cost grows with the length."""
@@ -47,6 +53,15 @@ RATIO = 3.0
 """... this many times the real words of the same strips read the other way up (at least 1 counted there) ..."""
 MIN_LINES = 2
 """... on at least this many different lines (one line of words can be a sign's border pattern or a logo)."""
+CONFIDENT_MIN = 6
+"""Or: least confident words of letters (:func:`confident_word`, in a dictionary or not) a reading must hold to decide
+(text in a language no word list holds: Latin, old spellings, Hindi, Arabic read by its script model), ..."""
+CONFIDENT_LINES = 3
+"""... on at least this many lines, ..."""
+CONFIDENT_RATIO = 4.0
+"""... this many times the confident words of the same strips read the other way up (at least 1 counted there).
+Strips are text lines the detector found, read upside down they give next to no confident word of four letters; the
+stricter counts than the real-word rule's stand for the dictionary's check."""
 
 
 @dataclass(frozen=True)
@@ -60,6 +75,10 @@ class LineReading:
     real: int = 0
     lines: int = 0
     sample: tuple[str, ...] = ()
+    confident: int = 0
+    """Confident words of letters (:func:`confident_word`), in a dictionary or not."""
+    confident_lines: int = 0
+    """On how many strips they lie."""
     """Up to a few of the real words (for people: what was read)."""
 
 
@@ -81,12 +100,13 @@ def turn_of(line: TextLine, flipped: bool) -> int:
     return (base + (180 if flipped else 0)) % 360
 
 
-def cut_strip(gray: np.ndarray, line: TextLine, height: int) -> np.ndarray:
-    """``line``'s rectangle cut from ``gray`` ((H, W) uint8; the line in its px) as a (``height``, w) uint8 strip
-    that runs along the line's direction (w = the line's length scaled like its height, at most
-    ``STRIP_MAX_ASPECT`` heights)."""
+def cut_strip(gray: np.ndarray, line: TextLine, height: int, max_aspect: float = STRIP_MAX_ASPECT) -> np.ndarray:
+    """``line``'s rectangle (its middle ``STRIP_FILL`` across) cut from ``gray`` ((H, W) uint8; the line in its px)
+    as a (``height``, w) uint8 strip that runs along the line's direction (w = the line's length scaled like its
+    height, at most ``max_aspect`` heights)."""
+    line = TextLine(line.center, line.direction, line.length, line.height * STRIP_FILL, line.score, line.axis)
     scale = height / max(line.height, 1.0)
-    width = int(round(min(line.length * scale, STRIP_MAX_ASPECT * height)))
+    width = int(round(min(line.length * scale, max_aspect * height)))
     width = max(width, 8)
     quad = line.quad
     if width < line.length * scale:  # keep the line's start: the strip is cut at its far end
@@ -100,8 +120,16 @@ def cut_strip(gray: np.ndarray, line: TextLine, height: int) -> np.ndarray:
 
 
 def dark_on_light(strip: np.ndarray) -> np.ndarray:
-    """``strip`` with dark text on a light ground (inverted when most of it is dark: light text on a dark sign)."""
-    return 255 - strip if float(np.median(strip)) < 110 else strip
+    """``strip`` ((h, w) uint8) as dark text on a white ground: inverted when most of it is dark (light text on a dark
+    sign), then stretched so that its ground (95th percentile) is white and its ink (5th) black. Tesseract binarises
+    the whole page of strips with one threshold: a strip on grey paper beside the page's white gaps went black."""
+    if float(np.median(strip)) < 110:
+        strip = 255 - strip
+    ink, ground = np.percentile(strip, (5, 95))
+    if ground - ink < 8:  # a flat strip: nothing to stretch
+        return strip
+    stretched = (strip.astype(np.float32) - ink) * (255.0 / (ground - ink))
+    return np.clip(stretched, 0, 255).astype(np.uint8)
 
 
 def strip_page(strips: Sequence[np.ndarray], gap: int = STRIP_GAP) -> tuple[np.ndarray, list[tuple[int, int]]]:
@@ -130,16 +158,38 @@ def summarise(reader: Reader, turn: int, words: Sequence[OcrWord], line_of: Sequ
     real = real_words(words, vocabulary)
     index = {id(w): i for w, i in zip(words, line_of)}
     lines = {index[id(w)] for w in real}
+    sure = [w for w in words if confident_word(w)]
     return LineReading(reader, turn, sum(any(ch.isalpha() for ch in w.text) for w in words), len(real), len(lines),
-                       tuple(w.text for w in real[:6]))
+                       tuple(w.text for w in real[:6]), len(sure), len({index[id(w)] for w in sure}))
+
+
+def confident_word(word: OcrWord) -> bool:
+    """A word read confidently and made of letters (at least 4, two different, not strokes only), whether a dictionary
+    knows it or not: what text read the right way up gives in any language."""
+    letters = {ch for ch in word.text.lower() if ch.isalpha()}
+    return confident(word, 4) and len(letters) >= 2 and not letters <= set("iljtf")
+
+
+def joined(a: PairVerdict, b: PairVerdict) -> PairVerdict:
+    """Two pairs of readings of different strips of one axis by one reader, summed up and decided as one."""
+    def add(x: LineReading, y: LineReading) -> LineReading:
+        return LineReading(x.reader, x.turn, x.words + y.words, x.real + y.real, x.lines + y.lines,
+                           (x.sample + y.sample)[:6], x.confident + y.confident, x.confident_lines + y.confident_lines)
+    return decide_pair(add(a.first, b.first), add(a.second, b.second))
 
 
 def decide_pair(first: LineReading, second: LineReading, min_real: int = MIN_REAL, ratio: float = RATIO,
                 min_lines: int = MIN_LINES) -> PairVerdict:
     """The turn two readings of the same strips 180 degrees apart decide: the one with at least ``min_real`` real
-    words on ``min_lines`` lines and ``ratio`` times the other's real words (at least 1 counted there)."""
+    words on ``min_lines`` lines and ``ratio`` times the other's real words (at least 1 counted there); or, failing
+    that, with ``CONFIDENT_MIN`` confident words on ``CONFIDENT_LINES`` lines and ``CONFIDENT_RATIO`` times the
+    other's, while the other reads no more real words."""
     for a, b in ((first, second), (second, first)):
         if a.real >= min_real and a.lines >= min_lines and a.real >= ratio * max(b.real, 1):
+            return PairVerdict(first, second, a.turn)
+    for a, b in ((first, second), (second, first)):
+        if (a.confident >= CONFIDENT_MIN and a.confident_lines >= CONFIDENT_LINES
+                and a.confident >= CONFIDENT_RATIO * max(b.confident, 1) and a.real >= b.real):
             return PairVerdict(first, second, a.turn)
     return PairVerdict(first, second, None)
 
@@ -250,7 +300,7 @@ class RecognizerLines:
 
     def read(self, gray: np.ndarray, lines: Sequence[TextLine], vocabulary: AbstractSet[str]) -> PairVerdict:
         """``lines`` (one axis, px of ``gray``) read both ways up; each line's words carry its confidence."""
-        strips = [cut_strip(gray, ln, RECOGNIZER_HEIGHT) for ln in lines]
+        strips = [cut_strip(gray, ln, RECOGNIZER_HEIGHT, RECOGNIZER_MAX_ASPECT) for ln in lines]
         readings = []
         for flipped in (False, True):
             words, line_of = [], []

@@ -20,19 +20,19 @@ from __future__ import annotations
 
 import statistics
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from pathlib import Path
 from typing import Literal
 
-import cv2
 import numpy as np
 
-from workers.orientation.linereader import (RECOGNIZER_HEIGHT, RECOGNIZER_LINES, STRIP_HEIGHT, TESSERACT_LINES,
-                                            PairVerdict, Reader, RecognizerLines, TesseractLines, cut_strip,
+from workers.orientation.linereader import (RECOGNIZER_LINES, STRIP_HEIGHT, TESSERACT_LINES,
+                                            PairVerdict, Reader, RecognizerLines, TesseractLines, cut_strip, joined,
                                             strip_page)
 from workers.orientation.textdata import Tessdata, find_tessdata, find_vocabulary
-from workers.orientation.textlines import LoadImage, TextLine, get_line_detector, upscaler
+from workers.orientation.geometry import rotate_view
+from workers.orientation.textlines import LineScan, LoadImage, TextLine, get_line_detector, upscaler
 from workers.settings import worker_settings
 
 RejectReason = Literal["no_cue", "conflicting_rotations", "low_confidence"]
@@ -105,28 +105,52 @@ class TextCue:
         if not scan.lines:
             return TextResult(None, "no_cue", 0, scan.zoomed)
         readings: list[PairVerdict] = []
+        found = self._read_scan(gray, scan, load, readings)
+        if found is None and QUARTER_TURN_PASS:  # lines, none read clearly: look again turned a quarter
+            turned = rotate_view(gray, 90)
+            again = self.detector.scan(turned, _turned_load(load))
+            if again.lines:
+                found = self._read_scan(turned, again, _turned_load(load), readings, quarter=90)
+        zoomed = scan.zoomed
+        if found is not None:
+            verdict, script = found
+            return TextResult(verdict.turn, None, len(scan.lines), zoomed, tuple(readings), verdict.first.reader,
+                              script)
+        read_any = any(v.first.real or v.second.real or v.first.confident or v.second.confident for v in readings)
+        return TextResult(None, "low_confidence" if read_any else "no_cue", len(scan.lines), zoomed,
+                          tuple(readings), None, None)
+
+    def _read_scan(self, gray: np.ndarray, scan: LineScan, load: LoadImage, readings: list[PairVerdict],
+                   quarter: int = 0) -> tuple[PairVerdict, str | None] | None:
+        """Read ``scan``'s lines of ``gray`` axis by axis, reader by reader, until a reading decides: (the deciding
+        verdict, the script seen), or None. ``quarter``: ``gray`` is the stored image turned that many degrees
+        clockwise; turns are given for the stored image."""
         script = None
         for axis in scan.axes():
-            lines = scan.on_axis(axis)[:max(TESSERACT_LINES, RECOGNIZER_LINES)]
+            lines = scan.on_axis(axis)[:max(sum(TESSERACT_LINES), RECOGNIZER_LINES)]
             image, lines = _lines_image(gray, lines, load)
             for verdict, seen in self._readings(image, lines):
+                verdict = _turned_by(verdict, quarter)
                 readings.append(verdict)
                 script = seen or script
                 if verdict.turn is not None:
-                    return TextResult(verdict.turn, None, len(scan.lines), scan.zoomed, tuple(readings),
-                                      verdict.first.reader, script)
-        read_any = any(v.first.real or v.second.real for v in readings)
-        return TextResult(None, "low_confidence" if read_any else "no_cue", len(scan.lines), scan.zoomed,
-                          tuple(readings), None, script)
+                    return verdict, script
+        return None
 
     def _readings(self, image: np.ndarray, lines: list[TextLine]):
         """Each reader's reading of ``lines`` (one axis, px of ``image``), cheapest first, as (verdict, script seen)."""
         if self.tesseract is not None:
-            yield self.tesseract.read(image, lines[:TESSERACT_LINES], self.vocabulary), None
+            verdict, start = None, 0
+            for batch in TESSERACT_LINES:
+                if start >= len(lines) or (verdict is not None and verdict.turn is not None):
+                    break
+                more = self.tesseract.read(image, lines[start:start + batch], self.vocabulary)
+                verdict, start = (more if verdict is None else joined(verdict, more)), start + batch
+            yield verdict, None
         if self.recognizer is not None:
             yield self.recognizer.read(image, lines[:RECOGNIZER_LINES], self.vocabulary), None
         if self.tesseract is not None and self.tessdata is not None and self.tessdata.script_models:
-            strips = [cut_strip(image, ln, STRIP_HEIGHT) for ln in lines[:TESSERACT_LINES]]
+            strips = [cut_strip(image, ln, STRIP_HEIGHT) for ln in lines[:TESSERACT_LINES[0]]]
             script = self.tesseract.script(strip_page(strips)[0])
             model = SCRIPT_MODELS.get(script or "", script)
             if script and script not in LATIN_SCRIPTS and model in self.tessdata.script_models:
@@ -142,6 +166,29 @@ class TextCue:
                 "tessdata": str(td.folder) if td else None, "tessdata_source": td.source if td else None,
                 "script_models": list(td.script_models) if td else [],
                 "wordlists": self.vocabulary_source, "wordlist_words": len(self.vocabulary)}
+
+
+QUARTER_TURN_PASS = True
+"""When the lines a photo shows are read clearly neither way up, the gate looks at the photo turned 90 degrees and its
+lines are read again: the detector finds small print running across its copy more surely than along it (the lines
+of a receipt turned sideways came out as blocks), so a page turned sideways is often found whole only this way."""
+
+
+def _turned_load(load: LoadImage) -> LoadImage:
+    """``load`` for the image turned 90 degrees clockwise."""
+    def turned(factor: float) -> tuple[np.ndarray, float]:
+        image, actual = load(factor)
+        return rotate_view(image, 90), actual
+    return turned
+
+
+def _turned_by(verdict: PairVerdict, quarter: int) -> PairVerdict:
+    """``verdict`` of the image turned ``quarter`` degrees clockwise, as turns of the stored image."""
+    if quarter == 0:
+        return verdict
+    shift = lambda r: replace(r, turn=(r.turn + quarter) % 360)  # noqa: E731
+    return PairVerdict(shift(verdict.first), shift(verdict.second),
+                       None if verdict.turn is None else (verdict.turn + quarter) % 360)
 
 
 def _tesseract(tessdata: Tessdata | None) -> TesseractLines | None:

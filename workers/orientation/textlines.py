@@ -2,7 +2,7 @@
 
 The text cue's gate. A DB text detector (Liao et al., *Real-time Scene Text Detection with Differentiable
 Binarization*; PaddleOCR's multilingual PP-OCRv6 small model, shipped inside the ``rapidocr`` wheel and run with
-onnxruntime) turns a small copy of the photo (``GATE_SIDE`` px on its long side, tens of milliseconds) into a
+onnxruntime) turns a small copy of the photo (``GATE_PIXELS`` pixels, tens of milliseconds) into a
 probability map of text; its connected regions are text lines, each a rotated rectangle. A photo with no line costs
 the gate alone; the lines of the others tell where to read and along which axis the text runs (a line is long along
 its reading direction), so the reader (:mod:`workers.orientation.linereader`) reads a few line strips instead of
@@ -33,10 +33,13 @@ LoadImage = Callable[[float], tuple[np.ndarray, float]]
 """Given how many times larger than the gate's image an image of the same photo should be, the photo decoded that
 large (or as large as it is) and the factor it actually has."""
 
-GATE_SIDE = 480
-"""Long side (px) of the copy the gate's first pass looks at. The detector's cost grows with the pixels (about 35 ms
-of one core at 480 px, 70 ms at 640, 160 ms at 960 on this project's benchmark machine); lines of ordinary print in a
-photo or a receipt are 6 px or more tall at 480 px, which the network finds."""
+GATE_PIXELS = 480 * 360
+"""Pixels of the copy the gate's first pass looks at (a 4:3 photo at 480 x 360, a square one at 416 x 416, a long
+receipt at 810 x 213). The detector's cost grows with the pixels (about 35 ms of one core for these, 160 ms for four
+times as many, on this project's benchmark machine); a pixel budget rather than a long side keeps the lines of a long
+receipt as tall as a photo's (at 480 px on its long side, a receipt's lines were 3 px tall and ran together)."""
+GATE_MAX_SIDE = 1024
+"""... and its long side at most this (px): a panorama or a till roll is not stretched into a thread."""
 PROBABILITY_THRESHOLD = 0.3
 """A map pixel is text when its probability reaches this (DB's binarisation threshold, PaddleOCR's default)."""
 LINE_MIN_SCORE = 0.6
@@ -68,6 +71,17 @@ PAPER_TOLERANCE = 16
 PAPER_MIN_WHITE = 180
 INK_BELOW_WHITE = 40
 """A pixel of such a page is ink when it is this many grey levels darker than its paper white."""
+REFINE_BELOW_PX = 9.0
+"""The gate looks again, closer, at the lines it found when their median height in its copy is under this (px): lines
+of a few pixels run into each other (a receipt's close lines came out as blocks of two or three), and their
+rectangles are too rough to cut strips from."""
+REFINE_LINE_PX = 20.0
+"""... at the scale that makes that median line this tall (px; the detector's best size), ..."""
+REFINE_MAX_SIDE = 1280
+"""... its copy of the lines' region at most this long (px)."""
+LINE_HEIGHT_BAND = (0.6, 1.6)
+"""The lines read first are those whose height is within this factor of the axis's median line height (a block of
+merged lines, a title or a logo is not what a reading needs first)."""
 ZOOM_FACTOR = 2.5
 """How much closer the second pass looks: the responding region at this many times the first pass's resolution,
 its long side at most ``ZOOM_MAX_SIDE`` px."""
@@ -119,8 +133,14 @@ class LineScan:
     """Thin lines (small print) the first pass saw."""
 
     def on_axis(self, axis: Axis) -> list[TextLine]:
-        """The lines along ``axis``, longest and surest first."""
-        return sorted((ln for ln in self.lines if ln.axis == axis), key=lambda ln: -ln.score * ln.length * ln.height)
+        """The lines along ``axis``: those of about the median height first (``LINE_HEIGHT_BAND``), longest and surest
+        first, then the others."""
+        lines = [ln for ln in self.lines if ln.axis == axis]
+        if not lines:
+            return []
+        median = float(np.median([ln.height for ln in lines]))
+        low, high = LINE_HEIGHT_BAND
+        return sorted(lines, key=lambda ln: (not low * median <= ln.height <= high * median, -ln.score * ln.length))
 
     def axes(self) -> list[Axis]:
         """The axes that hold lines, the one with more (summed length) first."""
@@ -166,7 +186,7 @@ class LineDetector:
         out = self._session.run(None, {self._input: x})[0][0, 0]
         return out[:nh, :nw], nw / w
 
-    def lines(self, gray: np.ndarray, side: int = GATE_SIDE) -> tuple[list[TextLine], list[TextLine], float]:
+    def lines(self, gray: np.ndarray, side: int) -> tuple[list[TextLine], list[TextLine], float]:
         """(the lines in ``gray`` ((H, W) uint8), the thin ones (too small to keep), both in px of ``gray``; the
         scale of the detector's copy)."""
         prob, scale = self.probability(gray, side)
@@ -177,23 +197,36 @@ class LineDetector:
         """The gate on ``gray`` ((H, W) uint8, the stored image or a reduced copy): its lines (px of ``gray``), with the
         second, closer pass over the region where small print shows (module docstring). ``load`` gives a larger decode
         of the same photo when the closer look needs more pixels than ``gray`` has (default: ``gray`` upscaled)."""
-        found, thin, scale = self.lines(gray, GATE_SIDE)
+        found, thin, scale = self.lines(gray, gate_side(gray.shape))
+        load = load or upscaler(gray)
         if len(thin) >= ZOOM_MIN_THIN and len(thin) >= ZOOM_THIN_SHARE * len(found):
-            region = _region(thin, gray.shape)
+            region, closer, max_side = _region(thin, gray.shape), scale * ZOOM_FACTOR, ZOOM_MAX_SIDE
         elif len(found) < ZOOM_BELOW_LINES and (ink := ink_region(gray)) is not None:
-            region = ink
+            region, closer, max_side = ink, scale * ZOOM_FACTOR, ZOOM_MAX_SIDE
+        elif found and (small := _small_lines(found, scale)):
+            region = _region(small, gray.shape)
+            closer = scale * REFINE_LINE_PX / (scale * float(np.median([ln.height for ln in small])))
+            max_side = REFINE_MAX_SIDE
         else:
             return LineScan(tuple(found), False, len(thin))
-        x0, y0, x1, y1 = region
-        closer = scale * ZOOM_FACTOR  # the second pass's scale, relative to ``gray``
-        side = min(ZOOM_MAX_SIDE, round(max(x1 - x0, y1 - y0) * closer))
-        if side < 64:
+        closer_lines = self._closer(gray, region, closer, max_side, load)
+        if closer_lines is None:
             return LineScan(tuple(found), False, len(thin))
-        image, factor = (gray, 1.0) if closer <= 1.0 else (load or upscaler(gray))(closer)
-        crop = image[round(y0 * factor):round(y1 * factor), round(x0 * factor):round(x1 * factor)]
-        zoomed, _, _ = self.lines(crop, side)
         kept = [ln for ln in found if not _inside(ln, region)]
-        return LineScan(tuple(kept + [ln.scaled(1.0 / factor, (x0, y0)) for ln in zoomed]), True, len(thin))
+        return LineScan(tuple(kept + closer_lines), True, len(thin))
+
+    def _closer(self, gray: np.ndarray, region: tuple[int, int, int, int], closer: float, max_side: int,
+                load: LoadImage) -> list[TextLine] | None:
+        """The lines of ``region`` (x0, y0, x1, y1 px of ``gray``) looked at ``closer`` times ``gray``'s resolution (its
+        long side at most ``max_side`` px), in px of ``gray``; None when the region is too small to look at."""
+        x0, y0, x1, y1 = region
+        side = min(max_side, round(max(x1 - x0, y1 - y0) * closer))
+        if side < 64:
+            return None
+        image, factor = (gray, 1.0) if closer <= 1.0 else load(closer)
+        crop = image[round(y0 * factor):round(y1 * factor), round(x0 * factor):round(x1 * factor)]
+        lines, _, _ = self.lines(crop, side)
+        return [ln.scaled(1.0 / factor, (x0, y0)) for ln in lines]
 
 
 def upscaler(gray: np.ndarray) -> LoadImage:
@@ -221,6 +254,23 @@ def ink_region(gray: np.ndarray) -> tuple[int, int, int, int] | None:
     h, w = gray.shape[:2]
     return (max(0, int(x0 - pad_x)), max(0, int(y0 - pad_y)), min(w, int(math.ceil(x1 + pad_x))),
             min(h, int(math.ceil(y1 + pad_y))))
+
+
+def gate_side(shape: tuple[int, ...]) -> int:
+    """The long side (px) of the gate's first copy of an image of ``shape``: ``GATE_PIXELS`` pixels, at most
+    ``GATE_MAX_SIDE`` px long."""
+    h, w = shape[:2]
+    return min(GATE_MAX_SIDE, round(max(h, w) * math.sqrt(GATE_PIXELS / (h * w))))
+
+
+def _small_lines(lines: list[TextLine], scale: float) -> list[TextLine]:
+    """The lines of the axis with more lines when their median height in the detector's copy (``scale`` times the
+    image) is under ``REFINE_BELOW_PX``; else none."""
+    axis = max(("h", "v"), key=lambda a: sum(ln.axis == a for ln in lines))
+    on_axis = [ln for ln in lines if ln.axis == axis]
+    if not on_axis or float(np.median([ln.height for ln in on_axis])) * scale >= REFINE_BELOW_PX:
+        return []
+    return on_axis
 
 
 def _inside(line: TextLine, box: tuple[int, int, int, int]) -> bool:
