@@ -167,7 +167,7 @@ def test_sanitize_filename(name, expected):
 def run(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="sweepcast")
     cli.register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
+    args = parser.parse_args([*argv, "--jobs", "1"])  # in this process: the tests' fake detectors stay in it
     return args.func(args)
 
 
