@@ -155,3 +155,20 @@ def test_jobs_must_be_positive(tmp_path, capsys):
     with pytest.raises(SystemExit):
         run(["orient", str(tmp_path), "--jobs", "0"])
     assert "must be at least 1" in capsys.readouterr().err
+
+
+def test_a_photo_unchanged_since_a_run_is_not_even_read_and_one_moved_is_read_once(tmp_path, fake, monkeypatch):
+    from workers.orientation import library
+
+    paths = photos(tmp_path / "lib", 3)
+    assert run(["orient", str(tmp_path / "lib"), "--jobs", "1"]) == 0
+    real, reads = library._read, []
+    monkeypatch.setattr(library, "_read", lambda path: (reads.append(path.name), real(path))[1])
+    fake.seen.clear()
+    assert run(["orient", str(tmp_path / "lib"), "--jobs", "1"]) == 0
+    assert reads == [] and fake.seen == []  # same size and modification time: not read
+    paths[1].rename(tmp_path / "lib" / "moved.jpg")
+    assert run(["orient", str(tmp_path / "lib"), "--jobs", "1"]) == 0
+    assert reads == ["moved.jpg"] and fake.seen == []  # read to recognise its bytes, not analysed
+    assert run(["orient", str(tmp_path / "lib"), "--jobs", "1"]) == 0
+    assert reads == ["moved.jpg"]  # remembered where it is now

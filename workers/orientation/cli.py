@@ -177,7 +177,7 @@ def _run(files: list[Path], options: LibraryOptions, state: LibraryState, jobs: 
 
     def take(i: int, outcome: PathOutcome) -> None:
         if outcome.result is None:  # decided by an earlier run: no time spent on it now
-            results[i] = state.result(outcome.sha256, files[i])
+            results[i] = state.result(outcome.sha256, files[i], outcome.stat)
             pace.skip()
         else:
             results[i] = outcome.result
@@ -185,16 +185,23 @@ def _run(files: list[Path], options: LibraryOptions, state: LibraryState, jobs: 
             pace.add()
         bar((pace.done + len(files) - pace.todo) / len(files), files[i].name, pace.seconds_left())
 
-    with FilePool(files, options, state.known(options), jobs, config, detector) as pool:
+    todo = []
+    for i, path in enumerate(files):  # unchanged since a run decided them: not even read
+        sha = state.unchanged(path, options)
+        if sha is None:
+            todo.append(i)
+        else:
+            take(i, PathOutcome(None, sha))
+    with FilePool([files[i] for i in todo], options, state.known(options), jobs, config, detector) as pool:
         try:
-            for i, outcome in pool.outcomes():
-                take(i, outcome)
+            for k, outcome in pool.outcomes():
+                take(todo[k], outcome)
         except KeyboardInterrupt:
             bar.close()
             print("sweepcast orient: interrupted; letting the photos under way finish (Ctrl-C again: at once)",
                   file=sys.stderr)
-            for i, outcome in pool.stop():
-                take(i, outcome)
+            for k, outcome in pool.stop():
+                take(todo[k], outcome)
             raise
     bar.close()
 

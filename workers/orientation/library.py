@@ -3,11 +3,13 @@
 :func:`orient_path` is what ``sweepcast orient`` does for each file, in whichever process runs it
 (:mod:`workers.orientation.pool`). It hashes the file's bytes (SHA-256) so that a later run can recognise a photo it
 already decided with the same bytes (:mod:`workers.orientation.resume`): a photo whose hash is in ``known`` is not
-analysed again.
+analysed again. The stat of the bytes it hashed comes back too: a later run that finds the file with the same stat
+need not even read it.
 """
 from __future__ import annotations
 
 import hashlib
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import AbstractSet
@@ -57,18 +59,37 @@ class Result:
     conflicts: list[str] | None = None
 
 
+FileStat = tuple[int, int]
+"""(size in bytes, modification time in ns) of a file: a file whose stat is unchanged is taken to hold the same
+bytes (as rsync and git do), so a run need not read it to recognise it."""
+
+
 @dataclass
 class PathOutcome:
     """What :func:`orient_path` did with one file: its result (None: its hash is ``known``, nothing was done), the
-    SHA-256 of its bytes as read, and of its new bytes when the tag was written into it."""
+    SHA-256 and stat of its bytes as read, and of its new bytes when the tag was written into it."""
 
     result: Result | None
     sha256: str | None = None
+    stat: FileStat | None = None
     sha256_after: str | None = None
+    stat_after: FileStat | None = None
 
 
 def sha256_of(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
+
+
+def file_stat(path: Path) -> FileStat:
+    st = path.stat()
+    return st.st_size, st.st_mtime_ns
+
+
+def _read(path: Path) -> tuple[bytes, FileStat]:
+    """The file's bytes and the stat of the file they were read from."""
+    with open(path, "rb") as f:
+        st = os.fstat(f.fileno())
+        return f.read(), (st.st_size, st.st_mtime_ns)
 
 
 def orient_path(path: Path, detector: OrientationDetector, options: LibraryOptions,
@@ -76,7 +97,7 @@ def orient_path(path: Path, detector: OrientationDetector, options: LibraryOptio
     """Skip ``path`` when it is already tagged (unless ``force``) or its bytes' hash is in ``known``; else analyse it
     and, as ``options`` say, write its orientation. Raises OrientationInputError subclasses for files that cannot be
     read, ExifToolUnavailable / ExifToolError where a write needs ExifTool."""
-    data = path.read_bytes()
+    data, stat = _read(path)
     header = parse_header(data, path.name)
     sidecars = _sidecar_texts(path)
     insp = inspect(data, header, sidecars)
@@ -88,22 +109,22 @@ def orient_path(path: Path, detector: OrientationDetector, options: LibraryOptio
                                   existing=existing, conflicts=insp.conflicts()))
     digest = sha256_of(data)
     if digest in known:
-        return PathOutcome(None, digest)
+        return PathOutcome(None, digest, stat)
     if not options.changes_files:
         report = analyze(data, detector, options.max_pixels, path.name, sidecars, options.mode, options.naming,
                          options.force, inspection=insp)
         plan = report.write
         action = (f"would write {plan.value} to {_target_text(plan.target, plan.where)}" if plan.target != "none"
                   else _plain(report))
-        return PathOutcome(Result(path, report, action, format=header.format), digest)
+        return PathOutcome(Result(path, report, action, format=header.format), digest, stat)
     outcome = orient_file(data, detector, options.force, options.max_pixels, path.name, sidecars, options.mode,
                           options.naming, inspection=insp)
     written: list[str] = []
-    after = None
+    after, stat_after = None, None
     if outcome.photo is not None:
         replace_file(path, outcome.photo)
         written.append(str(path))
-        after = sha256_of(outcome.photo)
+        after, stat_after = sha256_of(outcome.photo), file_stat(path)
     if outcome.sidecar is not None and outcome.sidecar_name:
         replace_file(path.with_name(outcome.sidecar_name), outcome.sidecar)
         written.append(str(path.with_name(outcome.sidecar_name)))
@@ -113,7 +134,8 @@ def orient_path(path: Path, detector: OrientationDetector, options: LibraryOptio
     report = outcome.report
     action = (f"written {report.written_orientation} to {_target_text(report.write.target, report.write.where)}"
               if report.written else report.action)
-    return PathOutcome(Result(path, report, action, written_to=written, format=header.format), digest, after)
+    return PathOutcome(Result(path, report, action, written_to=written, format=header.format), digest, stat, after,
+                       stat_after)
 
 
 def _sidecar_texts(path: Path) -> dict[str, bytes]:

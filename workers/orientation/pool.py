@@ -35,7 +35,7 @@ class FilePool:
     def __init__(self, files: Sequence[Path], options: LibraryOptions, known: AbstractSet[str], jobs: int,
                  config: DetectorConfig, detector: OrientationDetector | None = None) -> None:
         self.files, self.options, self.known, self.config = files, options, frozenset(known), config
-        self.jobs = max(1, min(jobs, len(files)))
+        self.jobs = max(1, min(jobs, len(files)))  # no more processes than files (none started for none)
         self.detector = detector
         self._pool: concurrent.futures.ProcessPoolExecutor | None = None
         self._running: dict[concurrent.futures.Future, int] = {}

@@ -3,8 +3,10 @@
 A state file (JSON lines, appended as each photo is done, so a run that is interrupted keeps what it finished)
 holds one row per photo analysed: the SHA-256 of its bytes, the :func:`fingerprint` of everything else that shapes
 the answer (the engine's code, the detector and its model, the text cue and its data, ``force``, file or sidecar
-mode), whether it has something left to write, and its result. A later run with the same fingerprint does not
-analyse a photo whose bytes it has a row for (:meth:`LibraryState.known`):
+mode), whether it has something left to write, its result, and where the file was with which size and modification
+time. A later run with the same fingerprint does not analyse a photo whose bytes it has a row for
+(:meth:`LibraryState.known`), and does not even read a file found where a row says with the same size and
+modification time (:meth:`LibraryState.unchanged`):
 
 - a dry run reuses any row; a run that writes reuses only rows with nothing left to write (a dry run's "would write"
   is done for real);
@@ -25,7 +27,7 @@ from typing import Any, Iterable, TextIO
 import cv2
 
 from workers.orientation.detect import DetectorConfig, OrientationDetector
-from workers.orientation.library import LibraryOptions, PathOutcome, Result
+from workers.orientation.library import FileStat, LibraryOptions, PathOutcome, Result, file_stat
 from workers.orientation.orient import OrientationReport
 from workers.orientation.xmp import replace_file
 
@@ -70,6 +72,8 @@ class LibraryState:
         self._used: set[str] = set()
         self._hashed: set[str] = set()
         """The paths whose bytes this run hashed: their rows with other hashes are out of date."""
+        self._at: dict[str, str] = {row["path"]: sha for sha, row in self.rows.items() if row.get("stat")}
+        """Path -> the hash of the row recorded there (with its stat)."""
         path.parent.mkdir(parents=True, exist_ok=True)
         self._out: TextIO = open(path, "a" if resume else "w", encoding="utf-8")
 
@@ -92,11 +96,28 @@ class LibraryState:
         """Hashes of the photos a run with ``options`` need not analyse."""
         return {sha for sha, row in self.rows.items() if not (options.changes_files and row["writes"])}
 
-    def result(self, sha256: str, path: Path) -> Result:
-        """The remembered result of the photo with these bytes, now at ``path``."""
+    def unchanged(self, path: Path, options: LibraryOptions) -> str | None:
+        """The hash of the photo at ``path`` when a row a run with ``options`` may reuse was recorded there and the
+        file still has the size and modification time it had then (it is not read); else None."""
+        sha = self._at.get(str(path))
+        row = self.rows.get(sha) if sha is not None else None
+        if row is None or row["path"] != str(path) or (options.changes_files and row["writes"]):
+            return None
+        try:
+            return sha if list(file_stat(path)) == row["stat"] else None
+        except OSError:
+            return None
+
+    def result(self, sha256: str, path: Path, stat: FileStat | None = None) -> Result:
+        """The remembered result of the photo with these bytes, now at ``path`` (with ``stat``, when it was read: a
+        photo moved or touched since is remembered where and as it is now)."""
         row = self.rows[sha256]
         self._used.add(sha256)
         self._hashed.add(str(path))
+        if stat is not None and (row["path"], row.get("stat")) != (str(path), list(stat)):
+            row.update(path=str(path), stat=list(stat))
+            self._at[row["path"]] = sha256
+            self._append(row)
         report = OrientationReport.model_validate(row["report"])
         return Result(path, report, f"unchanged since the last run: {row['action']}", written_to=[],
                       format=row["format"])
@@ -110,17 +131,22 @@ class LibraryState:
             return
         written = result.written_to or []
         if written == [str(result.path)] and outcome.sha256_after:  # only the photo changed: its new bytes
-            sha, writes = outcome.sha256_after, False
+            sha, stat, writes = outcome.sha256_after, outcome.stat_after, False
         elif written or outcome.sha256 is None:  # a sidecar: the next run sees it
             return
         else:
             plan = result.report.write
-            sha, writes = outcome.sha256, result.written_to is None and plan is not None and plan.target != "none"
+            sha, stat = outcome.sha256, outcome.stat
+            writes = result.written_to is None and plan is not None and plan.target != "none"
         row = {"sha256": sha, "fingerprint": self.fingerprint, "writes": writes, "path": str(result.path),
-               "format": result.format, "action": result.action,
+               "stat": list(stat) if stat else None, "format": result.format, "action": result.action,
                "report": result.report.model_dump(mode="json", exclude={"elapsed_ms"}) | {"elapsed_ms": 0.0}}
         self.rows[sha] = row
+        self._at[row["path"]] = sha
         self._used.add(sha)
+        self._append(row)
+
+    def _append(self, row: dict[str, Any]) -> None:
         self._out.write(json.dumps(row) + "\n")
         self._out.flush()
 
