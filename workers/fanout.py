@@ -16,6 +16,7 @@ queue.
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import itertools
 from dataclasses import dataclass
@@ -108,7 +109,8 @@ class OnRay:
                     yield pending.pop(ref), self._result(ref)
         finally:
             for ref in pending:  # the job stopped early (an error, a cancel): its other tasks need not run
-                self._ray.cancel(ref)
+                with contextlib.suppress(Exception):  # one that finished meanwhile
+                    self._ray.cancel(ref)
 
     def _result(self, ref: Any) -> Any:
         try:
