@@ -172,3 +172,9 @@ def test_a_photo_unchanged_since_a_run_is_not_even_read_and_one_moved_is_read_on
     assert reads == ["moved.jpg"] and fake.seen == []  # read to recognise its bytes, not analysed
     assert run(["orient", str(tmp_path / "lib"), "--jobs", "1"]) == 0
     assert reads == ["moved.jpg"]  # remembered where it is now
+
+
+def test_a_photo_named_twice_is_analysed_once(tmp_path, fake):
+    [path] = photos(tmp_path / "lib", 1)
+    assert run(["orient", str(tmp_path / "lib"), str(path), "--jobs", "1", "--report", str(tmp_path / "r")]) == 0
+    assert len(fake.seen) == 1 and len(rows(tmp_path / "r", tmp_path / "lib")) == 1

@@ -207,15 +207,22 @@ def _run(files: list[Path], options: LibraryOptions, state: LibraryState, jobs: 
 
 
 def _expand(paths: list[Path]) -> tuple[list[Path], list[Path]]:
-    files, missing = [], []
+    """The photos under ``paths`` in order, each once (two processes must never write one file), and the paths that
+    do not exist."""
+    files, missing, seen = [], [], set()
     for path in paths:
         if path.is_dir():
-            files += sorted(p for p in path.rglob("*") if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES
-                            and not p.name.startswith("."))
+            found = sorted(p for p in path.rglob("*") if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES
+                           and not p.name.startswith("."))
         elif path.is_file():
-            files.append(path)
+            found = [path]
         else:
             missing.append(path)
+            continue
+        for p in found:
+            if (real := p.resolve()) not in seen:
+                seen.add(real)
+                files.append(p)
     return files, missing
 
 
