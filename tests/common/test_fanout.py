@@ -133,3 +133,22 @@ def test_tasks_routed_to_nodes_are_spread_by_their_cpus(nodes, expected):
 
     assert list(islice(_spread(nodes), len(expected))) == expected
     assert _spread([]) is None
+
+
+def test_tasks_of_a_routed_job_go_to_the_nodes_that_offer_its_resources():
+    from types import SimpleNamespace
+
+    from workers.fanout import _routed_nodes
+
+    def fake_ray(given: dict[str, float]) -> SimpleNamespace:
+        nodes = [{"NodeID": "api", "Alive": True, "Resources": {"CPU": 0.0, "sweepcast_worker": 1.0}},
+                 {"NodeID": "gpu", "Alive": True, "Resources": {"CPU": 8.0, "GPU": 1.0}},
+                 {"NodeID": "w1", "Alive": True, "Resources": {"CPU": 4.0, "sweepcast_worker": 1.0}},
+                 {"NodeID": "w2", "Alive": False, "Resources": {"CPU": 4.0, "sweepcast_worker": 1.0}},
+                 {"NodeID": "w3", "Alive": True, "Resources": {"CPU": 2.0, "sweepcast_worker": 1.0}}]
+        context = SimpleNamespace(get_assigned_resources=lambda: given)
+        return SimpleNamespace(get_runtime_context=lambda: context, nodes=lambda: nodes)
+
+    # live, with CPUs, offering the job's own custom resource
+    assert _routed_nodes(fake_ray({"CPU": 1.0, "sweepcast_worker": 1.0})) == [("w1", 4), ("w3", 2)]
+    assert _routed_nodes(fake_ray({"CPU": 1.0})) == []  # not routed: wherever Ray places them
