@@ -85,8 +85,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"refuse images larger than this (default ${MAX_PIXELS_ENV} or 64,000,000)")
     p.add_argument("--json", action="store_true", help="print the reports as JSON instead of a table")
     p.add_argument("--jobs", type=_positive, default=usable_cores(), metavar="N",
-                   help="processes that analyse photos at once (default: the cores this process may use, "
-                        f"{usable_cores()} here)")
+                   help="processes that analyse photos at once, this one and N-1 more (default: the cores this "
+                        f"process may use, {usable_cores()} here)")
     p.add_argument("--no-resume", dest="resume", action="store_false",
                    help="analyse every photo again, forgetting what earlier runs decided")
     p.add_argument("--state", type=Path, default=None, metavar="FILE",

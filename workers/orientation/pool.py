@@ -1,15 +1,19 @@
-"""The files of a library analysed by a pool of processes, each result handed back as it comes.
+"""The files of a library analysed by this process and a pool of helper processes, each result handed back as it
+comes.
 
-``jobs`` processes (spawned: nothing of this process is shared with them but what is passed) each build the
-detector once and run :func:`workers.orientation.library.orient_path` on one file at a time, with OpenCV on one
-thread (the processes share the cores out, one each). At most ``IN_FLIGHT_PER_JOB`` files per process are handed
-out ahead, so that a run that is stopped has little under way: :meth:`FilePool.stop` lets the files under way finish
-(a file is never left half-written) and hands their outcomes back. With ``jobs=1`` the files are analysed in this
-process, with the caller's detector.
+With ``jobs`` N, this process and N-1 helpers (spawned: nothing of this process is shared with them but what is
+passed) analyse files at once, each running :func:`workers.orientation.library.orient_path` on one file at a time
+with its own detector, built once, and OpenCV on one thread (the processes share the cores out, one each). This
+process works too rather than only waiting on the others: its detector is already built (the run needed it to check
+the configuration and to fingerprint its answers), and the helpers, which take a second or two to import and build
+theirs, start while it analyses the first photos. At most ``IN_FLIGHT_PER_HELPER`` files per helper are handed out
+ahead, so that a run that is stopped has little under way: :meth:`FilePool.stop` lets the files under way finish (a
+file is never left half-written) and hands their outcomes back.
 """
 from __future__ import annotations
 
 import concurrent.futures
+import itertools
 import multiprocessing
 import signal
 from pathlib import Path
@@ -22,7 +26,7 @@ from workers.orientation.errors import OrientationInputError
 from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
 from workers.orientation.library import LibraryOptions, PathOutcome, Result, orient_path
 
-IN_FLIGHT_PER_JOB = 4
+IN_FLIGHT_PER_HELPER = 2
 
 _worker: dict[str, object] = {}
 
@@ -30,20 +34,20 @@ _worker: dict[str, object] = {}
 class FilePool:
     """Use as a context manager: :meth:`outcomes` yields ``(i, outcome of files[i])`` in the order they finish (a file
     that cannot be read: a result with its error); after an interruption :meth:`stop` yields those still under way.
-    ``detector``: the one to use in this process (``jobs=1``)."""
+    ``detector``: this process's (built from ``config`` when not given)."""
 
     def __init__(self, files: Sequence[Path], options: LibraryOptions, known: AbstractSet[str], jobs: int,
                  config: DetectorConfig, detector: OrientationDetector | None = None) -> None:
         self.files, self.options, self.known, self.config = files, options, frozenset(known), config
-        self.jobs = max(1, min(jobs, len(files)))  # no more processes than files (none started for none)
+        self.helpers = max(0, min(jobs, len(files)) - 1)  # no more processes than files (none for none)
         self.detector = detector
         self._pool: concurrent.futures.ProcessPoolExecutor | None = None
         self._running: dict[concurrent.futures.Future, int] = {}
 
     def __enter__(self) -> "FilePool":
-        if self.jobs > 1:
+        if self.helpers:  # its processes start with the first file handed to them
             self._pool = concurrent.futures.ProcessPoolExecutor(
-                self.jobs, mp_context=multiprocessing.get_context("spawn"), initializer=_start_worker,
+                self.helpers, mp_context=multiprocessing.get_context("spawn"), initializer=_start_worker,
                 initargs=(self.config, self.options, self.known))
         return self
 
@@ -52,21 +56,31 @@ class FilePool:
             self._pool.shutdown(wait=True, cancel_futures=True)
 
     def outcomes(self) -> Iterator[tuple[int, PathOutcome]]:
-        if self._pool is None:
-            detector = self.detector or get_detector(self.config)
-            for i, path in enumerate(self.files):
-                yield i, _guarded(path, detector, self.options, self.known)
-            return
+        detector = self.detector or get_detector(self.config)
         queue = iter(enumerate(self.files))
+        threads = cv2.getNumThreads()
+        if self.helpers:
+            cv2.setNumThreads(1)  # one core each, as the helpers
+        try:
+            yield from self._shared(queue, detector)
+        finally:
+            cv2.setNumThreads(threads)
+
+    def _shared(self, queue: Iterator[tuple[int, Path]], detector: OrientationDetector
+                ) -> Iterator[tuple[int, PathOutcome]]:
         while True:
-            for i, path in queue:
-                self._running[self._pool.submit(_analyse, path)] = i
-                if len(self._running) >= self.jobs * IN_FLIGHT_PER_JOB:
-                    break
-            if not self._running:
+            if self._pool is not None:  # the helpers' share, handed out ahead
+                for i, path in itertools.islice(queue, self.helpers * IN_FLIGHT_PER_HELPER - len(self._running)):
+                    self._running[self._pool.submit(_analyse, path)] = i
+            mine = next(queue, None)
+            if mine is not None:  # this process's own next file
+                yield mine[0], _guarded(mine[1], detector, self.options, self.known)
+                ready = [future for future in self._running if future.done()]
+            elif self._running:
+                ready = concurrent.futures.wait(self._running, return_when=concurrent.futures.FIRST_COMPLETED)[0]
+            else:
                 return
-            done, _ = concurrent.futures.wait(self._running, return_when=concurrent.futures.FIRST_COMPLETED)
-            for future in done:
+            for future in ready:
                 yield self._running.pop(future), future.result()
 
     def stop(self) -> Iterator[tuple[int, PathOutcome]]:
