@@ -29,6 +29,7 @@ from app.sync_work import SyncWorkGate, SyncWorkLimits
 from workers.common.validation import describe_errors
 from workers.registry import JobKind
 from workers.runtime import inputs_prefix, results_prefix
+from workers.workarea import work_prefix
 from workers.storage import BlobStore, DirectoryBlobStore, open_store
 
 log = logging.getLogger("sweepcast")
@@ -110,10 +111,12 @@ async def answer_within(check: Callable[[], R], what: str, timeout: float = CHEC
 
 
 async def delete_job_and_files(svc: Services, job_id: str) -> None:
-    """Delete a job's row, then its results and its inputs from the blob store."""
+    """Delete a job's row, then its results, its inputs and what its tasks left in its work area (a job that failed
+    or was cancelled keeps it until then) from the blob store."""
     await asyncio.to_thread(svc.jobs.delete, job_id)
     await asyncio.to_thread(svc.store.delete_prefix, results_prefix(job_id))
     await asyncio.to_thread(svc.store.delete_prefix, inputs_prefix(job_id))
+    await asyncio.to_thread(svc.store.delete_prefix, work_prefix(job_id))
 
 
 def storage_check(svc: Services) -> dict[str, object]:

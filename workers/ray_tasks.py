@@ -1,11 +1,13 @@
-"""Ray entry points: the batch job task (a streaming generator of job events), and the probe that asks a node how many
-processes the kernel's OOM killer has ended there."""
+"""Ray entry points: the batch job task (a streaming generator of job events), the task a job fans out into (one
+block of its work: :mod:`workers.fanout`), and the probe that asks a node how many processes the kernel's OOM killer
+has ended there."""
 from __future__ import annotations
 
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import ray
 
+from workers.fanout import run_task
 from workers.oom import oom_kills
 from workers.runtime import JobSpec, execute_job
 
@@ -17,7 +19,14 @@ def run_job_task(spec: dict[str, Any]) -> Iterator[dict[str, Any]]:
     Retries are the dispatcher's, not Ray's (``max_retries=0``): the job table counts each
     attempt, and a lost worker shows up at the driver as an error of the next item.
     """
-    yield from execute_job(JobSpec(**spec))
+    yield from execute_job(JobSpec(**spec), on_ray=True)
+
+
+@ray.remote(num_cpus=1)
+def run_block_task(fn: Callable[[Any], Any], task: Any) -> Any:
+    """``fn(task)``: one task of a job that fans out (:func:`workers.fanout.run_task`; retries:
+    :data:`workers.fanout.TASK_RETRIES`, set where it is submitted)."""
+    return run_task(fn, task)
 
 
 @ray.remote(num_cpus=0, max_retries=0)

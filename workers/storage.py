@@ -114,6 +114,7 @@ class BlobStore(Protocol):
     def list(self, prefix: str) -> list[str]: ...
     def local_path(self, key: str) -> Path: ...
     def publish(self, src_prefix: str, dst_prefix: str) -> None: ...
+    def copy(self, src_key: str, dst_key: str) -> None: ...
 
 
 class DirectoryBlobStore:
@@ -202,6 +203,23 @@ class DirectoryBlobStore:
         if not path.is_file():
             raise BlobNotFound(key)
         return path
+
+    def copy(self, src_key: str, dst_key: str) -> None:
+        """Store the bytes of ``src_key`` under ``dst_key`` too (a hard link where the file system allows: no bytes
+        copied; a blob is never changed in place, :meth:`put` replaces it, so the two keys never affect each other)."""
+        src, dst = self._path(src_key), self._path(dst_key)
+        if not src.is_file():
+            raise BlobNotFound(src_key)
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        tmp = dst.with_name(f".{dst.name}.{uuid.uuid4().hex}.part")
+        try:
+            try:
+                os.link(src, tmp)
+            except OSError:  # another file system, or one without hard links
+                shutil.copyfile(src, tmp)
+            os.replace(tmp, dst)
+        finally:
+            tmp.unlink(missing_ok=True)
 
     def publish(self, src_prefix: str, dst_prefix: str) -> None:
         """Move every key below ``src_prefix`` to ``dst_prefix``, replacing what was there.
@@ -425,6 +443,17 @@ class S3BlobStore:
             finally:
                 tmp.unlink(missing_ok=True)
         return path
+
+    @_guarded
+    def copy(self, src_key: str, dst_key: str) -> None:
+        """A server-side copy of ``src_key`` to ``dst_key`` (no bytes pass through this process)."""
+        try:
+            self._client.copy({"Bucket": self.bucket, "Key": self._key(src_key)}, self.bucket, self._key(dst_key),
+                              Config=self._transfer)
+        except ClientError as exc:
+            if self._missing(exc):
+                raise BlobNotFound(src_key) from None
+            raise
 
     @_guarded
     def publish(self, src_prefix: str, dst_prefix: str) -> None:

@@ -80,18 +80,23 @@ def test_worker_killed_mid_batch_is_retried_and_nothing_is_lost(client_factory):
     with client.websocket_connect(f"/v1/jobs/{job['id']}/events") as ws:
         while True:
             event = ws.receive_json()
-            if event["type"] == "progress":
+            if event["type"] == "progress" and "done" in event:  # a photo done (not the row's "running")
                 break
-            assert event["type"] in ("snapshot", "started"), event
+            assert event["type"] in ("snapshot", "started", "progress"), event
             if event["type"] == "started":
                 pid = event["pid"]
-    os.kill(pid, signal.SIGKILL)
+        os.kill(pid, signal.SIGKILL)  # the job's own worker, once a block of photos is done
+        later = []
+        while later[-1:] == [] or later[-1]["type"] != "final":
+            later.append(ws.receive_json())
     final = wait_final(client, job["id"])
     assert final["state"] == "succeeded", final
     assert final["attempts"] >= 2
     assert final["worker_losses"] >= 1 and final["service_restarts"] == 0
     entries = client.get(f"/v1/jobs/{job['id']}/results/report.json").json()
     assert len(entries) == 16 and not any(e.get("error") for e in entries)
+    resumed = [e for e in later if e["type"] == "progress" and "done by an earlier attempt" in e["stage"]]
+    assert resumed and resumed[0]["done"] >= 1  # the next attempt took up what the lost one finished
 
 
 def test_jobs_queued_when_the_service_stops_complete_after_restart(ray_local, settings_factory):

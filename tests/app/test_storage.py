@@ -54,6 +54,16 @@ def test_publish_replaces_the_destination_whole(store):
     assert store.list("jobs/j/tmp-2") == []
 
 
+def test_a_copy_is_a_blob_of_its_own(store):
+    store.put("jobs/j/work/files/a.jpg", b"made by a task")
+    store.copy("jobs/j/work/files/a.jpg", "jobs/j/tmp-1/a.jpg")
+    store.put("jobs/j/work/files/a.jpg", b"replaced later")  # the copy keeps what it was given
+    store.delete_prefix("jobs/j/work")
+    assert store.read("jobs/j/tmp-1/a.jpg") == b"made by a task"
+    with pytest.raises(BlobNotFound):
+        store.copy("jobs/j/work/files/a.jpg", "jobs/j/tmp-1/b.jpg")
+
+
 def test_large_upload_goes_in_parts_and_comes_back_whole(store):
     rng = np.random.default_rng(0)
     data = rng.integers(0, 256, 20 * 2**20 + 12345, dtype=np.uint8).tobytes()  # over the 8 MiB part size

@@ -276,7 +276,7 @@ def test_raw_named_tiff_is_never_written():
 def run_cli(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="sweepcast")
     cli.register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
+    args = parser.parse_args([*argv, "--jobs", "1"])  # in this process: the tests' fake detectors stay in it
     return args.func(args)
 
 

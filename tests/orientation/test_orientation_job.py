@@ -11,7 +11,10 @@ import pytest
 
 from tests.orientation.builders import FakeDetector, asymmetric_image, encode, jpeg
 from workers.common.jobctx import JobInputError
-from workers.orientation import cli, job
+from workers.fanout import InProcess
+from workers.orientation import blocks, cli, job
+from workers.storage import DirectoryBlobStore
+from workers.workarea import WorkArea
 from workers.orientation.exiftool import exiftool_version
 
 HAS_EXIFTOOL = exiftool_version() is not None
@@ -22,6 +25,8 @@ from workers.settings import WorkerSettings, worker_settings
 
 @dataclass
 class FakeContext:
+    """A job context over a folder: inputs in a blob store there, results in ``out/``, fan-outs run in turn here."""
+
     root: Path
     params: dict[str, Any]
     inputs: dict[str, str] = field(default_factory=dict)
@@ -29,22 +34,37 @@ class FakeContext:
     job_id: str = "job-1"
     kind: str = "orientation.batch"
     events: list[tuple[float, str]] = field(default_factory=list)
+    parallelism: int = 1
 
     @property
     def settings(self) -> WorkerSettings:  # read at each use: tests set the environment after making a context
         return worker_settings()
 
+    @property
+    def store(self) -> DirectoryBlobStore:
+        return DirectoryBlobStore(self.root / "store")
+
     def add(self, name: str, filename: str, data: bytes) -> None:
-        (self.root / "in").mkdir(parents=True, exist_ok=True)
-        (self.root / "in" / name).write_bytes(data)
-        self.inputs[name] = name
+        self.inputs[name] = f"in/{name}"
+        self.store.put(self.inputs[name], data)
         self.input_meta[name] = {"filename": filename, "size": len(data)}
 
     def input_path(self, name: str) -> Path:
-        return self.root / "in" / self.inputs[name]
+        return self.store.local_path(self.inputs[name])
 
     def read_input(self, name: str) -> bytes:
         return self.input_path(name).read_bytes()
+
+    def work_area(self) -> WorkArea:
+        return WorkArea(self.store.url, self.job_id, dict(self.inputs), store=self.store)
+
+    def fan_out(self, fn, tasks):
+        return InProcess().run(fn, tasks)
+
+    def adopt_result(self, name: str, work_name: str, size: int) -> None:
+        data = self.store.read(self.work_area().key(work_name))
+        assert len(data) == size
+        self.write_result(name, data)
 
     def result_path(self, name: str) -> Path:
         path = self.root / "out" / name
@@ -54,7 +74,7 @@ class FakeContext:
     def write_result(self, name: str, data: bytes) -> None:
         self.result_path(name).write_bytes(data)
 
-    def progress(self, fraction: float, stage: str) -> None:
+    def progress(self, fraction: float, stage: str, **counts) -> None:
         self.events.append((fraction, stage))
 
 
@@ -62,7 +82,7 @@ class FakeContext:
 def fake_detector(monkeypatch):
     """Every photo is found turned: rotate 90 degrees clockwise (EXIF 6)."""
     detector = FakeDetector((90,))
-    monkeypatch.setattr(job, "get_detector", lambda config: detector)
+    monkeypatch.setattr(blocks, "get_detector", lambda config: detector)
     monkeypatch.setattr(cli, "get_detector", lambda config: detector)
     return detector
 
@@ -147,7 +167,7 @@ def test_sanitize_filename(name, expected):
 def run(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="sweepcast")
     cli.register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
+    args = parser.parse_args([*argv, "--jobs", "1"])  # in this process: the tests' fake detectors stay in it
     return args.func(args)
 
 
@@ -223,7 +243,7 @@ def test_photos_left_for_review_get_a_thumbnail_of_their_stored_pixels(tmp_path,
     import numpy as np
 
     detector = FakeDetector(())  # nothing decides: every photo needs a person
-    monkeypatch.setattr(job, "get_detector", lambda config: detector)
+    monkeypatch.setattr(blocks, "get_detector", lambda config: detector)
     ctx = FakeContext(tmp_path, {"text": False})
     ctx.add("photo-0000", "wide.jpg", jpeg(asymmetric_image(600, 900)))
     ctx.add("photo-0001", "small.png", encode(asymmetric_image(120, 200), ".png"))

@@ -5,11 +5,14 @@ import sys
 import time
 from typing import Sequence, TextIO
 
+from workers.common.pace import describe_seconds
+
 
 class ProgressBar:
     """A single-line progress bar on a terminal (plain lines when not a TTY).
 
-    Use as a callback: ``bar(fraction, stage)`` with ``fraction`` in [0, 1].
+    Use as a callback: ``bar(fraction, stage)`` with ``fraction`` in [0, 1], and ``eta_s`` the seconds still to go
+    where the caller knows them (:class:`workers.common.pace.Pace`).
     """
 
     def __init__(self, label: str = "", stream: TextIO | None = None, width: int = 30) -> None:
@@ -20,16 +23,17 @@ class ProgressBar:
         self._last_stage = None
         self._tty = hasattr(self.stream, "isatty") and self.stream.isatty()
 
-    def __call__(self, fraction: float, stage: str = "") -> None:
+    def __call__(self, fraction: float, stage: str = "", eta_s: float | None = None) -> None:
         fraction = min(max(float(fraction), 0.0), 1.0)
         elapsed = time.perf_counter() - self.start
+        left = "" if eta_s is None else f" ETA {describe_seconds(eta_s)}"
         if self._tty:
             filled = int(round(fraction * self.width))
             bar = "#" * filled + "-" * (self.width - filled)
-            self.stream.write(f"\r{self.label} [{bar}] {fraction:5.1%} {elapsed:6.1f}s {stage[:40]:<40}")
+            self.stream.write(f"\r{self.label} [{bar}] {fraction:5.1%} {elapsed:6.1f}s{left} {stage[:40]:<40}")
             self.stream.flush()
         elif stage != self._last_stage:
-            self.stream.write(f"{self.label} {fraction:5.1%} {elapsed:6.1f}s {stage}\n")
+            self.stream.write(f"{self.label} {fraction:5.1%} {elapsed:6.1f}s{left} {stage}\n")
             self._last_stage = stage
 
     def close(self) -> None:

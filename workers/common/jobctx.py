@@ -8,6 +8,13 @@ tests and command-line contexts pass), reports progress with ``ctx.progress``, w
 result file with ``ctx.write_result`` (or into ``ctx.result_path``), and returns a small
 JSON-able summary that becomes part of the job's result manifest.
 
+A job whose work grows with its input fans out: it splits the work into tasks and runs a module-level function
+over them with ``ctx.fan_out`` (Ray tasks on every CPU of the cluster when the job runs on Ray; sized with
+``ctx.parallelism``); each task reads and writes through ``ctx.work_area()``, a handle on the job's inputs and its
+work area in the blob store that any process opens, and the job publishes the files its tasks wrote with
+``ctx.adopt_result``. The work area outlives an attempt, so a job run again after a lost worker can take up what
+its tasks already finished.
+
 A failure the user caused (a file that is not a video, absurd intrinsics, ...) is raised
 as :class:`JobInputError` with a message a person understands: the job fails at once with
 that message and is not retried. Any other exception is treated as a bug or a lost worker:
@@ -16,9 +23,13 @@ the job is retried and, when the retries are spent, fails with the exception's s
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Callable, Iterator, Protocol, Sequence, TypeVar
 
 from workers.settings import WorkerSettings
+from workers.workarea import WorkArea
+
+T = TypeVar("T")
+R = TypeVar("R")
 
 
 class JobInputError(Exception):
@@ -52,5 +63,21 @@ class JobContext(Protocol):
     def write_result(self, name: str, data: bytes) -> None:
         """Write result ``name`` (published atomically with the others when the job succeeds)."""
 
-    def progress(self, fraction: float, stage: str) -> None:
-        """Report progress: ``fraction`` in [0, 1] of the whole job, ``stage`` a short text."""
+    def progress(self, fraction: float, stage: str, *, done: int | None = None, total: int | None = None,
+                 eta_s: float | None = None) -> None:
+        """Report progress: ``fraction`` in [0, 1] of the whole job, ``stage`` a short text; a job that counts items
+        also says how many are ``done`` of ``total`` and the seconds it expects to need still (``eta_s``, None
+        before it can tell)."""
+
+    parallelism: int
+    """How many of the job's fanned-out tasks can run at once (1 outside Ray)."""
+
+    def fan_out(self, fn: Callable[[T], R], tasks: Sequence[T]) -> Iterator[tuple[int, R]]:
+        """``(i, fn(tasks[i]))`` for every task, in the order they finish (:mod:`workers.fanout`): ``fn`` a
+        module-level function, each task picklable."""
+
+    def work_area(self) -> WorkArea:
+        """The job's inputs and work area, for its tasks (:mod:`workers.workarea`)."""
+
+    def adopt_result(self, name: str, work_name: str, size: int) -> None:
+        """Publish work file ``work_name`` (``size`` bytes) as result ``name`` with the others."""

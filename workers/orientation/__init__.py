@@ -7,6 +7,7 @@ Modules: ``headers`` (container parsing without decoding), ``decode`` (checked, 
 decoding), ``geometry`` (the four rotations), ``faces`` (Haar and YuNet face finders), ``parts``
 (facial parts and their arrangement), ``detect`` (detectors, the exactly-one decision, the engine),
 ``text`` (the text cue: Tesseract OSD on the four views),
-``exif`` (the Orientation tag), ``orient`` (the reports; analyze / orient_file), ``job`` (the batch job),
-``cli`` (``sweepcast orient``).
+``exif`` (the Orientation tag), ``orient`` (the reports; analyze / orient_file), ``job`` (the batch job) and
+``blocks`` (its blocks of photos, fanned out and resumed), ``cli`` (``sweepcast orient``) with ``library`` (one file
+of a library on disk), ``pool`` (the processes that analyse them) and ``resume`` (what a run remembers).
 """

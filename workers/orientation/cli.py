@@ -1,4 +1,5 @@
-"""``sweepcast orient PATH... [--write | --sidecar] [--force] [--report STEM]``: find which way is up, write it.
+"""``sweepcast orient PATH... [--write | --sidecar] [--force] [--report STEM] [--jobs N]``: find which way is up,
+write it.
 
 Without ``--write`` or ``--sidecar`` nothing is changed: the table says what would be done. With
 ``--write`` each photo whose orientation should change gets it where its format keeps it (JPEG,
@@ -7,7 +8,12 @@ and RAW files, which are never written, an XMP sidecar. With ``--sidecar`` every
 sidecar and no photo changes. Folders are searched recursively. Photos already tagged (an
 orientation other than 1 in the file or its sidecar) are skipped unless ``--force``, so a second
 run changes nothing. The report (``--report``: STEM.json and STEM.csv) lists the decision, cue,
-confidence, conflicts and needs_review of each file.
+confidence, conflicts and needs_review of each file, in the order of the files.
+
+A library is analysed by ``--jobs`` processes (default: every core this process may use), with a progress line and
+the time left. A run remembers what it decided (a state file, :mod:`workers.orientation.resume`: beside the report,
+else in the user's cache folder), so a run that was interrupted, or the next one, does not analyse again a photo
+whose bytes it already decided with the same settings; ``--no-resume`` starts over.
 
 Faces first (the paper's detector, or YuNet combined with it), then text (Tesseract OSD, when
 installed); a photo neither decides clearly is rejected for review, never guessed.
@@ -15,27 +21,26 @@ installed); a photo neither decides clearly is rejected for review, never guesse
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import csv
 import io
 import json
 import os
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 
 from workers.common.cliutil import ProgressBar, format_table
 from workers.common.images import MAX_PIXELS_ENV, max_pixels_from_env
 from workers.common.models import models_dir
-from workers.orientation.detect import DetectorConfig, get_detector
-from workers.orientation.errors import OrientationInputError
-from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
-from workers.orientation.headers import RAW_EXTENSIONS, parse_header
+from workers.common.pace import Pace
+from workers.orientation.detect import DetectorConfig, Engine, get_detector
+from workers.orientation.headers import RAW_EXTENSIONS
 from workers.orientation.job import YUNET_MODEL_ENV, configured_yunet
-from workers.orientation.exif import VALID_ORIENTATIONS
-from workers.orientation.metadata import inspect, target_for
-from workers.orientation.orient import OrientationReport, analyze, orient_file
+from workers.orientation.library import LibraryOptions, PathOutcome, Result
+from workers.orientation.pool import FilePool
+from workers.orientation.resume import LibraryState, default_state_path, fingerprint
 from workers.orientation.text import text_settings_from_env
-from workers.orientation.xmp import MAX_SIDECAR_BYTES, existing_sidecars, replace_file, sidecar_path
+from workers.orientation.xmp import replace_file
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".jpe", ".png", ".webp", ".tif", ".tiff", ".heic", ".heif", ".hif", ".avif",
                   *sorted(RAW_EXTENSIONS))
@@ -79,10 +84,41 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--max-pixels", type=int, default=None,
                    help=f"refuse images larger than this (default ${MAX_PIXELS_ENV} or 64,000,000)")
     p.add_argument("--json", action="store_true", help="print the reports as JSON instead of a table")
+    p.add_argument("--jobs", type=_positive, default=usable_cores(), metavar="N",
+                   help="processes that analyse photos at once, this one and N-1 more (default: the cores this "
+                        f"process may use, {usable_cores()} here)")
+    p.add_argument("--no-resume", dest="resume", action="store_false",
+                   help="analyse every photo again, forgetting what earlier runs decided")
+    p.add_argument("--state", type=Path, default=None, metavar="FILE",
+                   help="where a run keeps what it decided, for the next one (default: STEM.state.jsonl beside "
+                        "--report, else a file in ~/.cache/sweepcast/orient for these PATHs)")
     p.set_defaults(func=_orient)
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system says), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # macOS, Windows
+        return max(1, os.cpu_count() or 1)
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, not {value}")
+    return value
+
+
 def _orient(args: argparse.Namespace) -> int:
+    try:
+        return _orient_library(args)
+    except KeyboardInterrupt:  # before the photos (the detector loading): nothing to keep
+        print("\nsweepcast orient: interrupted", file=sys.stderr)
+        return 130
+
+
+def _orient_library(args: argparse.Namespace) -> int:
     files, missing = _expand(args.paths)
     for path in missing:
         print(f"sweepcast orient: {path}: no such file or folder", file=sys.stderr)
@@ -91,105 +127,102 @@ def _orient(args: argparse.Namespace) -> int:
     if not files:
         print(f"sweepcast orient: no photos found ({', '.join(IMAGE_SUFFIXES[:11])}, RAW)", file=sys.stderr)
         return 2
+    config = DetectorConfig(method=args.method, yunet_model=args.yunet, text=args.text, tessdata=args.tessdata,
+                            wordlists=args.wordlists)
     try:
-        detector = get_detector(DetectorConfig(method=args.method, yunet_model=args.yunet, text=args.text,
-                                               tessdata=args.tessdata, wordlists=args.wordlists))
+        detector = get_detector(config)
     except (ValueError, FileNotFoundError) as exc:
         print(f"sweepcast orient: {exc}", file=sys.stderr)
         return 2
-    max_pixels = args.max_pixels or max_pixels_from_env()
-    bar = ProgressBar("orient")
-    results: list[Result] = []
-    for i, path in enumerate(files):
-        try:
-            results.append(_one(path, detector, args, max_pixels))
-        except (OrientationInputError, ExifToolUnavailable, ExifToolError) as exc:
-            results.append(Result(path, None, "error", error=str(exc)))
-        bar((i + 1) / len(files), path.name)
-    bar.close()
-    _print(results, args.json)
+    options = LibraryOptions(write=args.write, sidecar=args.sidecar, naming=args.sidecar_name, force=args.force,
+                             max_pixels=args.max_pixels or max_pixels_from_env())
+    state = LibraryState(args.state or default_state_path(args.report, args.paths),
+                         fingerprint(detector, config, options), args.resume)
+    results: list[Result | None] = [None] * len(files)
+    try:
+        _run(files, options, state, args.jobs, config, detector, results)
+    except KeyboardInterrupt:
+        state.close(complete=False)
+        print(f"\nsweepcast orient: interrupted after {_count(results)} of {len(files)} photos; what they decided is "
+              f"kept in {state.path}: the same command goes on from there", file=sys.stderr)
+        return 130
+    except concurrent.futures.process.BrokenProcessPool:
+        state.close(complete=False)
+        print(f"sweepcast orient: a worker process died (killed, or out of memory) after {_count(results)} of "
+              f"{len(files)} photos; the same command goes on from there (--jobs 1 holds the least memory)",
+              file=sys.stderr)
+        return 1
+    state.close(complete=True, paths=files)
+    done = [r for r in results if r is not None]
+    _print(done, args.json)
     if args.report is not None:
-        write_report(results, args.report)
-    for r in results:
+        write_report(done, args.report)
+    for r in done:
         if r.error is not None:
             print(f"sweepcast orient: {r.path}: {r.error}", file=sys.stderr)
-    return 2 if any(r.error is not None for r in results) else 0
+    return 2 if any(r.error is not None for r in done) else 0
 
 
-@dataclass
-class Result:
-    path: Path
-    report: OrientationReport | None
-    action: str
-    """What was done, or with a dry run what --write/--sidecar would do."""
-    written_to: list[str] | None = None
-    """The files written (the photo, its sidecar, sidecars brought into agreement)."""
-    error: str | None = None
-    format: str | None = None
-    existing: int | None = None
-    conflicts: list[str] | None = None
+def _count(results: list[Result | None]) -> int:
+    return sum(r is not None for r in results)
 
 
-def _sidecar_texts(path: Path) -> dict[str, bytes]:
-    """The sidecars beside ``path`` (name -> bytes), those over :data:`MAX_SIDECAR_BYTES` left out."""
-    return {p.name: p.read_bytes() for p in existing_sidecars(path) if p.stat().st_size <= MAX_SIDECAR_BYTES}
+def _run(files: list[Path], options: LibraryOptions, state: LibraryState, jobs: int, config: DetectorConfig,
+         detector: Engine, results: list[Result | None]) -> None:
+    """Analyse ``files`` (``results[i]`` filled in as each is done), remembering each in ``state``, with a progress
+    bar whose time left counts only the photos still to analyse. Interrupted (Ctrl-C), it lets the photos under way
+    finish, keeps what they decided, and raises KeyboardInterrupt."""
+    bar = ProgressBar("orient")
+    pace = Pace(len(files))
 
+    def take(i: int, outcome: PathOutcome) -> None:
+        if outcome.result is None:  # decided by an earlier run: no time spent on it now
+            results[i] = state.result(outcome.sha256, files[i], outcome.stat)
+            pace.skip()
+        else:
+            results[i] = outcome.result
+            state.record(outcome)
+            pace.add()
+        bar((pace.done + len(files) - pace.todo) / len(files), files[i].name, pace.seconds_left())
 
-def _one(path: Path, detector, args: argparse.Namespace, max_pixels: int) -> Result:
-    data = path.read_bytes()
-    header = parse_header(data, path.name)
-    mode = "sidecar" if args.sidecar else "file"
-    naming = args.sidecar_name
-    sidecars = _sidecar_texts(path)
-    insp = inspect(data, header, sidecars)
-    target, _ = target_for(header.format, mode, insp)
-    own = insp.sidecars.get(sidecar_path(path, naming).name) if target == "xmp-sidecar" else None
-    existing = own.value if own is not None and own.value in VALID_ORIENTATIONS else insp.shown()
-    if not args.force and existing in VALID_ORIENTATIONS and existing != 1:
-        return Result(path, None, f"skipped: already tagged ({existing})", format=header.format, existing=existing,
-                      conflicts=insp.conflicts())
-    if not (args.write or args.sidecar):
-        report = analyze(data, detector, max_pixels, path.name, sidecars, mode, naming, args.force, inspection=insp)
-        plan = report.write
-        action = (f"would write {plan.value} to {_target_text(plan.target, plan.where)}" if plan.target != "none"
-                  else _plain(report))
-        return Result(path, report, action, format=header.format)
-    outcome = orient_file(data, detector, args.force, max_pixels, path.name, sidecars, mode, naming, inspection=insp)
-    written: list[str] = []
-    if outcome.photo is not None:
-        replace_file(path, outcome.photo)
-        written.append(str(path))
-    if outcome.sidecar is not None and outcome.sidecar_name:
-        replace_file(path.with_name(outcome.sidecar_name), outcome.sidecar)
-        written.append(str(path.with_name(outcome.sidecar_name)))
-    for name, text in outcome.updated_sidecars.items():
-        replace_file(path.with_name(name), text)
-        written.append(str(path.with_name(name)))
-    report = outcome.report
-    action = (f"written {report.written_orientation} to {_target_text(report.write.target, report.write.where)}"
-              if report.written else report.action)
-    return Result(path, report, action, written_to=written, format=header.format)
-
-
-def _target_text(target: str, where: str | None) -> str:
-    return {"exif-ifd0": "EXIF", "png-exif": "PNG eXIf"}.get(target, f"sidecar {where}")
-
-
-def _plain(report: OrientationReport) -> str:
-    """What a dry run would do when it writes nothing: the plan's last note."""
-    return report.write.note.split("; ")[-1] if report.write and report.write.note else "nothing to write"
+    todo = []
+    for i, path in enumerate(files):  # unchanged since a run decided them: not even read
+        sha = state.unchanged(path, options)
+        if sha is None:
+            todo.append(i)
+        else:
+            take(i, PathOutcome(None, sha))
+    with FilePool([files[i] for i in todo], options, state.known(options), jobs, config, detector) as pool:
+        try:
+            for k, outcome in pool.outcomes():
+                take(todo[k], outcome)
+        except KeyboardInterrupt:
+            bar.close()
+            print("sweepcast orient: interrupted; letting the photos under way finish (Ctrl-C again: at once)",
+                  file=sys.stderr)
+            for k, outcome in pool.stop():
+                take(todo[k], outcome)
+            raise
+    bar.close()
 
 
 def _expand(paths: list[Path]) -> tuple[list[Path], list[Path]]:
-    files, missing = [], []
+    """The photos under ``paths`` in order, each once (two processes must never write one file), and the paths that
+    do not exist."""
+    files, missing, seen = [], [], set()
     for path in paths:
         if path.is_dir():
-            files += sorted(p for p in path.rglob("*") if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES
-                            and not p.name.startswith("."))
+            found = sorted(p for p in path.rglob("*") if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES
+                           and not p.name.startswith("."))
         elif path.is_file():
-            files.append(path)
+            found = [path]
         else:
             missing.append(path)
+            continue
+        for p in found:
+            if (real := p.resolve()) not in seen:
+                seen.add(real)
+                files.append(p)
     return files, missing
 
 

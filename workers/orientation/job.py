@@ -14,27 +14,27 @@ original file name. Results:
 - ``fixed/<index>-<sanitised name>.<ext>.xmp``: the XMP sidecar of each HEIF, AVIF or RAW photo (or of
   every photo with ``sidecar``) whose orientation was written.
 
-A photo that cannot be read is reported in its entry and the others are still processed; the job
-reports one progress event per photo. The YuNet model and the pixel limit come from the worker's
-environment (``SWEEPCAST_ORIENTATION_YUNET_MODEL``, ``SWEEPCAST_MAX_IMAGE_PIXELS``), never from
-the request.
+A photo that cannot be read is reported in its entry and the others are still processed. The job fans out
+(:mod:`workers.orientation.blocks`): blocks of photos run as Ray tasks on every CPU of the cluster, each reading its
+photos from the blob store and writing its files there; as each block finishes, the job reports one progress event
+per photo of it (``done`` of ``total`` photos, ``eta_s``). An attempt run again after a lost worker or a restart
+analyses only the photos whose block no earlier attempt finished. The YuNet model and the pixel limit come from the
+worker's environment (``SWEEPCAST_ORIENTATION_YUNET_MODEL``, ``SWEEPCAST_MAX_IMAGE_PIXELS``), never from the request.
 """
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from workers.common.jobctx import JobContext, JobInputError
-from workers.orientation.detect import Method, OrientationDetector, detector_config, get_detector
-from workers.orientation.errors import OrientationInputError
-from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
-from workers.orientation.headers import sniff_format
-from workers.orientation.review import ChoiceWrite, needs_review, thumbnail
-from workers.orientation.orient import analyze, orient_file
+from workers.common.pace import Pace, describe_seconds
+from workers.orientation.blocks import (FILES, BlockTask, PhotoRef, analyse_block, files_of, finished_photos,
+                                        fixed_name, plan_blocks, review_thumbnail_name, sanitize_filename)
+from workers.orientation.detect import Method, detector_config, get_detector
+from workers.orientation.review import ChoiceWrite, needs_review
 from workers.registry import JobKind
 from workers.settings import worker_settings
 
@@ -63,68 +63,47 @@ def configured_yunet(models_folder: Path | None) -> Path | None:
 
 
 def run_orientation_batch(ctx: JobContext) -> dict[str, Any]:
-    """Analyse every ``photo-NNNN`` input, tag the JPEGs, write ``report.json`` and ``fixed/*``."""
+    """Analyse every ``photo-NNNN`` input in blocks, tag the photos, write ``report.json`` and ``fixed/*``."""
     params = OrientationBatchParams.model_validate(ctx.params)
     names = sorted(ctx.inputs)
     if not names:
         raise JobInputError("the batch has no photos")
     try:
         config = detector_config(ctx.settings, ctx.settings.models_dir, params.method)
-        detector = get_detector(config.model_copy(update={"text": config.text and params.text}))
+        config = config.model_copy(update={"text": config.text and params.text})
+        get_detector(config)  # a configuration that cannot work fails the job here, once
     except ValueError as exc:
         raise JobInputError(str(exc)) from None
-    max_pixels = ctx.settings.max_image_pixels
-    entries = []
-    for index, name in enumerate(names):
-        filename = str(ctx.input_meta.get(name, {}).get("filename") or name)
-        entry = _process(ctx, index, name, filename, detector, params, max_pixels)
-        entries.append(entry)
-        outcome = _outcome(entry)
-        ctx.progress((index + 1) / len(names), f"photo {index + 1}/{len(names)} {filename}: {outcome}")
+    photos = [PhotoRef(i, name, str(ctx.input_meta.get(name, {}).get("filename") or name))
+              for i, name in enumerate(names)]
+    work = ctx.work_area()
+    done = finished_photos(work)
+    if done:
+        ctx.progress(len(done) / len(photos), f"{len(done)} of {len(photos)} photos done by an earlier attempt",
+                     done=len(done), total=len(photos))
+    todo = [p for p in photos if p.index not in done]
+    mode = "sidecar" if params.sidecar else "file"
+    tasks = [BlockTask(work, block, config, params.force, params.write, mode, ctx.settings.max_image_pixels)
+             for block in plan_blocks(todo, ctx.parallelism)]
+    pace = Pace(len(todo))
+    for _, record in ctx.fan_out(analyse_block, tasks):
+        pace.add(len(record["entries"]))
+        for entry in record["entries"]:
+            done[entry["index"]] = (entry, {f: record["files"][f] for f in files_of(entry)})
+            _report_progress(ctx, entry, len(done), len(photos), pace.seconds_left())
+    for _, files in done.values():
+        for name, size in files.items():
+            ctx.adopt_result(name, f"{FILES}/{name}", size)
+    entries = [done[p.index][0] for p in photos]
     ctx.write_result("report.json", json.dumps(entries, indent=2).encode())
     return summary_of(entries)
 
 
-def _process(ctx: JobContext, index: int, name: str, filename: str, detector: OrientationDetector,
-             params: OrientationBatchParams, max_pixels: int) -> dict[str, Any]:
-    entry: dict[str, Any] = {"index": index, "input": name, "filename": filename, "report": None, "error": None,
-                             "fixed_file": None, "note": None, "thumbnail": None, "review": None}
-    try:
-        data = ctx.read_input(name)
-        fmt = sniff_format(data, filename)
-        mode = "sidecar" if params.sidecar else "file"
-        if params.write:
-            outcome = orient_file(data, detector, params.force, max_pixels, filename, mode=mode)
-            report = outcome.report
-            stem = fixed_name(index, filename, fmt)
-            if outcome.photo is not None:
-                entry["fixed_file"] = stem
-                ctx.write_result(stem, outcome.photo)
-            elif outcome.sidecar is not None:
-                entry["fixed_file"] = stem + ".xmp"
-                ctx.write_result(entry["fixed_file"], outcome.sidecar)
-            if report.write is not None and report.write.note:
-                entry["note"] = report.write.note
-        else:
-            report = analyze(data, detector, max_pixels, filename, mode=mode)
-        entry["report"] = report.model_dump(mode="json")
-        if needs_review(entry["report"]):
-            entry["thumbnail"] = review_thumbnail_name(index)
-            ctx.write_result(entry["thumbnail"], thumbnail(data, filename, max_pixels))
-    except OrientationInputError as exc:
-        entry["error"] = {"code": exc.code, "message": str(exc)}
-    except (ExifToolUnavailable, ExifToolError) as exc:
-        entry["error"] = {"code": "metadata_tool", "message": str(exc)}
-    return entry
-
-
-def review_thumbnail_name(index: int) -> str:
-    return f"review/{index:04d}.jpg"
-
-
-def fixed_name(index: int, filename: str, fmt: str) -> str:
-    """The result name of photo ``index``'s fixed file (its sidecar adds ``.xmp``)."""
-    return f"fixed/{index:04d}-{sanitize_filename(filename)}.{_EXT[fmt]}"
+def _report_progress(ctx: JobContext, entry: dict[str, Any], done: int, total: int, eta_s: float | None) -> None:
+    """One progress event for a photo just analysed: its outcome, the count and the time left."""
+    left = "" if eta_s is None or done == total else f"; about {describe_seconds(eta_s)} left"
+    stage = f"photo {done}/{total} {entry['filename'][-80:]}: {_outcome(entry)}{left}"
+    ctx.progress(done / total, stage, done=done, total=total, eta_s=eta_s)
 
 
 def record_review(entry: dict[str, Any], rotation: int | None, reviewer: str, at: str,
@@ -138,9 +117,6 @@ def record_review(entry: dict[str, Any], rotation: int | None, reviewer: str, at
     return {**entry, "review": review, "fixed_file": fixed_file if written else entry.get("fixed_file")}
 
 
-_EXT = {"jpeg": "jpg", "webp": "webp", "tiff": "tif", "png": "png", "heif": "heic", "avif": "avif", "raw": "raw"}
-
-
 def _outcome(entry: dict[str, Any]) -> str:
     """The progress line's word for one photo: the decision and its cue, why it needs review, or the error."""
     report = entry["report"]
@@ -149,14 +125,6 @@ def _outcome(entry: dict[str, Any]) -> str:
     if report["needs_review"]:
         return f"rejected ({report['reject_reason']}), needs review"
     return f"{report['decision']} by {report['cue']}"
-
-
-def sanitize_filename(filename: str, limit: int = 80) -> str:
-    """A safe file stem from an uploaded name: last path component, no extension, [A-Za-z0-9._-] only."""
-    base = re.split(r"[\\/]", filename)[-1]
-    stem = base.rsplit(".", 1)[0] if "." in base.lstrip(".") else base
-    safe = re.sub(r"[^A-Za-z0-9._-]+", "_", stem).strip("._-")
-    return safe[:limit] or "photo"
 
 
 def summary_of(entries: list[dict[str, Any]]) -> dict[str, Any]:
@@ -177,6 +145,9 @@ def summary_of(entries: list[dict[str, Any]]) -> dict[str, Any]:
         "reviewed": sum(e.get("review") is not None for e in entries),
     }
 
+
+__all__ = ["BATCH_JOB", "JOBS", "OrientationBatchParams", "fixed_name", "record_review", "review_thumbnail_name",
+           "run_orientation_batch", "sanitize_filename", "summary_of"]
 
 BATCH_JOB = JobKind("orientation.batch", run_orientation_batch, OrientationBatchParams)
 JOBS = (BATCH_JOB,)
