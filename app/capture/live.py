@@ -109,15 +109,16 @@ class LiveRun:
             self.uplink.close()
 
     def _measured_tolerance(self) -> float:
-        """Half the frame period of the slowest camera (the median interval between its newest capture times),
-        once every camera has sent three frames; until then unknown (no set)."""
+        """Half the frame period of the slowest camera present (the median interval between its newest capture
+        times), once each camera present has sent three frames; until then unknown (no set). A missing camera
+        counts for nothing: one that never answers does not hold the others up."""
         periods = []
-        for box in self.mailboxes:
+        for box, missing in zip(self.mailboxes, self.assembler.missing()):
             times = [f.capture for f in box.recent()]
+            if missing:
+                continue
             if len(times) < 3:
-                if self.assembler.tolerance < UNKNOWN_TOLERANCE:
-                    continue  # a camera that went silent keeps the tolerance it had
-                return UNKNOWN_TOLERANCE
+                return self.assembler.tolerance
             periods.append(statistics.median(b - a for a, b in zip(times, times[1:])))
         return max(periods) / 2 if periods else self.assembler.tolerance
 

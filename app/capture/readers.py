@@ -66,6 +66,7 @@ class CameraReader:
         while not self._stop.is_set():
             self.state = "connecting"
             streamed = False
+            opened_at = time.monotonic()
             try:
                 for picture, stamps in self._read():
                     if not streamed:
@@ -85,7 +86,8 @@ class CameraReader:
                 if self._stop.is_set():
                     return
                 failed = True
-                self.error = _reason(exc, self.settings)
+                silent = not streamed and time.monotonic() - opened_at >= 0.9 * self.settings.open_timeout_seconds
+                self.error = _reason(exc, self.settings, silent)
                 self.state = f"retrying in {backoff:g} s"
                 self.report(f"{self.source.name}: {self.source.shown}: {self.error}; trying again in {backoff:g} s")
             self._stop.wait(backoff)
@@ -184,14 +186,15 @@ def _video_stream(container: Any) -> Any:
     return stream
 
 
-def _reason(exc: BaseException, settings: CaptureSettings) -> str:
-    """What went wrong, in a user's words."""
+def _reason(exc: BaseException, settings: CaptureSettings, silent: bool = False) -> str:
+    """What went wrong, in a user's words; ``silent``: the source had not sent a frame when its open timeout ran
+    out (FFmpeg then reports whatever it was waiting for, often "Invalid data found")."""
     if isinstance(exc, SourceError):
         return str(exc)
-    text = str(exc).strip() or type(exc).__name__
-    if isinstance(exc, av.ExitError) or "Immediate exit" in text:
-        return (f"no answer (nothing within the {settings.open_timeout_seconds:g} s open or "
-                f"{settings.read_timeout_seconds:g} s read timeout)")
-    if isinstance(exc, av.FFmpegError):
-        return f"{getattr(exc, 'strerror', None) or text}"
+    text = (getattr(exc, "strerror", None) if isinstance(exc, av.FFmpegError) else None) or str(exc).strip() \
+        or type(exc).__name__
+    if silent:
+        return f"no answer within {settings.open_timeout_seconds:g} s ({text})"
+    if isinstance(exc, av.ExitError):  # FFmpeg's interrupt: the read timeout ran out mid-stream
+        return f"nothing received for {settings.read_timeout_seconds:g} s ({text})"
     return text

@@ -22,7 +22,7 @@ class CaptureSettings(BaseSettings):
                                         "(no answer, no stream) is reported and tried again.")
     read_timeout_seconds: float = Field(5.0, gt=0, le=120, description="A source that sends nothing for this long is "
                                         "reported as stopped and reconnected.")
-    max_backoff_seconds: float = Field(4.0, gt=0, le=300, description="Longest wait between two attempts to reopen a "
+    max_backoff_seconds: float = Field(2.0, gt=0, le=300, description="Longest wait between two attempts to reopen a "
                                        "source (the waits double from 0.25 s up to this).")
     keep_frames: int = Field(8, ge=2, le=64, description="Newest decoded frames kept per camera to choose sets from; "
                              "older ones are dropped (a slow consumer never builds up lag).")

@@ -27,6 +27,7 @@ const state = {
   frame: 0, frames: 0, fps: 0, player: null,
   nextId: 1, inFlight: null, inFlightAt: 0, dirty: false, sentAt: new Map(), changedAt: null,
   received: 0, arrivals: [], latencies: [], lastHeader: null, errors: [], sizeChosen: false,
+  captureLatencies: [], liveCaptured: null, // live: ms from each shown set's capture time to its frame here
   // browser rendering
   renderChoice: ["browser", "server"].includes(query.get("render")) ? query.get("render") : "auto",
   mode: null, why: "", forOptions: false, gpu: null, local: null, drawing: false, renderTimes: [], lastInfo: null, liveSeq: null,
@@ -213,6 +214,10 @@ async function onFrame(buffer) {
   state.received += 1;
   state.lastHeader = header;
   state.arrivals.push(now);
+  if (header.frame === "live") {
+    noteCaptured(header.captured);
+    showSpread(header);
+  }
   hideError();
   showStats(header);
   if (header.id === state.inFlight) finishFlight();
@@ -272,7 +277,11 @@ async function onLiveSet(buffer) {
     jpegs.push(new Uint8Array(buffer, offset, size));
     offset += size;
   }
-  state.liveSeq = await state.local.liveSet(header, jpegs);
+  showSpread(header);
+  const seq = await state.local.liveSet(header, jpegs);
+  if (seq === null) return; // stale cameras: the last complete set stays on show
+  state.liveSeq = seq;
+  state.liveCaptured = header.captured ?? null;
   requestView(false);
 }
 
@@ -299,6 +308,7 @@ function drawLocal() {
       state.lastInfo = info;
       state.received += 1;
       state.arrivals.push(now);
+      if (state.source === "live") noteCaptured(state.liveCaptured);
       hideError();
       showStats({ ...info, render_ms: info.ms, frame: state.source === "live" ? "live" : state.frame });
     } catch (error) {
@@ -509,6 +519,21 @@ function showStats(header) {
   $("depth").textContent = header.depth_found
     ? `${header.depth_found[0].toFixed(2)}–${header.depth_found[1].toFixed(2)} (swept ${header.depth_range[0].toFixed(2)}–${header.depth_range[1].toFixed(2)})`
     : "no surface";
+}
+
+/** A live set's spread of capture times and its stale cameras (frame header or relayed set header). */
+function showSpread(header) {
+  const stale = header.stale && header.stale.length ? ` · stale: ${header.stale.join(", ")}` : "";
+  $("spread").textContent = header.spread_ms === null || header.spread_ms === undefined ? `unknown${stale}`
+    : `${Number(header.spread_ms).toFixed(1)} ms${stale}`;
+}
+
+/** Capture-to-frame: from a live set's capture time (its instant, s since the epoch, on the cameras' clock) to
+ * the frame on this screen now (meaningful where this machine's clock and the cameras' agree). */
+function noteCaptured(captured) {
+  if (captured === null || captured === undefined) return;
+  state.captureLatencies.push(Date.now() - captured * 1000);
+  state.captureLatencies = state.captureLatencies.slice(-200);
 }
 
 function setState(text) { $("state").textContent = text; }
