@@ -472,7 +472,8 @@ async def live_socket(websocket: WebSocket, rig_id: str) -> None:
     names = target.rig.names
     mailbox = Latest()
     await channel.json({**target.hello(), "frame_set": "4-byte big-endian header length, JSON header "
-                                                      "{\"sizes\": [...]}, then one JPEG per camera"})
+                                                      "{\"sizes\": [...], \"captured\"?: [...], \"stale\"?: [...], "
+                                                      "\"tolerance\"?: s}, then one JPEG per camera"})
 
     async def read() -> None:
         while True:
