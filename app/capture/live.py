@@ -47,6 +47,8 @@ class LiveRun:
         self.started = time.monotonic()
         self.started_wall = time.time()
         self._spreads: collections.deque[float] = collections.deque(maxlen=10_000)
+        self.history: collections.deque[tuple[float, float, tuple[bool, ...]]] = collections.deque(maxlen=100_000)
+        """(time sent, s since the epoch; spread, s; stale per camera) of every set sent."""
         self._background = background
         self._stop = threading.Event()
 
@@ -100,6 +102,7 @@ class LiveRun:
                 if self.uplink.send(frame_set, self.assembler.tolerance, self._background):
                     self._background = False
                     self._spreads.append(frame_set.spread)
+                    self.history.append((time.time(), frame_set.spread, tuple(frame_set.stale)))
         finally:
             for reader in self.readers:
                 reader._stop.set()

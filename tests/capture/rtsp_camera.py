@@ -73,6 +73,9 @@ class Camera:
     network_jitter: float = 0.0
     sender_reports: bool = True
     picture: object = None
+    access_units: list[bytes] | None = None
+    """Pre-encoded H.264 access units (Annex B) sent in a loop instead of encoding live (the benchmark's cameras:
+    no encoder on the measured cores; a client joining waits for the loop's next IDR). The first must be an IDR."""
     seed: int = 0
     sent: dict[int, float] = field(default_factory=dict)
     """trigger index -> true capture instant (``time.time()`` clock) of every frame encoded."""
@@ -139,6 +142,9 @@ class Camera:
         return enc
 
     def _parameter_sets(self) -> tuple[bytes, bytes]:
+        if self.access_units:
+            nals = split_nals(self.access_units[0])
+            return next(n for n in nals if n[0] & 0x1F == 7), next(n for n in nals if n[0] & 0x1F == 8)
         enc = self._encoder()
         frame = av.VideoFrame.from_ndarray(np.zeros((self.height, self.width, 3), np.uint8), format="bgr24")
         frame.pts = 0
@@ -148,7 +154,7 @@ class Camera:
         return sps, pps
 
     def _run(self, epoch: float) -> None:
-        enc = self._encoder()
+        enc = None if self.access_units else self._encoder()
         period = 1.0 / self.fps
         k = max(0, int(np.ceil((time.time() - epoch) / period)))
         last_report = 0.0
@@ -161,14 +167,7 @@ class Camera:
             elif delay < -period:  # fell behind (a loaded machine): skip to the next trigger, as a camera drops frames
                 k = int(np.ceil((time.time() - epoch) / period))
                 continue
-            image = self._picture(k)
-            draw_instant(image, k & 0xFFFF)
-            frame = av.VideoFrame.from_ndarray(image, format="bgr24")
-            frame.pts = int(round(self.clock(captured) * RTP_CLOCK))
-            if self._keyframe.is_set():
-                self._keyframe.clear()
-                frame.pict_type = av.video.frame.PictureType.I
-            payload = b"".join(bytes(p) for p in enc.encode(frame))
+            payload = self._encoded(enc, k, captured)
             self.sent[k] = captured
             if self.network_jitter:
                 time.sleep(self._rng.uniform(0, self.network_jitter))
@@ -180,6 +179,19 @@ class Camera:
                 for packet in self._rtp_packets(split_nals(payload), self.rtp_time(captured)):
                     self._broadcast(0, packet)
             k += 1
+
+    def _encoded(self, enc: av.VideoCodecContext | None, k: int, captured: float) -> bytes:
+        """Trigger ``k``'s access unit: the next of the loop, or its picture (instant drawn in) encoded now."""
+        if enc is None:
+            return self.access_units[k % len(self.access_units)]
+        image = self._picture(k)
+        draw_instant(image, k & 0xFFFF)
+        frame = av.VideoFrame.from_ndarray(image, format="bgr24")
+        frame.pts = int(round(self.clock(captured) * RTP_CLOCK))
+        if self._keyframe.is_set():
+            self._keyframe.clear()
+            frame.pict_type = av.video.frame.PictureType.I
+        return b"".join(bytes(p) for p in enc.encode(frame))
 
     def _picture(self, k: int) -> np.ndarray:
         if callable(self.picture):
@@ -230,6 +242,25 @@ class Camera:
         for c in clients:
             if c.playing:
                 c.send_interleaved(channel, packet)
+
+
+def encode_loop(images: list[np.ndarray], fps: float, gop: int) -> list[bytes]:
+    """``images`` ((H, W, 3) uint8 BGR) as H.264 access units for :attr:`Camera.access_units`: an IDR every
+    ``gop`` frames (the loop starts with one), SPS/PPS with each, no B-frames."""
+    height, width = images[0].shape[:2]
+    enc = av.CodecContext.create("libx264", "w")
+    enc.width, enc.height, enc.pix_fmt = width, height, "yuv420p"
+    enc.time_base = Fraction(1, RTP_CLOCK)
+    enc.framerate = Fraction(fps).limit_denominator(1000)
+    enc.options = {"preset": "veryfast", "tune": "zerolatency", "g": str(gop), "keyint_min": str(gop),
+                   "x264-params": "repeat-headers=1:scenecut=0"}
+    units = []
+    for i, image in enumerate(images):
+        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="bgr24")
+        frame.pts = i
+        units += [bytes(p) for p in enc.encode(frame)]
+    units += [bytes(p) for p in enc.encode(None)]
+    return units
 
 
 def split_nals(data: bytes) -> list[bytes]:

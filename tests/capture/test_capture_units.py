@@ -143,3 +143,12 @@ def test_a_camera_that_never_sent_a_frame_goes_stale_without_one():
     rig.frame(1, 0.6)
     made = sets.next_set()
     assert made.stale == [False, False, True] and made.frames[2] is None
+
+
+def test_sweepcast_live_says_why_it_cannot_start(capsys):
+    from app.cli import main
+    from tests.servers import free_port
+
+    assert main(["live", "rig1", "rtsp://a/1", "rtsp://b/2", "--server", f"http://127.0.0.1:{free_port()}"]) == 2
+    said = capsys.readouterr().err
+    assert said.startswith("sweepcast live: ws://127.0.0.1:") and "/v1/rigs/rig1/live: cannot reach the service" in said
