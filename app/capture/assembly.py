@@ -21,6 +21,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
+import cv2
 import numpy as np
 
 from .mailbox import Frame, FrameMailbox
@@ -113,6 +114,4 @@ class SetAssembler:
 
 def black_jpeg(size: tuple[int, int], quality: int = 50) -> bytes:
     """A black JPEG of ``size`` (width, height): the stand-in for a stale camera that never sent a frame."""
-    import cv2
-
     return cv2.imencode(".jpg", np.zeros((size[1], size[0], 3), np.uint8), [cv2.IMWRITE_JPEG_QUALITY, quality])[1].tobytes()

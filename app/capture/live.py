@@ -105,7 +105,7 @@ class LiveRun:
                     self.history.append((time.time(), frame_set.spread, tuple(frame_set.stale)))
         finally:
             for reader in self.readers:
-                reader._stop.set()
+                reader.stop_soon()
             for reader in self.readers:
                 reader.stop()
             self.status.stop()

@@ -4,8 +4,9 @@ why, waits (0.25 s, doubling up to ``max_backoff_seconds``) and opens it again, 
 runs.
 
 Threads, not processes: PyAV and OpenCV decode with the GIL released, so ten readers decode on every core, and a
-frame reaches the assembler without a copy between processes (``benchmarks/live_ingest.py`` measures the decode CPU
-per camera).
+frame reaches the assembler without a copy between processes. Each decodes on its own thread alone (no FFmpeg worker
+threads), so its CPU time (``cpu_seconds``) is what the camera costs to demux and decode
+(``benchmarks/live_ingest.py`` reports it per camera).
 """
 from __future__ import annotations
 
@@ -51,8 +52,12 @@ class CameraReader:
     def start(self) -> None:
         self._thread.start()
 
-    def stop(self, timeout: float = 5.0) -> None:
+    def stop_soon(self) -> None:
+        """Ask the thread to end (it does after the frame or wait it is in)."""
         self._stop.set()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        self.stop_soon()
         self._thread.join(timeout)
 
     @property
@@ -187,7 +192,9 @@ def _video_stream(container: Any) -> Any:
     if not container.streams.video:
         raise SourceError("the source has no video stream")
     stream = container.streams.video[0]
-    stream.thread_type = "SLICE"  # frame threading would hold frames back (latency) for throughput we do not need
+    # one decoding thread, the reader's own: a rig runs a reader per camera already (more threads only contend for
+    # the same cores), frame threading would hold frames back, and the reader's CPU time is then all of its decoding
+    stream.codec_context.thread_count = 1
     return stream
 
 

@@ -28,6 +28,7 @@ const state = {
   nextId: 1, inFlight: null, inFlightAt: 0, dirty: false, sentAt: new Map(), changedAt: null,
   received: 0, arrivals: [], latencies: [], lastHeader: null, errors: [], sizeChosen: false,
   captureLatencies: [], liveCaptured: null, // live: ms from each shown set's capture time to its frame here
+  liveBusy: false, livePending: null, liveDropped: 0, liveResync: false, // browser rendering of live sets
   // browser rendering
   renderChoice: ["browser", "server"].includes(query.get("render")) ? query.get("render") : "auto",
   mode: null, why: "", forOptions: false, gpu: null, local: null, drawing: false, renderTimes: [], lastInfo: null, liveSeq: null,
@@ -140,7 +141,7 @@ function connect(source, mode = null, why = null) {
   [state.mode, state.why] = mode ? [mode, why] : chooseMode();
   state.forOptions = state.mode === "server" && state.why === unsupported(renderOptions());
   Object.assign(state, { source, ready: false, inFlight: null, dirty: false, hello: null, renderTimes: [],
-    liveSeq: null });
+    liveSeq: null, livePending: null, liveResync: false });
   state.sentAt.clear();
   canvas.hidden = state.mode !== "server";
   glCanvas.hidden = state.mode !== "browser";
@@ -266,11 +267,39 @@ function probe(budget) {
   return times[Math.floor(times.length / 2)];
 }
 
+/** A live set from the socket. Sets arrive while the previous one is still being decoded and uploaded (the
+ * socket's bytes are taken off the network before this handler runs, so the server cannot hold them back): only the
+ * newest waits, the others are dropped (counted in liveDropped), so no delay builds up. A dropped set that was the
+ * empty scene makes the next one fetch the server's background model again. */
 async function onLiveSet(buffer) {
   if (!state.local) return;
-  const view = new DataView(buffer);
-  const length = view.getUint32(0);
-  const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, length)));
+  if (state.liveBusy) {
+    if (state.livePending) {
+      state.liveDropped += 1;
+      state.liveResync ||= liveHeader(state.livePending).header.background;
+    }
+    state.livePending = buffer;
+    return;
+  }
+  state.liveBusy = true;
+  try {
+    for (let next = buffer; next; next = state.livePending, state.livePending = null) await showLiveSet(next);
+  } finally {
+    state.liveBusy = false;
+  }
+}
+
+function liveHeader(buffer) {
+  const length = new DataView(buffer).getUint32(0);
+  return { header: JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, length))), length };
+}
+
+async function showLiveSet(buffer) {
+  const { header, length } = liveHeader(buffer);
+  if (state.liveResync) {
+    header.resync = true;
+    state.liveResync = false;
+  }
   const jpegs = [];
   let offset = 4 + length;
   for (const size of header.sizes) {

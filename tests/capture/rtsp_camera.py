@@ -414,18 +414,24 @@ class RtspServer:
             c.close()
 
     def _accept(self) -> None:
-        self._sock.settimeout(0.2)
-        while not self._stop.is_set():
-            try:
-                conn, _ = self._sock.accept()
-            except TimeoutError:
-                continue
-            except OSError:
-                return
+        for conn in accepted(self._sock, self._stop):
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             client = _Client(self, conn)
             self._clients.append(client)
             threading.Thread(target=client.serve, name="rtsp-client", daemon=True).start()
+
+
+def accepted(sock: socket.socket, stop: threading.Event):
+    """The connections ``sock`` accepts until ``stop`` is set or it is closed."""
+    sock.settimeout(0.2)
+    while not stop.is_set():
+        try:
+            conn, _ = sock.accept()
+        except TimeoutError:
+            continue
+        except OSError:
+            return
+        yield conn
 
 
 class SilentServer:
@@ -454,12 +460,5 @@ class SilentServer:
                 s.close()
 
     def _accept(self) -> None:
-        self._sock.settimeout(0.2)
-        while not self._stop.is_set():
-            try:
-                conn, _ = self._sock.accept()
-                self.accepted.append(conn)
-            except TimeoutError:
-                continue
-            except OSError:
-                return
+        for conn in accepted(self._sock, self._stop):
+            self.accepted.append(conn)  # held open, never read or written

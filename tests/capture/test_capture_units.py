@@ -152,3 +152,14 @@ def test_sweepcast_live_says_why_it_cannot_start(capsys):
     assert main(["live", "rig1", "rtsp://a/1", "rtsp://b/2", "--server", f"http://127.0.0.1:{free_port()}"]) == 2
     said = capsys.readouterr().err
     assert said.startswith("sweepcast live: ws://127.0.0.1:") and "/v1/rigs/rig1/live: cannot reach the service" in said
+
+
+def test_the_settings_page_lists_every_setting_of_sweepcast_live():
+    from pathlib import Path
+
+    from app.capture.settings import CaptureSettings
+
+    page = (Path(__file__).resolve().parents[2] / "docs" / "settings.md").read_text()
+    missing = [f"SWEEPCAST_LIVE_{name.upper()}" for name in CaptureSettings.model_fields
+               if f"SWEEPCAST_LIVE_{name.upper()}" not in page]
+    assert missing == []

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 import websockets.sync.client as wsclient
 
-from app.capture.live import LiveRun
-from app.capture.readers import CameraReader
 from app.capture.clocks import CaptureClock
+from app.capture.live import LiveRun
 from app.capture.mailbox import FrameMailbox
+from app.capture.readers import CameraReader
 from app.capture.settings import CaptureSettings
 from app.capture.sources import Source
 from tests.capture.rtsp_camera import Camera, RtspServer, SilentServer, draw_instant, read_instant
@@ -51,12 +51,12 @@ def new_rig(base: str, cameras: int) -> tuple[str, list[str]]:
 
 
 class Relay:
-    """The rig's live sets as the service relays them to a browser viewer: header and the trigger index read from
-    each camera's picture (None for a stale camera's), collected on a thread."""
+    """The rig's live sets as the service relays them to a browser viewer: (time received, header, the trigger index
+    read from each camera's picture), collected on a thread."""
 
     def __init__(self, base: str, rig_id: str) -> None:
         self.url = f"{base.replace('http', 'ws')}/v1/rigs/{rig_id}/view?source=live&render=browser"
-        self.sets: list[tuple[float, dict, list[int | None]]] = []
+        self.sets: list[tuple[float, dict, list[int]]] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
@@ -81,13 +81,11 @@ class Relay:
                     image = cv2.imdecode(np.frombuffer(bytes(payload[offset:offset + size]), np.uint8), cv2.IMREAD_COLOR)
                     offset += size
                     instants.append(read_instant(image))
-                names = header.get("stale") or []
-                self.sets.append((time.time(), header, instants if not names else
-                                  [k for k in instants]))
+                self.sets.append((time.time(), header, instants))
         except Exception:  # noqa: BLE001 - the socket closed at the end of the test
             pass
 
-    def wait(self, predicate, timeout: float, what: str) -> tuple[float, dict, list[int | None]]:
+    def wait(self, predicate, timeout: float, what: str) -> tuple[float, dict, list[int]]:
         deadline = time.monotonic() + timeout
         seen = 0
         while time.monotonic() < deadline:
