@@ -244,9 +244,10 @@ class Camera:
                 c.send_interleaved(channel, packet)
 
 
-def encode_loop(images: list[np.ndarray], fps: float, gop: int) -> list[bytes]:
+def encode_loop(images: list[np.ndarray], fps: float, gop: int, bit_rate: int | None = None) -> list[bytes]:
     """``images`` ((H, W, 3) uint8 BGR) as H.264 access units for :attr:`Camera.access_units`: an IDR every
-    ``gop`` frames (the loop starts with one), SPS/PPS with each, no B-frames."""
+    ``gop`` frames (the loop starts with one), SPS/PPS with each, no B-frames; ``bit_rate`` (bits/s): an IP camera's
+    constant bit rate instead of x264's default quality."""
     height, width = images[0].shape[:2]
     enc = av.CodecContext.create("libx264", "w")
     enc.width, enc.height, enc.pix_fmt = width, height, "yuv420p"
@@ -254,6 +255,9 @@ def encode_loop(images: list[np.ndarray], fps: float, gop: int) -> list[bytes]:
     enc.framerate = Fraction(fps).limit_denominator(1000)
     enc.options = {"preset": "veryfast", "tune": "zerolatency", "g": str(gop), "keyint_min": str(gop),
                    "x264-params": "repeat-headers=1:scenecut=0"}
+    if bit_rate:
+        enc.bit_rate = bit_rate
+        enc.options = {**enc.options, "maxrate": str(bit_rate), "bufsize": str(bit_rate // 2)}
     units = []
     for i, image in enumerate(images):
         frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="bgr24")
