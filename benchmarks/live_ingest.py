@@ -61,11 +61,12 @@ PLANES = 48
 GOALS = {"spread_ms": 20.0, "sets_per_s": 15.0, "viewer_fps": 15.0, "browser_p95_ms": 250.0, "recovery_s": 5.0}
 
 sections = Sections("live_ingest", __doc__)
-sections.parser.add_argument("--seconds", type=float, default=20.0, help="measurement window per section (default 20)")
+sections.parser.add_argument("--seconds", type=float, help="measurement window per section (default 20; --quick 5)")
 sections.parser.add_argument("--outage", type=float, default=5.0, help="seconds each camera outage lasts (default 5)")
 sections.parser.add_argument("--webgl", choices=["swiftshader", "gpu"], default="swiftshader",
                              help="the browser section's WebGL (default swiftshader: a CPU floor)")
-sections.parser.add_argument("--quick", action="store_true", help="4 cameras at 320x240 for 5 s: a check that it runs")
+sections.parser.add_argument("--quick", action="store_true", help="4 cameras at 320x240, 5 s windows: a check that it "
+                                                                 "runs")
 
 
 # --- the rig, its pictures, its cameras --------------------------------------------------------------------------
@@ -101,7 +102,7 @@ class Bench:
     def __init__(self, args: Any) -> None:
         self.args = args
         self.rig, self.background, self.streams = rig_and_streams(args.quick)
-        self.seconds = 5.0 if args.quick else args.seconds
+        self.seconds = args.seconds or (5.0 if args.quick else 20.0)
 
     def __enter__(self) -> "Bench":
         from workers.sweep.rig_io import rig_to_dict

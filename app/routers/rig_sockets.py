@@ -19,8 +19,8 @@ atlas per frame set over HTTP, immutable, cached by the browser: no session is s
 on the socket), for the live stream ``"live": {"background_url", "background_rate"}`` and then every frame set
 the live session applies, as the live client sent it (binary: header ``{"type": "frame_set", "seq", "sizes",
 "background", "resync", "dropped", "captured", "spread_ms", "stale"}``, then one JPEG per camera;
-:mod:`app.live_relay`; a stale camera's image is not of the set's instant and is not to be rendered). Such a client sends only
-``{"type": "ping"}``; a viewpoint gets the error ``client_renders``, a binary message closes with 1003.
+:mod:`app.live_relay`; a stale camera's image is not of the set's instant and is not to be rendered). Such a
+client sends only ``{"type": "ping"}``; a viewpoint gets the error ``client_renders``, a binary message closes with 1003.
 
 A failure costs one viewpoint, never the socket or the session: an exception in the renderer is
 answered with ``render_failed``; when the session's process is lost during a render (it restarts
@@ -32,8 +32,8 @@ as binary messages (header ``{"sizes": [...], "cameras"?, "background"?, "seq"?,
 "tolerance"?}``, then one JPEG per camera; see :mod:`workers.streaming.framing`). Each applied set is acknowledged
 with ``{"type": "ack", "seq", "live_seq", "dropped", "spread_ms", "stale", "captured", ...}``; a bad set gets
 ``{"type": "error", ..., "seq"}`` and the previous set stays on show: so does a set whose capture times spread over
-its tolerance (``spread_over_tolerance``: never rendered as one instant); a set the session failed on gets ``frame_set_failed`` (or
-``session_restarting`` when its process was lost meanwhile; the set is not sent again). A text
+its tolerance (``spread_over_tolerance``: never rendered as one instant); a set the session failed on gets
+``frame_set_failed`` (or ``session_restarting`` when its process was lost meanwhile; the set is not sent again). A text
 message other than ``{"type": "ping"}`` (at most ``MAX_TEXT_CHARS`` characters) closes it with 1003.
 
 A socket whose peer stops reading gets no new frame once the connection holds more than a few it has not taken,

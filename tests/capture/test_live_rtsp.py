@@ -131,20 +131,19 @@ def test_ten_rtsp_cameras_make_sets_of_one_instant_despite_clock_offsets_and_jit
 
 
 def test_a_camera_stopped_and_restarted_goes_stale_meanwhile_and_is_back_within_seconds(service):
-    """Three cameras without sender reports (their timestamps anchored at arrival, with jitter); one stops: after
-    missing_seconds the sets go on with it stale and the viewer renders on; when it returns it is in the sets again
-    within 5 s."""
+    """Three cameras (one with its clock 300 ms ahead, corrected); one stops: after missing_seconds the sets go on with
+    it stale and the viewer renders on; when it returns it is in the sets again within 5 s, of the same instants."""
     rig_id, names = new_rig(service, 3)
-    cams = [Camera(n, *SIZE, fps=FPS, sender_reports=False, capture_jitter=0.002, network_jitter=0.01, seed=i)
-            for i, n in enumerate(names)]
+    cams = [Camera(n, *SIZE, fps=FPS, clock_offset=0.3 if i == 1 else 0.0, capture_jitter=0.002, network_jitter=0.01,
+                   seed=i) for i, n in enumerate(names)]
     out = io.StringIO()
     settings = CaptureSettings(missing_seconds=0.5)
     with RtspServer(cams) as rtsp, Relay(service, rig_id) as relay:
-        run = LiveRun.open(service, rig_id, [rtsp.url(n) for n in names], settings=settings, out=out, status_every=1.0)
+        run = LiveRun.open(service, rig_id, [rtsp.url(n) for n in names], offset_args=[f"{names[1]}=-300"],
+                           settings=settings, out=out, status_every=1.0)
         thread = started(run)
         try:
             relay.wait(lambda s: not s[1]["stale"], 30, "with every camera")
-            assert all(r.clock.kind == "arrival" for r in run.readers)
             cams[1].stop()
             gone = time.time()
             relay.wait(lambda s: s[0] > gone and s[1]["stale"] == [names[1]], 10, f"with {names[1]} stale")
@@ -179,8 +178,11 @@ def test_a_camera_stopped_and_restarted_goes_stale_meanwhile_and_is_back_within_
 
 
 def test_a_source_that_never_answers_is_named_and_the_others_go_on(service):
+    """One source accepts the connection and never answers; the two others send no sender reports (their own
+    timestamps are anchored at arrival) and make the sets meanwhile, with the silent camera stale."""
     rig_id, names = new_rig(service, 3)
-    cams = [Camera(n, *SIZE, fps=FPS, seed=i) for i, n in enumerate(names[:2])]
+    cams = [Camera(n, *SIZE, fps=FPS, sender_reports=False, network_jitter=0.01, seed=i)
+            for i, n in enumerate(names[:2])]
     out = io.StringIO()
     settings = CaptureSettings(missing_seconds=0.5, open_timeout_seconds=1.0, read_timeout_seconds=1.0)
     with RtspServer(cams) as rtsp, SilentServer() as silent, Relay(service, rig_id) as relay:
@@ -189,9 +191,15 @@ def test_a_source_that_never_answers_is_named_and_the_others_go_on(service):
         thread = started(run)
         try:
             relay.wait(lambda s: s[1]["stale"] == [names[2]], 30, f"with {names[2]} stale")
+            time.sleep(1.0)
         finally:
             run.stop()
             thread.join(15)
+    assert run.readers[0].clock.kind == run.readers[1].clock.kind == "arrival"
+    # arrival anchoring is as exact as the least-delayed frame of the window: on a loaded machine a reader that
+    # lags a frame behind stamps that frame late, so here the instants may be one trigger apart, never more
+    pairs = [ks[:2] for _, h, ks in relay.sets if h["stale"] == [names[2]]]
+    assert pairs and all(abs(a - b) <= 1 for a, b in pairs), pairs
     events = out.getvalue()
     assert f"{names[2]}: {silent.url()}: no answer" in events, events
     assert names[0] not in events.split("no answer")[0].splitlines()[-1]

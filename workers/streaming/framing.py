@@ -72,13 +72,6 @@ class FrameSet:
     stale: list[bool] = field(default_factory=list)
     tolerance: float | None = None
 
-    def spread(self) -> float | None:
-        """Latest minus earliest capture time of the frames not stale (s); None without capture times."""
-        if self.captured is None:
-            return None
-        times = [t for t, s in zip(self.captured, self.stale) if not s]
-        return max(times) - min(times) if times else 0.0
-
 
 def unpack_frame_set(data: bytes, camera_names: Sequence[str]) -> FrameSet:
     """Split a live frame-set message into one JPEG per rig camera (in rig order).
