@@ -1,4 +1,4 @@
-"""The ``sweepcast`` command: ``serve``, ``worker``, ``openapi`` and one verb per engine."""
+"""The ``sweepcast`` command: ``serve``, ``worker``, ``live`` (a rig's cameras to the service), ``openapi`` and one verb per engine."""
 from __future__ import annotations
 
 import argparse
@@ -287,6 +287,10 @@ def build_parser(engines: bool = True) -> argparse.ArgumentParser:
     p.add_argument("--data-dir", type=Path, help="data folder whose settings apply (default ./sweepcast-data)")
     p.set_defaults(func=cmd_kernel_env)
 
+    from app.capture.cli import register as register_live
+
+    register_live(sub)
+
     if not engines:
         return parser
     import importlib
@@ -302,7 +306,7 @@ def build_parser(engines: bool = True) -> argparse.ArgumentParser:
 SERVICE_COMMANDS = ("serve", "worker", "warmup", "kernel-env")
 """Commands that use the service's kernel cache (``Settings.resolved_numba_cache_dir``); the one-shot engine
 commands keep numba's default (beside the sources, or ``NUMBA_CACHE_DIR``)."""
-OWN_COMMANDS = (*SERVICE_COMMANDS, "openapi", "models", "wait-for")
+OWN_COMMANDS = (*SERVICE_COMMANDS, "openapi", "models", "wait-for", "live")
 """The verbs :func:`build_parser` defines itself (no engine imported to parse them)."""
 
 

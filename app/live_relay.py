@@ -22,16 +22,19 @@ import ray.exceptions
 from workers.streaming.actor import SessionClient
 
 log = logging.getLogger("sweepcast.rigs")
+TIMING_KEYS = ("captured", "spread_ms", "stale")
 
 
 @dataclass(frozen=True)
 class LiveSet:
-    """One applied live frame set: ``seq`` (the session's number), one JPEG per camera in rig order, and whether
-    it was flagged as background."""
+    """One applied live frame set: ``seq`` (the session's number), one JPEG per camera in rig order, whether
+    it was flagged as background, and when it was taken (``timing``: ``captured``, ``spread_ms``, ``stale``, as
+    :meth:`workers.streaming.session.LiveSession.timing` says)."""
 
     seq: int
     jpegs: list[bytes]
     background: bool
+    timing: dict = field(default_factory=dict)
 
 
 @dataclass(eq=False)
@@ -108,5 +111,6 @@ class LiveRelay:
                 log.warning("polling the live session of rig %s failed: %s", rig_id, exc)
                 reply = None
             if reply is not None:
-                self.publish(rig_id, LiveSet(reply["seq"], reply["jpegs"], reply["background"]))
+                self.publish(rig_id, LiveSet(reply["seq"], reply["jpegs"], reply["background"],
+                                             {k: reply.get(k) for k in TIMING_KEYS}))
             await asyncio.sleep(self.poll_seconds)

@@ -105,6 +105,9 @@ class Settings(WorkerSettings):
     max_recording_frames: int = Field(3000, ge=1, description="Most frames per camera in one recording.")
     max_view_pixels: int = Field(1920 * 1080, ge=256, description="Largest virtual view (width x height) a viewer or batch render may ask for.")
     max_view_planes: int = Field(256, ge=2, description="Most depth planes a viewer or batch render may ask for.")
+    live_max_spread_ms: float = Field(100.0, gt=0, le=10_000, description="The largest spread of capture times "
+                                      "(latest minus earliest, ms) a live frame set may have, whatever tolerance its "
+                                      "client declares; a set over its tolerance is refused and not shown.")
     session_idle_seconds: float = Field(60.0, gt=0, description="A virtual-view session nobody has used for this long ends.")
     session_resources: dict[str, float] = Field(default_factory=dict, description="Ray resources every session actor requires (JSON), e.g. {\"GPU\": 0.25} for a quarter of a GPU (the renderer then searches depth there) or a custom resource such as {\"renderer\": 1}.")
     session_render_slots: int = Field(1, ge=1, le=64, description="Views a session draws at once; its other viewers "

@@ -182,8 +182,10 @@ async def resolve_source(svc: Services, rig_id: str, source: str | None, who: Pr
 
 
 def view_limits(settings: Settings) -> SessionLimits:
-    """The service's view limits (``max_view_pixels``, ``max_view_planes``); their ``check`` is the one rule."""
-    return SessionLimits(max_pixels=settings.max_view_pixels, max_planes=settings.max_view_planes)
+    """The service's view limits (``max_view_pixels``, ``max_view_planes``; their ``check`` is the one rule) and the
+    largest spread of a live set's capture times (``live_max_spread_ms``)."""
+    return SessionLimits(max_pixels=settings.max_view_pixels, max_planes=settings.max_view_planes,
+                         max_spread=settings.live_max_spread_ms / 1e3)
 
 
 def session_config(svc: Services, rig_id: str, source: str) -> SessionConfig:

@@ -18,8 +18,9 @@ with ``?render=browser`` and sends no viewpoints. Its hello adds ``"render_mode"
 atlas per frame set over HTTP, immutable, cached by the browser: no session is started and nothing more comes
 on the socket), for the live stream ``"live": {"background_url", "background_rate"}`` and then every frame set
 the live session applies, as the live client sent it (binary: header ``{"type": "frame_set", "seq", "sizes",
-"background", "resync", "dropped"}``, then one JPEG per camera; :mod:`app.live_relay`). Such a client sends only
-``{"type": "ping"}``; a viewpoint gets the error ``client_renders``, a binary message closes with 1003.
+"background", "resync", "dropped", "captured", "spread_ms", "stale"}``, then one JPEG per camera;
+:mod:`app.live_relay`; a stale camera's image is not of the set's instant and is not to be rendered). Such a
+client sends only ``{"type": "ping"}``; a viewpoint gets the error ``client_renders``, a binary message closes with 1003.
 
 A failure costs one viewpoint, never the socket or the session: an exception in the renderer is
 answered with ``render_failed``; when the session's process is lost during a render (it restarts
@@ -27,11 +28,12 @@ and reloads its frames) the viewpoint gets ``session_restarting`` and is not ren
 may be what crashed it); the next viewpoint is rendered once the session is back.
 
 Live socket: the server sends ``{"type": "hello", "cameras": [...]}``; the client sends frame sets
-as binary messages (header ``{"sizes": [...], "cameras"?, "background"?, "seq"?}``, then one JPEG per
-camera; see :mod:`workers.streaming.framing`). Each applied set is acknowledged with ``{"type":
-"ack", "seq", "live_seq", "dropped", ...}``; a bad set gets ``{"type": "error", ..., "seq"}`` and the
-previous set stays on show; a set the session failed on gets ``frame_set_failed`` (or
-``session_restarting`` when its process was lost meanwhile; the set is not sent again). A text
+as binary messages (header ``{"sizes": [...], "cameras"?, "background"?, "seq"?, "captured"?, "stale"?,
+"tolerance"?}``, then one JPEG per camera; see :mod:`workers.streaming.framing`). Each applied set is acknowledged
+with ``{"type": "ack", "seq", "live_seq", "dropped", "spread_ms", "stale", "captured", ...}``; a bad set gets
+``{"type": "error", ..., "seq"}`` and the previous set stays on show: so does a set whose capture times spread over
+its tolerance (``spread_over_tolerance``: never rendered as one instant); a set the session failed on gets
+``frame_set_failed`` (or ``session_restarting`` when its process was lost meanwhile; the set is not sent again). A text
 message other than ``{"type": "ping"}`` (at most ``MAX_TEXT_CHARS`` characters) closes it with 1003.
 
 A socket whose peer stops reading gets no new frame once the connection holds more than a few it has not taken,
@@ -62,7 +64,7 @@ from app.auth import socket_principal
 from app.errors import ApiError
 from app.jobstore import DATABASE_DOWN, database_unavailable
 from app.keys import Principal
-from app.live_relay import LiveSet
+from app.live_relay import TIMING_KEYS, LiveSet
 from app.socket_transport import abort, queued_bytes
 from app.stored_rigs import Source, resolve_source, session_config
 from app.services import Services
@@ -71,7 +73,7 @@ from workers.streaming.actor import LIVE, SessionClient, SessionInterrupted
 from workers.streaming.browser import render_spec
 from workers.streaming.framing import FramingError, pack_message, unpack_frame_set
 from workers.streaming.params import Viewpoint
-from workers.streaming.session import SessionError
+from workers.streaming.session import SessionError, SetTiming
 
 log = logging.getLogger("sweepcast.rigs")
 ws_router = APIRouter(prefix="/v1/rigs", tags=["rigs"])
@@ -393,8 +395,9 @@ async def _browser_viewer(websocket: WebSocket, channel: Channel, target: Source
 
 async def _browser_live(websocket: WebSocket, channel: Channel, target: Source, svc: Services) -> None:
     """The live stream for a browser-rendering viewer: every frame set the live session applies, as the live
-    client sent it (binary: header ``{"type": "frame_set", "seq", "sizes", "background", "resync", "dropped"}``,
-    then one JPEG per camera in rig order). ``resync``: a background set was skipped, fetch the model again."""
+    client sent it (binary: header ``{"type": "frame_set", "seq", "sizes", "background", "resync", "dropped",
+    "captured", "spread_ms", "stale"}``, then one JPEG per camera in rig order). ``resync``: a background set was
+    skipped, fetch the model again; ``stale``: cameras whose image is not of this instant."""
     config = session_config(svc, target.rig_id, LIVE)
     client = SessionClient(config, svc.settings.session_resources)
     viewer = uuid.uuid4().hex
@@ -411,7 +414,7 @@ async def _browser_live(websocket: WebSocket, channel: Channel, target: Source, 
         while await channel.taken():  # meanwhile only the newest set waits in the mailbox
             item, resync = await sub.take()
             header = {"type": "frame_set", "seq": item.seq, "sizes": [len(j) for j in item.jpegs],
-                      "background": item.background, "resync": resync, "dropped": sub.dropped}
+                      "background": item.background, "resync": resync, "dropped": sub.dropped, **item.timing}
             await channel.binary(pack_message(header, item.jpegs))
 
     try:
@@ -469,7 +472,8 @@ async def live_socket(websocket: WebSocket, rig_id: str) -> None:
     names = target.rig.names
     mailbox = Latest()
     await channel.json({**target.hello(), "frame_set": "4-byte big-endian header length, JSON header "
-                                                      "{\"sizes\": [...]}, then one JPEG per camera"})
+                                                      "{\"sizes\": [...], \"captured\"?: [...], \"stale\"?: [...], "
+                                                      "\"tolerance\"?: s}, then one JPEG per camera"})
 
     async def read() -> None:
         while True:
@@ -490,8 +494,10 @@ async def live_socket(websocket: WebSocket, rig_id: str) -> None:
     async def push() -> None:
         while True:
             frame_set = await mailbox.take()
+            timing = SetTiming(tuple(frame_set.captured) if frame_set.captured is not None else None,
+                               tuple(frame_set.stale) if any(frame_set.stale) else (), frame_set.tolerance)
             try:
-                reply = await client.push(frame_set.jpegs, frame_set.background)
+                reply = await client.push(frame_set.jpegs, frame_set.background, timing)
             except SessionInterrupted as exc:
                 await channel.error("session_restarting", str(exc), seq=frame_set.seq)
                 continue
@@ -503,7 +509,8 @@ async def live_socket(websocket: WebSocket, rig_id: str) -> None:
                                     seq=frame_set.seq)
                 continue
             live_seq = reply.pop("seq")
-            svc.live_relay.publish(rig_id, LiveSet(live_seq, frame_set.jpegs, frame_set.background))
+            svc.live_relay.publish(rig_id, LiveSet(live_seq, frame_set.jpegs, frame_set.background,
+                                                   {k: reply.get(k) for k in TIMING_KEYS}))
             await channel.json({"type": "ack", "seq": frame_set.seq, "live_seq": live_seq,
                                 "dropped": mailbox.replaced, **reply})
 

@@ -87,8 +87,10 @@ export class LocalView {
   }
 
   /** A live frame set from the socket (its header and one JPEG per camera, rig order): decoded, uploaded and
-   * run through the background model. Resolves with the set's seq. */
+   * run through the background model. Resolves with the set's seq, or null for a set with stale cameras (their
+   * images are not of its instant, and this renderer draws every camera: the last complete set stays shown). */
   async liveSet(header, jpegs) {
+    if (header.stale && header.stale.length) return null;
     this.renderer.useFactor(1);
     const bitmaps = await Promise.all(jpegs.map((bytes) => createImageBitmap(new Blob([bytes], { type: "image/jpeg" }),
       { premultiplyAlpha: "none", colorSpaceConversion: "none" })));

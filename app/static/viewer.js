@@ -27,6 +27,8 @@ const state = {
   frame: 0, frames: 0, fps: 0, player: null,
   nextId: 1, inFlight: null, inFlightAt: 0, dirty: false, sentAt: new Map(), changedAt: null,
   received: 0, arrivals: [], latencies: [], lastHeader: null, errors: [], sizeChosen: false,
+  captureLatencies: [], liveCaptured: null, // live: ms from each shown set's capture time to its frame here
+  liveBusy: false, livePending: null, liveDropped: 0, liveResync: false, // browser rendering of live sets
   // browser rendering
   renderChoice: ["browser", "server"].includes(query.get("render")) ? query.get("render") : "auto",
   mode: null, why: "", forOptions: false, gpu: null, local: null, drawing: false, renderTimes: [], lastInfo: null, liveSeq: null,
@@ -139,7 +141,7 @@ function connect(source, mode = null, why = null) {
   [state.mode, state.why] = mode ? [mode, why] : chooseMode();
   state.forOptions = state.mode === "server" && state.why === unsupported(renderOptions());
   Object.assign(state, { source, ready: false, inFlight: null, dirty: false, hello: null, renderTimes: [],
-    liveSeq: null });
+    liveSeq: null, livePending: null, liveResync: false });
   state.sentAt.clear();
   canvas.hidden = state.mode !== "server";
   glCanvas.hidden = state.mode !== "browser";
@@ -213,6 +215,10 @@ async function onFrame(buffer) {
   state.received += 1;
   state.lastHeader = header;
   state.arrivals.push(now);
+  if (header.frame === "live") {
+    noteCaptured(header.captured);
+    showSpread(header);
+  }
   hideError();
   showStats(header);
   if (header.id === state.inFlight) finishFlight();
@@ -261,18 +267,50 @@ function probe(budget) {
   return times[Math.floor(times.length / 2)];
 }
 
+/** A live set from the socket. Sets arrive while the previous one is still being decoded and uploaded (the
+ * socket's bytes are taken off the network before this handler runs, so the server cannot hold them back): only the
+ * newest waits, the others are dropped (counted in liveDropped), so no delay builds up. A dropped set that was the
+ * empty scene makes the next one fetch the server's background model again. */
 async function onLiveSet(buffer) {
   if (!state.local) return;
-  const view = new DataView(buffer);
-  const length = view.getUint32(0);
-  const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, length)));
+  if (state.liveBusy) {
+    if (state.livePending) {
+      state.liveDropped += 1;
+      state.liveResync ||= liveHeader(state.livePending).header.background;
+    }
+    state.livePending = buffer;
+    return;
+  }
+  state.liveBusy = true;
+  try {
+    for (let next = buffer; next; next = state.livePending, state.livePending = null) await showLiveSet(next);
+  } finally {
+    state.liveBusy = false;
+  }
+}
+
+function liveHeader(buffer) {
+  const length = new DataView(buffer).getUint32(0);
+  return { header: JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, length))), length };
+}
+
+async function showLiveSet(buffer) {
+  const { header, length } = liveHeader(buffer);
+  if (state.liveResync) {
+    header.resync = true;
+    state.liveResync = false;
+  }
   const jpegs = [];
   let offset = 4 + length;
   for (const size of header.sizes) {
     jpegs.push(new Uint8Array(buffer, offset, size));
     offset += size;
   }
-  state.liveSeq = await state.local.liveSet(header, jpegs);
+  showSpread(header);
+  const seq = await state.local.liveSet(header, jpegs);
+  if (seq === null) return; // stale cameras: the last complete set stays on show
+  state.liveSeq = seq;
+  state.liveCaptured = header.captured ?? null;
   requestView(false);
 }
 
@@ -299,6 +337,7 @@ function drawLocal() {
       state.lastInfo = info;
       state.received += 1;
       state.arrivals.push(now);
+      if (state.source === "live") noteCaptured(state.liveCaptured);
       hideError();
       showStats({ ...info, render_ms: info.ms, frame: state.source === "live" ? "live" : state.frame });
     } catch (error) {
@@ -509,6 +548,21 @@ function showStats(header) {
   $("depth").textContent = header.depth_found
     ? `${header.depth_found[0].toFixed(2)}–${header.depth_found[1].toFixed(2)} (swept ${header.depth_range[0].toFixed(2)}–${header.depth_range[1].toFixed(2)})`
     : "no surface";
+}
+
+/** A live set's spread of capture times and its stale cameras (frame header or relayed set header). */
+function showSpread(header) {
+  const stale = header.stale && header.stale.length ? ` · stale: ${header.stale.join(", ")}` : "";
+  $("spread").textContent = header.spread_ms === null || header.spread_ms === undefined ? `unknown${stale}`
+    : `${Number(header.spread_ms).toFixed(1)} ms${stale}`;
+}
+
+/** Capture-to-frame: from a live set's capture time (its instant, s since the epoch, on the cameras' clock) to
+ * the frame on this screen now (meaningful where this machine's clock and the cameras' agree). */
+function noteCaptured(captured) {
+  if (captured === null || captured === undefined) return;
+  state.captureLatencies.push(Date.now() - captured * 1000);
+  state.captureLatencies = state.captureLatencies.slice(-200);
 }
 
 function setState(text) { $("state").textContent = text; }

@@ -7,7 +7,7 @@ import sys
 
 def test_help_lists_the_service_and_every_engine_verb():
     out = subprocess.run([sys.executable, "-m", "app", "--help"], capture_output=True, text=True, check=True).stdout
-    for verb in ("serve", "worker", "warmup", "kernel-env", "keys", "orient", "depth", "face", "render", "reconstruct"):
+    for verb in ("serve", "worker", "warmup", "kernel-env", "live", "keys", "orient", "depth", "face", "render", "reconstruct"):
         assert verb in out
 
 

@@ -291,7 +291,9 @@ def test_the_browser_renders_the_live_stream_from_relayed_frame_sets(server, tak
             page = browser.new_page(viewport={"width": 1280, "height": 900})
             page.goto(f"{base}/viewer/?rig={rig_id}&source=live&render=browser")
             page.wait_for_function("() => viewerState.ready", timeout=120_000)
-            live.send(frame_set([jpeg(i, 98) for i in take.frames[1]], seq=3))
+            t = time.time()
+            live.send(frame_set([jpeg(i, 98) for i in take.frames[1]], seq=3, tolerance=0.02,
+                                captured=[t + 0.001 * c for c in range(len(take.rig))]))
             assert json.loads(live.recv())["type"] == "ack"
             page.wait_for_function("() => viewerState.liveSeq !== null && !viewerState.drawing && !viewerState.dirty"
                                    " && viewerState.received > 0", timeout=120_000)
@@ -299,4 +301,13 @@ def test_the_browser_renders_the_live_stream_from_relayed_frame_sets(server, tak
             assert page.evaluate("viewerState.local.renderer.frames.hasSilhouettes")
             surface = view.max(axis=2) > 8
             assert 0.05 < surface.mean() < 0.9  # the studio's objects, the empty scene around them culled
+            assert page.locator("#spread").inner_text() == f"{(len(take.rig) - 1):.1f} ms"  # beside fps
+            shown = page.evaluate("viewerState.liveSeq")
+            gone = take.rig.names[1]  # a set with a camera gone: said beside fps; this renderer keeps the last whole set
+            live.send(frame_set([jpeg(i, 98) for i in take.frames[2]], seq=4, captured=[t + 0.04] * len(take.rig),
+                                stale=[gone]))
+            assert json.loads(live.recv())["stale"] == [gone]
+            page.wait_for_function(f"() => document.getElementById('spread').textContent.includes('stale: {gone}')",
+                                   timeout=60_000)
+            assert page.evaluate("viewerState.liveSeq") == shown
             assert page.evaluate("viewerState.errors.length") == 0

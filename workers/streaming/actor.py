@@ -44,7 +44,7 @@ from workers.storage import open_store
 from .images import decode_stored
 from .params import Viewpoint
 from .recording import RecordingArchive
-from .session import LiveSession, RecordingSession, Session, SessionError, SessionLimits
+from .session import LiveSession, RecordingSession, Session, SessionError, SessionLimits, SetTiming
 from .store import archive_key, load_live, load_rig, save_live
 from .turns import RenderTurns
 
@@ -122,10 +122,10 @@ class SessionHost:
         rig = load_rig(self.store, self.config.rig_id)
         if self.config.source == LIVE:
             session = LiveSession(rig, self.config.limits, self.config.bg_rate)
-            seq, jpegs, pngs = load_live(self.store, self.config.rig_id, len(rig))
+            seq, jpegs, pngs, stale = load_live(self.store, self.config.rig_id, len(rig))
             # stored at the size the session worked at (at most the camera's); resampled to today's
             backgrounds = [decode_stored(p, (c.width, c.height)) for c, p in zip(rig.cameras, pngs)]
-            session.restore(seq, jpegs, backgrounds)
+            session.restore(seq, jpegs, backgrounds, stale)
             return session
         archive = RecordingArchive(self.store.local_path(archive_key(self.config.source)))
         return RecordingSession(rig, archive, self.config.limits)
@@ -167,23 +167,25 @@ class SessionHost:
         return header, jpeg
 
     @_untracked
-    def push(self, jpegs: list[bytes], background: bool = False) -> dict[str, Any]:
-        """Apply a live frame set (JPEGs in rig order): its ack (``seq``, timings, ...); SessionError when the
-        set cannot be applied (the previous set stays shown).
+    def push(self, jpegs: list[bytes], background: bool = False, timing: SetTiming = SetTiming()) -> dict[str, Any]:
+        """Apply a live frame set (JPEGs in rig order; ``timing``: when its frames were taken, which are stale): its
+        ack (``seq``, timings, the set's spread, ...); SessionError when the set cannot be applied (its spread over
+        the tolerance, a bad image: the previous set stays shown).
         The set is decoded before the render lock is taken (OpenCV releases the GIL), so a decode
         runs beside a render instead of delaying it."""
         self._touch(None)
         session = self.session
         if not isinstance(session, LiveSession):
             raise SessionError("not_live", "this session shows a recording")
+        session.check_timing(timing, background)  # before any decoding: a set that cannot be shown costs nothing
         with self._working(locked=False):
             t0 = time.perf_counter()
-            images = session.decode(jpegs)
+            images = session.decode(jpegs, timing=timing)
         t1 = time.perf_counter()
         with self._working():
             t2 = time.perf_counter()
             try:
-                session.apply(images, jpegs, background)
+                session.apply(images, jpegs, background, timing)
                 ack = session.ack((t1 - t0) * 1e3, (time.perf_counter() - t2) * 1e3, background)
             except SessionError:
                 raise
@@ -200,28 +202,29 @@ class SessionHost:
         ack["lock_wait_ms"] = round((t2 - t1) * 1e3, 2)
         return ack
 
-    def _live_snapshot(self, with_background: bool) -> tuple[int, list[bytes], list[Any] | None]:
+    def _live_snapshot(self, with_background: bool) -> tuple[int, list[bytes], list[Any] | None, list[bool]]:
         """What :meth:`_persist_live` stores, taken while the frames' write lock is held: the latest live
         set and, when a background set reset it, the background model (its slow drift is relearnt after
         a restart)."""
         session = self.session
         self._persisted = time.monotonic()  # due again only after the interval, even while this one writes
-        return session.seq, list(session.latest_jpegs), session.background.images() if with_background else None
+        return (session.seq, list(session.latest_jpegs), session.background.images() if with_background else None,
+                list(session.latest_timing.stale))
 
-    def _persist_live(self, snapshot: tuple[int, list[bytes], list[Any] | None]) -> None:
+    def _persist_live(self, snapshot: tuple[int, list[bytes], list[Any] | None, list[bool]]) -> None:
         """Store a :meth:`_live_snapshot` (one writer at a time): skipped when a newer set was stored
         meanwhile, unless it carries a background model (then stored with its own, consistent set)."""
-        seq, jpegs, backgrounds = snapshot
+        seq, jpegs, backgrounds, stale = snapshot
         with self._persist_lock:
             if seq <= self.persisted_seq and backgrounds is None:
                 return
-            save_live(self.store, self.config.rig_id, seq, jpegs, backgrounds)
+            save_live(self.store, self.config.rig_id, seq, jpegs, backgrounds, stale)
             self.persisted_seq = max(self.persisted_seq, seq)
 
     @_untracked
     def frame_set_after(self, seq: int) -> dict[str, Any] | None:
-        """The latest live frame set when it is newer than ``seq``: ``{"seq", "jpegs", "background"}`` (the JPEGs
-        as the live client sent them, rig order); None when there is none newer (or this shows a recording). For
+        """The latest live frame set when it is newer than ``seq``: ``{"seq", "jpegs", "background", "captured",
+        "spread_ms", "stale"}`` (the JPEGs as the live client sent them, rig order; :meth:`LiveSession.timing`); None when there is none newer (or this shows a recording). For
         the API processes that relay live sets to browser-rendering viewers (app/live_relay.py)."""
         self._touch(None)
         session = self.session
@@ -231,7 +234,8 @@ class SessionHost:
         try:
             if session.seq <= seq or not session.latest_jpegs:
                 return None
-            return {"seq": session.seq, "jpegs": list(session.latest_jpegs), "background": session.latest_background}
+            return {"seq": session.seq, "jpegs": list(session.latest_jpegs), "background": session.latest_background,
+                    **session.timing()}
         finally:
             self._frames.release_read()
 
@@ -489,9 +493,9 @@ class SessionClient:
         """Not sent again when the actor is lost during it (it may be what crashed it)."""
         return await self._call(lambda actor: actor.view.remote(viewer, vp), resend=False)
 
-    async def push(self, jpegs: list[bytes], background: bool = False) -> dict[str, Any]:
+    async def push(self, jpegs: list[bytes], background: bool = False, timing: SetTiming = SetTiming()) -> dict[str, Any]:
         """Not sent again when the actor is lost during it (it may be what crashed it)."""
-        return await self._call(lambda actor: actor.push.remote(jpegs, background), resend=False)
+        return await self._call(lambda actor: actor.push.remote(jpegs, background, timing), resend=False)
 
     async def touch(self, viewer: str | None = None) -> None:
         await self._call(lambda actor: actor.touch.remote(viewer))

@@ -8,7 +8,11 @@ Layout of every binary message, in both directions::
 
 A live frame set (client -> server on ``/v1/rigs/{id}/live``) carries one JPEG per camera; its
 header lists their byte lengths in payload order: ``{"sizes": [n0, n1, ...], "cameras": [...]
-(optional: camera names in payload order, default rig order), "background": false, "seq": 7}``.
+(optional: camera names in payload order, default rig order), "background": false, "seq": 7}``, and from a
+client that knows when its frames were taken (``sweepcast live``) ``"captured": [t0, t1, ...]`` (each frame's
+capture time, seconds since the Unix epoch, payload order), ``"stale": [names]`` (cameras whose frame is not of
+this instant: a camera gone missing; left out of the render) and ``"tolerance"`` (the largest spread of capture
+times the client allowed, seconds).
 A rendered frame (server -> client on ``/v1/rigs/{id}/view``) carries one JPEG and the header
 ``{"type": "frame", ...}`` described in :mod:`workers.streaming.session`.
 """
@@ -16,7 +20,8 @@ from __future__ import annotations
 
 import json
 import struct
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 MAX_HEADER_BYTES = 64 * 1024
@@ -55,12 +60,17 @@ def unpack_message(data: bytes) -> tuple[dict[str, Any], memoryview]:
 
 @dataclass(frozen=True)
 class FrameSet:
-    """A parsed live frame set: ``jpegs`` in rig camera order, plus the header's flags."""
+    """A parsed live frame set: ``jpegs`` in rig camera order, plus the header's flags; ``captured`` (s since the
+    epoch, rig order) or None when the client sent no capture times; ``stale`` (rig order); ``tolerance`` (s) or
+    None."""
 
     jpegs: list[bytes]
     background: bool
     seq: int | None
     header: dict[str, Any]
+    captured: list[float] | None = None
+    stale: list[bool] = field(default_factory=list)
+    tolerance: float | None = None
 
 
 def unpack_frame_set(data: bytes, camera_names: Sequence[str]) -> FrameSet:
@@ -90,7 +100,42 @@ def unpack_frame_set(data: bytes, camera_names: Sequence[str]) -> FrameSet:
     seq = header.get("seq")
     if seq is not None and (not isinstance(seq, int) or isinstance(seq, bool)):
         raise FramingError("'seq' must be an integer")
-    return FrameSet(parts, background, seq, header)
+    captured = _captured(header.get("captured"), order, n)
+    stale = _stale(header.get("stale"), camera_names)
+    tolerance = header.get("tolerance")
+    if tolerance is not None and (not _number(tolerance) or tolerance <= 0):
+        raise FramingError("'tolerance' must be a positive number of seconds")
+    if len(stale) - sum(stale) < 2 and any(stale):
+        raise FramingError("a frame set needs at least two cameras that are not stale")
+    return FrameSet(parts, background, seq, header, captured, stale, tolerance)
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _captured(values: Any, order: list[int], n: int) -> list[float] | None:
+    """The header's capture times in rig order (None when absent); FramingError when malformed."""
+    if values is None:
+        return None
+    if not isinstance(values, list) or len(values) != n or not all(_number(v) for v in values):
+        raise FramingError(f"'captured' must list {n} capture times (seconds since the Unix epoch), one per image")
+    out = [0.0] * n
+    for slot, value in zip(order, values):
+        out[slot] = float(value)
+    return out
+
+
+def _stale(names: Any, camera_names: Sequence[str]) -> list[bool]:
+    """Per rig camera: named in the header's 'stale'; FramingError for a name the rig does not have."""
+    if names is None:
+        return [False] * len(camera_names)
+    if not isinstance(names, list) or not all(isinstance(x, str) for x in names):
+        raise FramingError("'stale' must list camera names")
+    unknown = sorted(set(names) - set(camera_names))
+    if unknown:
+        raise FramingError(f"'stale' names unknown camera(s) {', '.join(unknown)}; the rig has {', '.join(camera_names)}")
+    return [name in names for name in camera_names]
 
 
 def _camera_order(names: Any, camera_names: Sequence[str]) -> list[int]:

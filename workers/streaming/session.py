@@ -25,7 +25,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import cv2
@@ -107,12 +107,14 @@ class ViewError(SessionError, ValueError):
 class SessionLimits:
     """max_pixels: largest output (width x height); max_planes: most depth planes per view;
     cache_bytes: decoded recording frames kept in memory; viewers_kept: previous renders kept
-    for re-shading."""
+    for re-shading; max_spread: the largest spread of capture times (s) a live frame set may have, whatever
+    tolerance its client declares."""
 
     max_pixels: int = 1920 * 1080
     max_planes: int = 256
     cache_bytes: int = 256 * MiB
     viewers_kept: int = 32
+    max_spread: float = 0.1
 
     def check(self, width: int, height: int, planes: int) -> None:
         """ViewError when a view of ``width`` x ``height`` pixels and ``planes`` depth planes is over the
@@ -136,6 +138,8 @@ class Plan:
     renderer: SweepRenderer
     seq: int | None
     source_factor: int
+    timing: dict[str, Any] = field(default_factory=dict)
+    """What the frame header says of the live set drawn: ``captured``, ``spread_ms``, ``stale`` (empty otherwise)."""
 
 
 class Session:
@@ -176,7 +180,7 @@ class Session:
             raise ViewError("bad_view", _one_line(exc)) from None
         key = (self.frame_key, cam.K.tobytes(), cam.R.tobytes(), cam.t.tobytes(), vp.planes, vp.near, vp.far,
                vp.visual_hull, vp.coarse_to_fine, vp.aggregation, vp.occlusions)
-        return Plan(vp, cam, options, key, frame_label, self.renderer, self.seq, self.source_factor)
+        return Plan(vp, cam, options, key, frame_label, self.renderer, self.seq, self.source_factor, self.timing())
 
     def draw(self, viewer: str, plan: "Plan") -> tuple[dict[str, Any], bytes]:
         """Second half of :meth:`view`: sweep (or re-shade) and encode. Reads the frames only, so
@@ -208,6 +212,7 @@ class Session:
             "coverage": float(found.mean()),
             "render_ms": round(result.timings.get("total_ms", 0.0), 2), "encode_ms": round(encode_ms, 2),
             "reshaded": reshaded, "timings": {k: round(v, 2) for k, v in result.timings.items()},
+            **plan.timing,
         }
         return header, jpeg
 
@@ -228,6 +233,10 @@ class Session:
 
     def describe(self) -> dict[str, Any]:
         return {"kind": self.kind, "cameras": len(self.rig), "renders": self.renders}
+
+    def timing(self) -> dict[str, Any]:
+        """When the frames shown were taken, for a frame's header (a live session's; empty for a recording)."""
+        return {}
 
     def _prepare(self, viewer: str, vp: Viewpoint) -> int | str:
         """Load the frames ``vp`` asks for into the renderer; return the frame label for the header."""
@@ -322,6 +331,28 @@ class RecordingSession(Session):
                 "source_factors": sorted(self._levels)}
 
 
+@dataclass(frozen=True)
+class SetTiming:
+    """When a live frame set was taken, as its client said: ``captured`` (s since the Unix epoch, rig order; None
+    when the client sent no capture times), ``stale`` (rig order: the camera's frame is not of this instant) and
+    ``tolerance`` (the largest spread, s, the client allowed; None: the session's ``max_spread``)."""
+
+    captured: tuple[float, ...] | None = None
+    stale: tuple[bool, ...] = ()
+    tolerance: float | None = None
+
+    def fresh(self, n: int) -> list[int]:
+        """Indices of the cameras whose frame is of this instant (all of ``n`` when none is stale)."""
+        return [i for i in range(n) if not (self.stale and self.stale[i])]
+
+    def spread(self, n: int) -> float | None:
+        """Latest minus earliest capture time of the fresh frames, s (None without capture times)."""
+        if self.captured is None:
+            return None
+        times = [self.captured[i] for i in self.fresh(n)]
+        return max(times) - min(times)
+
+
 class LiveSession(Session):
     """Views of the latest frame set pushed by a live client; keeps a background model per camera
     for the silhouettes (:class:`BackgroundModel`).
@@ -331,6 +362,12 @@ class LiveSession(Session):
     protocol's default view size while there is none. The renderer and the background model work at
     that size; a viewer that needs finer frames has the latest set decoded again for it at once, and
     a factor that viewers leaving make coarser takes effect with the next set.
+
+    A set's capture times (:class:`SetTiming`) are checked first: a set whose fresh frames spread over its
+    tolerance (the client's, at most ``limits.max_spread``) is refused (``spread_over_tolerance``) and the
+    previous set stays shown, so frames of different instants are never rendered as one. A stale camera (its
+    client lost it: its frame is an older one) is not decoded and is left out of the render: the view is swept
+    from the other cameras (a renderer over the rig without it, kept while the same cameras are stale).
 
     :meth:`decode` (the expensive part, thread-safe, no state changed) and :meth:`apply` (under the
     caller's lock) split :meth:`push`, so the actor decodes a set while views are rendered."""
@@ -344,40 +381,72 @@ class LiveSession(Session):
         self.latest_jpegs: list[bytes] = []
         self.latest_background = False
         """Whether the latest set was flagged as background (the empty studio)."""
+        self.latest_timing = SetTiming()
         self.received_at: float | None = None
         start = Viewpoint()
         self.default_factor = source_factor(rig, start.width, start.height)
         self.source_factor = self.default_factor
         self.work_rig = shrunk_rig(rig, self.default_factor)
         self._viewer_factors: dict[str, int] = {}
+        self._full: SweepRenderer | None = None
+        self._partial: dict[tuple[int, ...], SweepRenderer] = {}
+        self._images: list[np.ndarray] = []
 
     def wanted_factor(self) -> int:
         """The factor frames are decoded at: the finest any present viewer needs (else the default's)."""
         return min(self._viewer_factors.values(), default=self.default_factor)
 
-    def decode(self, jpegs: Sequence[bytes], factor: int | None = None) -> list[np.ndarray]:
+    def check_timing(self, timing: SetTiming, is_background: bool = False) -> None:
+        """ViewError when the set cannot be shown as one instant: its fresh frames spread over its tolerance (the
+        client's, at most ``limits.max_spread``), or a background set with a stale camera."""
+        n = len(self.rig)
+        if timing.stale and any(timing.stale):
+            if len(timing.fresh(n)) < 2:
+                raise ViewError("bad_frame_set", "a frame set needs at least two cameras that are not stale")
+            if is_background:
+                stale = [c.name for c, s in zip(self.rig.cameras, timing.stale) if s]
+                raise ViewError("bad_frame_set", f"a background set needs every camera; stale: {', '.join(stale)}")
+        spread = timing.spread(n)
+        limit = min(timing.tolerance or self.limits.max_spread, self.limits.max_spread)
+        if spread is not None and spread > limit + 1e-9:
+            raise ViewError("spread_over_tolerance",
+                            f"the frames of this set were captured {spread * 1e3:.1f} ms apart; at most "
+                            f"{limit * 1e3:.1f} ms make one instant (the client's tolerance, at most the service's "
+                            f"{self.limits.max_spread * 1e3:.0f} ms): not shown, the previous set stays")
+
+    def decode(self, jpegs: Sequence[bytes], factor: int | None = None, timing: SetTiming = SetTiming()) -> list[np.ndarray]:
         """The frame set (one JPEG per camera, rig order) decoded at ``factor`` (None: :meth:`wanted_factor`),
-        (h, w, 3) uint8 BGR per camera. A JPEG that does not decode, or not at its camera's size,
+        (h, w, 3) uint8 BGR per camera; a stale camera (``timing``) is not decoded (its image is the one shown
+        before, or black: it is not rendered). A JPEG that does not decode, or not at its camera's size,
         raises ViewError. Changes nothing: safe to call while another thread renders."""
         if len(jpegs) != len(self.rig):
             raise ViewError("bad_frame_set", f"{len(jpegs)} images for {len(self.rig)} cameras")
         factor = self.wanted_factor() if factor is None else factor
+        small = shrunk_rig(self.rig, factor)
         images = []
-        for cam, data in zip(self.rig.cameras, jpegs):
+        for i, (cam, data) in enumerate(zip(self.rig.cameras, jpegs)):
+            if timing.stale and timing.stale[i]:
+                shown = self._images[i] if len(self._images) == len(jpegs) else None
+                size = (small.cameras[i].height, small.cameras[i].width)
+                images.append(shown if shown is not None and shown.shape[:2] == size else np.zeros((*size, 3), np.uint8))
+                continue
             try:
                 images.append(decode_reduced(data, (cam.width, cam.height), factor))
             except ImageError as exc:
                 raise ViewError("bad_image", f"camera {cam.name}: the image {exc}") from None
         return images
 
-    def apply(self, images: Sequence[np.ndarray], jpegs: Sequence[bytes], is_background: bool = False) -> None:
-        """Show a decoded set (:meth:`decode` of ``jpegs``): background model, silhouettes, renderer.
-        A set decoded at another factor than the one wanted now is decoded again."""
+    def apply(self, images: Sequence[np.ndarray], jpegs: Sequence[bytes], is_background: bool = False,
+              timing: SetTiming = SetTiming()) -> None:
+        """Show a decoded set (:meth:`decode` of ``jpegs``): background model, silhouettes, renderer (without the
+        stale cameras). A set decoded at another factor than the one wanted now is decoded again."""
+        self.check_timing(timing, is_background)
         factor = self.wanted_factor()
         small = shrunk_rig(self.rig, factor)
         if [img.shape[:2] for img in images] != [(c.height, c.width) for c in small.cameras]:
-            images = self.decode(jpegs, factor)
+            images = self.decode(jpegs, factor, timing)
         self._use_factor(factor, small)
+        self.latest_timing = timing
         silhouettes = self.background.observe(images, is_background)
         self._show(images, silhouettes)
         self.seq += 1
@@ -386,13 +455,15 @@ class LiveSession(Session):
         self.latest_background = bool(is_background)
         self.received_at = time.time()
 
-    def push(self, jpegs: Sequence[bytes], is_background: bool = False) -> dict[str, Any]:
-        """Decode and apply a synchronised frame set (one JPEG per camera, rig order). A JPEG that
-        does not decode, or not at its camera's size, raises ViewError and keeps the previous set."""
+    def push(self, jpegs: Sequence[bytes], is_background: bool = False, timing: SetTiming = SetTiming()) -> dict[str, Any]:
+        """Check, decode and apply a synchronised frame set (one JPEG per camera, rig order). A set over its
+        tolerance, or a JPEG that does not decode (or not at its camera's size), raises ViewError and keeps the
+        previous set."""
+        self.check_timing(timing, is_background)
         t0 = time.perf_counter()
-        images = self.decode(jpegs)
+        images = self.decode(jpegs, timing=timing)
         t1 = time.perf_counter()
-        self.apply(images, jpegs, is_background)
+        self.apply(images, jpegs, is_background, timing)
         return self.ack(decode_ms=(t1 - t0) * 1e3, apply_ms=(time.perf_counter() - t1) * 1e3,
                         background=is_background)
 
@@ -400,16 +471,26 @@ class LiveSession(Session):
         """What a client is told of the set just applied."""
         return {"seq": self.seq, "decode_ms": round(decode_ms, 2), "apply_ms": round(apply_ms, 2),
                 "background_model": self.background.ready, "background": background,
-                "source_factor": self.source_factor}
+                "source_factor": self.source_factor, **self.timing()}
 
-    def restore(self, seq: int, jpegs: Sequence[bytes], backgrounds: Sequence[np.ndarray] | None) -> None:
+    def timing(self) -> dict[str, Any]:
+        """``captured`` (the set's instant: median capture time of its fresh frames, s since the epoch, or None),
+        ``spread_ms`` (None without capture times) and ``stale`` (names of the cameras left out)."""
+        t, n = self.latest_timing, len(self.rig)
+        spread = t.spread(n)
+        instant = float(np.median([t.captured[i] for i in t.fresh(n)])) if t.captured is not None else None
+        return {"captured": instant, "spread_ms": round(spread * 1e3, 3) if spread is not None else None,
+                "stale": [c.name for c, s in zip(self.rig.cameras, t.stale) if s] if t.stale else []}
+
+    def restore(self, seq: int, jpegs: Sequence[bytes], backgrounds: Sequence[np.ndarray] | None,
+                stale: Sequence[bool] = ()) -> None:
         """Reload a persisted state: the background model (if any; any stored size, resampled to the
-        working size) and frame set number ``seq``."""
+        working size) and frame set number ``seq`` (``stale``: its cameras left out, as when it was shown)."""
         if backgrounds:
             self.background.load(backgrounds, [(c.width, c.height) for c in self.work_rig.cameras])
         if jpegs:
             self.seq = seq - 1
-            self.push(jpegs)
+            self.push(jpegs, timing=SetTiming(stale=tuple(stale)) if any(stale) else SetTiming())
 
     def forget(self, viewer: str) -> None:
         super().forget(viewer)
@@ -424,7 +505,7 @@ class LiveSession(Session):
         factor = self.wanted_factor()
         if factor < self.source_factor:  # this viewer needs finer frames than those shown: decode them again
             small = shrunk_rig(self.rig, factor)
-            images = self.decode(self.latest_jpegs, factor)
+            images = self.decode(self.latest_jpegs, factor, self.latest_timing)
             self._use_factor(factor, small)
             self._show(images, self.background.silhouettes(images))
             self.frame_key = ("live", self.seq, factor)
@@ -435,18 +516,36 @@ class LiveSession(Session):
         if factor == self.source_factor and self.renderer is not None:
             return
         self.source_factor, self.work_rig = factor, small
-        self.renderer = None  # rebuilt for the new camera sizes by _show
+        self.renderer = self._full = None  # rebuilt for the new camera sizes by _show
+        self._partial = {}
         self.background.resize([(c.width, c.height) for c in small.cameras])
 
     def _show(self, images: Sequence[np.ndarray], silhouettes: Sequence[np.ndarray] | None) -> None:
-        if self.renderer is None:
-            self.renderer = SweepRenderer(self.work_rig, images, silhouettes=silhouettes)
+        """Give the renderer the set: every camera's, or (stale cameras) those of the fresh ones only."""
+        self._images = list(images)
+        fresh = self.latest_timing.fresh(len(self.rig))
+        if len(fresh) == len(self.rig):
+            if self._full is None:
+                self._full = SweepRenderer(self.work_rig, images, silhouettes=silhouettes)
+            else:
+                self._full.set_frames(images, silhouettes)
+            self.renderer = self._full
+            return
+        key = tuple(fresh)
+        some = [images[i] for i in fresh]
+        masks = [silhouettes[i] for i in fresh] if silhouettes is not None else None
+        renderer = self._partial.get(key)
+        if renderer is None:
+            rig = Rig(tuple(self.work_rig.cameras[i] for i in fresh), tuple(self.work_rig.image_files[i] for i in fresh),
+                      self.work_rig.depth_range)
+            self._partial = {key: SweepRenderer(rig, some, silhouettes=masks)}  # one: the next change needs another
         else:
-            self.renderer.set_frames(images, silhouettes)
+            renderer.set_frames(some, masks)
+        self.renderer = self._partial[key]
 
     def describe(self) -> dict[str, Any]:
         return {**super().describe(), "seq": self.seq, "background_model": self.background.ready,
-                "received_at": self.received_at, "source_factor": self.source_factor}
+                "received_at": self.received_at, "source_factor": self.source_factor, **self.timing()}
 
 
 def _composed(result: RenderResult, overlay: str) -> np.ndarray:

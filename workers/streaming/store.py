@@ -5,7 +5,7 @@
     rigs/<rig>/recordings/<recording>.json  {"id", "rig_id", "name", "job_id", "kind", "created_at"}
     rigs/<rig>/live/frames/<cam>.jpg        the latest live frame set, as received
     rigs/<rig>/live/backgrounds/<cam>.png   the live background model
-    rigs/<rig>/live/state.json              {"seq", "saved_at"}: which live set the frames are
+    rigs/<rig>/live/state.json              {"seq", "stale", "saved_at"}: which live set the frames are (stale: cameras left out)
     jobs/<job>/results/frames.zip           a recording's archive: the result of its import job
 
 A recording's id is the id of the job that imports it (or builds the demo).
@@ -139,20 +139,20 @@ def delete_recording_meta(store: BlobStore, rig_id: str, recording_id: str) -> N
 
 # --- live frames ----------------------------------------------------------------------------------
 def save_live(store: BlobStore, rig_id: str, seq: int, jpegs: Sequence[bytes],
-              backgrounds: Sequence[np.ndarray] | None) -> None:
-    """Persist the latest live frame set (number ``seq``, JPEGs as received) and, when given, the
-    background model (PNG)."""
+              backgrounds: Sequence[np.ndarray] | None, stale: Sequence[bool] = ()) -> None:
+    """Persist the latest live frame set (number ``seq``, JPEGs as received, which cameras were stale) and, when
+    given, the background model (PNG)."""
     base = f"{rig_prefix(rig_id)}/live"
     for c, data in enumerate(jpegs):
         store.put(f"{base}/frames/{c:03d}.jpg", data)
     for c, image in enumerate(backgrounds or ()):
         store.put(f"{base}/backgrounds/{c:03d}.png", encode_png(image))
-    _put_json(store, f"{base}/state.json", {"seq": seq, "saved_at": now_iso()})
+    _put_json(store, f"{base}/state.json", {"seq": seq, "stale": [bool(x) for x in stale], "saved_at": now_iso()})
 
 
-def load_live(store: BlobStore, rig_id: str, cameras: int) -> tuple[int, list[bytes], list[bytes]]:
-    """(number of the stored set, JPEG bytes of that set, PNG bytes of the background model): the
-    lists hold ``cameras`` items, or none when not (completely) stored; the number is 0 then."""
+def load_live(store: BlobStore, rig_id: str, cameras: int) -> tuple[int, list[bytes], list[bytes], list[bool]]:
+    """(number of the stored set, JPEG bytes of that set, PNG bytes of the background model, which cameras of the
+    set were stale): the lists hold ``cameras`` items, or none when not (completely) stored; the number is 0 then."""
     base = f"{rig_prefix(rig_id)}/live"
 
     def every(folder: str, ext: str) -> list[bytes]:
@@ -163,4 +163,6 @@ def load_live(store: BlobStore, rig_id: str, cameras: int) -> tuple[int, list[by
 
     state = _json(store, f"{base}/state.json") or {}
     jpegs = every("frames", "jpg")
-    return (int(state.get("seq", 0)) if jpegs else 0), jpegs, every("backgrounds", "png")
+    stale = [bool(x) for x in state.get("stale", [])]
+    return ((int(state.get("seq", 0)) if jpegs else 0), jpegs, every("backgrounds", "png"),
+            stale if len(stale) == cameras and jpegs else [])
