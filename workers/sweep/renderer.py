@@ -71,12 +71,18 @@ class RenderOptions(BaseModel):
     visibility: colour each pixel only from the cameras that its surface point is not hidden from by a
     nearer surface of the rendered view (z-buffers of the view's own depth map splatted into every camera,
     :mod:`workers.sweep.visibility`); a hidden camera is treated as one whose image does not contain the
-    point, and where every camera is hidden all take part. visibility_tolerance: relative depth margin of
-    that test (0.03: a point counts as hidden when something is more than 3% nearer along the camera's axis).
-    None (the default): on exactly when ``occlusions`` is "fill". With the sweep's own depth unfilled (wrong
-    in the half-occluded strips and at the occluding edges, where the test matters) it loses quality
-    (benchmarks/RESULTS.md, section sweep); after the fill, where the strips are background, it colours them
-    from the one camera that sees them.
+    point, and where every camera is hidden all take part. True: at every pixel; False: nowhere; None (the
+    default): at the pixels the occlusion fill gave a depth (``occlusions`` "fill"; nowhere with "keep"): the
+    half-occluded strips, whose background one camera does not see, which it then colours from the cameras
+    that do. Elsewhere the fill's cross-view check has confirmed the pixel's depth in at least ``min_views``
+    cameras' own choices, and the test can only lose: with the sweep's depth, wrong by a plane or two here and
+    there, neighbouring pixels of one surface hide each other from the cameras (measured in benchmarks/RESULTS.md,
+    section sweep_viewer: on every pixel it costs up to 2 dB on Middlebury Teddy from eight views and drops the
+    camera a view stands on at 18% of the demo studio's pixels). visibility_tolerance: relative depth margin of
+    that test (0.2: a point counts as hidden when something is more than 20% nearer along the camera's axis);
+    the sweep's depth steps are 2-3% per plane at 48-64 planes, and its errors span several planes on slanted
+    and weakly textured surfaces, so a margin of one plane (0.03, the default before) hides a surface from
+    itself; 0.2 scored best or level on every set measured (section sweep_viewer).
 
     occlusions: "keep" the searched depth everywhere, or "fill" the pixels whose plane the cameras do not
     confirm (half-occluded strips next to depth edges and at the frame's edge, mismatches) with the farther
@@ -120,8 +126,9 @@ class RenderOptions(BaseModel):
     visibility: bool | None = Field(
         None, description="colour each pixel only from the cameras its surface point is not hidden from by a "
                           "nearer surface of the view (per-camera z-buffers of the rendered depth); see "
-                          "workers.sweep.visibility. None: on exactly when occlusions is 'fill'")
-    visibility_tolerance: float = Field(0.03, ge=1e-4, le=1.0)
+                          "workers.sweep.visibility. True: every pixel; None: the pixels the occlusion fill "
+                          "gave a depth (none when occlusions is 'keep')")
+    visibility_tolerance: float = Field(0.2, ge=1e-4, le=1.0)
     occlusions: Literal["keep", "fill"] = Field(
         "keep", description="'fill': the pixels whose depth plane the cameras do not confirm (half-occluded strips "
                             "next to depth edges, mismatches) take the farther neighbouring depth along the "
@@ -144,9 +151,12 @@ class RenderOptions(BaseModel):
         return self
 
     @property
-    def use_visibility(self) -> bool:
-        """Whether the colour is visibility-aware: ``visibility``, or when it is None, whether ``occlusions`` fills."""
-        return self.visibility if self.visibility is not None else self.occlusions == "fill"
+    def visibility_scope(self) -> Literal["all", "filled", "none"]:
+        """Where the colour is visibility-aware: every pixel (``visibility`` True), the occlusion fill's pixels
+        (``visibility`` None with ``occlusions`` "fill"), or nowhere."""
+        if self.visibility is not None:
+            return "all" if self.visibility else "none"
+        return "filled" if self.occlusions == "fill" else "none"
 
 
 @dataclass(frozen=True)
@@ -325,7 +335,7 @@ class SweepRenderer:
         with np.errstate(divide="ignore"):
             depth = (1.0 / s_pix).astype(np.float32)  # inf where s_pix is 0 (no surface)
         d_bnd = self._d_bnd(virtual, depth, opt)
-        image, regions, primary = self._shade(virtual, Q, B, G, s_pix, use_hull, opt, d_bnd)
+        image, regions, primary = self._shade(virtual, Q, B, G, s_pix, use_hull, opt, d_bnd, filled)
         t3 = time.perf_counter()
         timings["shade_ms"] = (t3 - t2) * 1e3
         timings["total_ms"] = (t3 - t0) * 1e3
@@ -342,7 +352,8 @@ class SweepRenderer:
         s_planes = 1.0 / previous.planes
         d_bnd = self._d_bnd(virtual, previous.depth, opt)
         s_pix = pixel_inverse_depth(s_planes, previous.plane_index, previous.plane_offset)
-        image, regions, primary = self._shade(virtual, Q, B, G, s_pix, previous.visual_hull, opt, d_bnd)
+        image, regions, primary = self._shade(virtual, Q, B, G, s_pix, previous.visual_hull, opt, d_bnd,
+                                              previous.filled)
         ms = (time.perf_counter() - t0) * 1e3
         return replace(previous, image=image, regions=regions, primary=primary, d_bnd=d_bnd,
                        timings={"shade_ms": ms, "total_ms": ms})
@@ -360,7 +371,7 @@ class SweepRenderer:
         d_bnd = self._d_bnd(virtual, previous.depth, opt)
         s_pix = pixel_inverse_depth(1.0 / previous.planes, previous.plane_index, previous.plane_offset)
         weights = np.empty(s_pix.shape + (len(self.cameras),), np.float32)
-        self._shade(virtual, Q, B, G, s_pix, previous.visual_hull, opt, d_bnd, weights=weights)
+        self._shade(virtual, Q, B, G, s_pix, previous.visual_hull, opt, d_bnd, previous.filled, weights=weights)
         return weights
 
     def auto_d_bnd(self, virtual: Camera, depth: np.ndarray) -> float:
@@ -402,17 +413,22 @@ class SweepRenderer:
         return Q, B, G
 
     def _shade(self, virtual: Camera, Q: np.ndarray, B: np.ndarray, G: np.ndarray, s_pix: np.ndarray,
-               use_hull: bool, opt: RenderOptions, d_bnd: float | None,
+               use_hull: bool, opt: RenderOptions, d_bnd: float | None, filled: np.ndarray | None = None,
                weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Image (h, w, 3) uint8, regions (h, w) uint8 and primary (h, w) int16 at the inverse depths
-        s_pix (h, w) float64 (1/m; 0 where no surface); fills ``weights`` (h, w, N) float32 with every
-        camera's weight when given."""
+        s_pix (h, w) float64 (1/m; 0 where no surface); ``filled`` (h, w) bool: the occlusion fill's pixels
+        (the visibility test's pixels when ``opt.visibility_scope`` is "filled"); fills ``weights`` (h, w, N)
+        float32 with every camera's weight when given."""
         h, w = s_pix.shape
         image = np.empty((h, w, 3), np.uint8)
         regions = np.empty((h, w), np.uint8)
         primary = np.empty((h, w), np.int16)
         gcam = global_camera(self._axes, virtual.axis)
-        with self._zbuffers.taken() if opt.use_visibility else nullcontext() as store:
+        scope = opt.visibility_scope
+        if scope == "filled" and (filled is None or not filled.any()):
+            scope = "none"  # nothing filled: no pixel to test
+        vis_mask = np.ascontiguousarray(filled, np.bool_) if scope == "filled" else np.empty((0, 0), np.bool_)
+        with self._zbuffers.taken() if scope != "none" else nullcontext() as store:
             if store is not None:
                 zbuf, zbox = surface_zbuffers(Q, B, s_pix, self._sizes, store.shape, out=store)
             else:
@@ -421,7 +437,7 @@ class SweepRenderer:
                           virtual.center, G, METHOD_CODES[opt.method], d_bnd or 1.0, opt.k, gcam,
                           np.asarray(opt.fill, np.uint8), image, regions, primary,
                           weights if weights is not None else np.empty((0, 0, 0), np.float32),
-                          zbuf, zbox, opt.visibility_tolerance)
+                          zbuf, zbox, opt.visibility_tolerance, vis_mask)
         return image, regions, primary
 
     def _choose(self, Q: np.ndarray, B: np.ndarray, center: np.ndarray, s_planes: np.ndarray, use_hull: bool,
@@ -576,10 +592,10 @@ FALLBACK_SPACING_RAD = float(np.radians(10.0))
 
 def _for_previous(previous: RenderResult, options: RenderOptions | None, kwargs: dict) -> RenderOptions:
     """The options of a re-shading of ``previous``: ``options`` updated by ``kwargs``; a visibility left None
-    follows the occlusion option the depth was made with, as the render's did."""
+    follows the occlusion option the depth was made with (its filled pixels), as the render's did."""
     opt = RenderOptions(**kwargs) if options is None else RenderOptions(**{**options.model_dump(), **kwargs})
     if opt.visibility is None:
-        opt = opt.model_copy(update={"visibility": previous.occlusions == "fill"})
+        opt = opt.model_copy(update={"occlusions": previous.occlusions})
     return opt
 
 
