@@ -462,7 +462,7 @@ class SweepRenderer:
             best, cost = self._sweep(Q, B, center, s_planes, use_hull, opt, lo, hi)
             return best, cost, np.zeros(best.shape, np.float32), None
         ssd, votes = self._volume(Q, B, center, s_planes, use_hull, opt, lo, hi)
-        volume = aggregate(ssd, votes, opt)
+        volume = aggregate(ssd, votes, opt, (lo, hi))
         best, cost, offset = costs.winner(volume)
         if not opt.subplane:
             offset[:] = 0.0
@@ -599,13 +599,17 @@ def _for_previous(previous: RenderResult, options: RenderOptions | None, kwargs:
     return opt
 
 
-def aggregate(ssd: np.ndarray, votes: np.ndarray, opt: RenderOptions) -> np.ndarray:
+def aggregate(ssd: np.ndarray, votes: np.ndarray, opt: RenderOptions,
+              windows: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """The cost volume (h, w, P) float32 the plane is chosen on, by ``opt.aggregation`` ("window" or
-    "sgm"), from the sweep's sums ssd, votes (h, w, P) float32 (:mod:`workers.sweep.costs`)."""
+    "sgm"), from the sweep's sums ssd, votes (h, w, P) float32 (:mod:`workers.sweep.costs`). windows: the plane
+    windows lo, hi (h, w) int32 the sums were taken in (no votes outside them), which the semi-global paths then
+    keep to (the same result, in a fraction of the time where they are narrow)."""
     var = costs.windowed_variance(ssd, votes, opt.window)
     if opt.aggregation == "window":
         return var
-    return costs.semi_global(costs.robust_cost(var, opt.cost_cap), opt.sgm_p1, opt.sgm_p2, opt.sgm_directions)
+    return costs.semi_global(costs.robust_cost(var, opt.cost_cap), opt.sgm_p1, opt.sgm_p2, opt.sgm_directions,
+                             windows)
 
 
 def pixel_inverse_depth(s_planes: np.ndarray, best: np.ndarray, offset: np.ndarray) -> np.ndarray:
