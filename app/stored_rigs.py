@@ -182,8 +182,10 @@ async def resolve_source(svc: Services, rig_id: str, source: str | None, who: Pr
 
 
 def view_limits(settings: Settings) -> SessionLimits:
-    """The service's view limits (``max_view_pixels``, ``max_view_planes``); their ``check`` is the one rule."""
-    return SessionLimits(max_pixels=settings.max_view_pixels, max_planes=settings.max_view_planes)
+    """The service's view limits (``max_view_pixels``, ``max_view_planes``; their ``check`` is the one rule) and the
+    rate a session's "auto" quality holds (``viewer_target_fps``)."""
+    return SessionLimits(max_pixels=settings.max_view_pixels, max_planes=settings.max_view_planes,
+                         target_fps=settings.viewer_target_fps)
 
 
 def session_config(svc: Services, rig_id: str, source: str) -> SessionConfig:

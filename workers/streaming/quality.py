@@ -1,0 +1,98 @@
+"""The viewer's quality levels: what each sets of the renderer's options, and which one a session draws.
+
+A viewer asks for a ``quality`` (:class:`workers.streaming.params.Viewpoint`): "best", "fast" or "auto" (the
+default). Each level is a preset of the options that decide the depth (:data:`LEVELS`); an option a client sets
+itself wins over its level's (the level then reads "custom"). Measured on Middlebury and the demo studio
+(benchmarks/RESULTS.md, section sweep, "The viewer's quality levels"):
+
+- "best": semi-global aggregation with the occlusion fill (visibility-aware colour at the filled pixels): the
+  highest PSNR on every set but one, where it is within 0.3 dB, and the least smear at occluding edges; the
+  fill's cross-view check and its fine-level cost volume cost about three times the depth search of "fast".
+- "fast": semi-global aggregation, the depth kept as searched: the best picture that holds 20 fps for a
+  320x240 view with 48 planes on two cores.
+
+"auto" draws "best" where the session holds the viewer's target rate with it, else "fast"
+(:class:`QualityChooser`): the measured render time of "best" at that view size decides, and a level found too
+slow is tried again after a while (the load may have gone). The browser's renderer makes the same choice with
+its own render times (app/static/viewer.js).
+"""
+from __future__ import annotations
+
+import statistics
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Callable, Literal
+
+Level = Literal["best", "fast"]
+Quality = Literal["auto", "best", "fast"]
+
+LEVELS: dict[str, dict[str, str]] = {
+    "best": {"aggregation": "sgm", "occlusions": "fill"},
+    "fast": {"aggregation": "sgm", "occlusions": "keep"},
+}
+"""Per level, the renderer options (:class:`workers.sweep.renderer.RenderOptions` fields) it sets."""
+
+LEVEL_FIELDS = ("aggregation", "occlusions")
+"""The options a level decides; a client's own value for one of them makes the level "custom"."""
+
+CUSTOM = "custom"
+
+
+def level_options(level: str, given: dict[str, object]) -> tuple[dict[str, object], str]:
+    """The options of ``level`` ("best" or "fast") under the client's own ``given`` values of
+    :data:`LEVEL_FIELDS` (None: not given), and the name of what runs: the level, or "custom" when a given value
+    differs from the level's."""
+    preset = LEVELS[level]
+    options = {k: preset[k] if given.get(k) is None else given[k] for k in LEVEL_FIELDS}
+    return options, level if options == preset else CUSTOM
+
+
+@dataclass
+class _Record:
+    """The last render times (ms) of the "best" level at one view shape, and since when it counts as too slow."""
+
+    times: deque = field(default_factory=lambda: deque(maxlen=QualityChooser.SAMPLES))
+    slow_since: float | None = None
+
+
+class QualityChooser:
+    """The "auto" choice of one session: "best" at a view shape (width, height, planes) unless the median of its
+    last :attr:`SAMPLES` render times there (at least two, or one over four budgets) exceeds the frame budget
+    (1000 / ``target_fps`` ms); then "fast",
+    and "best" once more after ``retry_s`` seconds (the load may have gone). Thread-safe enough for the session's
+    draws: a lost update only delays a switch by a frame."""
+
+    SAMPLES = 3
+
+    def __init__(self, target_fps: float, retry_s: float = 60.0, clock: Callable[[], float] = time.monotonic) -> None:
+        if not target_fps > 0:
+            raise ValueError(f"target_fps must be > 0, got {target_fps}")
+        self.budget_ms = 1000.0 / target_fps
+        self.retry_s = retry_s
+        self._clock = clock
+        self._shapes: dict[tuple[int, int, int], _Record] = {}
+
+    def choose(self, shape: tuple[int, int, int]) -> Level:
+        """The level to draw a view of ``shape`` (width, height, planes) at."""
+        record = self._shapes.get(shape)
+        if record is None or record.slow_since is None:
+            return "best"
+        if self._clock() - record.slow_since >= self.retry_s:
+            record.slow_since = None  # try again; its next time decides
+            record.times.clear()
+            return "best"
+        return "fast"
+
+    def record(self, shape: tuple[int, int, int], level: str, ms: float) -> None:
+        """A render of ``shape`` at ``level`` took ``ms`` (only "best"'s times decide)."""
+        if level != "best":
+            return
+        record = self._shapes.setdefault(shape, _Record())
+        record.times.append(ms)
+        # one time decides only when far over (a size's first render also allocates its buffers)
+        enough = len(record.times) >= 2 or ms > 4 * self.budget_ms
+        if enough and statistics.median(record.times) > self.budget_ms:
+            record.slow_since = self._clock()
+        while len(self._shapes) > 64:  # a viewer resizing through many sizes: forget the oldest
+            del self._shapes[next(iter(self._shapes))]
