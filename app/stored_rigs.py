@@ -16,6 +16,7 @@ from app.settings import Settings
 from workers.streaming import store as rigstore
 from workers.streaming.actor import LIVE, SessionConfig
 from workers.streaming.job import DEMO_JOB, RECORDING_JOB
+from workers.streaming.quality import LEVELS as QUALITY_LEVELS
 from workers.streaming.session import SessionLimits
 from workers.streaming.viewpoint import orbit_frame
 from workers.sweep.rig import Rig
@@ -158,6 +159,7 @@ class Source:
             "fps": self.recording["fps"] if self.recording else None,
             "cameras": [{"name": c.name, "width": c.width, "height": c.height} for c in self.rig.cameras],
             "orbit": orbit_frame(self.rig).to_dict(),
+            "quality_levels": QUALITY_LEVELS,
         }
 
 
