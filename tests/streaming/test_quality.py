@@ -83,3 +83,15 @@ def test_auto_in_a_session_falls_back_to_fast_where_best_misses_the_target_rate(
     assert slow.view("a", at_camera(take, 1))[0]["quality_asked"] == "auto"
     easy = RecordingSession(take.rig, archive, SessionLimits(max_pixels=200 * 200, max_planes=64, target_fps=0.01))
     assert {easy.view("a", at_camera(take, 1, frame=k % 2))[0]["quality"] for k in range(4)} == {"best"}
+
+
+def test_playing_a_recording_keeps_the_depth_where_the_scene_stood_still(take, archive):  # noqa: F811
+    """The same view of the next frame: most pixels keep the previous frame's depth (the ball moved elsewhere), and
+    the header says how many; another view, or a viewer's first, keeps none."""
+    session = RecordingSession(take.rig, archive, SessionLimits(max_pixels=200 * 200, max_planes=64))
+    first, _ = session.view("a", at_camera(take, 1, frame=0, render_quality="fast"))
+    assert first["held"] == 0.0
+    nxt, _ = session.view("a", at_camera(take, 1, frame=1, render_quality="fast"))
+    assert 0.2 < nxt["held"] <= nxt["coverage"]
+    other, _ = session.view("a", at_camera(take, 2, frame=0, render_quality="fast"))
+    assert other["held"] == 0.0

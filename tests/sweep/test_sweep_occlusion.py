@@ -158,7 +158,7 @@ def test_occlusion_option_is_exposed():
     assert RenderOptions(occlusions="fill").visibility_scope == "filled"
     assert RenderOptions(occlusions="fill", visibility=False).visibility_scope == "none"
     assert RenderOptions(visibility=True).visibility_scope == "all"
-    fields = Viewpoint(occlusions="fill").render_fields()
+    fields, _ = Viewpoint(occlusions="fill").render_fields("fast")
     assert RenderOptions(**fields).occlusions == "fill" and RenderOptions(**fields).visibility_scope == "filled"
     p = argparse.ArgumentParser()
     register(p.add_subparsers())

@@ -11,7 +11,9 @@ JPEG views for any number of viewers. Plain Python (no Ray): :mod:`workers.strea
      render_quality ("auto", "best", "fast"), "render_ms", "encode_ms", "reshaded": bool, "timings": {stage: ms}}
 
 A viewer whose new viewpoint differs from its previous one only in the colour weighting (method,
-D_bnd, k) is answered by re-shading the previous depth, without a new sweep.
+D_bnd, k) is answered by re-shading the previous depth, without a new sweep; one that asks for the same view of
+another frame set (playing a recording, watching the live stream) keeps the previous depth wherever the scene stood
+still (:mod:`workers.sweep.temporal`: no flicker there). The header's "held" is the share of such pixels.
 
 A recording session renders from frames at about the viewer's size: for a view w x h it shrinks the
 rig's images by the integer factor :func:`source_factor` (the largest that keeps them at least w x h;
@@ -202,7 +204,9 @@ class Session:
                 result = plan.renderer.reshade(previous[1], method=vp.method, d_bnd=vp.d_bnd, k=vp.k,
                                                visibility=vp.visibility)
             else:
-                result = plan.renderer.render(plan.camera, plan.options)
+                # the same view of another frame set: its depth stays where the scene stood still (no flicker)
+                earlier = previous[1] if previous is not None and previous[0][1:] == plan.key[1:] else None
+                result = plan.renderer.render(plan.camera, plan.options, previous=earlier)
         except (RigError, CameraError, ValidationError) as exc:
             raise ViewError("bad_view", _one_line(exc)) from None
         self._remember(viewer, plan.key, result)
@@ -219,7 +223,7 @@ class Session:
             "overlay": vp.overlay, "source_factor": plan.source_factor,
             "depth_range": [float(result.planes.min()), float(result.planes.max())],
             "depth_found": [float(result.depth[found].min()), float(result.depth[found].max())] if found.any() else None,
-            "coverage": float(found.mean()),
+            "coverage": float(found.mean()), "held": float(result.held.mean()) if result.held is not None else 0.0,
             "quality": plan.runs, "quality_asked": vp.render_quality,
             "render_ms": round(result.timings.get("total_ms", 0.0), 2), "encode_ms": round(encode_ms, 2),
             "reshaded": reshaded, "timings": {k: round(v, 2) for k, v in result.timings.items()},

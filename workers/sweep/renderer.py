@@ -29,6 +29,7 @@ from .lanes import lane_cost_volume
 from .occlusion import background_fill, confirmed_views, fill_along_rows
 from .rig import Rig, RigError
 from .silhouette import BG_THRESHOLD, HULL_DILATE_PX, dilate, silhouette_box, silhouette_from_background
+from .temporal import ChangeTracker
 from .undistort import undistort_maps, undistorted
 from .visibility import ZBufferStore, surface_zbuffers
 from .weighting import METHOD_CODES, global_camera, neighbour_angle, suggest_d_bnd
@@ -173,7 +174,10 @@ class RenderResult:
     s[plane_index] + plane_offset * (s[1] - s[0])); filled (h, w) bool: the pixels whose depth the occlusion
     fill replaced (their cost is NaN; all False unless occlusions is "fill"); occlusions: the option the depth
     was made with ("keep" or "fill"; re-shading with visibility None follows it); visual_hull: whether the hull
-    culled; d_bnd: the D_bnd used (kojima, kojima_k; None for the other methods); timings: ms per stage.
+    culled; d_bnd: the D_bnd used (kojima, kojima_k; None for the other methods); timings: ms per stage;
+    frame_set: the renderer's stamp of the frame set it was made from (:class:`workers.sweep.temporal.ChangeTracker`);
+    held (h, w) bool: the pixels whose depth a ``previous`` render gave, the scene there not having moved since
+    (all False without one).
     """
 
     camera: Camera
@@ -190,6 +194,8 @@ class RenderResult:
     visual_hull: bool
     d_bnd: float | None
     timings: dict[str, float] = field(default_factory=dict)
+    frame_set: tuple[int, int] = (0, 0)
+    held: np.ndarray | None = None
 
 
 class SweepRenderer:
@@ -230,6 +236,7 @@ class SweepRenderer:
         self._pix = np.zeros((n, hm + 1, wm + 1), np.uint64)  # for the depth search (kernels.pack_images)
         self._sils = np.ones((n, hm, wm), np.uint8)
         self._zbuffers = ZBufferStore((n, hm, wm))  # visibility: the view's surface per camera (float32 m)
+        self._changes = ChangeTracker((n, hm, wm))  # temporal consistency: which camera pixels moved when
         self._sil_bounds = np.empty((n, 6))  # per camera: W-1, H-1, silhouette box (kernels.hull_windows)
         self._sizes = np.array([[c.width, c.height] for c in self.cameras], np.int64)
         self._P = np.stack([c.P for c in self.cameras])
@@ -270,6 +277,7 @@ class SweepRenderer:
             if sil is not None:
                 self._sils[i, :c.height, :c.width] = dilate(sil, self.hull_dilate)
         kernels.pack_images(self._imgs, self._sizes, self._pix)
+        self._changes.update(self._imgs, self._sizes)
         for i, c in enumerate(self.cameras):
             self._sil_bounds[i] = (c.width - 1, c.height - 1) + silhouette_box(self._sils[i, :c.height, :c.width])
         self.has_silhouettes = sils is not None or self.backgrounds is not None
@@ -281,11 +289,17 @@ class SweepRenderer:
         return [self._sils[i, :c.height, :c.width].astype(bool) for i, c in enumerate(self.cameras)]
 
     # --- rendering ----------------------------------------------------------------------------
-    def render(self, virtual: Camera, options: RenderOptions | None = None, **kwargs: object) -> RenderResult:
+    def render(self, virtual: Camera, options: RenderOptions | None = None, previous: RenderResult | None = None,
+               **kwargs: object) -> RenderResult:
         """Render the view of ``virtual`` (any size; its distortion is ignored).
 
         Options come as a :class:`RenderOptions` or as its fields in keyword arguments
         (``method=``, ``d_bnd=``, ``k=``, ``planes=``, ``near=``, ``far=``, ...).
+
+        previous: this renderer's render of the same view (camera, planes and depth options) from an earlier frame
+        set, for a picture that does not flicker where the scene stands still: its depth (and fill) is kept at
+        every pixel whose point the cameras see at pixels unchanged since its set (:mod:`workers.sweep.temporal`;
+        ``held`` says where), and its derived D_bnd too. Ignored when it is another view's or another renderer's.
         """
         t0 = time.perf_counter()
         if options is None:
@@ -331,16 +345,26 @@ class SweepRenderer:
             cost = np.where(filled, np.float32(np.nan), cost)
             t1, t2 = t2, time.perf_counter()
             timings["occlusions_ms"] = (t2 - t1) * 1e3
+        held = self._still_since(previous, virtual, Q, B, G, s_planes, opt)
+        if held is not None:
+            best, offset, cost, filled = (np.where(held, kept, new) for kept, new in (
+                (previous.plane_index, best), (previous.plane_offset, offset), (previous.cost, cost),
+                (previous.filled, filled)))
+            t1, t2 = t2, time.perf_counter()
+            timings["held_ms"] = (t2 - t1) * 1e3
         s_pix = pixel_inverse_depth(s_planes, best, offset)
         with np.errstate(divide="ignore"):
             depth = (1.0 / s_pix).astype(np.float32)  # inf where s_pix is 0 (no surface)
         d_bnd = self._d_bnd(virtual, depth, opt)
+        if held is not None and opt.d_bnd is None and previous.d_bnd is not None and d_bnd is not None:
+            d_bnd = previous.d_bnd  # derived from the same viewpoint: a new median depth would recolour still parts
         image, regions, primary = self._shade(virtual, Q, B, G, s_pix, use_hull, opt, d_bnd, filled)
         t3 = time.perf_counter()
         timings["shade_ms"] = (t3 - t2) * 1e3
         timings["total_ms"] = (t3 - t0) * 1e3
         return RenderResult(virtual, image, depth, regions, primary, cost, 1.0 / s_planes, best, offset, filled,
-                            opt.occlusions, use_hull, d_bnd, timings)
+                            opt.occlusions, use_hull, d_bnd, timings, self._changes.stamp,
+                            held if held is not None else np.zeros(best.shape, bool))
 
     def reshade(self, previous: RenderResult, options: RenderOptions | None = None, **kwargs: object) -> RenderResult:
         """The view of ``previous`` (same camera, same depth) coloured with other weighting options
@@ -467,6 +491,22 @@ class SweepRenderer:
         if not opt.subplane:
             offset[:] = 0.0
         return best, cost, offset, volume
+
+    def _still_since(self, previous: RenderResult | None, virtual: Camera, Q: np.ndarray, B: np.ndarray, G: np.ndarray,
+                     s_planes: np.ndarray, opt: RenderOptions) -> np.ndarray | None:
+        """The pixels (h, w) bool where ``previous`` (a render of ``virtual`` with the same planes and depth options,
+        from an earlier frame set of this renderer) still holds (:meth:`ChangeTracker.still_pixels`), or None when it
+        is not such a render."""
+        if previous is None or previous.occlusions != opt.occlusions:
+            return None
+        cam = previous.camera
+        same_view = (cam.width, cam.height) == (virtual.width, virtual.height) and all(
+            np.array_equal(a, b) for a, b in ((cam.K, virtual.K), (cam.R, virtual.R), (cam.t, virtual.t)))
+        if not same_view or not np.array_equal(previous.planes, 1.0 / s_planes):
+            return None
+        s_prev = pixel_inverse_depth(s_planes, previous.plane_index, previous.plane_offset)
+        return self._changes.still_pixels(Q, B, G, virtual.center, self._centers, s_prev, self._sizes,
+                                          previous.frame_set)
 
     def _fill_occlusions(self, virtual: Camera, Q: np.ndarray, B: np.ndarray, s_planes: np.ndarray, best: np.ndarray,
                          offset: np.ndarray, volume: np.ndarray, lo: np.ndarray, hi: np.ndarray,
