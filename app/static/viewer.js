@@ -36,6 +36,7 @@ const state = {
   renderChoice: ["browser", "server"].includes(query.get("render")) ? query.get("render") : "auto",
   mode: null, why: "", forOptions: false, gpu: null, local: null, drawing: false, renderTimes: [], lastInfo: null, liveSeq: null,
   levels: null, level: null, // the hello's quality levels; the level this browser renders at
+  firstFrameAt: null, // performance.now() when the first view was drawn (ms since the page's navigation started)
 };
 window.viewerState = state; // read by the browser tests and handy in the console
 
@@ -218,6 +219,7 @@ async function onFrame(buffer) {
   }
   draw.drawImage(bitmap, 0, 0);
   bitmap.close();
+  state.firstFrameAt ??= performance.now();
   state.received += 1;
   state.lastHeader = header;
   state.arrivals.push(now);
@@ -323,6 +325,7 @@ function drawLocal() {
       state.renderTimes.push(info.ms);
       state.renderTimes = state.renderTimes.slice(-30);
       state.lastInfo = info;
+      state.firstFrameAt ??= now;
       state.received += 1;
       state.arrivals.push(now);
       hideError();

@@ -6,10 +6,13 @@ itself wins over its level's (the level then reads "custom"). Measured on Middle
 (benchmarks/RESULTS.md, section sweep, "The viewer's quality levels"):
 
 - "best": semi-global aggregation with the occlusion fill (visibility-aware colour at the filled pixels): the
-  highest PSNR on every set but one, where it is within 0.3 dB, and the least smear at occluding edges; the
-  fill's cross-view check and its fine-level cost volume cost about three times the depth search of "fast".
-- "fast": semi-global aggregation, the depth kept as searched: the best picture that holds 20 fps for a
-  320x240 view with 48 planes on two cores.
+  highest PSNR on Middlebury Teddy and Art (from two views above OpenCV SGBM + DIBR) and on the demo studio, and
+  the least smear at occluding edges; below "fast" on templeSparseRing's wide ring (its cross-view check rejects
+  about 40 % of the object there: mismatches, which the background's depth does not mend) and, by a fraction of a
+  dB, on a textureless occluder. The fill's cross-view check and its fine-level cost volume cost about three times
+  the depth search of "fast".
+- "fast": semi-global aggregation, the depth kept as searched: 0.6-3 dB above the window aggregation the viewer
+  used before on the real sets, at about its speed.
 
 "auto" draws "best" where the session holds the viewer's target rate with it, else "fast"
 (:class:`QualityChooser`): the measured render time of "best" at that view size decides, and a level found too

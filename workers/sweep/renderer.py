@@ -77,13 +77,13 @@ class RenderOptions(BaseModel):
     half-occluded strips, whose background one camera does not see, which it then colours from the cameras
     that do. Elsewhere the fill's cross-view check has confirmed the pixel's depth in at least ``min_views``
     cameras' own choices, and the test can only lose: with the sweep's depth, wrong by a plane or two here and
-    there, neighbouring pixels of one surface hide each other from the cameras (measured in benchmarks/RESULTS.md,
-    section sweep_viewer: on every pixel it costs up to 2 dB on Middlebury Teddy from eight views and drops the
-    camera a view stands on at 18% of the demo studio's pixels). visibility_tolerance: relative depth margin of
-    that test (0.2: a point counts as hidden when something is more than 20% nearer along the camera's axis);
-    the sweep's depth steps are 2-3% per plane at 48-64 planes, and its errors span several planes on slanted
-    and weakly textured surfaces, so a margin of one plane (0.03, the default before) hides a surface from
-    itself; 0.2 scored best or level on every set measured (section sweep_viewer).
+    there, neighbouring pixels of one surface hide each other from the cameras (benchmarks/RESULTS.md, section
+    sweep, "The viewer's quality levels": on every pixel it cost up to 2 dB on Middlebury Teddy from eight views and
+    dropped the camera a view stands on at 18% of the demo studio's pixels). visibility_tolerance: relative depth
+    margin of that test (0.2: a point counts as hidden when something is more than 20% nearer along the camera's
+    axis); the sweep's depth steps are 2-3% per plane at 48-64 planes, and its errors span several planes on slanted
+    and weakly textured surfaces, so a margin of one plane (0.03, the default before) hides a surface from itself;
+    of 0.03, 0.06, 0.1 and 0.2, 0.2 scored best or level on every Middlebury set and studio view tried.
 
     occlusions: "keep" the searched depth everywhere, or "fill" the pixels whose plane the cameras do not
     confirm (half-occluded strips next to depth edges and at the frame's edge, mismatches) with the farther
@@ -91,9 +91,11 @@ class RenderOptions(BaseModel):
     classic stereo does after its left-right check (:mod:`workers.sweep.occlusion`). The check runs on the
     aggregated cost volume, so "fill" needs aggregation "window" or "sgm"; with coarse_to_fine the fine level
     then aggregates too (within its narrow plane windows) instead of the pruned search. Against keep (section
-    sweep of benchmarks/RESULTS.md) it gains on two views of the Middlebury sets and on all views of Art, but
-    loses on all views of Teddy, where the visibility-aware colouring alone loses with 8 cameras; and it costs a
-    scan of the cost volume per camera, so the default is "keep".
+    sweep of benchmarks/RESULTS.md, "The viewer's quality levels") it gains on Middlebury Teddy and Art from two
+    views and from all and on the demo studio, and in the band around occluding edges, but loses on the wide
+    ring of templeSparseRing (its check rejects mismatches there, which the background's depth does not mend);
+    it costs a scan of the cost volume per camera, so the library's default is "keep" (the viewer's "best"
+    quality level fills: workers/streaming/quality.py).
     """
 
     model_config = ConfigDict(extra="forbid")
