@@ -27,9 +27,10 @@
 - ``latency``: time from a pointer move to the new frame on screen in the viewer page, browser mode against server
   mode, the same drags in the same page (SwiftShader here). Section ``streaming_browser_latency``.
 - ``first_frame``: the viewer page opened as a new user opens it (Render auto, Quality auto) in a browser without a
-  GPU: headless Chromium without WebGL, and with WebGL2 on SwiftShader (a CPU rasteriser, which the page now sends
-  to the server at once); ms from the page's navigation to its first view drawn, and the mode it chose. Goal:
-  <= 1 s. Section ``streaming_browser_first_frame``.
+  GPU: plain headless Chromium (``--disable-gpu``; Debian's Chromium still offers WebGL2 there, on SwiftShader) and
+  with SwiftShader asked for (a CPU rasteriser, which the page now sends to the server at once), and
+  ``?render=server`` for reference; ms from the page's navigation to its first view drawn, the mode it chose and
+  the quality shown. Goal: <= 1 s. Section ``streaming_browser_first_frame``.
 """
 from __future__ import annotations
 
@@ -597,7 +598,7 @@ def first_frame(quick: bool) -> int:
                     time.sleep(0.5)
             rig_id, rec = found
             settled = settle(app.base, app.proc.pid)
-            for label, webgl, query in (("no WebGL (--disable-gpu)", "none", ""),
+            for label, webgl, query in (("plain headless (--disable-gpu)", "none", ""),
                                         ("WebGL2 on SwiftShader", "swiftshader", ""),
                                         ("WebGL2 on SwiftShader, ?render=server", "swiftshader", "&render=server")):
                 times, modes, reasons, levels = [], set(), set(), set()

@@ -257,21 +257,23 @@ async function openLocal(hello) {
 
 /** The quality level this browser renders at: the one asked for, or with "auto" the best that holds
  * ``targetFps`` at the chosen size (measured; fast when none does); null when Render is auto and the level(s)
- * asked for miss the rate: the server renders then. Fast is measured first: where it misses, best (which costs
- * more) need not be tried. */
+ * asked for miss the rate: the server renders then. Fast is measured first, and best only where fast takes at most
+ * half the frame budget (best costs two to four times fast), as the server's sessions choose
+ * (workers/streaming/quality.py QualityChooser). */
 function chooseLevel(targetFps) {
   const asked = $("quality").value;
   const mustHold = state.renderChoice === "auto";
   if (asked !== "auto" && !mustHold) return asked;
   const budget = 1000 / targetFps;
-  const holds = (level) => {
+  const measured = (level) => {
     const ms = probe(budget, level);
     state.renderTimes = [ms];
-    return ms <= budget;
+    return ms;
   };
-  if (asked !== "auto") return holds(asked) ? asked : null;
-  if (!holds("fast")) return mustHold ? null : "fast";
-  return holds("best") ? "best" : "fast";
+  if (asked !== "auto") return measured(asked) <= budget ? asked : null;
+  const fast = measured("fast");
+  if (fast > budget) return mustHold ? null : "fast";
+  return fast <= budget / 2 && measured("best") <= budget ? "best" : "fast";
 }
 
 /** Median ms of a few renders of the current view at ``level``. The first also compiles the shaders: it is counted

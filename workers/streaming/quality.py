@@ -15,9 +15,9 @@ itself wins over its level's (the level then reads "custom"). Measured on Middle
   used before on the real sets, at about its speed.
 
 "auto" draws "best" where the session holds the viewer's target rate with it, else "fast"
-(:class:`QualityChooser`): the measured render time of "best" at that view size decides, and a level found too
-slow is tried again after a while (the load may have gone). The browser's renderer makes the same choice with
-its own render times (app/static/viewer.js).
+(:class:`QualityChooser`): the measured render times at that view size decide (fast's first, so the first frame
+comes soonest), and a level found too slow is tried again after a while (the load may have gone). The browser's
+renderer makes the same choice with its own render times (app/static/viewer.js).
 """
 from __future__ import annotations
 
@@ -53,18 +53,20 @@ def level_options(level: str, given: dict[str, object]) -> tuple[dict[str, objec
 
 @dataclass
 class _Record:
-    """The last render times (ms) of the "best" level at one view shape, and since when it counts as too slow."""
+    """The last render times (ms) of each level at one view shape, and since when "best" counts as too slow."""
 
-    times: deque = field(default_factory=lambda: deque(maxlen=QualityChooser.SAMPLES))
+    fast: deque = field(default_factory=lambda: deque(maxlen=QualityChooser.SAMPLES))
+    best: deque = field(default_factory=lambda: deque(maxlen=QualityChooser.SAMPLES))
     slow_since: float | None = None
 
 
 class QualityChooser:
-    """The "auto" choice of one session: "best" at a view shape (width, height, planes) unless the median of its
-    last :attr:`SAMPLES` render times there (at least two, or one over four budgets) exceeds the frame budget
-    (1000 / ``target_fps`` ms); then "fast",
-    and "best" once more after ``retry_s`` seconds (the load may have gone). Thread-safe enough for the session's
-    draws: a lost update only delays a switch by a frame."""
+    """The "auto" choice of one session, per view shape (width, height, planes): "fast" first (the first frame
+    comes soonest); "best" once the median of fast's last :attr:`SAMPLES` times there is at most half the frame
+    budget (1000 / ``target_fps`` ms: best costs two to four times fast on a CPU, so it could not hold otherwise),
+    and as long as best's own median (of at least two times, or one over four budgets) stays within the budget;
+    after best missed it, fast for ``retry_s`` seconds, then best is tried again (the load may have gone).
+    Thread-safe enough for the session's draws: a lost update only delays a switch by a frame."""
 
     SAMPLES = 3
 
@@ -79,23 +81,25 @@ class QualityChooser:
     def choose(self, shape: tuple[int, int, int]) -> Level:
         """The level to draw a view of ``shape`` (width, height, planes) at."""
         record = self._shapes.get(shape)
-        if record is None or record.slow_since is None:
-            return "best"
-        if self._clock() - record.slow_since >= self.retry_s:
-            record.slow_since = None  # try again; its next time decides
-            record.times.clear()
-            return "best"
-        return "fast"
+        if record is None or not record.fast:
+            return "fast"
+        if record.slow_since is not None:
+            if self._clock() - record.slow_since < self.retry_s:
+                return "fast"
+            record.slow_since = None  # try again; its next times decide
+            record.best.clear()
+        return "best" if statistics.median(record.fast) <= self.budget_ms / 2 else "fast"
 
     def record(self, shape: tuple[int, int, int], level: str, ms: float) -> None:
-        """A render of ``shape`` at ``level`` took ``ms`` (only "best"'s times decide)."""
-        if level != "best":
+        """A render of ``shape`` at ``level`` took ``ms``."""
+        if level not in LEVELS:
             return
         record = self._shapes.setdefault(shape, _Record())
-        record.times.append(ms)
-        # one time decides only when far over (a size's first render also allocates its buffers)
-        enough = len(record.times) >= 2 or ms > 4 * self.budget_ms
-        if enough and statistics.median(record.times) > self.budget_ms:
+        times = record.best if level == "best" else record.fast
+        times.append(ms)
+        # one time of best decides only when far over (a size's first render also allocates its buffers)
+        enough = len(times) >= 2 or ms > 4 * self.budget_ms
+        if level == "best" and enough and statistics.median(times) > self.budget_ms:
             record.slow_since = self._clock()
         while len(self._shapes) > 64:  # a viewer resizing through many sizes: forget the oldest
             del self._shapes[next(iter(self._shapes))]
