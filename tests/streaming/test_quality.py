@@ -82,10 +82,11 @@ def test_auto_in_a_session_draws_best_only_where_it_holds_the_target_rate(take, 
     """A target no render can hold (2,000 fps): the session stays at "fast"; with a target every render holds, its
     first frame is "fast" and the next ones "best"."""
     slow = RecordingSession(take.rig, archive, SessionLimits(max_pixels=200 * 200, max_planes=64, target_fps=2000.0))
-    assert {slow.view("a", at_camera(take, 1, frame=k % 2))[0]["quality"] for k in range(4)} == {"fast"}
-    assert slow.view("a", at_camera(take, 1))[0]["quality_asked"] == "auto"
+    auto = {"render_quality": "auto"}
+    assert {slow.view("a", at_camera(take, 1, frame=k % 2, **auto))[0]["quality"] for k in range(4)} == {"fast"}
+    assert slow.view("a", at_camera(take, 1, **auto))[0]["quality_asked"] == "auto"
     easy = RecordingSession(take.rig, archive, SessionLimits(max_pixels=200 * 200, max_planes=64, target_fps=0.01))
-    levels = [easy.view("a", at_camera(take, 1, frame=k % 2))[0]["quality"] for k in range(4)]
+    levels = [easy.view("a", at_camera(take, 1, frame=k % 2, **auto))[0]["quality"] for k in range(4)]
     assert levels == ["fast", "best", "best", "best"]
 
 
