@@ -127,9 +127,11 @@ class Settings(WorkerSettings):
                            "matches the server's) or jpeg (far fewer bytes at viewer_frame_quality, a worse view: "
                            "benchmarks/RESULTS.md, streaming_browser_quality).")
     viewer_frame_quality: int = Field(90, ge=50, le=100, description="JPEG quality when viewer_frame_format is jpeg.")
-    viewer_target_fps: float = Field(15.0, gt=0, le=240, description="The frame rate a browser must hold at the chosen "
-                                     "view size to render itself (sent in the view socket's hello); below it the "
-                                     "viewer falls back to server rendering.")
+    viewer_target_fps: float = Field(15.0, gt=0, le=240, description="The frame rate a viewer's 'auto' quality holds: "
+                                     "the browser renders itself at the best quality level that holds it at the "
+                                     "chosen view size, else falls back to server rendering (sent in the view "
+                                     "socket's hello); a session draws the 'best' level where its renders hold it, "
+                                     "else 'fast'.")
 
     @field_validator("api_keys", mode="before")
     @classmethod

@@ -16,6 +16,7 @@ from app.settings import Settings
 from workers.streaming import store as rigstore
 from workers.streaming.actor import LIVE, SessionConfig
 from workers.streaming.job import DEMO_JOB, RECORDING_JOB
+from workers.streaming.quality import LEVELS as QUALITY_LEVELS
 from workers.streaming.session import SessionLimits
 from workers.streaming.viewpoint import orbit_frame
 from workers.sweep.rig import Rig
@@ -158,6 +159,7 @@ class Source:
             "fps": self.recording["fps"] if self.recording else None,
             "cameras": [{"name": c.name, "width": c.width, "height": c.height} for c in self.rig.cameras],
             "orbit": orbit_frame(self.rig).to_dict(),
+            "quality_levels": QUALITY_LEVELS,
         }
 
 
@@ -183,9 +185,10 @@ async def resolve_source(svc: Services, rig_id: str, source: str | None, who: Pr
 
 def view_limits(settings: Settings) -> SessionLimits:
     """The service's view limits (``max_view_pixels``, ``max_view_planes``; their ``check`` is the one rule) and the
-    largest spread of a live set's capture times (``live_max_spread_ms``)."""
+    largest spread of a live set's capture times (``live_max_spread_ms``) and the rate a session's "auto" quality holds
+    (``viewer_target_fps``)."""
     return SessionLimits(max_pixels=settings.max_view_pixels, max_planes=settings.max_view_planes,
-                         max_spread=settings.live_max_spread_ms / 1e3)
+                         max_spread=settings.live_max_spread_ms / 1e3, target_fps=settings.viewer_target_fps)
 
 
 def session_config(svc: Services, rig_id: str, source: str) -> SessionConfig:

@@ -60,6 +60,10 @@ def _sweep() -> None:
         with_hull.render(virtual, RenderOptions(planes=8, visibility=visibility))
     for coarse in (False, True):  # the occlusion fill's cross-view check and background fill
         with_hull.render(virtual, RenderOptions(planes=8, coarse_to_fine=coarse, occlusions="fill"))
+    # a stream's next frame set: which camera pixels changed, and the previous depth kept where none did
+    first = with_hull.render(virtual, RenderOptions(planes=8, coarse_to_fine=True, aggregation="sgm"))
+    with_hull.set_frames(images)
+    with_hull.render(virtual, RenderOptions(planes=8, coarse_to_fine=True, aggregation="sgm"), previous=first)
 
 
 def _demo() -> None:

@@ -7,8 +7,13 @@
 // - server: viewpoints go out as JSON text; frames come back as binary messages = 4-byte big-endian header
 //   length, JSON header, JPEG. At most one viewpoint is in flight; changes made meanwhile are sent, as one
 //   viewpoint, when its frame arrives.
-// "auto" (the default) renders in the browser when it has WebGL2 with float render targets and holds the
+// "auto" (the default) renders in the browser when it has WebGL2 with float render targets on a GPU (not a CPU
+// rasteriser such as SwiftShader: the server is faster there, and the page goes to it at once) and holds the
 // service's target rate at the chosen size, else on the server; ?render=browser|server forces one.
+//
+// Quality (workers/streaming/quality.py; the levels' options come in the socket's hello): "best" or "fast", or
+// "auto": best where the renderer holds the target rate with it, else fast. The browser measures its own renders
+// for that; the server's session measures its own. The advanced switches (depth, occlusions) override a level's.
 import { LocalView } from "./local-view.js";
 import { capabilities } from "./render/gl.js";
 import { Unsupported, unsupported } from "./render/renderer.js";
@@ -32,6 +37,8 @@ const state = {
   // browser rendering
   renderChoice: ["browser", "server"].includes(query.get("render")) ? query.get("render") : "auto",
   mode: null, why: "", forOptions: false, gpu: null, local: null, drawing: false, renderTimes: [], lastInfo: null, liveSeq: null,
+  levels: null, level: null, // the hello's quality levels; the level this browser renders at
+  firstFrameAt: null, // performance.now() when the first view was drawn (ms since the page's navigation started)
 };
 window.viewerState = state; // read by the browser tests and handy in the console
 
@@ -112,6 +119,7 @@ async function selectRig(rigId) {
 function chooseMode() {
   if (state.renderChoice === "server") return ["server", "chosen"];
   if (!gpu.ok) return ["server", gpu.reason];
+  if (state.renderChoice === "auto" && gpu.software) return ["server", `WebGL runs on the CPU here (${gpu.gpu})`];
   const why = unsupported(renderOptions());
   if (why) return ["server", why];
   return ["browser", state.renderChoice === "browser" ? "chosen" : "auto"];
@@ -172,6 +180,7 @@ function connect(source, mode = null, why = null) {
 async function onMessage(message) {
   if (message.type === "hello") {
     state.hello = message;
+    state.levels = message.quality_levels;
     state.orbit = message.orbit;
     state.coverage = orbitCoverage(message.orbit);
     state.frames = message.frames || 0;
@@ -212,6 +221,7 @@ async function onFrame(buffer) {
   }
   draw.drawImage(bitmap, 0, 0);
   bitmap.close();
+  state.firstFrameAt ??= performance.now();
   state.received += 1;
   state.lastHeader = header;
   state.arrivals.push(now);
@@ -234,15 +244,14 @@ async function openLocal(hello) {
     const [width, height] = viewSize();
     await local.prepare(state.frame, width, height);
     if (ws !== state.ws) return;
-    if (state.renderChoice === "auto") {
-      const budget = 1000 / hello.target_fps;
-      const ms = probe(budget);
-      if (ms > budget) {
-        fallBack(`this browser takes ${ms.toFixed(0)} ms per ${width}×${height} view (${(1000 / ms).toFixed(1)} fps; `
-          + `the target is ${hello.target_fps} fps)`);
-        return;
-      }
+    const level = chooseLevel(hello.target_fps);
+    if (level === null) {
+      const ms = state.renderTimes.at(-1);
+      fallBack(`this browser takes ${ms.toFixed(0)} ms per ${width}×${height} view (${(1000 / ms).toFixed(1)} fps; `
+        + `the target is ${hello.target_fps} fps)`);
+      return;
     }
+    state.level = level;
     state.ready = true;
     setState(state.source === "live" ? "live" : "ready");
     hideNotice();
@@ -252,12 +261,33 @@ async function openLocal(hello) {
   }
 }
 
-/** Median ms of a few renders of the current view. The first also compiles the shaders: it is counted only
- * when it alone is far over ``budget`` ms (a software renderer: no need to wait for more). */
-function probe(budget) {
+/** The quality level this browser renders at: the one asked for, or with "auto" the best that holds
+ * ``targetFps`` at the chosen size (measured; fast when none does); null when Render is auto and the level(s)
+ * asked for miss the rate: the server renders then. Fast is measured first, and best only where fast takes at most
+ * half the frame budget (best costs two to four times fast), as the server's sessions choose
+ * (workers/streaming/quality.py QualityChooser). */
+function chooseLevel(targetFps) {
+  const asked = $("quality").value;
+  const mustHold = state.renderChoice === "auto";
+  if (asked !== "auto" && !mustHold) return asked;
+  const budget = 1000 / targetFps;
+  const measured = (level) => {
+    const ms = probe(budget, level);
+    state.renderTimes = [ms];
+    return ms;
+  };
+  if (asked !== "auto") return measured(asked) <= budget ? asked : null;
+  const fast = measured("fast");
+  if (fast > budget) return mustHold ? null : "fast";
+  return fast <= budget / 2 && measured("best") <= budget ? "best" : "fast";
+}
+
+/** Median ms of a few renders of the current view at ``level``. The first also compiles the shaders: it is counted
+ * only when it alone is far over ``budget`` ms (a software renderer: no need to wait for more). */
+function probe(budget, level) {
   const time = () => {
     const t0 = performance.now();
-    state.local.draw(virtualCamera(), renderOptions(), "none");
+    state.local.draw(virtualCamera(), renderOptions(level), "none");
     return performance.now() - t0;
   };
   time(); // the first draw compiles the shader programs (seconds on SwiftShader, and not a frame's cost anywhere)
@@ -335,6 +365,7 @@ function drawLocal() {
       state.renderTimes.push(info.ms);
       state.renderTimes = state.renderTimes.slice(-30);
       state.lastInfo = info;
+      state.firstFrameAt ??= now;
       state.received += 1;
       state.arrivals.push(now);
       if (state.source === "live") noteCaptured(state.liveCaptured);
@@ -359,11 +390,30 @@ function viewSize() {
   return $("size").value.split("x").map(Number);
 }
 
-function renderOptions() {
-  return {
-    method: $("method").value, d_bnd: dBnd(), planes: Number($("planes").value) || 48,
-    aggregation: $("aggregation").value, occlusions: $("occlusions").value, coarse_to_fine: true,
-  };
+/** The depth options the advanced switches set (aggregation, occlusions): null where they leave it to the level. */
+function ownDepthOptions() {
+  return { aggregation: $("aggregation").value || null, occlusions: $("occlusions").value || null };
+}
+
+/** The renderer's options (RenderOptions' fields) for quality ``level`` ("best", "fast"; default the level this
+ * browser renders at, else best): the advanced switches' values, the level's where they leave them. */
+function renderOptions(level = state.level || "best") {
+  const preset = (state.levels && state.levels[level]) || {};
+  const own = ownDepthOptions();
+  const depth = {};
+  for (const key of Object.keys(own)) {
+    const value = own[key] ?? preset[key];
+    if (value) depth[key] = value;
+  }
+  return { method: $("method").value, d_bnd: dBnd(), planes: Number($("planes").value) || 48, ...depth,
+    coarse_to_fine: true };
+}
+
+/** What runs, as the frame header's "quality" says it: the level, or "custom" where a switch differs from it. */
+function levelRun(level) {
+  const preset = (state.levels && state.levels[level]) || {};
+  const own = ownDepthOptions();
+  return Object.keys(own).some((k) => own[k] !== null && own[k] !== preset[k]) ? "custom" : level;
 }
 
 function virtualCamera() {
@@ -377,7 +427,9 @@ function viewpoint() {
   return {
     type: "view", id: state.nextId++, width, height, fov: 50,
     orbit: { azimuth: state.azimuth, elevation: state.elevation, distance: state.distance },
-    ...renderOptions(), frame: state.source === "live" ? "live" : state.frame, overlay: $("overlay").value, quality: 80,
+    method: $("method").value, d_bnd: dBnd(), planes: Number($("planes").value) || 48, coarse_to_fine: true,
+    ...ownDepthOptions(), render_quality: $("quality").value,
+    frame: state.source === "live" ? "live" : state.frame, overlay: $("overlay").value, quality: 80,
   };
 }
 
@@ -473,6 +525,10 @@ for (const target of [canvas, glCanvas]) {
 
 // --- controls ---------------------------------------------------------------------------------
 for (const id of ["method", "overlay", "size", "planes"]) $(id).addEventListener("change", requestView);
+$("quality").addEventListener("change", () => {
+  if (state.mode === "browser" || state.forOptions) connect(state.source); // measure this browser for the level
+  else requestView();
+});
 for (const id of ["aggregation", "occlusions"]) {
   $(id).addEventListener("change", () => {
     const why = unsupported(renderOptions());
@@ -531,7 +587,22 @@ function showMode() {
   $("mode").textContent = where;
 }
 
+const LEVEL_TEXT = { best: "best: semi-global depth, occlusions filled", fast: "fast: semi-global depth" };
+
+/** The quality shown: the level that ran (the server's frame header says it; this browser knows its own). */
+function showQuality(header) {
+  const runs = state.mode === "browser" ? levelRun(state.level) : header.quality;
+  const asked = state.mode === "browser" ? $("quality").value : header.quality_asked;
+  if (!runs) return;
+  const own = ownDepthOptions();
+  const text = runs === "custom"
+    ? `custom: ${own.aggregation ?? "the level's"} depth, occlusions ${own.occlusions ?? "as the level"}`
+    : LEVEL_TEXT[runs] ?? runs;
+  $("quality-shown").textContent = asked === "auto" ? `${text} (auto)` : text;
+}
+
 function showStats(header) {
+  showQuality(header);
   const now = performance.now();
   state.arrivals = state.arrivals.filter((t) => now - t <= 2000);
   state.latencies = state.latencies.slice(-50);

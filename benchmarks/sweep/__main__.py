@@ -5,7 +5,7 @@ import numba
 
 from benchmarks._report import Sections
 from benchmarks.sweep import __doc__ as DOC
-from benchmarks.sweep import speed, stereo, weighting
+from benchmarks.sweep import speed, stereo, viewer, weighting
 
 
 def upgrade(old: dict) -> dict:
@@ -54,11 +54,17 @@ def _speed(args) -> dict:
     return {"speed": speed.speed(args.quick), "speed_threads": numba.get_num_threads()}
 
 
+sections.add("viewer", "the viewer's quality levels beside every option: PSNR on Middlebury, temple, the studio and a "
+                       "textureless occluder, smears at occluding edges, flicker, live speed (issue 58)",
+             lambda args: viewer.run(args.quick))
+
+
 def markdown(results: dict, kept: list[str]) -> str:
     """The body of the sweep section: the tables of whatever ``results`` holds, then the notes."""
     parts = weighting.markdown_parts(results) + speed.markdown_parts(results)
     if results.get("stereo"):
         parts.append(stereo.stereo_markdown(results["stereo"]))
+    parts += sections.stored_markdown(results, kept)
     notes = list(results.get("weighting_notes") or weighting.quality_notes() + weighting.MIDDLEBURY_NOTES)
     if results.get("speed"):
         threads = results.get("speed_threads", "its")

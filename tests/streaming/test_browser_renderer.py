@@ -176,6 +176,22 @@ def test_visibility_aware_colour_equals_the_servers(page, studio):
     assert own < 0.25 * other, f"where visibility matters the browser is {own:.1f} levels from it, {other:.1f} from without"
 
 
+def test_with_the_fill_visibility_applies_at_the_filled_pixels_only_as_on_the_server(page, studio):
+    """The best quality level's rule (visibility None with the fill): the browser tests the filled pixels only, as the
+    server does, not every pixel (compared at a 3 % margin, where testing every pixel changes many more)."""
+    rig, frames, backgrounds = studio
+    camera = orbit_camera(orbit_frame(rig), Orbit(azimuth=-13.0), 50.0, VIEW)
+    options = {"aggregation": "sgm", "occlusions": "fill", "coarse_to_fine": True, "visibility_tolerance": 0.03}
+    result, browser = both(page, rig, frames, backgrounds, camera, **options)
+    assert_same_view(result, browser)
+    everywhere = server_render(rig, frames, backgrounds, camera, **options, visibility=True).image
+    differs = np.any(result.image != everywhere, axis=2)
+    assert differs.mean() > 0.005, "the two rules colour alike here: the comparison would not test them"
+    own = np.abs(browser["image"].astype(int) - result.image)[differs].mean()
+    other = np.abs(browser["image"].astype(int) - everywhere)[differs].mean()
+    assert own < 0.25 * other, f"where the rules differ the browser is {own:.1f} levels from its own, {other:.1f} from the other"
+
+
 def test_options_the_browser_does_not_render_are_refused(page, studio):
     rig, frames, backgrounds = studio
     camera = orbit_camera(orbit_frame(rig), Orbit(), 50.0, VIEW)

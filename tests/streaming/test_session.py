@@ -37,8 +37,11 @@ def decode(data):
 
 
 def at_camera(take, c, **fields):
+    """A viewpoint at rig camera ``c``'s place; one quality level throughout ("fast" unless given: "auto" would
+    change it after the first frames, and the depth with it)."""
     az = float(orbit_frame(take.rig).azimuths[c])
     cam = take.rig[c]
+    fields.setdefault("render_quality", "fast")
     return Viewpoint(orbit=Orbit(azimuth=az), width=cam.width, height=cam.height, fov=50.0, planes=PLANES,
                      quality=95, **fields)
 

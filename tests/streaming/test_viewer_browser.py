@@ -84,6 +84,7 @@ def test_viewer_connects_orbits_with_a_drag_and_toggles_the_overlay(server, tmp_
             settled(page, received)
             assert np.abs(canvas(page) - dragged).mean() < 1  # toggled back: the same view
 
+            page.click("#advanced summary")  # the expert switches
             derived = page.evaluate("window.viewerState.lastHeader.d_bnd")
             assert derived > 0 and page.locator("#dbnd-value").inner_text().endswith("(auto)")
             received = page.evaluate("window.viewerState.received")
@@ -185,9 +186,10 @@ def atlas_cells(data: bytes, rig) -> list[np.ndarray]:
 
 def test_the_viewer_renders_in_the_browser_from_cached_frame_sets(server, take):
     """?render=browser on a machine without a GPU (SwiftShader): the page says so, draws the server's picture of
-    the same viewpoint (from JPEG frame sets), fetches each frame set once, keeps the orbit on the cameras' arc
-    unless freed, renders semi-global aggregation and the occlusion fill too, starts no session on the server, and switches to server
-    rendering on request."""
+    the same viewpoint (from JPEG frame sets) at the quality level it holds the target rate with (auto: fast here,
+    as it measured), fetches each frame set once, keeps the orbit on the cameras' arc unless freed, renders the best
+    level and an advanced switch's override too, starts no session on the server, and switches to server rendering
+    on request."""
     from tests.browser import chromium
     from workers.common.imagemetrics import psnr
     from workers.streaming.params import Orbit
@@ -201,6 +203,9 @@ def test_the_viewer_renders_in_the_browser_from_cached_frame_sets(server, take):
         drawn(page, 0)
         assert "SwiftShader" in page.locator("#mode").inner_text()
         assert page.locator("#render-choice").input_value() == "browser"
+        # auto quality: SwiftShader misses the target rate even at the fast level, which it then keeps (forced here)
+        assert page.evaluate("viewerState.level") == "fast"
+        assert page.locator("#quality-shown").inner_text() == "fast: semi-global depth (auto)"
         state = page.evaluate("({az: viewerState.azimuth, el: viewerState.elevation, d: viewerState.distance,"
                               " sets: viewerState.local.bytes.sets, dbnd: viewerState.lastInfo.d_bnd})")
         assert state["sets"] == 2  # the background and frame 0, nothing per view
@@ -212,7 +217,8 @@ def test_the_viewer_renders_in_the_browser_from_cached_frame_sets(server, take):
             sent = [atlas_cells(http.get(f"/v1/rigs/{rig_id}/recordings/{recording}/frames/{f}").content, take.rig)
                     for f in (0, "background")]
         # the server's renderer on the frames the browser was sent (JPEG, decoded here) draws the same picture
-        expected = SweepRenderer(take.rig, sent[0], backgrounds=sent[1], device="cpu").render(camera, coarse_to_fine=True)
+        expected = SweepRenderer(take.rig, sent[0], backgrounds=sent[1], device="cpu").render(
+            camera, coarse_to_fine=True, aggregation="sgm")
         first = gl_canvas(page)
         assert psnr(expected.image, first) > 35
         assert state["dbnd"] == pytest.approx(expected.d_bnd, rel=1e-3)
@@ -248,28 +254,55 @@ def test_the_viewer_renders_in_the_browser_from_cached_frame_sets(server, take):
         assert page.evaluate("viewerState.errors.length") == 0
 
         received = page.evaluate("viewerState.received")
-        page.select_option("#aggregation", "sgm")  # semi-global: rendered in the browser too
+        page.select_option("#quality", "best")  # the occlusion fill and visibility-aware colour: in the browser too
         drawn(page, received)
-        assert page.evaluate("viewerState.mode") == "browser"
-        view = page.evaluate("({az: viewerState.azimuth, el: viewerState.elevation, d: viewerState.distance})")
+        assert page.evaluate("viewerState.mode") == "browser" and page.evaluate("viewerState.level") == "best"
+        assert page.locator("#quality-shown").inner_text() == "best: semi-global depth, occlusions filled"
+        view = page.evaluate("({az: viewerState.azimuth, el: viewerState.elevation, d: viewerState.distance,"
+                             " frame: viewerState.frame})")
+        assert view["frame"] == 0
         camera = orbit_camera(orbit_frame(take.rig), Orbit(azimuth=view["az"], elevation=view["el"],
                                                             distance=view["d"]), 50.0, (320, 240))
         expected = SweepRenderer(take.rig, sent[0], backgrounds=sent[1], device="cpu").render(
-            camera, coarse_to_fine=True, aggregation="sgm")
+            camera, coarse_to_fine=True, aggregation="sgm", occlusions="fill")
         assert psnr(expected.image, gl_canvas(page)) > 35
 
+        page.click("#advanced summary")  # the expert switches: an aggregation of one's own overrides the level's
         received = page.evaluate("viewerState.received")
-        page.select_option("#occlusions", "fill")  # the occlusion fill and visibility-aware colour: in the browser too
+        page.select_option("#aggregation", "window")
         drawn(page, received)
         assert page.evaluate("viewerState.mode") == "browser"
+        assert page.locator("#quality-shown").inner_text().startswith("custom: window depth")
         expected = SweepRenderer(take.rig, sent[0], backgrounds=sent[1], device="cpu").render(
-            camera, coarse_to_fine=True, aggregation="sgm", occlusions="fill")
+            camera, coarse_to_fine=True, aggregation="window", occlusions="fill")
         assert psnr(expected.image, gl_canvas(page)) > 35
 
         page.select_option("#render-choice", "server")
         settled(page, 0)
         assert page.evaluate("viewerState.mode") == "server" and page.locator("#view").is_visible()
         assert page.locator("#mode").inner_text() == "the server"
+
+
+def test_a_browser_whose_webgl_runs_on_the_cpu_asks_the_server_at_once(server):
+    """Render auto on SwiftShader (WebGL2 on the CPU): the page opens the server's session straight away, without
+    loading frame sets into the browser or timing a render there, says why, and shows the quality level the server
+    drew (auto) from the levels the hello names."""
+    from tests.browser import chromium
+    from workers.streaming.quality import LEVELS
+
+    base, rig_id = server
+    with chromium("swiftshader") as browser:
+        page = browser.new_page(viewport={"width": 1280, "height": 900})
+        page.goto(f"{base}/viewer/?rig={rig_id}")
+        settled(page, 0)
+        assert page.evaluate("viewerState.mode") == "server"
+        assert page.locator("#mode").inner_text().startswith("the server (WebGL runs on the CPU here (ANGLE")
+        assert page.evaluate("viewerState.local === null && viewerState.renderTimes.length === 0")
+        assert page.evaluate("viewerState.hello.quality_levels") == LEVELS
+        header = page.evaluate("viewerState.lastHeader")
+        assert header["quality_asked"] == "auto" and header["quality"] in LEVELS
+        assert page.locator("#quality-shown").inner_text().endswith("(auto)")
+        assert page.evaluate("viewerState.errors.length") == 0
 
 
 def test_the_browser_renders_the_live_stream_from_relayed_frame_sets(server, take):

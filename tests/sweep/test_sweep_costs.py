@@ -92,6 +92,27 @@ def test_semi_global_keeps_non_candidates_out_and_restarts_after_empty_pixels():
     assert np.isfinite(out[0, [0, 3, 4]]).all()
 
 
+@pytest.mark.parametrize("directions", [4, 8])
+def test_semi_global_within_plane_windows_equals_the_whole_volume(directions):
+    """A coarse-to-fine level's cost is inf outside each pixel's narrow window: the paths kept to the windows give
+    the total over all planes bit for bit (inf outside), also where a window is empty or a neighbour's is disjoint."""
+    rng = np.random.default_rng(5)
+    h, w, P = 9, 11, 12
+    lo = rng.integers(0, P - 3, (h, w)).astype(np.int32)
+    hi = (lo + rng.integers(0, 4, (h, w))).astype(np.int32)
+    hi[2, 3] = lo[2, 3] - 1  # no candidate at all
+    c = rng.uniform(0, 20, (h, w, P)).astype(np.float32)
+    j = np.arange(P)[None, None, :]
+    c[(j < lo[..., None]) | (j > hi[..., None])] = np.inf
+    c[4, 4, lo[4, 4]] = np.inf  # a non-candidate inside a window
+    whole = costs.semi_global(c, 1.5, 6.0, directions)
+    windowed = costs.semi_global(c, 1.5, 6.0, directions, windows=(lo, hi))
+    np.testing.assert_array_equal(windowed, whole)
+    assert np.isinf(windowed[2, 3]).all() and np.isfinite(windowed[0, 0, lo[0, 0]])
+    with pytest.raises(ValueError, match="windows"):
+        costs.semi_global(c, 1.5, 6.0, directions, windows=(lo[:-1], hi[:-1]))
+
+
 def test_semi_global_rejects_bad_penalties():
     with pytest.raises(ValueError):
         costs.semi_global(np.zeros((2, 2, 2), np.float32), 3.0, 1.0)

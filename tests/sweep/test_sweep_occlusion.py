@@ -154,11 +154,12 @@ def test_occlusion_option_is_exposed():
     from workers.streaming.params import Viewpoint
     from workers.sweep.cli import register
 
-    assert RenderOptions().occlusions == "keep" and RenderOptions().use_visibility is False
-    assert RenderOptions(occlusions="fill").use_visibility is True
-    assert RenderOptions(occlusions="fill", visibility=False).use_visibility is False
-    fields = Viewpoint(occlusions="fill").render_fields()
-    assert RenderOptions(**fields).occlusions == "fill" and RenderOptions(**fields).use_visibility
+    assert RenderOptions().occlusions == "keep" and RenderOptions().visibility_scope == "none"
+    assert RenderOptions(occlusions="fill").visibility_scope == "filled"
+    assert RenderOptions(occlusions="fill", visibility=False).visibility_scope == "none"
+    assert RenderOptions(visibility=True).visibility_scope == "all"
+    fields, _ = Viewpoint(occlusions="fill").render_fields("fast")
+    assert RenderOptions(**fields).occlusions == "fill" and RenderOptions(**fields).visibility_scope == "filled"
     p = argparse.ArgumentParser()
     register(p.add_subparsers())
     base = ["render", "--rig", "r", "--images", "i", "--pose", "p", "--out", "o.png"]

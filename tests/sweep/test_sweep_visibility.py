@@ -179,7 +179,7 @@ def test_visibility_option_is_exposed():
     from workers.sweep.cli import register
 
     assert RenderOptions().visibility is RenderOptions.model_fields["visibility"].default
-    fields = Viewpoint(visibility=True).render_fields()
+    fields, _ = Viewpoint(visibility=True).render_fields("fast")
     assert RenderOptions(**fields).visibility is True
     p = argparse.ArgumentParser()
     register(p.add_subparsers())

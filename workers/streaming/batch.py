@@ -59,7 +59,7 @@ def render_path(rig: Rig, archive: RecordingArchive, p: BatchRenderParams, video
     """Render the request into ``video_path`` (MP4) and ``depth_zip``; return a summary."""
     indices = frame_indices(p, archive.info.frames)
     cams = camera_path(p, orbit_frame(rig), len(indices))
-    options = RenderOptions(**p.render_fields())
+    options = RenderOptions(**p.render_fields(p.render_quality)[0])
     renderer = SweepRenderer(rig, archive.frame_set(indices[0]), backgrounds=archive.backgrounds())
     shown = indices[0]
     fps = p.fps or archive.info.fps

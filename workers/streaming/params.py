@@ -18,6 +18,8 @@ from pydantic.fields import FieldInfo
 
 from workers.sweep.renderer import MAX_PLANES, RenderOptions
 
+from .quality import LEVEL_FIELDS, Quality, level_options
+
 Vec3 = tuple[float, float, float]
 STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
@@ -75,12 +77,19 @@ class ViewPose(BaseModel):
 CLIENT_RENDER_FIELDS = ("method", "d_bnd", "k", "planes", "near", "far", "visual_hull", "coarse_to_fine",
                         "aggregation", "visibility", "occlusions")
 """The renderer options a viewer or a batch render may set: :class:`RenderOptions`' own fields (types, limits,
-descriptions), read off it; only ``coarse_to_fine`` defaults otherwise (on: a viewer's views are live)."""
+descriptions), read off it; ``coarse_to_fine`` defaults otherwise (on: a viewer's views are live), and the options
+a quality level decides (:data:`workers.streaming.quality.LEVEL_FIELDS`) default to None: the level's."""
 
 
 def _client_field(name: str) -> tuple[object, FieldInfo]:
     info = RenderOptions.model_fields[name]
-    return info.annotation, FieldInfo.merge_field_infos(info, default=True) if name == "coarse_to_fine" else info
+    if name == "coarse_to_fine":
+        return info.annotation, FieldInfo.merge_field_infos(info, default=True)
+    if name in LEVEL_FIELDS:
+        return info.annotation | None, FieldInfo.merge_field_infos(
+            info, default=None, description=f"{info.description}. None (the default): as the quality level says "
+                                            "(workers.streaming.quality); a value here makes the level 'custom'")
+    return info.annotation, info
 
 
 _RenderFields = create_model("SweepSettings", __config__=STRICT,
@@ -96,15 +105,21 @@ class SweepSettings(_RenderFields):
             raise ValueError(f"near ({self.near}) must be less than far ({self.far})")
         return self
 
-    def render_fields(self) -> dict:
-        """The fields :class:`RenderOptions` takes."""
-        return self.model_dump(include=set(CLIENT_RENDER_FIELDS))
+    def render_fields(self, level: str) -> tuple[dict, str]:
+        """The fields :class:`RenderOptions` takes, those a quality level decides from ``level`` ("best" or
+        "fast") where this request leaves them None; and what runs: the level, or "custom" where the request's own
+        values differ from it."""
+        fields = self.model_dump(include=set(CLIENT_RENDER_FIELDS))
+        decided, name = level_options(level, {k: fields[k] for k in LEVEL_FIELDS})
+        return {**fields, **decided}, name
 
 
 class Viewpoint(ViewPose, SweepSettings):
     """One viewer message: pose, output ``width`` x ``height``, renderer settings, which frame
     (a recording frame index, or ``"live"``), an ``overlay`` (``regions``: by the number of cameras
-    blended, 1 / 2 / 3+; or ``depth``) and the JPEG ``quality``. ``id`` is echoed in the answer's header."""
+    blended, 1 / 2 / 3+; or ``depth``), the JPEG ``quality`` and the picture's ``render_quality`` (a level of
+    :mod:`workers.streaming.quality`: "auto" draws "best" where the session holds the viewer's target rate with it,
+    else "fast"). ``id`` is echoed in the answer's header."""
 
     model_config = STRICT
     type: Literal["view"] = "view"
@@ -114,6 +129,10 @@ class Viewpoint(ViewPose, SweepSettings):
     frame: int | Literal["live"] = 0
     overlay: Literal["none", "regions", "depth"] = "none"
     quality: int = Field(80, ge=20, le=95)
+    render_quality: Quality = Field("auto", description="the picture's quality level: 'best' (semi-global depth, "
+                                    "occlusion fill), 'fast' (semi-global depth as searched) or 'auto' (best where "
+                                    "the session holds the viewer's target rate with it, else fast); an aggregation "
+                                    "or occlusions given here overrides the level's")
 
     @model_validator(mode="after")
     def _frame(self) -> "Viewpoint":
@@ -182,7 +201,8 @@ class BatchRenderParams(SweepSettings):
     """Job ``streaming.render``: a camera path (``orbit`` or ``keyframes``) over the recording's
     frames ``frame_start``..``frame_end`` (inclusive; None: the last), ``frames`` output frames
     (None: one per recording frame in the range), H.264 at ``fps`` (None: the recording's) with
-    quality ``crf``, ``width`` x ``height`` (even). Inputs ``rig`` and ``recording``."""
+    quality ``crf``, ``width`` x ``height`` (even), the picture's ``render_quality`` (default "best": nobody
+    waits for a frame). Inputs ``rig`` and ``recording``."""
 
     recording_id: str
     orbit: OrbitPath | None = None
@@ -195,6 +215,9 @@ class BatchRenderParams(SweepSettings):
     height: int = Field(480, ge=16, le=8192, multiple_of=2)
     crf: int = Field(20, ge=0, le=51)
     coarse_to_fine: bool = False
+    render_quality: Literal["best", "fast"] = Field("best", description="the picture's quality level "
+                                                    "(workers.streaming.quality); an aggregation or occlusions "
+                                                    "given here overrides the level's")
 
     @model_validator(mode="after")
     def _path(self) -> "BatchRenderParams":

@@ -6,11 +6,14 @@ JPEG views for any number of viewers. Plain Python (no Ray): :mod:`workers.strea
     {"type": "frame", "id": <the viewpoint's id>, "frame": <index> | "live", "seq": <live set> | null,
      "width", "height", "method", "d_bnd", "planes", "overlay", "source_factor": <int, see below>,
      "depth_range": [near, far]  (metres, the swept range), "depth_found": [min, max] | null,
-     "coverage": share of pixels with a surface, "render_ms", "encode_ms", "reshaded": bool,
-     "timings": {stage: ms}}
+     "coverage": share of pixels with a surface, "quality": the level drawn ("best", "fast", or "custom" where the
+     viewpoint's own aggregation or occlusions differ from its level's), "quality_asked": the viewpoint's
+     render_quality ("auto", "best", "fast"), "render_ms", "encode_ms", "reshaded": bool, "timings": {stage: ms}}
 
 A viewer whose new viewpoint differs from its previous one only in the colour weighting (method,
-D_bnd, k) is answered by re-shading the previous depth, without a new sweep.
+D_bnd, k) is answered by re-shading the previous depth, without a new sweep; one that asks for the same view of
+another frame set (playing a recording, watching the live stream) keeps the previous depth wherever the scene stood
+still (:mod:`workers.sweep.temporal`: no flicker there). The header's "held" is the share of such pixels.
 
 A recording session renders from frames at about the viewer's size: for a view w x h it shrinks the
 rig's images by the integer factor :func:`source_factor` (the largest that keeps them at least w x h;
@@ -41,6 +44,7 @@ from workers.sweep.rig import Rig, RigError
 from .background import BackgroundModel
 from .images import ImageError, decode_reduced, encode_jpeg
 from .params import Viewpoint
+from .quality import QualityChooser
 from .recording import RecordingArchive
 from .viewpoint import OrbitFrame, orbit_frame, virtual_camera
 
@@ -108,13 +112,15 @@ class SessionLimits:
     """max_pixels: largest output (width x height); max_planes: most depth planes per view;
     cache_bytes: decoded recording frames kept in memory; viewers_kept: previous renders kept
     for re-shading; max_spread: the largest spread of capture times (s) a live frame set may have, whatever
-    tolerance its client declares."""
+    tolerance its client declares; target_fps: the rate a render at the "best" quality level must hold for "auto" to
+    draw it (:class:`workers.streaming.quality.QualityChooser`)."""
 
     max_pixels: int = 1920 * 1080
     max_planes: int = 256
     cache_bytes: int = 256 * MiB
     viewers_kept: int = 32
     max_spread: float = 0.1
+    target_fps: float = 15.0
 
     def check(self, width: int, height: int, planes: int) -> None:
         """ViewError when a view of ``width`` x ``height`` pixels and ``planes`` depth planes is over the
@@ -127,12 +133,15 @@ class SessionLimits:
 
 @dataclass(frozen=True)
 class Plan:
-    """A view ready to draw (:meth:`Session.prepare`): the viewpoint, its camera and options, the key of
-    what it shows (for re-shading), and the renderer, frame label, live set and factor it was planned on."""
+    """A view ready to draw (:meth:`Session.prepare`): the viewpoint, its camera and options, the quality level
+    they were taken from and what runs (the level, or "custom"), the key of what it shows (for re-shading), and
+    the renderer, frame label, live set and factor it was planned on."""
 
     vp: Viewpoint
     camera: Camera
     options: RenderOptions
+    level: str
+    runs: str
     key: tuple
     frame_label: int | str
     renderer: SweepRenderer
@@ -161,6 +170,7 @@ class Session:
         self._previous: OrderedDict[str, tuple[tuple, RenderResult]] = OrderedDict()
         self._kept_lock = threading.Lock()  # _previous: drawn into from several threads
         self.renders = 0
+        self.quality = QualityChooser(limits.target_fps)
 
     def view(self, viewer: str, vp: Viewpoint) -> tuple[dict[str, Any], bytes]:
         """The view ``vp`` asks for, as a frame header and a JPEG, for ``viewer`` (any id; it keys the previous
@@ -173,14 +183,19 @@ class Session:
         threads run it alone."""
         self.limits.check(vp.width, vp.height, vp.planes)
         frame_label = self._prepare(viewer, vp)
+        level = vp.render_quality
+        if level == "auto":
+            level = self.quality.choose((vp.width, vp.height, vp.planes))
         try:
             cam = virtual_camera(vp, self.orbit, (vp.width, vp.height))
-            options = RenderOptions(**vp.render_fields())
+            fields, runs = vp.render_fields(level)
+            options = RenderOptions(**fields)
         except (RigError, CameraError, ValidationError) as exc:
             raise ViewError("bad_view", _one_line(exc)) from None
         key = (self.frame_key, cam.K.tobytes(), cam.R.tobytes(), cam.t.tobytes(), vp.planes, vp.near, vp.far,
-               vp.visual_hull, vp.coarse_to_fine, vp.aggregation, vp.occlusions)
-        return Plan(vp, cam, options, key, frame_label, self.renderer, self.seq, self.source_factor, self.timing())
+               vp.visual_hull, vp.coarse_to_fine, options.aggregation, options.occlusions)
+        return Plan(vp, cam, options, level, runs, key, frame_label, self.renderer, self.seq, self.source_factor,
+                    self.timing())
 
     def draw(self, viewer: str, plan: "Plan") -> tuple[dict[str, Any], bytes]:
         """Second half of :meth:`view`: sweep (or re-shade) and encode. Reads the frames only, so
@@ -194,10 +209,14 @@ class Session:
                 result = plan.renderer.reshade(previous[1], method=vp.method, d_bnd=vp.d_bnd, k=vp.k,
                                                visibility=vp.visibility)
             else:
-                result = plan.renderer.render(plan.camera, plan.options)
+                # the same view of another frame set: its depth stays where the scene stood still (no flicker)
+                earlier = previous[1] if previous is not None and previous[0][1:] == plan.key[1:] else None
+                result = plan.renderer.render(plan.camera, plan.options, previous=earlier)
         except (RigError, CameraError, ValidationError) as exc:
             raise ViewError("bad_view", _one_line(exc)) from None
         self._remember(viewer, plan.key, result)
+        if not reshaded and plan.runs == plan.level:
+            self.quality.record((vp.width, vp.height, vp.planes), plan.level, result.timings.get("total_ms", 0.0))
         t0 = time.perf_counter()
         jpeg = encode_jpeg(_composed(result, vp.overlay), vp.quality)
         encode_ms = (time.perf_counter() - t0) * 1e3
@@ -209,7 +228,8 @@ class Session:
             "overlay": vp.overlay, "source_factor": plan.source_factor,
             "depth_range": [float(result.planes.min()), float(result.planes.max())],
             "depth_found": [float(result.depth[found].min()), float(result.depth[found].max())] if found.any() else None,
-            "coverage": float(found.mean()),
+            "coverage": float(found.mean()), "held": float(result.held.mean()) if result.held is not None else 0.0,
+            "quality": plan.runs, "quality_asked": vp.render_quality,
             "render_ms": round(result.timings.get("total_ms", 0.0), 2), "encode_ms": round(encode_ms, 2),
             "reshaded": reshaded, "timings": {k: round(v, 2) for k, v in result.timings.items()},
             **plan.timing,

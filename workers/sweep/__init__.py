@@ -11,10 +11,14 @@ API (import from the submodules; arrays follow workers.camera conventions, image
 - ``virtual``: ``from_pose``, ``look_at``, ``between(rig, a, b, s)``, ``path(rig, names, steps)``,
   ``parse_pose(spec, rig)``.
 - ``renderer``: ``SweepRenderer(rig, images, silhouettes=None, backgrounds=None)`` with
-  ``set_frames(images, silhouettes=None)`` and ``render(virtual, options=None, **fields) -> RenderResult``
-  (image, depth, regions, primary, cost, planes, timings); ``RenderOptions`` (pydantic, extra=forbid).
+  ``set_frames(images, silhouettes=None)`` and ``render(virtual, options=None, previous=None, **fields) ->
+  RenderResult`` (image, depth, regions, primary, cost, planes, timings, held); ``RenderOptions`` (pydantic,
+  extra=forbid).
 - ``costs``: cost-volume aggregation shared by plane searches: ``windowed_variance(ssd, votes, radius)``,
-  ``robust_cost``, ``semi_global(cost, p1, p2, directions)``, ``winner(cost)`` (best plane + parabola offset).
+  ``robust_cost``, ``semi_global(cost, p1, p2, directions, windows=None)``, ``winner(cost)`` (best plane +
+  parabola offset).
+- ``temporal``: ``ChangeTracker`` (which camera pixels changed in which frame set) for the depth a ``previous``
+  render keeps where the scene stood still.
 - ``occlusion``: the occlusion fill (``RenderOptions.occlusions``): ``confirmed_views`` (cross-view check on the
   cost volume), ``background_fill`` (farther neighbouring depth along the line), ``fill_along_rows``.
 - ``weighting``: ``kojima_weights``, ``kojima_k_weights`` (k-camera boundary blending), ``ulr_weights``,

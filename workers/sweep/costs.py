@@ -95,7 +95,8 @@ def _capped_sqrt(v, cap):  # pragma: no cover - compiled
     return out
 
 
-def semi_global(cost: np.ndarray, p1: float, p2: float, directions: int = 4) -> np.ndarray:
+def semi_global(cost: np.ndarray, p1: float, p2: float, directions: int = 4,
+                windows: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Semi-global aggregation: (h, w, P) float32 cost -> (h, w, P) float32, the sum over the scanline
     directions r of
 
@@ -103,38 +104,66 @@ def semi_global(cost: np.ndarray, p1: float, p2: float, directions: int = 4) -> 
 
     p1, p2: penalties in the cost's units for a change of one plane and of more (p2 >= p1 >= 0).
     directions: 4 (left, right, up, down) or 8 (and the diagonals). ``inf`` planes stay ``inf``; a
-    path restarts after a pixel with no candidate plane."""
+    path restarts after a pixel with no candidate plane.
+
+    windows: (lo, hi) (h, w) int32, each pixel's inclusive plane window (lo > hi: none) when the cost is ``inf``
+    outside them (a coarse-to-fine level's narrow windows): the paths then visit only those planes, with the
+    same result as over all P (an ``inf`` plane's L is ``inf``, and the minima run over the finite ones), in a
+    fraction of the time; the total is ``inf`` outside them. None: every plane."""
     if directions not in (4, 8):
         raise ValueError(f"directions must be 4 or 8, got {directions}")
     if not 0.0 <= p1 <= p2:
         raise ValueError(f"needs 0 <= p1 <= p2, got p1={p1}, p2={p2}")
     cost = np.ascontiguousarray(cost, np.float32)
-    total = np.zeros_like(cost)
-    _rows(cost, np.float32(p1), np.float32(p2), total)
+    h, w, P = cost.shape
+    if windows is None:
+        lo = np.zeros((h, w), np.int32)
+        hi = np.full((h, w), P - 1, np.int32)
+        total = np.zeros_like(cost)
+    else:
+        lo = np.ascontiguousarray(np.clip(windows[0], 0, P), np.int32)
+        hi = np.ascontiguousarray(np.clip(windows[1], -1, P - 1), np.int32)
+        if lo.shape != (h, w) or hi.shape != (h, w):
+            raise ValueError(f"windows {lo.shape}, {hi.shape} do not match the cost's {(h, w)}")
+        total = np.empty_like(cost)
+        _window_totals(lo, hi, total)
+    _rows(cost, lo, hi, np.float32(p1), np.float32(p2), total)
     steps = (0,) if directions == 4 else (0, -1, 1)
     for dx in steps:
-        _columns(cost, np.float32(p1), np.float32(p2), np.int64(dx), total)
+        _columns(cost, lo, hi, np.float32(p1), np.float32(p2), np.int64(dx), total)
     return total
 
 
+@njit(cache=True, parallel=True)
+def _window_totals(lo, hi, total):  # pragma: no cover - compiled
+    """total (h, w, P) float32: 0 inside each pixel's window lo..hi (h, w) int32, inf outside."""
+    h, w, P = total.shape
+    for y in prange(h):
+        for x in range(w):
+            for j in range(P):
+                total[y, x, j] = 0.0 if lo[y, x] <= j <= hi[y, x] else np.inf
+
+
 @njit(cache=True, inline="always")
-def _path_step(c, prev, m, cur, total, p1, p2):  # pragma: no cover - compiled
-    """One step of a path: cur (P,) from the cost c (P,) and the path's previous costs prev (P,) whose
-    minimum is m (inf: the path starts here); adds cur to total (P,) and returns the minimum of cur."""
-    P = c.shape[0]
+def _path_step(c, prev, plo, phi, m, cur, total, lo, hi, p1, p2):  # pragma: no cover - compiled
+    """One step of a path over the planes lo..hi of its pixel: cur from the cost c (P,) and the path's previous
+    costs prev (P,), valid at its pixel's planes plo..phi (inf elsewhere), whose minimum is m (inf: the path
+    starts here); adds cur to total (P,) and returns the minimum of cur."""
     out = np.inf
     if m == np.inf:
-        for j in range(P):
+        for j in range(lo, hi + 1):
             cur[j] = c[j]
             total[j] += c[j]
             out = min(out, c[j])
         return out
     jump = m + p2
-    for j in range(P):
-        best = min(prev[j], jump)
-        if j > 0:
+    for j in range(lo, hi + 1):
+        best = jump
+        if plo <= j <= phi:
+            best = min(best, prev[j])
+        if plo <= j - 1 <= phi:
             best = min(best, prev[j - 1] + p1)
-        if j < P - 1:
+        if plo <= j + 1 <= phi:
             best = min(best, prev[j + 1] + p1)
         v = c[j] + (best - m)
         cur[j] = v
@@ -144,7 +173,7 @@ def _path_step(c, prev, m, cur, total, p1, p2):  # pragma: no cover - compiled
 
 
 @njit(cache=True, parallel=True, fastmath={"nsz", "contract", "reassoc"})
-def _rows(cost, p1, p2, total):  # pragma: no cover - compiled
+def _rows(cost, lo, hi, p1, p2, total):  # pragma: no cover - compiled
     """The left-to-right and right-to-left paths, one image row per work item."""
     h, w, P = cost.shape
     for y in prange(h):
@@ -152,10 +181,12 @@ def _rows(cost, p1, p2, total):  # pragma: no cover - compiled
         b = np.empty(P, np.float32)
         for direction in range(2):
             m = np.float32(np.inf)
+            plo, phi = np.int64(1), np.int64(0)
             for k in range(w):
                 x = k if direction == 0 else w - 1 - k
                 prev, cur = (a, b) if k % 2 == 0 else (b, a)
-                m = _path_step(cost[y, x], prev, m, cur, total[y, x], p1, p2)
+                m = _path_step(cost[y, x], prev, plo, phi, m, cur, total[y, x], lo[y, x], hi[y, x], p1, p2)
+                plo, phi = np.int64(lo[y, x]), np.int64(hi[y, x])
 
 
 @njit(cache=True, inline="always")
@@ -169,7 +200,7 @@ def _path_start(s, h, w, dx, down):  # pragma: no cover - compiled
 
 
 @njit(cache=True, parallel=True, fastmath={"nsz", "contract", "reassoc"})
-def _columns(cost, p1, p2, dx, total):  # pragma: no cover - compiled
+def _columns(cost, lo, hi, p1, p2, dx, total):  # pragma: no cover - compiled
     """The downward and upward paths with horizontal step dx (0: vertical, +-1: diagonal), one path per
     work item (:func:`_path_start`)."""
     h, w, P = cost.shape
@@ -182,9 +213,11 @@ def _columns(cost, p1, p2, dx, total):  # pragma: no cover - compiled
             y, x = _path_start(s, h, w, dx, down)
             k = 0
             m = np.float32(np.inf)
+            plo, phi = np.int64(1), np.int64(0)
             while 0 <= y < h and 0 <= x < w:
                 prev, cur = (a, b) if k % 2 == 0 else (b, a)
-                m = _path_step(cost[y, x], prev, m, cur, total[y, x], p1, p2)
+                m = _path_step(cost[y, x], prev, plo, phi, m, cur, total[y, x], lo[y, x], hi[y, x], p1, p2)
+                plo, phi = np.int64(lo[y, x]), np.int64(hi[y, x])
                 y += 1 if down else -1
                 x += dx
                 k += 1

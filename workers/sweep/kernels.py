@@ -322,7 +322,7 @@ def _lerp2(a, b, c, d, fx, fy):  # pragma: no cover - compiled
 
 @njit(cache=True, parallel=True, fastmath=_FAST, error_model="numpy")
 def shade(Q, B, s_pix, imgs, sizes, sils, use_hull, centers, vcenter, G, method, d_bnd, k, gcam, fill,
-          out_img, regions, primary, weights, zbuf, zbox, vis_tol):  # pragma: no cover - compiled
+          out_img, regions, primary, weights, zbuf, zbox, vis_tol, vis_mask):  # pragma: no cover - compiled
     """Colour of each virtual pixel at its chosen depth, by one of the five weightings.
 
     Q (N, 3, 3), B (N, 3) in camera order; s_pix (h, w) float64: each pixel's inverse depth (1/m along
@@ -341,7 +341,9 @@ def shade(Q, B, s_pix, imgs, sizes, sils, use_hull, centers, vcenter, G, method,
     is dropped when the point's depth in it exceeds (1 + vis_tol) times the smallest buffered depth at
     the four pixels its colour would be sampled from (a nearer surface of the view covers them): it
     then takes no part, exactly as a camera whose image does not contain the point. When that drops
-    every camera that sees the point, all of them take part (no new holes).
+    every camera that sees the point, all of them take part (no new holes). vis_mask (h, w) bool limits the
+    test to its True pixels (the occlusion fill's pixels, RenderOptions.visibility None); empty (0, 0): every
+    pixel.
     """
     N = Q.shape[0]
     h, w = s_pix.shape
@@ -350,6 +352,7 @@ def shade(Q, B, s_pix, imgs, sizes, sils, use_hull, centers, vcenter, G, method,
     n_rank = 2 if method == KOJIMA else (min(k + 1, N) if method == ULR else 1)
     use_vis = zbuf.shape[0] > 0 and zbuf.shape[0] >= N and zbox.shape[0] >= N and zbox.shape[1] >= 4
     vis_scale = 1.0 + vis_tol
+    masked = vis_mask.shape[0] > 0
     for y in prange(h):
         seen = np.empty(N, np.bool_)  # visibility: no nearer surface of the view in front of the point
         cosv = np.empty(N)
@@ -362,6 +365,7 @@ def shade(Q, B, s_pix, imgs, sizes, sils, use_hull, centers, vcenter, G, method,
         for x in range(w):
             s = s_pix[y, x]
             m = 0
+            vis_here = use_vis and (not masked or vis_mask[y, x])
             if s > 0:
                 z = 1.0 / s
                 rx = z * (G[0, 0] * x + G[0, 1] * y + G[0, 2])
@@ -383,10 +387,10 @@ def shade(Q, B, s_pix, imgs, sizes, sils, use_hull, centers, vcenter, G, method,
                     us[m] = u
                     vs[m] = v
                     cam[m] = i
-                    if use_vis:  # the point's depth along camera i: hz / s
+                    if vis_here:  # the point's depth along camera i: hz / s
                         seen[m] = unhidden(zbuf, zbox, i, u, v, sizes[i, 0], sizes[i, 1], hz * z, vis_scale)
                     m += 1
-            if use_vis and m > 1:
+            if vis_here and m > 1:
                 # keep only the cameras nothing of the view hides the point from (in camera order, as if the
                 # others' images did not contain it); all of them when none is left
                 nv = 0

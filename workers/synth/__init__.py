@@ -33,6 +33,7 @@ Rendering
 
 Ready-made scenes and rigs
 - ``default_scene()``: the Fig. 3 studio (object group around ``DEFAULT_TARGET`` on a checker floor).
+- ``occluder_scene()``: a flat-coloured (textureless) box before a colour-noise wall on a checker floor.
 - ``studio_scene()``: the first-run demo's photographic studio (the same object group on a plank stage
   in a green-screen studio, textures from scikit-learn's sample photographs ``sample_photo(name)``, soft
   shadows; ``PHOTO_CREDITS``).
@@ -48,7 +49,7 @@ Ready-made scenes and rigs
 """
 from .raycast import SynthView, render, render_moved, render_views
 from .rigs import (DEFAULT_TARGET, PHOTO_CREDITS, arc_angles, arc_camera, camera_gains, city_scene, default_arc_rig,
-                   default_scene, sample_photo, studio_scene)
+                   default_scene, occluder_scene, sample_photo, studio_scene)
 from .scene import Box, Material, Plane, Scene, Sphere
 from .textures import (BoxPicture, Checker, ColorNoise, Noise, Picture, Planks, Solid, SpherePicture, fractal_noise,
                        sample_image)
@@ -56,7 +57,7 @@ from .textures import (BoxPicture, Checker, ColorNoise, Noise, Picture, Planks, 
 __all__ = [
     "Box", "BoxPicture", "Checker", "ColorNoise", "DEFAULT_TARGET", "Material", "Noise", "PHOTO_CREDITS", "Picture",
     "Plane", "Planks", "Scene", "Solid", "Sphere", "SpherePicture", "SynthView", "arc_angles", "arc_camera",
-    "camera_gains", "city_scene", "default_arc_rig", "default_scene", "fractal_noise", "render", "render_moved",
+    "camera_gains", "city_scene", "default_arc_rig", "default_scene", "fractal_noise", "occluder_scene", "render", "render_moved",
     "render_views",
     "sample_image", "sample_photo", "studio_scene",
 ]

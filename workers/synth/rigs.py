@@ -9,7 +9,7 @@ import numpy as np
 from workers.camera import Camera
 
 from .scene import Box, Material, Plane, Scene, Sphere
-from .textures import BoxPicture, Checker, ColorNoise, Noise, Planks, SpherePicture
+from .textures import BoxPicture, Checker, ColorNoise, Noise, Planks, Solid, SpherePicture
 
 DEFAULT_TARGET = (0.0, 0.0, 0.5)
 
@@ -27,6 +27,20 @@ def default_scene() -> Scene:
         Box((0.0, 0.0, 0.3), (0.5, 0.5, 0.6), Material(ColorNoise(scale=0.08, octaves=5, seed=1, contrast=320.0)), yaw_deg=20.0),
         Sphere((0.0, 0.0, 0.85), 0.25, Material(ColorNoise(scale=0.06, octaves=5, seed=2, contrast=320.0), specular=0.25)),
         Sphere((0.38, -0.32, 0.15), 0.15, Material(Checker((30.0, 30.0, 200.0), (230.0, 230.0, 60.0), 0.05))),
+    ))
+
+
+def occluder_scene() -> Scene:
+    """A textureless occluder: a flat red box (0.45 x 0.45 x 0.7 m, one colour, shaded per face) standing before a
+    colour-noise wall 1 m behind it, on a grey checker floor; nothing is foreground but the box. Seen by
+    :func:`default_arc_rig` cameras, the box hides strips of the wall and floor from each, and every plane through
+    it matches equally well in its middle: the case where a depth check that trusts ties, or colour from a camera
+    that sees the box in front, fails (tests/sweep/test_sweep_occluder.py, benchmarks/sweep/viewer.py)."""
+    return Scene((
+        Plane(material=Material(Checker((90.0, 90.0, 90.0), (170.0, 170.0, 170.0), 0.2)), foreground=False),
+        Plane(point=(0.0, 0.9, 0.0), normal=(0.0, -1.0, 0.0),
+              material=Material(ColorNoise(scale=0.06, octaves=5, seed=4, contrast=320.0)), foreground=False),
+        Box((0.0, -0.1, 0.35), (0.45, 0.45, 0.7), Material(Solid((40.0, 60.0, 200.0)))),
     ))
 
 

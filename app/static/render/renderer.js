@@ -26,7 +26,7 @@ export const DEFAULTS = {
   method: "kojima", d_bnd: null, k: 3, planes: 48, near: null, far: null, visual_hull: null,
   coarse_to_fine: false, refine_margin: 2, consistency: "variance", min_views: 2, aggregation: "window",
   window: 2, cost_cap: 40, sgm_p1: 2, sgm_p2: 32, sgm_directions: 8, subplane: true, fill: [0, 0, 0], visibility: null,
-  visibility_tolerance: 0.03, occlusions: "keep", subpixel_bits: 0,
+  visibility_tolerance: 0.2, occlusions: "keep", subpixel_bits: 0,
 };
 const SAMPLES = 320 * 240; // depth samples read back for the statistics (every pixel up to this size)
 
@@ -39,6 +39,13 @@ export function unsupported(options) {
   if (o.consistency !== "variance") return "the truncated cost runs on the server";
   if (o.subpixel_bits && o.subpixel_bits !== 6) return "the browser samples the depth search at 1/64 px only";
   return null;
+}
+
+/** Where the colour is visibility-aware (workers/sweep/renderer.py RenderOptions.visibility_scope): "all" pixels
+ * (visibility true), the occlusion fill's pixels ("filled": visibility null with occlusions "fill"), or "none". */
+export function visibilityScope(o) {
+  if (o.visibility !== null && o.visibility !== undefined) return o.visibility ? "all" : "none";
+  return o.occlusions === "fill" ? "filled" : "none";
 }
 
 class Workspace {
@@ -166,9 +173,9 @@ export class BrowserRenderer {
     }
     const stats = this.depthStats(work);
     const dBnd = ["kojima", "kojima_k"].includes(o.method) ? (o.d_bnd ?? this.rig.autoDBnd(virtual, stats.median)) : null;
-    const visible = o.visibility ?? fillOcclusions; // the server's RenderOptions.use_visibility
-    const visibility = visible
-      ? { zbuffers: this.occlusions.zbuffers(fine, work.depth), tolerance: o.visibility_tolerance } : null;
+    const scope = visibilityScope(o); // the server's RenderOptions.visibility_scope
+    const visibility = scope === "none" ? null : { zbuffers: this.occlusions.zbuffers(fine, work.depth),
+      tolerance: o.visibility_tolerance, filledOnly: scope === "filled" };
     shade(gl, this.programs.shade, fine, virtual, this.rig.centres, work.depth, { method: o.method, dBnd, k: o.k,
       globalCamera: this.rig.globalCamera(virtual), fill: [o.fill[2], o.fill[1], o.fill[0]] }, work.shadeTarget,
     visibility, this.placeholderArray);

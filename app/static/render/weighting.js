@@ -7,8 +7,9 @@ export const SHADERS = ["fullscreen.vert", "rig.glsl", "shade.frag"];
 export const METHODS = ["global", "nearest", "ulr", "kojima", "kojima_k"];
 
 /** Shade ``depth`` (a resolve output) of ``virtual`` into work.shadeTarget (colour, regions). ``visibility``:
- * { zbuffers (Occlusions.zbuffers), tolerance } for visibility-aware colour, else null; ``placeholderArray`` (any
- * array texture) fills its sampler without. */
+ * { zbuffers (Occlusions.zbuffers), tolerance, filledOnly } for visibility-aware colour (at every pixel, or with
+ * filledOnly at the occlusion fill's pixels only), else null; ``placeholderArray`` (any array texture) fills its
+ * sampler without. */
 export function shade(gl, prog, sweep, virtual, centres, depth, weighting, target, visibility, placeholderArray) {
   gl.useProgram(prog.program);
   setRigUniforms(gl, prog, sweep.geometry, sweep.cameras, sweep.hull);
@@ -29,5 +30,6 @@ export function shade(gl, prog, sweep, virtual, centres, depth, weighting, targe
   gl.uniform3fv(u.uFill, Float32Array.from(weighting.fill));
   gl.uniform1i(u.uVisibility, visibility ? 1 : 0);
   gl.uniform1f(u.uVisScale, 1 + (visibility ? visibility.tolerance : 0));
+  gl.uniform1i(u.uFilledOnly, visibility && visibility.filledOnly ? 1 : 0);
   drawFullscreen(gl, target);
 }

@@ -9,7 +9,9 @@
 //     w1 = (1 + D12 / D_bnd) / 2, w2 = 1 - w1
 //   4 kojima_k: every camera i with D_1i < D_bnd, weight rho(D_1i) = (D_bnd - D) / (D_bnd + D), normalised
 // With uVisibility a camera that the view's own surface hides the point from (its z-buffer, splat.vert) takes no
-// part, as if its image did not contain the point; all take part where that would leave none.
+// part, as if its image did not contain the point; all take part where that would leave none. With uFilledOnly too,
+// only at the pixels the occlusion fill gave a depth (their cost is NaN: fill.frag), as RenderOptions.visibility
+// None does.
 // Writes the colour and (regions = cameras with a non-zero weight, primary camera + 1) for the overlays.
 precision highp float;
 precision highp int;
@@ -27,6 +29,7 @@ uniform vec3 uFill;              // colour where there is no surface (0..255, RG
 uniform bool uVisibility;
 uniform highp sampler2DArray uZbuf;  // per camera: the nearest depth of the view's surface (m along its axis)
 uniform float uVisScale;         // 1 + the visibility tolerance
+uniform bool uFilledOnly;        // the visibility test at the filled pixels only
 layout(location = 0) out vec4 oColour;
 layout(location = 1) out vec4 oRegions;  // r: regions / 255, g: (primary + 1) / 255
 
@@ -46,9 +49,16 @@ bool unhidden(int i, vec2 uv, float depth) {
   return depth <= near * uVisScale;
 }
 
+// Whether the resolve output's cost ``c`` is fill.frag's NaN mark (by its bits: a compiler may assume no NaNs).
+bool filledMark(float c) {
+  return (floatBitsToUint(c) & 0x7fffffffu) > 0x7f800000u;
+}
+
 void main() {
   vec2 xy = gl_FragCoord.xy - 0.5;
-  float s = texelFetch(uDepth, ivec2(gl_FragCoord.xy), 0).x;
+  vec4 chosen = texelFetch(uDepth, ivec2(gl_FragCoord.xy), 0);
+  float s = chosen.x;
+  bool visibility = uVisibility && (!uFilledOnly || filledMark(chosen.w));
   float cosv[N_CAM];
   float theta[N_CAM];
   vec2 uvs[N_CAM];
@@ -69,11 +79,11 @@ void main() {
       theta[m] = atan(length(cross(d, toEye)), cosv[m]);
       uvs[m] = uv;
       cam[m] = i;
-      seen[m] = !uVisibility || unhidden(i, uv, depth);
+      seen[m] = !visibility || unhidden(i, uv, depth);
       m++;
     }
   }
-  if (uVisibility && m > 1) {  // only the cameras nothing of the view hides the point from, in camera order
+  if (visibility && m > 1) {  // only the cameras nothing of the view hides the point from, in camera order
     int nv = 0;
     for (int a = 0; a < m; a++) {
       if (!seen[a]) continue;
