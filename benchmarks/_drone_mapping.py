@@ -466,8 +466,8 @@ def _real_md(o: dict[str, Any]) -> str:
             "\n\n" + md_table(["run", "registered", "ATE vs GPS (m)", "max (m)", "horizontal (m)", "vertical (m)",
                                "sideways of the heading (m)", "height by direction (m)", "focal (px)"], rows)
             + "\n\n" + md_table(["goal", "measured", ""], goals) + "\n" + _height_pattern_md(o)
-            + f"\n\nATE: RMSE of the camera centres against the EXIF GPS (UTM) after a least-squares similarity, for "
-              f"every run alike; the GPS itself is consumer-grade (metre-level, with a pattern along the flight lines). "
+            + "\n\nATE: RMSE of the camera centres against the EXIF GPS (UTM) after a least-squares similarity, for "
+              "every run alike; the GPS itself is consumer-grade (metre-level, with a pattern along the flight lines). "
               "Its residual split: horizontal and vertical RMSE; the mean offset to the left of the heading (the "
               "camera turns around with each line, so a principal point off the image centre moves every line "
               "sideways); half the difference between the mean height residual of the lines flown one way and of "

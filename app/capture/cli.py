@@ -6,6 +6,7 @@ import argparse
 import os
 import sys
 import threading
+from typing import TYPE_CHECKING
 
 
 def main(args: argparse.Namespace) -> int:
@@ -33,6 +34,9 @@ def main(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         run.stop()
     return 0
+
+if TYPE_CHECKING:  # the run is built on demand: importing it loads PyAV and OpenCV
+    from app.capture.live import LiveRun
 
 
 def _keys(run: "LiveRun") -> None:

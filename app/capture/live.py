@@ -20,7 +20,7 @@ from .readers import CameraReader
 from .settings import CaptureSettings
 from .sources import SourceError, parse_offsets, parse_sources
 from .status import StatusLine
-from .uplink import Uplink, UplinkError
+from .uplink import Uplink
 
 UNKNOWN_TOLERANCE = float("inf")
 

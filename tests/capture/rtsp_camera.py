@@ -29,7 +29,6 @@ from dataclasses import dataclass, field
 from fractions import Fraction
 
 import av
-import cv2
 import numpy as np
 
 RTP_CLOCK = 90_000

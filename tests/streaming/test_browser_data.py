@@ -12,7 +12,6 @@ from tests.streaming.capture import frame_set, jpeg
 from tests.streaming.conftest import add_recording, add_rig
 from tests.streaming.test_sockets import receive, sessions_of, until
 from workers.streaming.browser import atlas_columns, frame_atlas
-from workers.streaming.framing import unpack_message
 
 
 @pytest.fixture

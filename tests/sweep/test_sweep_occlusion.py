@@ -15,7 +15,7 @@ import pytest
 from workers.sweep.occlusion import background_fill, confirmed_views, fill_along_rows
 from workers.sweep.renderer import RenderOptions, SweepRenderer
 
-from .test_sweep_visibility import MARGIN, ZB, ZF, H, W, cam, cast, hidden, true_depth_render, wall_colour
+from .test_sweep_visibility import MARGIN, ZB, ZF, H, W, cam, cast, hidden, wall_colour
 
 S4 = np.linspace(1.0, 0.25, 4)  # inverse depths of 4 planes: plane 0 at 1 m (nearest) ... plane 3 at 4 m
 

@@ -16,7 +16,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
 from pydantic.fields import FieldInfo
 
-from workers.sweep.renderer import MAX_PLANES, RenderOptions
+from workers.sweep.renderer import RenderOptions
 
 from .quality import LEVEL_FIELDS, Quality, level_options
 
