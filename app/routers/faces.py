@@ -21,7 +21,7 @@ from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, parse_params, run_compute, services
 from app.sync_work import BUSY_RESPONSE
 from app.uploads import read_upload
-from workers.common.safezip import SafeZip, ZipInputError, ZipLimits
+from workers.faces.dataset import check_dataset_zip
 from workers.faces.errors import FaceInputError
 from workers.faces.mesh import parse_estimate
 from workers.faces.model import FaceModel
@@ -93,21 +93,10 @@ async def train_model(
     if dataset is not None and p.source == "synthetic":
         raise ApiError(422, "a dataset zip was sent but source is 'synthetic': send one or the other", "invalid_request")
     if dataset is not None:
-        await asyncio.to_thread(_check_dataset_zip, dataset, svc.settings.zip_limits)
+        await asyncio.to_thread(check_dataset_zip, dataset.file, svc.settings.zip_limits, dataset.filename or
+                                "the dataset zip")
     uploads = [Upload("dataset", dataset.file, {"filename": dataset.filename})] if dataset is not None else []
     return job_accepted(await create_job(svc, who, TRAIN_JOB, p, uploads))
-
-
-def _check_dataset_zip(dataset: UploadFile, limits: ZipLimits) -> None:
-    """422 at once, before a job is made, when the dataset is no readable zip or breaks the zip limits
-    (SafeZip reads the central directory only; the job reads the members)."""
-    try:
-        with SafeZip(dataset.file, limits, dataset.filename or "the dataset zip"):
-            pass
-    except ZipInputError as exc:
-        raise ApiError(422, str(exc), "invalid_dataset") from None
-    finally:
-        dataset.file.seek(0)
 
 
 @router.get("", response_model=FaceModelList, summary="The face models: the default and every one the key trained")

@@ -30,7 +30,6 @@ from workers.streaming.params import (ARCHIVE_INPUT, BatchRenderParams, Recordin
                                       background_input, media_input)
 from workers.streaming.recording import (check_archive_upload, check_background_uploads, check_video_uploads,
                                          match_cameras)
-from workers.streaming.session import ViewError
 
 router = APIRouter(prefix="/v1/rigs", tags=["rigs"], dependencies=[Depends(require_key)])
 
@@ -195,10 +194,7 @@ async def create_render(rig_id: str, params: BatchRenderParams, svc: Services = 
     if params.frame_start >= frames or end >= frames:
         raise ApiError(422, f"frames {params.frame_start}..{end} are out of range: recording {recording['id']} has "
                             f"{frames} frames (0..{frames - 1})", "invalid_parameters")
-    try:
-        view_limits(svc.settings).check(params.width, params.height, params.planes)
-    except ViewError as exc:
-        raise ApiError(422, exc.detail, "invalid_parameters") from None
+    view_limits(svc.settings).check(params.width, params.height, params.planes)
     rig = await load_rig(svc, rig_id)
     job = await create_job(svc, who, RENDER_JOB, params,
                            [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})],

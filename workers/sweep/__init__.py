@@ -3,7 +3,7 @@
 API (import from the submodules; arrays follow workers.camera conventions, images uint8 BGR):
 
 - ``rig``: ``Rig(cameras, image_files=(), depth_range=None)`` (>= 2 cameras, unique names),
-  ``RigError`` (ValueError naming camera and field), ``depth_range_from_box(camera, lo, hi)``.
+  ``RigError`` (an ``InputError`` naming camera and field), ``depth_range_from_box(camera, lo, hi)``.
 - ``rig_io``: ``load_rig(path)`` (dispatch on format), ``load_rig_json``/``save_rig_json``,
   ``rig_from_dict``/``rig_to_dict``, ``load_colmap_text(folder)``, ``load_opencv_yaml(path)``,
   ``load_middlebury_par(path)``, ``rectified_rig(files, width, height, positions, focal, baseline)``,
