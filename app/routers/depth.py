@@ -20,7 +20,6 @@ from app.sync_work import BUSY_RESPONSE
 from app.uploads import check_size, read_upload
 from workers.common.images import ImageInputError, decode_image
 from workers.common.work import WorkEstimate
-from workers.depth.errors import DepthInputError
 from workers.depth.io import YuvFormat, yuv_sequence_frames
 from workers.depth.job import VIDEO_JOB, check_video_input
 from workers.depth.params import DepthFilterParams, DepthVideoParams, SynthesizeParams
@@ -105,7 +104,7 @@ def _synthesize(views: list[tuple[bytes, bytes]], p: SynthesizeParams, limit: in
     try:
         mask = decode_image(holes, cv2.IMREAD_GRAYSCALE, limit)
     except ImageInputError as exc:  # pragma: no cover - our own PNG, at most the size of a checked input
-        raise DepthInputError(f"hole mask: {exc}", exc.code) from None
+        raise exc.about("hole mask") from None
     return image, holes, float((mask > 0).mean())
 
 
