@@ -11,7 +11,7 @@ import pytest
 from tests.orientation.builders import (asymmetric_image, encode, ifd0_entries, insert_app1, jpeg, rich_exif,
                                         split_around_app1, tiff_block)
 from workers.common.datasets import dataset
-from workers.orientation.errors import UnsupportedFormat
+from workers.common.images import UnsupportedImage
 from workers.orientation.exif import (orientation_for_rotation, read_exif, rotation_for_orientation,
                                       write_orientation)
 from workers.orientation.geometry import ROTATIONS, rotate_view
@@ -121,9 +121,9 @@ def test_webp_tag_keeps_the_image_chunk():
 
 
 def test_png_cannot_be_tagged():
-    with pytest.raises(UnsupportedFormat, match="PNG"):
+    with pytest.raises(UnsupportedImage, match="PNG"):
         write_orientation(encode(asymmetric_image(), ".png"), 6)
-    with pytest.raises(UnsupportedFormat):
+    with pytest.raises(UnsupportedImage):
         read_exif(encode(asymmetric_image(), ".png"))
 
 

@@ -116,7 +116,7 @@ def test_batch_with_one_corrupt_photo_among_good_ones(tmp_path, fake_detector):
         assert png["report"]["orientation"] == 6 and png["report"]["write"]["target"] == "png-exif"
         assert png["fixed_file"] == "fixed/0002-scan.png"
     else:
-        assert png["error"]["code"] == "metadata_tool" and "exiftool" in png["error"]["message"]
+        assert png["error"]["code"] == "metadata_tool_unavailable" and "exiftool" in png["error"]["message"]
     assert tagged["report"]["action"] == "kept_existing" and tagged["fixed_file"] is None
     assert tagged["report"]["decision"] == "not_analysed" and fake_detector.seen == [(120, 200)] * 2  # never shown
     assert "0000-IMG_0001_copy.jpg" in [p.name for p in (tmp_path / "out" / "fixed").iterdir()]

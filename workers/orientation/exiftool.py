@@ -9,7 +9,9 @@ it writes a new file next to the target (``-o``), which the caller moves over th
 ``os.replace`` (atomic on one file system).
 
 It is optional: without it, JPEG, WebP and TIFF are still read and tagged by our own writers, and the
-operations that need it raise :class:`ExifToolUnavailable` with a message saying what to install.
+operations that need it raise :class:`ExifToolUnavailable` with a message saying what to install. Both of its
+errors are :class:`~workers.common.errors.InputError`s: they depend on the file sent (a PNG, a RAW photo), the service
+answers them with their status, a batch records them per photo, and retrying a job would not help.
 """
 from __future__ import annotations
 
@@ -23,6 +25,7 @@ import weakref
 from dataclasses import dataclass
 from functools import lru_cache
 
+from workers.common.errors import InputError
 from workers.settings import worker_settings
 
 EXIFTOOL_ENV = "SWEEPCAST_EXIFTOOL"
@@ -31,12 +34,18 @@ COMMAND_TIMEOUT_S = 60.0
 """A single command that takes longer is abandoned and its process killed."""
 
 
-class ExifToolUnavailable(RuntimeError):
-    """exiftool is not installed (or cannot run): the operation needs it."""
+class ExifToolUnavailable(InputError):
+    """exiftool is not installed (or cannot run) and this file needs it: 503, the deployment's to mend."""
+
+    code = "metadata_tool_unavailable"
+    status = 503
 
 
-class ExifToolError(RuntimeError):
-    """exiftool ran and reported an error for this file (message: its stderr)."""
+class ExifToolError(InputError):
+    """exiftool ran and refused this file (the message quotes its errors)."""
+
+    code = "unwritable_metadata"
+    status = 422
 
 
 @dataclass(frozen=True)
@@ -160,5 +169,5 @@ def run(args: list[str]) -> Result:
         raise
     errors = [line for line in result.stderr.splitlines() if line.startswith("Error")]
     if errors:
-        raise ExifToolError("; ".join(errors))
+        raise ExifToolError(f"exiftool refused this file: {'; '.join(errors)}")
     return result
