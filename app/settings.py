@@ -9,7 +9,6 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, field_validator
 from pydantic_settings import NoDecode, SettingsConfigDict
 
-from workers.common.models import models_dir
 from workers.portable_cache import SHIPPED_KERNELS, STAMP_NAME
 from workers.common.safezip import ZipLimits
 from workers.settings import WorkerSettings
@@ -154,11 +153,6 @@ class Settings(WorkerSettings):
     @cached_property
     def resolved_database_url(self) -> str:
         return self.database_url or f"sqlite:///{(self.data_dir / 'sweepcast.db').resolve()}"
-
-    @property
-    def resolved_yunet_model(self) -> Path | None:
-        """The YuNet model the orientation engine uses: the setting, else an installed copy, else None."""
-        return self.yunet_model(models_dir(self.data_dir))
 
     @property
     def resolved_numba_cache_dir(self) -> Path:

@@ -300,7 +300,7 @@ def test_nan_and_infinity_are_refused_in_every_schema(client):
 def test_request_models_refuse_non_finite_floats():
     from workers.depth.params import CameraModel, DepthFilterParams, DepthVideoParams, SynthesizeParams
     from workers.faces.job import FaceTrainParams, FaceTransformParams
-    from workers.registry import all_kinds
+    from tests.common.test_registry import all_kinds
 
     models = {k.params for k in all_kinds()} | {DepthFilterParams, SynthesizeParams, CameraModel,
                                                           FaceTransformParams, FaceTrainParams, DepthVideoParams}

@@ -8,8 +8,18 @@ import cv2
 import numpy as np
 import piexif
 
+from workers.orientation import exiftool
 from workers.orientation.detect import Face
 from workers.orientation.headers import parse_header
+
+
+def exiftool_runs() -> bool:
+    """Whether the exiftool the engine would use runs here (the tests that need it are skipped without)."""
+    try:
+        exiftool.run(["-ver"])
+    except exiftool.ExifToolUnavailable:
+        return False
+    return True
 
 
 def asymmetric_image(height: int = 120, width: int = 200) -> np.ndarray:

@@ -9,15 +9,14 @@ from typing import Any
 
 import pytest
 
-from tests.orientation.builders import FakeDetector, asymmetric_image, encode, jpeg
+from tests.orientation.builders import FakeDetector, asymmetric_image, encode, exiftool_runs, jpeg
 from workers.common.jobctx import JobInputError
 from workers.fanout import InProcess
 from workers.orientation import blocks, cli, job
 from workers.storage import DirectoryBlobStore
 from workers.workarea import WorkArea
-from workers.orientation.exiftool import exiftool_version
 
-HAS_EXIFTOOL = exiftool_version() is not None
+HAS_EXIFTOOL = exiftool_runs()
 from workers.orientation.exif import read_exif, write_orientation
 from workers.orientation.job import OrientationBatchParams, run_orientation_batch, sanitize_filename
 from workers.settings import WorkerSettings, worker_settings

@@ -38,7 +38,6 @@ _EXIF_HEADER = b"Exif\x00\x00"
 _APP0, _APP1 = 0xE0, 0xE1
 _SHORT = 3
 _ROTATION_TO_ORIENTATION = {0: 1, 90: 6, 180: 3, 270: 8}
-_ORIENTATION_TO_ROTATION = {v: k for k, v in _ROTATION_TO_ORIENTATION.items()}
 
 ExifStatus = Literal["absent", "ok", "unreadable"]
 TAGGABLE_FORMATS = ("jpeg", "webp")
@@ -56,11 +55,6 @@ def require_orientation(value: int) -> None:
     """ValueError unless ``value`` is one of the eight Orientation values (1-8)."""
     if not 1 <= value <= 8:
         raise ValueError(f"Orientation must be 1-8, not {value}")
-
-
-def rotation_for_orientation(value: int) -> int | None:
-    """Clockwise display rotation for Orientation 1, 6, 3, 8; None for mirrored or invalid values."""
-    return _ORIENTATION_TO_ROTATION.get(value)
 
 
 

@@ -23,7 +23,6 @@ import subprocess
 import threading
 import weakref
 from dataclasses import dataclass
-from functools import lru_cache
 
 from workers.common.errors import InputError
 from workers.settings import worker_settings
@@ -59,19 +58,6 @@ class Result:
 def exiftool_binary() -> str:
     """The exiftool the environment names (``$SWEEPCAST_EXIFTOOL``), else ``exiftool``."""
     return worker_settings().exiftool.strip() or "exiftool"
-
-
-@lru_cache(maxsize=4)
-def exiftool_version(binary: str | None = None) -> str | None:
-    """exiftool's version ("12.57"), or None when it is not installed or does not run."""
-    path = shutil.which(binary or exiftool_binary())
-    if path is None:
-        return None
-    try:
-        out = subprocess.run([path, "-ver"], capture_output=True, text=True, timeout=20)
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return out.stdout.strip() or None if out.returncode == 0 else None
 
 
 try:  # looked up here: the child may only call it (no loading, no allocating, after fork)

@@ -445,7 +445,7 @@ def load_rig(path: str | Path, units: str | float | None = None, camera_type: st
     if fmt == CAMERA_LIST:
         return rig_from_camera_list(_read_json(path), scale, camera_type)
     if fmt == "json":
-        rig = rig_from_dict(_read_json(path))
+        rig = load_rig_json(path)
     elif fmt == "opencv":
         rig = load_opencv_yaml(path)
     elif fmt == "colmap":
