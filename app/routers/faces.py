@@ -8,7 +8,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter, Depends, File, Form, UploadFile
+from fastapi import APIRouter, Depends, File, UploadFile
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
 
@@ -18,7 +18,8 @@ from app.errors import ApiError
 from app.limits import BATCH_BODY
 from app.jobstore import JobState, as_utc
 from app.routers.jobs import JobOut, job_accepted
-from app.services import Services, Upload, create_job, parse_params, run_compute, services
+from app.params_form import params_form
+from app.services import Services, Upload, create_job, run_compute, services
 from app.sync_work import BUSY_RESPONSE
 from app.uploads import read_upload
 from workers.faces.dataset import check_dataset_zip
@@ -83,11 +84,10 @@ async def _model(model_id: str, svc: Services, who: Principal) -> FaceModel:
              summary="Train a face model: from a dataset zip (meshes + manifest.csv) or the synthetic generator")
 async def train_model(
     dataset: UploadFile | None = File(None, description="zip of registered meshes with manifest.csv (person, expression, file)"),
-    params: str | None = Form(None, description='JSON object of FaceTrainParams, e.g. {"source": "synthetic"}'),
+    p: FaceTrainParams = params_form(FaceTrainParams, ', e.g. {"source": "synthetic"}'),
     svc: Services = Depends(services),
     who: Principal = Depends(principal),
 ) -> JSONResponse:
-    p = parse_params(FaceTrainParams, params)
     if dataset is None and p.source == "dataset":
         raise ApiError(422, "source 'dataset' needs a dataset zip in the 'dataset' field", "invalid_request")
     if dataset is not None and p.source == "synthetic":
@@ -119,12 +119,11 @@ async def transform(
     model_id: str,
     mesh: UploadFile = File(..., description="the face, OBJ or PLY, registered to the model's topology"),
     neutral: UploadFile | None = File(None, description="the same person's neutral face (optional)"),
-    params: str = Form(..., description='JSON object of FaceTransformParams, e.g. {"impression": "smile_open", '
-                                        '"method": "svm", "q": 1.5}'),
+    p: FaceTransformParams = params_form(FaceTransformParams, ', e.g. {"impression": "smile_open", "method": "svm", '
+                                                              '"q": 1.5}', required=True),
     svc: Services = Depends(services),
     who: Principal = Depends(principal),
 ) -> TransformOut:
-    p = parse_params(FaceTransformParams, params)
     model = await _model(model_id, svc, who)
     mesh_bytes = await read_upload(mesh, svc.settings.max_upload_bytes)
     neutral_bytes = await read_upload(neutral, svc.settings.max_upload_bytes) if neutral is not None else None

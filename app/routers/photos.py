@@ -22,7 +22,9 @@ from workers.orientation.job import BATCH_JOB, OrientationBatchParams
 from workers.orientation.orient import DetectorConfig, OrientationReport, analyze, get_detector, orient_file
 
 _MEDIA = {"jpeg": "image/jpeg", "webp": "image/webp", "tiff": "image/tiff", "png": "image/png"}
+"""The media type of each format /orient returns a tagged photo in (its own format)."""
 XMP_MEDIA = "application/rdf+xml"
+"""The media type of an XMP sidecar."""
 
 router = APIRouter(prefix="/v1/photos", tags=["photos"], dependencies=[Depends(require_key)])
 
@@ -64,7 +66,7 @@ async def detect_orientation(file: UploadFile = File(..., description="a JPEG, W
              responses={415: {"description": "the file is not a JPEG, WebP, TIFF, PNG, HEIC/HEIF, AVIF or RAW photo"},
                         503: {"description": "metadata_tool_unavailable: the write needs ExifTool (PNG, a sidecar "
                                              "update) and this deployment has none"},
-                        200: {"content": {"image/jpeg": {}, XMP_MEDIA: {}},
+                        200: {"content": {media: {} for media in (*_MEDIA.values(), XMP_MEDIA)},
                               "description": "the photo with its tag set, image data untouched (image/jpeg, "
                                              "image/webp, image/tiff, image/png), or the XMP sidecar to store "
                                              "beside it (application/rdf+xml, Content-Disposition names it: "
