@@ -426,7 +426,7 @@ def undistortion_cost(images: list[np.ndarray], repeats: int = 7) -> dict:
     distorted = SweepRenderer(rig, frames)
     pinhole = SweepRenderer(Rig(tuple(Camera(c.name, c.K, c.R, c.t, c.width, c.height) for c in rig.cameras)),
                             frames)
-    remap = median_ms(lambda: [distorted._undistorted(i, f) for i, f in enumerate(frames)], repeats)
+    remap = median_ms(lambda: [distorted.undistort(i, f) for i, f in enumerate(frames)], repeats)
     with_dist = median_ms(lambda: distorted.set_frames(frames), repeats)
     without = median_ms(lambda: pinhole.set_frames(frames), repeats)
     return {"cameras": 10, "size": f"{HD_SIZE[0]}x{HD_SIZE[1]}", "remap_ms": remap, "set_frames_ms": with_dist,
@@ -561,20 +561,20 @@ def live_frame_sets(rig: Rig, sets: int, quality: int = 90) -> tuple[list[bytes]
     moving), one per camera of ``rig``."""
     import dataclasses
 
-    from workers.streaming.demo import _ball, demo_scene
+    from workers.streaming.demo import demo_ball, demo_scene
     from workers.synth import render_moved, render_views
 
     def jpeg(img: np.ndarray) -> bytes:
         return cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, quality])[1].tobytes()
 
     first = demo_scene(0.0)
-    k, _ = _ball(first)
+    k, _ = demo_ball(first)
     stills = render_views(dataclasses.replace(first, objects=first.objects[:k] + first.objects[k + 1:]),
                           list(rig.cameras))
     frames = []
     for f in range(sets):
         scene = demo_scene(f / (4 * sets))
-        frames.append([jpeg(render_moved(scene, still, _ball(scene)[1])) for still in stills])
+        frames.append([jpeg(render_moved(scene, still, demo_ball(scene)[1])) for still in stills])
     return [jpeg(s.background) for s in stills], frames
 
 

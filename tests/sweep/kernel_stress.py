@@ -126,7 +126,7 @@ def run_case(case: dict, rng: np.random.Generator) -> dict:
     whether the two variance searches agree exactly."""
     cams, virtual, images, sils = case["cams"], case["virtual"], case["images"], case["sils"]
     r = SweepRenderer(cams, images, silhouettes=sils, hull_dilate=0)
-    Q, B, _ = r._geometry(virtual)
+    Q, B, _ = r.geometry(virtual)
     camf, cami = r._camera_table(Q, B, virtual.center, case["bits"])
     h, w = case["lo"].shape
     band_h = int(rng.integers(1, 9))

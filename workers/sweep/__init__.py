@@ -13,7 +13,9 @@ API (import from the submodules; arrays follow workers.camera conventions, image
 - ``renderer``: ``SweepRenderer(rig, images, silhouettes=None, backgrounds=None)`` with
   ``set_frames(images, silhouettes=None)`` and ``render(virtual, options=None, previous=None, **fields) ->
   RenderResult`` (image, depth, regions, primary, cost, planes, timings, held); ``RenderOptions`` (pydantic,
-  extra=forbid).
+  extra=forbid). Its steps, for benchmarks and tests that take one apart: ``geometry(virtual)``,
+  ``search_window``, ``sweep`` (the depth search alone), ``shade`` (the colour pass at given depths),
+  ``camera_image(i)``, ``undistort(i, img)``; ``wants_gpu(device)``.
 - ``costs``: cost-volume aggregation shared by plane searches: ``windowed_variance(ssd, votes, radius)``,
   ``robust_cost``, ``semi_global(cost, p1, p2, directions, windows=None)``, ``winner(cost)`` (best plane +
   parabola offset).
