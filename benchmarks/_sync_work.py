@@ -25,9 +25,9 @@ from typing import Any
 import cv2
 import httpx
 
-from benchmarks._proc import cpu_seconds, status_mb
+from harness.proc import cpu_seconds, status_mb
 from benchmarks._report import md_table
-from tests.servers import ServedApp, serve_app
+from harness.servers import ServedApp, serve_app
 from workers.common.datasets import dataset
 from workers.depth.encoded import filter_work
 from workers.depth.params import DepthFilterParams

@@ -14,10 +14,10 @@ import httpx
 from websockets.sync.client import connect
 
 from benchmarks._report import md_table
-from tests.app.photos import noise_jpeg
-from tests.app.tenancy import SOCKETS, bearer, probe, refused_as_missing
-from tests.servers import ServedApp, serve_app
-from tests.streaming.capture import make_take, rig_json, zip_bytes
+from harness.photos import noise_jpeg
+from harness.tenancy import SOCKETS, bearer, probe, refused_as_missing
+from harness.servers import ServedApp, serve_app
+from harness.takes import make_take, rig_json, zip_bytes
 
 ADMIN = "tenants-admin-key"
 

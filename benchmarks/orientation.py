@@ -64,10 +64,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from benchmarks._proc import machine_busy_seconds
+from harness.proc import machine_busy_seconds
 from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load_note, settle_server
-from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app
+from harness.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app
 from workers.common.datasets import data_root, dataset
 from workers.orientation.decode import decode_gray
 from workers.orientation.detect import (DetectorConfig, OrientationDetector, PaperDetector,
@@ -718,7 +718,7 @@ def changed_bytes(before: bytes, after: bytes) -> int:
 
 def writer_inputs(quick: bool = False) -> dict[str, list[tuple[str, bytes]]]:
     """Real files per format we write (jpeg, tiff, png), plus generated TIFFs without an Orientation tag."""
-    from tests.orientation.builders import gray_pages, tiff
+    from harness.photos import gray_pages, tiff
 
     out: dict[str, list[tuple[str, bytes]]] = {"jpeg": [], "tiff": [], "png": []}
     for folder in (dataset("exif"), dataset("orientation", "formats")):

@@ -43,9 +43,9 @@ import numpy as np
 import piexif
 from websockets.sync.client import connect
 
-from benchmarks._proc import status_mb
+from harness.proc import status_mb
 from benchmarks._report import md_table, prog, publish
-from tests.servers import ServedApp, serve_app
+from harness.servers import ServedApp, serve_app
 from workers.common.datasets import data_root, dataset
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -328,7 +328,7 @@ def photo_bytes() -> list[tuple[str, bytes]]:
     files = sorted(p for p in folder.rglob("*") if p.suffix.lower() in (".jpg", ".jpeg")) if folder else []
     if files:
         return [(p.name, p.read_bytes()) for p in files[:24]]
-    from tests.app.photos import noise_jpeg
+    from harness.photos import noise_jpeg
     return [(f"p{i}.jpg", noise_jpeg(seed=i)) for i in range(8)]
 
 

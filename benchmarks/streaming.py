@@ -61,10 +61,10 @@ import httpx
 import numpy as np
 import websockets
 
-from benchmarks._proc import tree_cpu_seconds
+from harness.proc import tree_cpu_seconds
 from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load_note, wait_quiet
-from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app
+from harness.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app
 from workers.streaming.framing import unpack_message
 from workers.streaming.params import Viewpoint
 from workers.streaming.recording import RecordingArchive

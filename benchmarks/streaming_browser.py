@@ -51,7 +51,7 @@ import websockets
 
 from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import settle_server
-from tests.browser import chromium, render_in_browser, static_site
+from harness.browser import chromium, render_in_browser, static_site
 from workers.common.datasets import dataset
 from workers.common.imagemetrics import psnr
 from workers.streaming.browser import encode_atlas, frame_atlas, render_spec
@@ -319,7 +319,7 @@ def fps(quick: bool, webgl: str) -> int:
 def settle(base: str, pid: int) -> dict:
     """Wait until the served app's start-up work is done (:func:`benchmarks._timing.settle_server`: its process
     tree under 0.1 CPU seconds over two seconds, at most 10 minutes)."""
-    from benchmarks._proc import tree_cpu_seconds
+    from harness.proc import tree_cpu_seconds
 
     return settle_server(base, pid, tree_cpu_seconds, interval_s=2.0, timeout_s=600.0)
 
@@ -385,7 +385,7 @@ async def paced_pusher(base: str, rig_id: str, sets: list[list[bytes]], backgrou
 
 
 async def measure_recording(base: str, pid: int, rig_id: str, rec: dict, n: int, factor: int, seconds: float) -> dict:
-    from benchmarks._proc import tree_cpu_seconds
+    from harness.proc import tree_cpu_seconds
 
     stop, loaded = asyncio.Event(), asyncio.Queue()
     cpu0, t0 = tree_cpu_seconds(pid), time.perf_counter()
@@ -402,7 +402,7 @@ async def measure_recording(base: str, pid: int, rig_id: str, rec: dict, n: int,
 
 
 async def measure_live(base: str, pid: int, rig_id: str, sets, background, n: int, seconds: float) -> dict:
-    from benchmarks._proc import tree_cpu_seconds
+    from harness.proc import tree_cpu_seconds
 
     stop, opened = asyncio.Event(), asyncio.Queue()
     viewers = [asyncio.create_task(live_browser_viewer(base, rig_id, stop, opened)) for _ in range(n)]
@@ -425,7 +425,7 @@ async def measure_live(base: str, pid: int, rig_id: str, sets, background, n: in
 def chromium_recording(base: str, pid: int, rig_id: str, rec: dict, n: int, seconds: float) -> dict:
     """``n`` viewer pages in browser mode (SwiftShader) that step through the recording once (every frame set
     fetched and drawn), then stay open: server CPU while they load and step, and afterwards."""
-    from benchmarks._proc import tree_cpu_seconds
+    from harness.proc import tree_cpu_seconds
 
     with chromium("swiftshader") as browser:
         cpu0, t0 = tree_cpu_seconds(pid), time.perf_counter()
@@ -454,7 +454,7 @@ def chromium_recording(base: str, pid: int, rig_id: str, rec: dict, n: int, seco
 
 def cost(quick: bool, chromium_viewers: list[int]) -> int:
     from benchmarks.streaming import demo_recording, live_frame_sets, run_config
-    from tests.servers import CHECKOUT_KERNEL_CACHE, serve_app
+    from harness.servers import CHECKOUT_KERNEL_CACHE, serve_app
 
     seconds = 10.0 if quick else 30.0
     load_before = os.getloadavg()[0]
@@ -544,7 +544,7 @@ def drags(page, canvas: str, count: int, mode: str) -> list[float]:
 
 def latency(quick: bool, size: str) -> int:
     from benchmarks.streaming import demo_recording
-    from tests.servers import CHECKOUT_KERNEL_CACHE, serve_app
+    from harness.servers import CHECKOUT_KERNEL_CACHE, serve_app
 
     count = 8 if quick else 20
     load_before = os.getloadavg()[0]
@@ -584,7 +584,7 @@ def latency(quick: bool, size: str) -> int:
 # --- first frame without a GPU ------------------------------------------------------------------------------
 def first_frame(quick: bool) -> int:
     from benchmarks.streaming import demo_recording
-    from tests.servers import CHECKOUT_KERNEL_CACHE, serve_app
+    from harness.servers import CHECKOUT_KERNEL_CACHE, serve_app
 
     repeats = 2 if quick else 5
     load_before = os.getloadavg()[0]

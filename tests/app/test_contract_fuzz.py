@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 
-from tests.servers import ServedApp, serve_app
+from harness.servers import ServedApp, serve_app
 
 CONFIG = Path(__file__).with_name("contract_fuzz.toml")
 RUN_TIMEOUT_S = 240  # ~30 s here, ~1-2 min on 2 busy cores; far past that, something hangs

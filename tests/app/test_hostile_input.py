@@ -332,7 +332,7 @@ def test_a_full_disk_refuses_uploads_with_507_and_keeps_nothing(client, monkeypa
     import shutil as shutil_module
     from collections import namedtuple
 
-    from tests.app.photos import noise_jpeg
+    from harness.photos import noise_jpeg
 
     svc = client.app.state.services
     files = [("files", ("a.jpg", noise_jpeg(1), "image/jpeg")), ("files", ("b.jpg", noise_jpeg(2), "image/jpeg"))]

@@ -6,8 +6,8 @@ import struct
 import numpy as np
 import pytest
 
-from tests.orientation.builders import (FakeDetector, asymmetric_image, encode, insert_app1, jpeg, split_around_app1,
-                                        tiff_block)
+from harness.photos import asymmetric_image
+from tests.orientation.builders import FakeDetector, encode, insert_app1, jpeg, split_around_app1, tiff_block
 from workers.orientation.detect import Face, decide
 from workers.common.errors import InputError
 from workers.common.images import EmptyImage

@@ -7,7 +7,8 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.orientation.builders import asymmetric_image, encode, insert_app1, jpeg, rich_exif
+from harness.photos import asymmetric_image
+from tests.orientation.builders import encode, insert_app1, jpeg, rich_exif
 from workers.common import images
 from workers.common.errors import InputError
 from workers.common.images import EmptyImage, NotAnImage, TooManyPixels, UnreadableImage, UnsupportedImage

@@ -8,8 +8,8 @@ import numpy as np
 import piexif
 import pytest
 
-from tests.orientation.builders import (asymmetric_image, encode, ifd0_entries, insert_app1, jpeg, rich_exif,
-                                        split_around_app1, tiff_block)
+from harness.photos import asymmetric_image
+from tests.orientation.builders import encode, ifd0_entries, insert_app1, jpeg, rich_exif, split_around_app1, tiff_block
 from workers.common.datasets import dataset
 from workers.common.images import UnsupportedImage
 from workers.orientation.exif import orientation_for_rotation, read_exif, write_orientation

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from tests.orientation.builders import (FakeDetector, asymmetric_image, avif, encode, exiftool_runs, gray_pages,
-                                        insert_xmp, jpeg, tiff, xmp_packet)
+from harness.photos import asymmetric_image, gray_pages, tiff
+from tests.orientation.builders import FakeDetector, avif, encode, exiftool_runs, insert_xmp, jpeg, xmp_packet
 from workers.common.datasets import dataset
 from workers.orientation import cli
 from workers.orientation.bmff import read_heif

@@ -9,7 +9,8 @@ from typing import Any
 
 import pytest
 
-from tests.orientation.builders import FakeDetector, asymmetric_image, encode, exiftool_runs, jpeg
+from harness.photos import asymmetric_image
+from tests.orientation.builders import FakeDetector, encode, exiftool_runs, jpeg
 from workers.common.jobctx import JobInputError
 from workers.fanout import InProcess
 from workers.orientation import blocks, cli, job

@@ -27,7 +27,6 @@ API (import from the submodules; arrays follow workers.camera conventions, image
   ``global_camera``, ``suggest_d_bnd``, ``METHODS``.
 - ``silhouette``: ``silhouette_from_background(image, background)``.
 - ``reference``: ``reference_sweep`` (cv2.warpPerspective + numpy baseline), ``plane_homographies``.
-- ``metrics``: ``highfreq_ratio``, ``frame_jump`` (PSNR/SSIM: ``workers.common.imagemetrics``).
 - ``overlays``: ``regions_image``, ``depth_image``.
 - ``cli``: ``register(subparsers)`` adds ``render``.
 """

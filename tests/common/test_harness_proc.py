@@ -1,4 +1,5 @@
-"""The benchmarks' readers of /proc: memory, CPU time and the process tree, with NaN for a process that is gone."""
+"""The harness's readers of /proc (benchmarks and tests): memory, CPU time and the process tree, with NaN for a process
+that is gone."""
 from __future__ import annotations
 
 import math
@@ -9,7 +10,7 @@ import time
 
 import pytest
 
-from benchmarks._proc import cpu_seconds, descendants, status, status_mb, tree_cpu_seconds
+from harness.proc import cpu_seconds, descendants, status, status_mb, tree_cpu_seconds
 
 pytestmark = pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="needs Linux's /proc")
 GONE = 2**22 + 1  # above the kernel's largest pid
