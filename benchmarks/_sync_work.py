@@ -1,4 +1,4 @@
-"""The synchronous-work section of benchmarks/robustness.py (``--sync-work``): what a 49 MP ``wmf`` depth request
+"""The synchronous-work section of benchmarks/robustness.py (``--only sync_work``): what a 49 MP ``wmf`` depth request
 costs the API process with the bound of issue 35 off (the limits raised out of reach: the service as it was) and
 on (the default settings), and how quickly ``/healthz`` answers another client while three such requests run.
 

@@ -1,4 +1,4 @@
-"""The tenants section of benchmarks/robustness.py (``--tenants``): cross-key probes over every resource operation
+"""The tenants section of benchmarks/robustness.py (``--only tenants``): cross-key probes over every resource operation
 and socket, the quota probes, and what owners and keys cost (the owner-filtered list of 10,000 jobs, the key
 lookup per request)."""
 from __future__ import annotations

@@ -46,3 +46,19 @@ def test_the_tree_holds_grandchildren_and_their_cpu():
         for pid in reversed(descendants(parent.pid)):
             os.kill(pid, 9)
         parent.wait()
+
+
+def test_reaped_children_count_only_when_asked():
+    busy = "import time\nt = time.process_time()\nwhile time.process_time() - t < 0.4: pass"
+    parent = subprocess.Popen([sys.executable, "-c", f"import subprocess, sys, time\n"
+                               f"subprocess.run([sys.executable, '-c', {busy!r}])\ntime.sleep(30)"])
+    try:
+        deadline = time.monotonic() + 20
+        while cpu_seconds(parent.pid, reaped=True) - cpu_seconds(parent.pid) < 0.3:  # the child ran, was waited for
+            assert time.monotonic() < deadline
+            time.sleep(0.1)
+        assert descendants(parent.pid) == [parent.pid]  # it is gone: only the reaped count still has its CPU
+        assert tree_cpu_seconds(parent.pid, reaped=True) - tree_cpu_seconds(parent.pid) >= 0.3
+    finally:
+        parent.kill()
+        parent.wait()

@@ -8,7 +8,7 @@ from workers.sweep import costs
 from workers.sweep.renderer import RenderOptions, SweepRenderer
 
 from .conftest import FAR, NEAR
-from .numpy_search import plane_costs as numpy_costs
+from harness.numpy_search import plane_costs as numpy_costs
 
 
 def _window_sum(a: np.ndarray, r: int) -> np.ndarray:

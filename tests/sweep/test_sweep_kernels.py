@@ -12,8 +12,8 @@ from workers.sweep.renderer import RenderOptions, SweepRenderer
 from workers.sweep.silhouette import silhouette_box, silhouette_from_background
 
 from .conftest import FAR, NEAR
-from .numpy_search import best_plane as _best
-from .numpy_search import plane_costs as _numpy_costs
+from harness.numpy_search import best_plane as _best
+from harness.numpy_search import plane_costs as _numpy_costs
 
 
 @pytest.fixture(scope="module")
