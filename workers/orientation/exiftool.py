@@ -4,7 +4,7 @@ the reader of RAW files' embedded previews.
 
 One ``exiftool -stay_open True -@ -`` process per thread is started on first use and fed one command
 at a time: starting Perl for each file costs far more than a command on the open process
-(``benchmarks/orientation.py``, section orientation_writers). ExifTool never writes in place here:
+(``benchmarks/orientation_writers.py``, section orientation_writers). ExifTool never writes in place here:
 it writes a new file next to the target (``-o``), which the caller moves over the original with
 ``os.replace`` (atomic on one file system).
 

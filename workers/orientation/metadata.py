@@ -25,7 +25,7 @@ tool that keeps most of the original:
 | HEIF, AVIF, RAW, BigTIFF | ``xmp-sidecar`` (never inside the file) | new: our template; existing: in place or ExifTool |
 
 An embedded XMP packet holding ``tiff:Orientation`` is patched to agree (same length, in place:
-:func:`workers.orientation.xmp.patch_packet`; PNG's through ExifTool). ``benchmarks/orientation.py``
+:func:`workers.orientation.xmp.patch_packet`; PNG's through ExifTool). ``benchmarks/orientation_writers.py``
 (section orientation_writers) measures each of our writers against Exiv2 (pyexiv2) and ExifTool.
 """
 from __future__ import annotations
