@@ -118,7 +118,7 @@ class Settings(WorkerSettings):
     viewer_size: str = Field(DEFAULT_VIEWER_SIZE, pattern=r"^[1-9][0-9]{1,4}x[1-9][0-9]{1,4}$",
                              description="The view size (WIDTHxHEIGHT px) the browser viewer starts at (sent in the "
                                          "view socket's hello): the largest at which one viewer of the demo rig gets "
-                                         ">= 20 fps on 2 cores (python -m benchmarks.streaming --viewer-sizes).")
+                                         ">= 20 fps on 2 cores (python -m benchmarks.streaming --only viewer_sizes).")
     viewer_frame_cache_mb: float = Field(256.0, ge=0, description="Encoded frame sets of recordings kept in each API "
                                          "process for viewers that render in their browser (megabytes).")
     viewer_frame_format: Literal["png", "jpeg"] = Field(
