@@ -143,3 +143,22 @@ def test_read_bal(tmp_path):
     path.write_text("2 3 5\n" + text.split("\n", 1)[1])
     with pytest.raises(ValueError):
         read_bal(path)
+
+
+def test_one_iteration_runs_as_named_steps_and_its_model_decrease_is_positive():
+    R, t, X, ci, pj, obs = line_of_cameras(4, 60, seed=3)
+    params = pose_params(R, t)
+    noisy = params + np.random.default_rng(3).normal(0, 0.01, params.shape)
+    fixed = np.zeros(params.shape, bool)
+    fixed[0] = True
+    seen: dict[str, object] = {}
+
+    def step(name, fn):
+        seen[name] = fn()
+        return seen[name]
+
+    size = bundle.iteration_steps(PinholeModel(K, 4), noisy, X + 0.01, ci, pj, obs, fixed, step)
+    assert list(seen) == ["residuals_and_jacobians", "normal_equation_blocks", "schur_complement",
+                          "reduced_system_cholesky", "back_substitution", "model_decrease"]
+    assert size == {"reduced_unknowns": 3 * 6, "point_pairs": size["point_pairs"]} and size["point_pairs"] > 0
+    assert seen["model_decrease"] > 0  # the damped step predicts a lower cost
