@@ -315,7 +315,7 @@ def markdown(r: dict) -> str:
     fresh_right, fresh_trials, fresh_wrong = text_part((FRESH,))
     old_right, old_trials, old_wrong = text_part(("held out",))
     neither = this["decisions"].get("neither", {}).get("all", _cell())
-    faces = this["decisions"].get("faces", {}).get("faces", _cell())
+    faces = this["decisions"].get("faces", {}).get("held out: faces", _cell())
     medians = {cls: this["cpu"].get(cls, {}).get("median") for cls in GOALS}
     p95s = {cls: this["cpu"].get(cls, {}).get("p95") for cls in GOALS}
     met = lambda ok: "met" if ok else "NOT met"  # noqa: E731
