@@ -13,7 +13,8 @@ that is not JSON or nests too deeply to parse (``bad_json``). A binary message c
 
 A viewer that renders in its own browser (WebGL2; the viewer page's default where it can) opens the socket
 with ``?render=browser`` and sends no viewpoints. Its hello adds ``"render_mode": "browser"``, ``"render"``
-(the rig's geometry, silhouette settings and overlay colours: :func:`workers.streaming.browser.render_spec`) and
+(the rig's geometry at every source factor, silhouette settings, overlay colours and the renderer's rules:
+:func:`workers.streaming.browser.render_spec`) and
 ``"target_fps"``; for a recording, ``"frame_sets": {"url": ".../frames/{frame}", "format", "quality"}`` (one
 atlas per frame set over HTTP, immutable, cached by the browser: no session is started and nothing more comes
 on the socket), for the live stream ``"live": {"background_url", "background_rate"}`` and then every frame set

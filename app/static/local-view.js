@@ -28,7 +28,7 @@ export class LocalView {
       if (this.renderer.useFactor(1)) await this.fetchLiveModel();
       return;
     }
-    const factor = this.rig.sourceFactor(width, height);
+    const factor = this.rig.sourceFor(width, height).factor;
     const refactored = this.renderer.useFactor(factor);
     if (refactored) {
       this.shown = null;

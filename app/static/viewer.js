@@ -17,7 +17,7 @@
 import { LocalView } from "./local-view.js";
 import { capabilities } from "./render/gl.js";
 import { Unsupported, unsupported } from "./render/renderer.js";
-import { clampAzimuth, orbitCoverage } from "./render/rig.js";
+import { clampAzimuth, orbitCamera, orbitCoverage } from "./render/rig.js";
 
 const $ = (id) => document.getElementById(id);
 const query = new URLSearchParams(location.search);
@@ -418,8 +418,8 @@ function levelRun(level) {
 
 function virtualCamera() {
   const [width, height] = viewSize();
-  return state.local.rig.orbitCamera(
-    { azimuth: state.azimuth, elevation: state.elevation, distance: state.distance }, 50, width, height);
+  return orbitCamera(state.orbit, { azimuth: state.azimuth, elevation: state.elevation, distance: state.distance }, 50,
+    width, height);
 }
 
 function viewpoint() {

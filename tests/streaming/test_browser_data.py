@@ -12,6 +12,7 @@ from tests.streaming.capture import frame_set, jpeg
 from tests.streaming.conftest import add_recording, add_rig
 from tests.streaming.test_sockets import receive, sessions_of, until
 from workers.streaming.browser import atlas_columns, frame_atlas
+from workers.sweep.weighting import METHOD_CODES
 
 
 @pytest.fixture
@@ -70,8 +71,11 @@ def test_a_browser_viewer_of_a_recording_gets_the_geometry_and_starts_no_session
         hello, _, _ = until(ws, "hello")
         assert hello["render_mode"] == "browser" and hello["frames"] == 3 and hello["target_fps"] > 0
         spec = hello["render"]
-        assert [c["name"] for c in spec["cameras"]] == take.rig.names and spec["radius"] > 0
-        assert np.allclose(spec["cameras"][0]["K"], take.rig.cameras[0].K)
+        assert [c["name"] for c in hello["cameras"]] == take.rig.names and spec["radius"] > 0
+        assert "cameras" not in spec and "orbit" not in spec  # said once, in the hello itself
+        assert len(spec["poses"]) == len(take.rig) and spec["sources"][0]["factor"] == 1
+        assert np.allclose(spec["sources"][0]["cameras"][0]["K"], take.rig.cameras[0].K)
+        assert spec["rules"]["codes"]["method"] == METHOD_CODES and spec["rules"]["defaults"]["planes"] == 48
         assert spec["silhouettes"]["threshold"] == 20.0 and len(spec["silhouettes"]["clean"]) == 17  # the 5x5 disk
         assert len(spec["style"]["colour_map"]) == 256
         url = hello["frame_sets"]["url"].replace("{frame}", "2")

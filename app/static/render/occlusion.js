@@ -16,7 +16,6 @@ export const SHADERS = ["rig.glsl", "fullscreen.vert", "winners.vert", "winners.
 const COST_SCALE = 2 ** -40;  // costs (colour levels squared, semi-global totals) below 2^40 stay under 1
 const DEPTH_SCALE = 2 ** -40; // depths along a camera's axis likewise
 const FAR = 3.4e38;           // an empty z-buffer pixel: nothing of the view in front
-const TOLERANCE_PX = 1;       // workers/sweep/occlusion.py confirmed_views' tol_px
 
 /** Whether the rejected pixels are filled along the rows: the cameras spread at least as far along the view's x
  * axis as along its y axis (workers/sweep/occlusion.py fill_along_rows). */
@@ -130,7 +129,6 @@ export class Occlusions {
     const cp = this.programs.confirm;
     rigPass(gl, cp, sweep);
     bindTextures(gl, cp, { uDepth: depth.tex, uWinners: winners.colour });
-    gl.uniform1i(cp.uniforms.uTolerance, TOLERANCE_PX);
     gl.uniform1i(cp.uniforms.uMinViews, minViews);
     drawFullscreen(gl, view.rejectedTarget);
     const fp = this.programs.fill;

@@ -3,7 +3,6 @@
 import { bindTextures, drawFullscreen } from "./gl.js";
 
 export const SHADERS = ["fullscreen.vert", "present.frag"];
-export const OVERLAYS = ["none", "regions", "depth"];
 
 /** The depth colour map (256 RGB triples) as a 256 x 1 RGBA8 texture. */
 export function colourMapTexture(gl, rgb) {
@@ -17,7 +16,8 @@ export function colourMapTexture(gl, rgb) {
   return { texture: t, width: 256, height: 1 };
 }
 
-/** Compose ``overlay`` into ``target`` (a framebuffer record; null: the canvas, flipped to show row 0 on top). */
+/** Compose ``overlay`` (its code: the render block's rules.codes.overlay) into ``target`` (a framebuffer record;
+ * null: the canvas, flipped to show row 0 on top). */
 export function present(gl, prog, work, style, overlay, inverseRange, target) {
   gl.useProgram(prog.program);
   bindTextures(gl, prog, { uColour: work.colour, uRegions: work.regions, uDepth: work.depth, uColourMap: style.colourMap });
@@ -26,7 +26,7 @@ export function present(gl, prog, work, style, overlay, inverseRange, target) {
   gl.uniform3fv(u.uBlend2, Float32Array.from(style.blend2));
   gl.uniform3fv(u.uBlend3, Float32Array.from(style.blend3));
   gl.uniform1f(u.uOverlayWeight, style.weight);
-  gl.uniform1i(u.uOverlay, Math.max(0, OVERLAYS.indexOf(overlay)));
+  gl.uniform1i(u.uOverlay, overlay);
   gl.uniform2f(u.uInverseRange, inverseRange[0], inverseRange[1]);
   gl.uniform1i(u.uFlip, target ? 0 : 1);
   drawFullscreen(gl, target, work.width, work.height);

@@ -2,14 +2,15 @@
 // WebGL2 passes, from frame sets the server ships once. One instance per rig and canvas.
 //
 //   const r = await BrowserRenderer.create(gl, hello.render);   // the viewer socket's hello, render block
-//   r.useFactor(r.rig.sourceFactor(w, h));                       // frames at the size the view needs
+//   r.useFactor(r.rig.sourceFor(w, h).factor);                   // frames at the size the view needs
 //   r.frames.setBackgrounds(bitmap, columns); r.frames.setFrames(bitmap, columns);
-//   const info = r.render(r.rig.orbitCamera(orbit, 50, w, h), { method: "kojima", planes: 48 });
+//   const info = r.render(orbitCamera(hello.orbit, orbit, fov, w, h), { method: "kojima", planes: 48 });
 //   r.present("none");                                           // to the canvas
 //
-// Options are the server's RenderOptions (same names and defaults); what the browser does not implement
-// (the truncated cost, coarser depth sampling) raises an Unsupported error so that a viewer can ask the server
-// instead.
+// Options are the server's RenderOptions: their defaults, choices, the codes the shaders take and the fill's
+// visibility rule come in the render block's ``rules`` (workers/streaming/rules.py renderer_rules); what the browser
+// does not implement (the truncated cost, coarser depth sampling) raises an Unsupported error so that a viewer can
+// ask the server instead.
 import { windowedWinner, SHADERS as AGGREGATION_SHADERS } from "./aggregation.js";
 import { searchPixels, SHADERS as COST_SHADERS } from "./cost.js";
 import { MAX_PLANES as SGM_MAX_PLANES, MAX_VOLUME_BYTES, SemiGlobal, SHADERS as SGM_SHADERS, volumeBytes } from "./semiglobal.js";
@@ -22,30 +23,27 @@ import { inversePlanes, sweepGeometry } from "./planes.js";
 import { median, Rig } from "./rig.js";
 import { shade, SHADERS as WEIGHTING_SHADERS } from "./weighting.js";
 
-export const DEFAULTS = {
-  method: "kojima", d_bnd: null, k: 3, planes: 48, near: null, far: null, visual_hull: null,
-  coarse_to_fine: false, refine_margin: 2, consistency: "variance", min_views: 2, aggregation: "window",
-  window: 2, cost_cap: 40, sgm_p1: 2, sgm_p2: 32, sgm_directions: 8, subplane: true, fill: [0, 0, 0], visibility: null,
-  visibility_tolerance: 0.2, occlusions: "keep", subpixel_bits: 0,
-};
 const SAMPLES = 320 * 240; // depth samples read back for the statistics (every pixel up to this size)
 
 export class Unsupported extends Error {}
 
-/** Which options the browser cannot render (null when it can): the viewer then asks the server. */
+/** Which of the given options the browser cannot render (null when it can): the viewer then asks the server.
+ * (The depth search's step is the server's finest: BrowserRenderer.render refuses a coarser subpixel_bits.) */
 export function unsupported(options) {
-  const o = { ...DEFAULTS, ...options };
+  const o = options;
   if (o.aggregation === "sgm" && o.planes > SGM_MAX_PLANES) return `semi-global aggregation of over ${SGM_MAX_PLANES} planes runs on the server`;
-  if (o.consistency !== "variance") return "the truncated cost runs on the server";
-  if (o.subpixel_bits && o.subpixel_bits !== 6) return "the browser samples the depth search at 1/64 px only";
+  if (o.consistency !== undefined && o.consistency !== "variance") return "the truncated cost runs on the server";
   return null;
 }
 
-/** Where the colour is visibility-aware (workers/sweep/renderer.py RenderOptions.visibility_scope): "all" pixels
- * (visibility true), the occlusion fill's pixels ("filled": visibility null with occlusions "fill"), or "none". */
-export function visibilityScope(o) {
-  if (o.visibility !== null && o.visibility !== undefined) return o.visibility ? "all" : "none";
-  return o.occlusions === "fill" ? "filled" : "none";
+/** The shaders' #defines of the server's rules (the render block's ``rules``): each code as KIND_NAME
+ * (METHOD_KOJIMA_K 4, OVERLAY_DEPTH 2) and the depth search's constants under their own names (rules.glsl). */
+export function ruleDefines(rules) {
+  const defines = { ...rules.glsl };
+  for (const [kind, codes] of Object.entries(rules.codes)) {
+    for (const [name, code] of Object.entries(codes)) defines[`${kind}_${name}`.toUpperCase()] = code;
+  }
+  return defines;
 }
 
 class Workspace {
@@ -89,8 +87,9 @@ export class BrowserRenderer {
   constructor(gl, spec) {
     this.gl = gl;
     this.spec = spec;
+    this.rules = spec.rules;
     this.rig = new Rig(spec);
-    const defines = { N_CAM: this.rig.size, PALETTE: spec.style.palette.length };
+    const defines = { N_CAM: this.rig.size, PALETTE: spec.style.palette.length, ...ruleDefines(spec.rules) };
     this.programs = {
       sweep: program(gl, "fullscreen.vert", "sweep.frag", defines),
       boxrows: program(gl, "fullscreen.vert", "boxrows.frag", defines),
@@ -117,7 +116,7 @@ export class BrowserRenderer {
     this.last = null;
   }
 
-  /** Work at frames shrunk by ``factor`` (Rig.sourceFactor); true when that changed (upload frames again). */
+  /** Work at frames shrunk by ``factor`` (Rig.sourceFor); true when that changed (upload frames again). */
   useFactor(factor) {
     if (factor === this.factor) return false;
     this.factor = factor;
@@ -141,11 +140,9 @@ export class BrowserRenderer {
    * depth in work.depth. Returns { ms, d_bnd, depth_range, depth_found, coverage, planes, visual_hull }.
    */
   render(virtual, options = {}) {
-    const why = unsupported(options);
-    if (why) throw new Unsupported(why);
+    const o = this.options(options);
     if (!this.frames) throw new Error("no frames yet: call useFactor and upload a frame set first");
     const t0 = performance.now();
-    const o = { ...DEFAULTS, ...options };
     const gl = this.gl;
     const [near, far] = this.depthRange(virtual, o);
     const planes = inversePlanes(near, far, o.planes);
@@ -173,10 +170,10 @@ export class BrowserRenderer {
     }
     const stats = this.depthStats(work);
     const dBnd = ["kojima", "kojima_k"].includes(o.method) ? (o.d_bnd ?? this.rig.autoDBnd(virtual, stats.median)) : null;
-    const scope = visibilityScope(o); // the server's RenderOptions.visibility_scope
+    const scope = this.rules.visibility_scope[JSON.stringify(o.visibility ?? null)][o.occlusions];
     const visibility = scope === "none" ? null : { zbuffers: this.occlusions.zbuffers(fine, work.depth),
       tolerance: o.visibility_tolerance, filledOnly: scope === "filled" };
-    shade(gl, this.programs.shade, fine, virtual, this.rig.centres, work.depth, { method: o.method, dBnd, k: o.k,
+    shade(gl, this.programs.shade, fine, virtual, this.rig.centres, work.depth, { method: this.rules.codes.method[o.method], dBnd, k: o.k,
       globalCamera: this.rig.globalCamera(virtual), fill: [o.fill[2], o.fill[1], o.fill[0]] }, work.shadeTarget,
     visibility, this.placeholderArray);
     this.last = { virtual, stats };
@@ -185,6 +182,19 @@ export class BrowserRenderer {
       ms, d_bnd: dBnd, depth_range: [planes.near, planes.far], planes: o.planes, visual_hull: hull,
       depth_found: stats.found ? [1 / stats.maxInverse, 1 / stats.minInverse] : null, coverage: stats.coverage,
     };
+  }
+
+  /** ``options`` over the server's defaults, checked: an Error for a value that is none of the server's choices,
+   * Unsupported for what the browser does not render. */
+  options(options) {
+    const o = { ...this.rules.defaults, ...options };
+    for (const [name, values] of Object.entries(this.rules.choices)) {
+      if (!values.includes(o[name])) throw new Error(`${name} must be one of ${values.join(", ")}; got ${o[name]}`);
+    }
+    const why = unsupported(o) ?? (o.subpixel_bits > 0 && o.subpixel_bits < this.rules.glsl.SEARCH_BITS
+      ? `the browser samples the depth search at 1/${2 ** this.rules.glsl.SEARCH_BITS} px only` : null);
+    if (why) throw new Unsupported(why);
+    return o;
   }
 
   /** The chosen planes of the view into work.depth: the coarse level first with ``half`` (its camera), then each
@@ -280,8 +290,10 @@ export class BrowserRenderer {
     const work = this.work;
     const stats = this.last.stats;
     const range = stats.found ? [stats.minInverse, stats.maxInverse] : [0, 1];
-    present(this.gl, this.programs.present, work, this.style, overlay, range, work.finalTarget);
-    if (toCanvas) present(this.gl, this.programs.present, work, this.style, overlay, range, null);
+    const code = this.rules.codes.overlay[overlay];
+    if (code === undefined) throw new Error(`unknown overlay ${overlay}`);
+    present(this.gl, this.programs.present, work, this.style, code, range, work.finalTarget);
+    if (toCanvas) present(this.gl, this.programs.present, work, this.style, code, range, null);
   }
 
   /** Wait until the GPU has drawn everything asked of it so far (a one-pixel readback of the presented view). */

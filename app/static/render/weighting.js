@@ -4,9 +4,9 @@ import { bindTextures, drawFullscreen } from "./gl.js";
 import { glMatrices, setRigUniforms } from "./planes.js";
 
 export const SHADERS = ["fullscreen.vert", "rig.glsl", "shade.frag"];
-export const METHODS = ["global", "nearest", "ulr", "kojima", "kojima_k"];
 
-/** Shade ``depth`` (a resolve output) of ``virtual`` into work.shadeTarget (colour, regions). ``visibility``:
+/** Shade ``depth`` (a resolve output) of ``virtual`` into work.shadeTarget (colour, regions) by ``weighting``
+ * ({ method: its code (the render block's rules.codes.method), dBnd, k, globalCamera, fill: RGB }). ``visibility``:
  * { zbuffers (Occlusions.zbuffers), tolerance, filledOnly } for visibility-aware colour (at every pixel, or with
  * filledOnly at the occlusion fill's pixels only), else null; ``placeholderArray`` (any array texture) fills its
  * sampler without. */
@@ -21,9 +21,7 @@ export function shade(gl, prog, sweep, virtual, centres, depth, weighting, targe
   gl.uniformMatrix3fv(u.uG, false, glMatrices([sweep.geometry.G]));
   gl.uniform3fv(u.uEye, Float32Array.from(virtual.center));
   gl.uniform3fv(u["uCentres[0]"], Float32Array.from(centres.flat()));
-  const code = METHODS.indexOf(weighting.method);
-  if (code < 0) throw new Error(`unknown method ${weighting.method}`);
-  gl.uniform1i(u.uMethod, code);
+  gl.uniform1i(u.uMethod, weighting.method);
   gl.uniform1f(u.uDBnd, weighting.dBnd ?? 1.0);
   gl.uniform1i(u.uK, weighting.k);
   gl.uniform1i(u.uGlobal, weighting.globalCamera);
