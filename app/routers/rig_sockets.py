@@ -1,7 +1,8 @@
 """WebSockets of a rig: viewers (``/v1/rigs/{id}/view``) and live ingest (``/v1/rigs/{id}/live``).
 
 Viewer socket (``?source=<recording id>|live``, default the newest ready recording, else live):
-the server sends ``{"type": "hello", ...}`` (cameras, frames, fps, orbit frame), then
+the server sends ``{"type": "hello", ...}`` (cameras, frames, fps, orbit frame, quality levels, and ``controls``: what a
+viewer may ask for, :func:`workers.streaming.rules.viewpoint_controls`), then
 ``{"type": "ready", "session": {...}}`` once the session runs. The client sends viewpoints as JSON
 text (:class:`workers.streaming.params.Viewpoint`); the server answers each rendered one with a
 binary message (4-byte big-endian header length, JSON header ``{"type": "frame", "id", "frame",

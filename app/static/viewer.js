@@ -180,6 +180,7 @@ function connect(source, mode = null, why = null) {
 async function onMessage(message) {
   if (message.type === "hello") {
     state.hello = message;
+    offerControls(message.controls);
     state.levels = message.quality_levels;
     state.orbit = message.orbit;
     state.coverage = orbitCoverage(message.orbit);
@@ -385,6 +386,31 @@ function drawLocal() {
   });
 }
 
+// --- what a viewer may ask for ------------------------------------------------------------------
+let controls = null; // the hello's controls (workers/streaming/rules.py viewpoint_controls), once one came
+
+/** Offer the hello's choices in the page's menus and its planes limit; the first hello's defaults select. */
+function offerControls(offered) {
+  const first = controls === null;
+  controls = offered;
+  const menus = { method: "method", aggregation: "aggregation", occlusions: "occlusions", overlay: "overlay",
+    quality: "render_quality" };
+  for (const [id, field] of Object.entries(menus)) {
+    offer($(id), offered.choices[field], first ? offered.defaults[field] ?? "" : $(id).value);
+  }
+  $("planes").max = offered.planes.max;
+  if (first) $("planes").value = offered.defaults.planes;
+}
+
+/** Make ``values`` the options of ``select``, labelled as the page labels them (a value it has no label for by
+ * itself), after its "" option (as the quality level) where it has one; ``selected`` is selected if offered. */
+function offer(select, values, selected) {
+  const labels = new Map([...select.options].map((o) => [o.value, o.text]));
+  const keep = labels.has("") ? ["", ...values] : values;
+  select.replaceChildren(...keep.map((v) => new Option(labels.get(v) ?? v, v)));
+  if (keep.includes(selected)) select.value = selected;
+}
+
 // --- viewpoints -------------------------------------------------------------------------------
 function viewSize() {
   return $("size").value.split("x").map(Number);
@@ -395,8 +421,10 @@ function ownDepthOptions() {
   return { aggregation: $("aggregation").value || null, occlusions: $("occlusions").value || null };
 }
 
-/** The renderer's options (RenderOptions' fields) for quality ``level`` ("best", "fast"; default the level this
- * browser renders at, else best): the advanced switches' values, the level's where they leave them. */
+/** The renderer's options (RenderOptions' fields) a viewpoint of the page asks for at quality ``level`` ("best",
+ * "fast"; default the level this browser renders at, else best), as the server's session makes them
+ * (SweepSettings.render_fields): a viewpoint's defaults (the hello's controls) under the page's switches, the level's
+ * where they leave them. Before a hello: the page's switches alone. */
 function renderOptions(level = state.level || "best") {
   const preset = (state.levels && state.levels[level]) || {};
   const own = ownDepthOptions();
@@ -405,8 +433,14 @@ function renderOptions(level = state.level || "best") {
     const value = own[key] ?? preset[key];
     if (value) depth[key] = value;
   }
-  return { method: $("method").value, d_bnd: dBnd(), planes: Number($("planes").value) || 48, ...depth,
-    coarse_to_fine: true };
+  const fields = state.hello?.render ? Object.keys(state.hello.render.rules.defaults) : [];
+  const defaults = Object.fromEntries(fields.filter((k) => k in controls.defaults).map((k) => [k, controls.defaults[k]]));
+  return { ...defaults, ...pageOptions(), ...depth };
+}
+
+/** The renderer's options the page's controls set, those of the quality level apart. */
+function pageOptions() {
+  return { method: $("method").value, d_bnd: dBnd(), planes: Number($("planes").value) || controls?.defaults.planes };
 }
 
 /** What runs, as the frame header's "quality" says it: the level, or "custom" where a switch differs from it. */
@@ -418,18 +452,17 @@ function levelRun(level) {
 
 function virtualCamera() {
   const [width, height] = viewSize();
-  return orbitCamera(state.orbit, { azimuth: state.azimuth, elevation: state.elevation, distance: state.distance }, 50,
-    width, height);
+  return orbitCamera(state.orbit, { azimuth: state.azimuth, elevation: state.elevation, distance: state.distance },
+    controls.defaults.fov, width, height);
 }
 
 function viewpoint() {
   const [width, height] = viewSize();
   return {
-    type: "view", id: state.nextId++, width, height, fov: 50,
+    type: "view", id: state.nextId++, width, height,
     orbit: { azimuth: state.azimuth, elevation: state.elevation, distance: state.distance },
-    method: $("method").value, d_bnd: dBnd(), planes: Number($("planes").value) || 48, coarse_to_fine: true,
-    ...ownDepthOptions(), render_quality: $("quality").value,
-    frame: state.source === "live" ? "live" : state.frame, overlay: $("overlay").value, quality: 80,
+    ...pageOptions(), ...ownDepthOptions(), render_quality: $("quality").value,
+    frame: state.source === "live" ? "live" : state.frame, overlay: $("overlay").value,
   };
 }
 
