@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from starlette.websockets import WebSocketDisconnect
 
+from app.routers import recordings
 from tests.streaming.capture import frame_set, jpeg
 from tests.streaming.conftest import add_recording, add_rig
 from tests.streaming.test_sockets import receive, sessions_of, until
@@ -25,7 +26,7 @@ def decode(data: bytes) -> np.ndarray:
     return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
 
 
-def test_frame_sets_come_as_immutable_cacheable_atlases(recorded, take):
+def test_frame_sets_come_as_immutable_cacheable_atlases(recorded, take, monkeypatch):
     client, rig_id, rec = recorded
     url = f"/v1/rigs/{rig_id}/recordings/{rec}/frames"
     r = client.get(f"{url}/1", params={"format": "png"})
@@ -40,8 +41,11 @@ def test_frame_sets_come_as_immutable_cacheable_atlases(recorded, take):
     assert again.status_code == 304 and not again.content
     services = client.app.state.services
     encoded = services.atlases.encoded
-    assert client.get(f"{url}/1", params={"format": "png"}).content == r.content
-    assert services.atlases.encoded == encoded  # the second viewer's request cost no encode
+    loads = []
+    with monkeypatch.context() as patch:  # a load of the rig now would be recorded, and fail the request
+        patch.setattr(recordings, "load_rig", lambda *args: loads.append(args))
+        assert client.get(f"{url}/1", params={"format": "png"}).content == r.content
+    assert services.atlases.encoded == encoded and not loads  # the second viewer's request cost no encode, no rig
     half = client.get(f"{url}/0", params={"factor": 2, "format": "jpeg", "quality": 95})
     assert half.headers["content-type"] == "image/jpeg" and half.headers["etag"] != r.headers["etag"]
     small = decode(half.content)
