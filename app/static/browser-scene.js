@@ -1,15 +1,15 @@
-// The viewer's browser mode: the virtual view rendered on this machine's GPU (render/renderer.js) from frame sets
-// the server ships once: a recording's as immutable HTTP URLs (the browser's cache keeps them), the live stream's
-// over the socket as they arrive. The page (viewer.js) owns the socket and the controls; this owns the GPU.
+// The scene on this machine's GPU for a view the browser renders (local-view.js): the browser renderer
+// (render/renderer.js) and the frame sets the server ships once: a recording's as immutable HTTP URLs (the browser's
+// cache keeps them), the live stream's over the socket as they arrive.
 import { BrowserRenderer } from "./render/renderer.js";
 
 const KEEP_PIXELS = 64e6; // decoded frame-set pixels kept for playback (about 256 MB)
 
-export class LocalView {
+export class BrowserScene {
   /** hello: the view socket's hello with render=browser; gl: the canvas' WebGL2 context; headers: for fetch. */
   static async open(gl, hello, headers) {
     const renderer = await BrowserRenderer.create(gl, hello.render);
-    return new LocalView(renderer, hello, headers);
+    return new BrowserScene(renderer, hello, headers);
   }
 
   constructor(renderer, hello, headers) {
