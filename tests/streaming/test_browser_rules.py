@@ -33,12 +33,14 @@ def uneven_rig() -> Rig:
     """Three cameras of different sizes (the smallest decides the factor), odd sizes that round when shrunk."""
     K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
     sizes = [(641, 481), (1001, 333), (700, 500)]
-    return Rig(tuple(Camera(f"c{i}", K, np.eye(3), np.array([0.3 * i, 0.0, 0.0]), w, h) for i, (w, h) in enumerate(sizes)))
+    return Rig(tuple(Camera(f"c{i}", K, np.eye(3), np.array([0.3 * i, 0.0, 0.0]), w, h)
+                     for i, (w, h) in enumerate(sizes)))
 
 
 def test_the_browser_sweeps_the_frames_the_server_shrinks_for_every_view_size(page):
     rig = uneven_rig()
-    sizes = [(w, h) for w in (16, 40, 79, 80, 81, 106, 107, 160, 213, 214, 320, 641, 900) for h in (16, 41, 42, 83, 111, 166, 333, 400)]
+    sizes = [(w, h) for w in (16, 40, 79, 80, 81, 106, 107, 160, 213, 214, 320, 641, 900)
+             for h in (16, 41, 42, 83, 111, 166, 333, 400)]
     got = page.evaluate("""async ({spec, sizes}) => {
       const { Rig } = await import("/render/rig.js");
       const rig = new Rig(spec);
