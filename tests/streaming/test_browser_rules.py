@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.browser import chromium, have_chromium, png_b64, static_site
+from tests.browser import have_chromium, png_b64
+from tests.streaming.test_browser_renderer import page  # noqa: F401 - the fixture: a page of a site serving app/static
 from workers.camera import Camera
 from workers.streaming.browser import frame_atlas, render_spec
 from workers.streaming.demo import demo_rig, demo_scene
@@ -21,14 +22,6 @@ pytest.importorskip("playwright.sync_api", reason="playwright is not installed (
 pytestmark = pytest.mark.skipif(not have_chromium(), reason="Debian's chromium is not installed")
 
 
-@pytest.fixture(scope="module")
-def page():
-    with static_site() as base, chromium() as browser:
-        p = browser.new_page()
-        p.goto(f"{base}/render/renderer.js")  # any page of the site: the modules import from its origin
-        yield p
-
-
 def uneven_rig() -> Rig:
     """Three cameras of different sizes (the smallest decides the factor), odd sizes that round when shrunk."""
     K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
@@ -37,7 +30,7 @@ def uneven_rig() -> Rig:
                      for i, (w, h) in enumerate(sizes)))
 
 
-def test_the_browser_sweeps_the_frames_the_server_shrinks_for_every_view_size(page):
+def test_the_browser_sweeps_the_frames_the_server_shrinks_for_every_view_size(page):  # noqa: F811
     rig = uneven_rig()
     sizes = [(w, h) for w in (16, 40, 79, 80, 81, 106, 107, 160, 213, 214, 320, 641, 900)
              for h in (16, 41, 42, 83, 111, 166, 333, 400)]
@@ -57,7 +50,7 @@ def test_the_browser_sweeps_the_frames_the_server_shrinks_for_every_view_size(pa
             np.testing.assert_array_equal(np.reshape(mine["K"], (3, 3)), theirs.K)
 
 
-def test_an_option_outside_the_servers_choices_is_refused_naming_them(page):
+def test_an_option_outside_the_servers_choices_is_refused_naming_them(page):  # noqa: F811
     spec = render_spec(uneven_rig())
     message = page.evaluate("""async ({spec}) => {
       const { BrowserRenderer } = await import("/render/renderer.js");
@@ -69,7 +62,7 @@ def test_an_option_outside_the_servers_choices_is_refused_naming_them(page):
     assert message == "aggregation must be one of none, window, sgm; got windowed"
 
 
-def test_a_pass_refuses_what_its_shaders_do_not_declare_or_take(page):
+def test_a_pass_refuses_what_its_shaders_do_not_declare_or_take(page):  # noqa: F811
     """The pass helper (app/static/render/pass.js) types each uniform from the program: a misspelt name, a value of
     the wrong size, a sampler given the other kind of texture and a uniform the program uses but nobody set all fail
     loudly instead of drawing with stale or zero values."""
@@ -101,7 +94,7 @@ def test_a_pass_refuses_what_its_shaders_do_not_declare_or_take(page):
     }
 
 
-def test_frame_sets_and_renders_reuse_their_render_targets(page):
+def test_frame_sets_and_renders_reuse_their_render_targets(page):  # noqa: F811
     """Render targets are made once per set of attachments: a second frame set (its silhouettes drawn layer by layer)
     and a second render of the same size make no framebuffer."""
     rig = demo_rig(4, (96, 72))
