@@ -68,7 +68,7 @@ def test_a_pass_refuses_what_its_shaders_do_not_declare_or_take(page):  # noqa: 
     loudly instead of drawing with stale or zero values."""
     errors = page.evaluate("""async () => {
       const { Pass } = await import("/render/pass.js");
-      const { loadShaders } = await import("/render/shaders.js");
+      const { loadShaders } = await import("/render/programs.js");
       const { capabilities, target, texture2d, textureArray } = await import("/render/gl.js");
       const gl = capabilities(document.createElement("canvas")).gl;
       await loadShaders(["fullscreen.vert", "resolve.frag"]);

@@ -6,7 +6,7 @@
 // that the pass renders into would make the draw fail). The shapes come from twgl.js's uniform setters and regl's
 // commands; the code is ours.
 import { placeholder } from "./gl.js";
-import { link, shaderText } from "./shaders.js";
+import { link, shaderText } from "./programs.js";
 
 /** Uniform type -> [numbers per element, setter, whether it takes floats]. */
 function uniformTypes(gl) {
@@ -25,7 +25,7 @@ function uniformTypes(gl) {
 const DECLARED = /^\s*uniform\s+(?:(?:lowp|mediump|highp)\s+)?\w+\s+(\w+)/gm;
 
 export class Pass {
-  /** The program of shader files ``fragment`` and ``vertex`` (prefetched: shaders.js loadShaders) compiled with
+  /** The program of shader files ``fragment`` and ``vertex`` (prefetched: programs.js loadShaders) compiled with
    * ``defines`` ({NAME: value}). */
   constructor(gl, fragment, { vertex = "fullscreen.vert", defines = {} } = {}) {
     this.gl = gl;

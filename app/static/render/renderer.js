@@ -20,7 +20,7 @@ import { Presenter, SHADERS as OVERLAY_SHADERS } from "./overlays.js";
 import { inversePlanes, sweepGeometry } from "./planes.js";
 import { Rig } from "./rig.js";
 import { MAX_PLANES as SGM_MAX_PLANES, MAX_VOLUME_BYTES, SemiGlobal, SHADERS as SGM_SHADERS, volumeBytes } from "./semiglobal.js";
-import { loadShaders } from "./shaders.js";
+import { loadShaders } from "./programs.js";
 import { DepthStatistics, SHADERS as STATISTICS_SHADERS } from "./statistics.js";
 import { Shading, SHADERS as WEIGHTING_SHADERS } from "./weighting.js";
 
