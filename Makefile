@@ -48,7 +48,7 @@ $(BENCH_STAMP): $(STAMP)
 	touch $(BENCH_STAMP)
 
 bench: $(BENCH_STAMP)
-	@test -n "$(NAME)" || { echo "usage: make bench NAME=<one of: $$(ls benchmarks | sed -n 's/^\([a-z][a-z_]*\)\(\.py\)\{0,1\}$$/\1/p' | grep -v '^\(results\|bd\)$$' | tr '\n' ' ')> [ARGS=...]"; exit 2; }
+	@test -n "$(NAME)" || { echo "usage: make bench NAME=<one of: $$(ls benchmarks | sed -n 's/^\([a-z][a-z_]*\)\(\.py\)\{0,1\}$$/\1/p' | grep -v '^\(results\|bd\|tests\)$$' | tr '\n' ' ')> [ARGS=...]"; exit 2; }
 	$(BIN)/python -m benchmarks.$(NAME) $(ARGS)
 
 # A wheel for `pip install` that carries every engine's kernels (compiled for x86-64-v3) and the demo recording, so

@@ -188,9 +188,6 @@ class Dispatcher:
         self._tasks[job_id] = task
         task.add_done_callback(lambda _t: self._tasks.pop(job_id, None))
 
-    def active_count(self) -> int:
-        return len(self._tasks)
-
     async def cancel(self, job_id: str) -> bool:
         """Stop a job: kill its Ray task and mark it cancelled. False when it had already finished."""
         self._cancelled.add(job_id)

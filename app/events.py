@@ -33,6 +33,3 @@ class EventHub:
                 except asyncio.QueueEmpty:
                     pass
             queue.put_nowait(event)
-
-    def subscriber_count(self, job_id: str) -> int:
-        return len(self._subscribers.get(job_id, ()))

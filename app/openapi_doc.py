@@ -4,8 +4,10 @@ FastAPI documents only the success response and its own 422 body (``HTTPValidati
 ``detail`` is a list), and it describes multipart form fields as Python sees them. The service
 answers every error as ``{"error", "detail"}`` (app/errors.py), guards ``/v1`` with bearer keys,
 limits bodies, and reads each ``params`` form field as a JSON object. :func:`document_contract`
-rewrites the generated schema to say so, in one place, so that routes stay plain; the live
-``/openapi.json`` and the committed ``openapi/openapi.json`` are the same document.
+rewrites the generated schema to say so, in one place, so that routes stay plain: what is a route's own
+(its statuses, its media types, its ``params`` model, declared with :func:`app.params_form.params_form`) is read
+off the route's own document; this module adds only what every route of a kind shares. The live ``/openapi.json`` and the
+committed ``openapi/openapi.json`` are the same document.
 ``tests/app/test_contract_fuzz.py`` fuzzes the live service against it.
 """
 from __future__ import annotations
@@ -14,12 +16,10 @@ import copy
 import json
 from typing import TYPE_CHECKING, Any, Callable
 
+
 from pydantic import BaseModel
 
-from workers.depth.params import DepthFilterParams, DepthVideoParams, SynthesizeParams
-from workers.drone.params import ReconstructionParams
-from workers.faces.job import FaceTrainParams, FaceTransformParams
-from workers.streaming.params import RecordingRequest
+from app.params_form import MODEL_KEY, declared_model
 
 if TYPE_CHECKING:
     from fastapi import FastAPI
@@ -59,26 +59,10 @@ PATH_STATUS = {404: "nothing exists under the id (or name) in the path, or it be
 VALIDATION_DESCRIPTION = ("invalid request: a parameter, form field or `params` object is wrong; request "
                           "validation errors list each problem in `fields`")
 
-# Extra media types a success response can have.
-EXTRA_SUCCESS_MEDIA: dict[tuple[str, str], list[str]] = {
-    ("post", "/v1/photos/orient"): ["image/webp", "image/tiff", "image/png"],  # comes back in its own format
-}
-
-
-# The model each operation's ``params`` form field (JSON text, read by app.services.parse_params) is.
-PARAMS_MODELS: dict[tuple[str, str], type[BaseModel]] = {
-    ("post", "/v1/depth/filter"): DepthFilterParams,
-    ("post", "/v1/depth/synthesize"): SynthesizeParams,
-    ("post", "/v1/depth/videos"): DepthVideoParams,
-    ("post", "/v1/face-models"): FaceTrainParams,
-    ("post", "/v1/face-models/{model_id}/transform"): FaceTransformParams,
-    ("post", "/v1/reconstructions"): ReconstructionParams,
-    ("post", "/v1/rigs/{rig_id}/recordings"): RecordingRequest,
-}
-
 
 class ContractError(RuntimeError):
-    """The routes and this module's tables disagree (a route was added, renamed or removed)."""
+    """The document cannot be corrected as it stands (a ``params`` field without its model, two schemas of one
+    name)."""
 
 
 def error_schemas() -> dict[str, Any]:
@@ -161,13 +145,6 @@ def _document_errors(doc: dict[str, Any]) -> None:
             responses["422"] = _error_response(VALIDATION_DESCRIPTION, VALIDATION_ERROR)
 
 
-def _check_keys(doc: dict[str, Any], *tables: dict[tuple[str, str], Any]) -> None:
-    known = {(m, p) for m, p, _ in _operations(doc)}
-    stale = sorted({key for table in tables for key in table} - known)
-    if stale:
-        raise ContractError(f"app/openapi_doc.py names operations the app does not have: {stale}")
-
-
 def _without_null(schema: dict[str, Any]) -> dict[str, Any]:
     """``X | None`` form fields: a multipart part cannot be null, a client leaves it out."""
     options = schema.get("anyOf")
@@ -204,21 +181,14 @@ def _document_forms(doc: dict[str, Any]) -> None:
                 prop["minItems"] = 1  # a list with no part is a missing field
             props[name] = prop
         if "params" in props:
-            model = PARAMS_MODELS.get((method, path))
+            model = declared_model(props["params"].get(MODEL_KEY, ""))
             if model is None:
-                raise ContractError(f"{method.upper()} {path} has a 'params' form field: add its model to "
-                                    f"PARAMS_MODELS in app/openapi_doc.py")
+                raise ContractError(f"{method.upper()} {path} has a 'params' form field without its model: declare "
+                                    f"it with app.params_form.params_form")
             keep = {k: props["params"][k] for k in ("description", "title") if k in props["params"]}
             props["params"] = {**_model_schema(model, components), **keep}
             # JSON text in a form field; a client (and the fuzzer) sends the object as application/json.
             media.setdefault("encoding", {})["params"] = {"contentType": "application/json"}
-
-
-def _document_media(doc: dict[str, Any]) -> None:
-    for method, path, op in _operations(doc):
-        for media_type in EXTRA_SUCCESS_MEDIA.get((method, path), []):
-            success = next(r for s, r in op["responses"].items() if s.startswith("2"))
-            success.setdefault("content", {}).setdefault(media_type, {})
 
 
 def _drop_unused(doc: dict[str, Any], names: tuple[str, ...]) -> None:
@@ -233,12 +203,10 @@ def _drop_unused(doc: dict[str, Any], names: tuple[str, ...]) -> None:
 def document_contract(doc: dict[str, Any]) -> dict[str, Any]:
     """A copy of FastAPI's ``doc`` that describes the service's real errors and form fields."""
     doc = copy.deepcopy(doc)
-    _check_keys(doc, PARAMS_MODELS, EXTRA_SUCCESS_MEDIA)
     doc.setdefault("components", {}).setdefault("schemas", {}).update(error_schemas())
     doc["components"]["securitySchemes"] = SECURITY_SCHEMES
     _document_errors(doc)
     _document_forms(doc)
-    _document_media(doc)
     if _FASTAPI_422 in json.dumps(doc["paths"]):
         raise ContractError("a response still uses FastAPI's HTTPValidationError")
     _drop_unused(doc, ("HTTPValidationError", "ValidationError"))

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any, BinaryIO, Callable, TypeVar
 
 from fastapi import Request
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel
 
 from app.dispatcher import Dispatcher
 from app.errors import ApiError
@@ -26,14 +26,12 @@ from app.live_relay import LiveRelay
 from app.quotas import QuotaLimits, Quotas
 from app.settings import Settings
 from app.sync_work import SyncWorkGate, SyncWorkLimits
-from workers.common.validation import describe_errors
 from workers.registry import JobKind
 from workers.runtime import inputs_prefix, results_prefix
 from workers.workarea import work_prefix
 from workers.storage import BlobStore, DirectoryBlobStore, open_store
 
 log = logging.getLogger("sweepcast")
-M = TypeVar("M", bound=BaseModel)
 R = TypeVar("R")
 
 
@@ -154,22 +152,6 @@ def upload_size(upload: Upload) -> int:
     size = upload.file.seek(0, os.SEEK_END)
     upload.file.seek(position)
     return size
-
-
-def _invalid(exc: ValidationError) -> ApiError:
-    return ApiError(422, f"invalid parameters: {describe_errors(exc)}", "invalid_parameters")
-
-
-def parse_params(model: type[M], text: str | None) -> M:
-    """A request's ``params`` form field (a JSON object) as ``model``; 422 naming the problem otherwise."""
-    try:
-        # strict: the JSON types the schema documents (no true for 1, no "5" for 5); JSON still gives
-        # floats from integers, enums from strings and tuples from arrays.
-        return model.model_validate_json(text or "{}", strict=True)
-    except ValidationError as exc:
-        if any(e["type"] == "json_invalid" for e in exc.errors()):
-            raise ApiError(422, f"params must be a JSON object: {exc.errors()[0]['msg']}", "invalid_parameters") from None
-        raise _invalid(exc) from None
 
 
 async def create_job(svc: Services, who: Principal, kind: JobKind, params: BaseModel, uploads: list[Upload],

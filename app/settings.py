@@ -9,7 +9,6 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, field_validator
 from pydantic_settings import NoDecode, SettingsConfigDict
 
-from workers.common.models import models_dir
 from workers.portable_cache import SHIPPED_KERNELS, STAMP_NAME
 from workers.common.safezip import ZipLimits
 from workers.settings import WorkerSettings
@@ -119,7 +118,7 @@ class Settings(WorkerSettings):
     viewer_size: str = Field(DEFAULT_VIEWER_SIZE, pattern=r"^[1-9][0-9]{1,4}x[1-9][0-9]{1,4}$",
                              description="The view size (WIDTHxHEIGHT px) the browser viewer starts at (sent in the "
                                          "view socket's hello): the largest at which one viewer of the demo rig gets "
-                                         ">= 20 fps on 2 cores (python -m benchmarks.streaming --viewer-sizes).")
+                                         ">= 20 fps on 2 cores (python -m benchmarks.streaming --only viewer_sizes).")
     viewer_frame_cache_mb: float = Field(256.0, ge=0, description="Encoded frame sets of recordings kept in each API "
                                          "process for viewers that render in their browser (megabytes).")
     viewer_frame_format: Literal["png", "jpeg"] = Field(
@@ -154,11 +153,6 @@ class Settings(WorkerSettings):
     @cached_property
     def resolved_database_url(self) -> str:
         return self.database_url or f"sqlite:///{(self.data_dir / 'sweepcast.db').resolve()}"
-
-    @property
-    def resolved_yunet_model(self) -> Path | None:
-        """The YuNet model the orientation engine uses: the setting, else an installed copy, else None."""
-        return self.yunet_model(models_dir(self.data_dir))
 
     @property
     def resolved_numba_cache_dir(self) -> Path:

@@ -1,6 +1,6 @@
 """What a photo costs the orientation engine, and what it decides, beside the previous release (issue 54).
 
-Section ``orientation_text`` of ``python -m benchmarks.orientation --text-section``. Three classes of photos, each
+Section ``orientation_text`` of ``python -m benchmarks.orientation_text``. Three classes of photos, each
 turned by the four rotations and saved as a JPEG (q95, at the size it has; the no-text images at most 2000 px long):
 
 - **faces**: ``$SWEEPCAST_DATA/faces/dev`` (the dog photo is the negative);

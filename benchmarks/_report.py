@@ -3,7 +3,8 @@
 Every benchmark script ends with :func:`publish`, which stamps the machine, the date and the
 exact command line on both, so that every figure in RESULTS.md says where it came from. A script with
 several parts declares them as :class:`Sections`, which gives it ``--only NAME[,NAME]`` (re-run those, keep
-the others of the previous results file) and ``--list``.
+the others of the previous results file) and ``--list``; a part that writes a results file of its own is a
+:class:`Part` of the script (``Sections.part``).
 
 Scripts run as modules from the repository root: ``python -m benchmarks.<name> --help``.
 ``SWEEPCAST_BENCH_RESULTS=<folder>`` writes ``<folder>/<name>.json`` and ``<folder>/RESULTS.md`` instead of
@@ -163,6 +164,20 @@ class Section:
     keys: tuple[str, ...]
 
 
+@dataclass
+class Part:
+    """A part of a benchmark script with a results file and RESULTS.md section of its own: ``bench(args)`` measures
+    it and returns (its results, its markdown), published whole under ``results(args)`` when it ends (nothing of an
+    earlier run is kept: the file is this part's). ``check(results)``: whether what it measured passed (a part that
+    tests a promise of the service); the script then exits 1 when one did not."""
+
+    name: str
+    bench: Callable[[argparse.Namespace], tuple[dict[str, Any], str]]
+    help: str
+    results: Callable[[argparse.Namespace], str]
+    check: Callable[[dict[str, Any]], bool] | None = None
+
+
 class Sections:
     """The sections of one results name (``results/<name>.json``, the ``<name>`` section of RESULTS.md) and the
     script's command line: ``--only NAME[,NAME]`` runs those sections and keeps every other one from the previous
@@ -181,11 +196,15 @@ class Sections:
     run (:func:`benchmarks._timing.load_note`). Results are published after every section, so a long run
     stopped half-way keeps what it measured. ``upgrade(previous)`` may convert a results file written before
     the script had sections (its ``runs`` guessed from what it recorded).
+
+    A script whose parts each write their own results (``results/<part's name>.json``, their own RESULTS.md section)
+    declares them with :meth:`part` instead; ``--only`` and ``--list`` name them the same way, and ``main`` needs no
+    ``markdown`` when the script has nothing else.
     """
 
     def __init__(self, name: str, doc: str | None, *, upgrade: Callable[[dict], dict] | None = None):
         self.name = name
-        self.sections: dict[str, Section] = {}
+        self.sections: dict[str, Section | Part] = {}
         self.upgrade = upgrade
         self.parser = argparse.ArgumentParser(
             prog=prog(),
@@ -219,11 +238,25 @@ class Sections:
             return {name: out}
         self.section(name, help)(run)
 
+    def part(self, name: str, help: str, bench: Callable[[argparse.Namespace], tuple[dict[str, Any], str]],
+             results: str | Callable[[argparse.Namespace], str] | None = None,
+             check: Callable[[dict[str, Any]], bool] | None = None) -> None:
+        """Declare a :class:`Part`: ``bench(args)`` returns (its results, its markdown), published under
+        ``results`` (a name, or a function of the command line that names it; default ``<script's name>_<name>``);
+        ``check`` as :class:`Part` says."""
+        named = results if callable(results) else (lambda _args, n=results or f"{self.name}_{name}": n)
+        self.sections[name] = Part(name, bench, help, named, check)
+
+    def _merged(self) -> list[Section]:
+        """The sections whose results merge into the script's own results file (every one but the parts)."""
+        return [s for s in self.sections.values() if isinstance(s, Section)]
+
     def stored_markdown(self, results: dict[str, Any], kept: list[str]) -> list[str]:
         """The markdown of every section :meth:`add` declared that ``results`` holds, in order, those in
         ``kept`` marked as from an earlier run."""
         return [results[k].get("markdown", f"### {k}\n\n(see results/{self.name}.json)\n")
-                + ("\n(from an earlier run)\n" if k in kept else "") for k in self.sections if k in results]
+                + ("\n(from an earlier run)\n" if k in kept else "") for k in (s.name for s in self._merged())
+                if k in results]
 
     def previous(self) -> dict[str, Any]:
         """The results file as it is now (``{}`` without one), upgraded to sections."""
@@ -235,10 +268,11 @@ class Sections:
             old = self.upgrade(old)
         return old
 
-    def main(self, markdown: Callable[[dict[str, Any], list[str]], str], argv: list[str] | None = None, *,
-             extra: Callable[[argparse.Namespace], dict[str, Any]] | None = None) -> int:
-        """Parse the command line and run the chosen sections (see the class). ``extra(args)``: top-level entries
-        of every run that belong to no section."""
+    def main(self, markdown: Callable[[dict[str, Any], list[str]], str] | None = None, argv: list[str] | None = None,
+             *, extra: Callable[[argparse.Namespace], dict[str, Any]] | None = None) -> int:
+        """Parse the command line and run the chosen sections (see the class). ``markdown(results, kept)``: the
+        body of the script's own RESULTS.md section (needed when it has sections that are not parts);
+        ``extra(args)``: top-level entries of every run that belong to no section."""
         from benchmarks._timing import SETTLE_LOAD_S, load_average, load_note, settle_load
 
         args = self.parser.parse_args(argv)
@@ -257,30 +291,42 @@ class Sections:
         if "meta" in previous:  # a file from before sections: its last run measured what its --only named
             meta = previous["meta"]
             named = re.search(r"--only[= ](\S+)", meta["command"])
-            for n in self.sections:
+            for n in (s.name for s in self._merged()):
                 if n not in runs and any(k in previous for k in self.sections[n].keys):
                     runs[n] = ({"date": meta["date"], "command": meta["command"]}
                                if not named or n in named[1].split(",")
                                else {"date": f"{meta['date']} or earlier", "command": None})
-        results = {k: previous[k] for s in self.sections.values() for k in s.keys if k in previous}
+        results = {k: previous[k] for s in self._merged() for k in s.keys if k in previous}
         results.update(extra(args) if extra else {})
         start = settle_load(SETTLE_LOAD_S if args.settle is None else args.settle)
         done: list[str] = []
+        failed: list[str] = []
         for n in chosen:
             print(f"[{self.name}] {n} ...", file=sys.stderr, flush=True)
+            section = self.sections[n]
+            if isinstance(section, Part):
+                out, md = section.bench(args)
+                publish(section.results(args), out, md)
+                if section.check is not None and not section.check(out):
+                    failed.append(n)
+                continue
             load0 = load_average()
-            new = self.sections[n].run(args)
+            new = section.run(args)
             for k in self.sections[n].keys:
                 results.pop(k, None)
             results.update(new)
             now = stamp()
             runs[n] = {"date": now["date"], "command": now["command"], "load_average": [load0, load_average()]}
             done.append(n)
-            kept = [k for k in self.sections if k in runs and k not in done]
+            kept = [k for k in (s.name for s in self._merged()) if k in runs and k not in done]
+            if markdown is None:
+                raise TypeError(f"{self.name}: sections that are not parts need main(markdown)")
             body = markdown(results, kept).rstrip()
             notes = [f"{k}: from the run of {runs[k]['date']}"
                      + (f" (`{runs[k]['command']}`)" if runs[k].get("command") else "") + ", kept unchanged." for k in kept]
             notes.append(f"Measured in this run: {', '.join(done)}. " + load_note(start, load_average()))
             body += "\n\n" + "\n".join(f"- {line}" for line in notes) + "\n"
             publish(self.name, {**results, "runs": runs, "load_at_start": start}, body)
-        return 0
+        if failed:
+            print(f"[{self.name}] what {', '.join(failed)} measured did not pass its check", file=sys.stderr)
+        return 1 if failed else 0

@@ -1,4 +1,4 @@
-"""The synchronous-work section of benchmarks/robustness.py (``--sync-work``): what a 49 MP ``wmf`` depth request
+"""The synchronous-work section of benchmarks/robustness.py (``--only sync_work``): what a 49 MP ``wmf`` depth request
 costs the API process with the bound of issue 35 off (the limits raised out of reach: the service as it was) and
 on (the default settings), and how quickly ``/healthz`` answers another client while three such requests run.
 
@@ -25,9 +25,9 @@ from typing import Any
 import cv2
 import httpx
 
-from benchmarks._proc import cpu_seconds, status_mb
+from harness.proc import cpu_seconds, status_mb
 from benchmarks._report import md_table
-from tests.servers import ServedApp, serve_app
+from harness.servers import ServedApp, serve_app
 from workers.common.datasets import dataset
 from workers.depth.encoded import filter_work
 from workers.depth.params import DepthFilterParams

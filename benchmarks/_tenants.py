@@ -1,4 +1,4 @@
-"""The tenants section of benchmarks/robustness.py (``--tenants``): cross-key probes over every resource operation
+"""The tenants section of benchmarks/robustness.py (``--only tenants``): cross-key probes over every resource operation
 and socket, the quota probes, and what owners and keys cost (the owner-filtered list of 10,000 jobs, the key
 lookup per request)."""
 from __future__ import annotations
@@ -14,10 +14,10 @@ import httpx
 from websockets.sync.client import connect
 
 from benchmarks._report import md_table
-from tests.app.photos import noise_jpeg
-from tests.app.tenancy import SOCKETS, bearer, probe, refused_as_missing
-from tests.servers import ServedApp, serve_app
-from tests.streaming.capture import make_take, rig_json, zip_bytes
+from harness.photos import noise_jpeg
+from harness.tenancy import SOCKETS, bearer, probe, refused_as_missing
+from harness.servers import ServedApp, serve_app
+from harness.takes import make_take, rig_json, zip_bytes
 
 ADMIN = "tenants-admin-key"
 

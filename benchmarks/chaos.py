@@ -53,7 +53,7 @@ from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load_note
 from benchmarks.cluster import photos
 from benchmarks.docker_stack import wait_for
-from tests.servers import (ROOT, FaultyProxy, Unavailable, create_database, exit_on_sigterm, free_port, guarded,
+from harness.servers import (ROOT, FaultyProxy, Unavailable, create_database, exit_on_sigterm, free_port, guarded,
                            kill_mentioning, postgres_server, stop_group)
 
 FINAL = ("succeeded", "failed", "cancelled")

@@ -23,7 +23,7 @@ import httpx
 from websockets.sync.client import connect
 
 from benchmarks._report import md_table, prog, publish
-from tests.servers import create_database, exit_on_sigterm, ray_cluster, serve_app, temp_postgres
+from harness.servers import create_database, exit_on_sigterm, ray_cluster, serve_app, temp_postgres
 from workers.common.datasets import dataset
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,7 +35,7 @@ def photos(count: int) -> list[tuple[str, bytes]]:
     files = sorted(p for p in folder.rglob("*") if p.suffix.lower() in (".jpg", ".jpeg")) if folder else []
     if files:
         return [(files[i % len(files)].name, files[i % len(files)].read_bytes()) for i in range(count)]
-    from tests.app.photos import noise_jpeg
+    from harness.photos import noise_jpeg
 
     return [(f"generated-{i}.jpg", noise_jpeg(i, 1024, 768)) for i in range(count)]
 

@@ -43,9 +43,9 @@ import httpx
 
 from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load_note
-from benchmarks._proc import tree_cpu_seconds
+from harness.proc import tree_cpu_seconds
 from benchmarks.streaming import demo_recording, first_frame, wait_for
-from tests.servers import serve_app
+from harness.servers import serve_app
 
 ROOT = Path(__file__).resolve().parents[1]
 GOALS = {"ready_s": 5.0, "first_frame_after_ready_s": 3.0, "request_compile_s": 3.0, "first_reconstruction_x": 2.0}
@@ -55,7 +55,7 @@ _FIRST_CALLS = r"""
 import json, sys, time
 import numpy as np
 sys.path.insert(0, {root!r})
-from tests.drone.test_bundle import _problem, K
+from harness.bundle_problem import K, line_of_cameras
 from workers.drone import bundle
 from workers.drone.camera_models import PinholeModel, pose_params
 from workers.drone.calibration import from_values
@@ -63,7 +63,7 @@ from workers.drone.params import ReconstructionParams
 from workers.drone.reconstruction import reconstruct
 
 def ba():
-    R, t, X, ci, pj, obs = _problem()
+    R, t, X, ci, pj, obs = line_of_cameras()
     params = pose_params(R, t) + np.r_[np.zeros(6), np.full(30, 0.01)].reshape(6, 6)
     fixed = np.zeros((6, 6), bool); fixed[0] = True; fixed[1, 3:] = True
     bundle.solve(PinholeModel(K, 6), params, X + 0.05, ci, pj, obs, fixed, bundle.BAOptions(max_iterations=50))

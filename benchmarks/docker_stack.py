@@ -35,7 +35,7 @@ import numpy as np
 import websockets
 from websockets.sync.client import connect
 
-from benchmarks._proc import machine_busy_seconds
+from harness.proc import machine_busy_seconds
 from benchmarks._report import md_table, prog, publish
 from benchmarks._timing import load_note, settle_load
 from benchmarks.cluster import photos

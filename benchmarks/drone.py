@@ -108,9 +108,6 @@ def _ba_profile(prob: BALProblem, repeats: int = 20) -> dict[str, float]:
     fixed = np.zeros(prob.params.shape, bool)
     fixed[0, :6] = True
     ci, pj = prob.cam_idx.astype(np.int64), prob.pt_idx.astype(np.int64)
-    model = BALModel()
-    n_cams, n_pts = len(prob.params), len(prob.points)
-    st = bundle._structure(n_cams, n_pts, 9, ci, pj, fixed)
     out: dict[str, float] = {}
 
     def step(name: str, fn: Callable[[], Any]) -> Any:
@@ -125,24 +122,10 @@ def _ba_profile(prob: BALProblem, repeats: int = 20) -> dict[str, float]:
     numba.set_num_threads(1)
     try:
         with threadpool_limits(1, user_api="blas"):
-            r, Jc, Jp = step("residuals_and_jacobians",
-                             lambda: model.evaluate(prob.params, prob.points, ci, pj, prob.obs, True))
-            U, V, W, gc, gp = step("normal_equation_blocks",
-                                   lambda: bundle._normal_blocks(Jc, Jp, r, ci, pj, n_cams, n_pts))
-            blocks, rhs, Vinv = step("schur_complement", lambda: bundle._schur(
-                U, V, W, gc, gp, ci, st.order, st.point_start, st.pair_block, st.pair_start, st.blk_indptr,
-                st.blk_indices, 1e-4, 1))
-            x = step("reduced_system_cholesky", lambda: bundle._solve_reduced(st, blocks, rhs, 2000))
-            dc = np.zeros(n_cams * 9)
-            dc[st.free_index >= 0] = x
-            dc = dc.reshape(n_cams, 9)
-            dp = step("back_substitution",
-                      lambda: bundle._back_substitute(dc, W, Vinv, gp, ci, st.order, st.point_start))
-            step("model_decrease", lambda: bundle._model_decrease(Jc, Jp, r, dc, dp, ci, pj))
+            size = bundle.iteration_steps(BALModel(), prob.params, prob.points, ci, pj, prob.obs, fixed, step)
     finally:
         numba.set_num_threads(threads)
-    out["reduced_unknowns"] = st.n_free
-    out["point_pairs"] = int((st.pair_block >= 0).sum())
+    out.update(size)
     return out
 
 

@@ -47,10 +47,10 @@ def sweep(size, planes):
     return lambda: renderer.render(virtual, RenderOptions(planes=planes))
 
 def bundle_adjustment():
-    from tests.drone.test_bundle import _problem, K
+    from harness.bundle_problem import K, line_of_cameras
     from workers.drone import bundle
     from workers.drone.camera_models import PinholeModel, pose_params
-    R, t, X, ci, pj, obs = _problem()
+    R, t, X, ci, pj, obs = line_of_cameras()
     params = pose_params(R, t) + np.r_[np.zeros(6), np.full(30, 0.01)].reshape(6, 6)
     fixed = np.zeros((6, 6), bool); fixed[0] = True; fixed[1, 3:] = True
     return lambda: bundle.solve(PinholeModel(K, 6), params, X + 0.05, ci, pj, obs, fixed,

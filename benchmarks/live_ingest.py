@@ -1,6 +1,6 @@
 """Live ingest benchmark (issue 55): real-camera streams through ``sweepcast live`` into the service.
 
-Ten RTSP cameras (``tests/capture/rtsp_camera.py``: H.264 640x480 at 25 fps, triggered together within +-2 ms, each
+Ten RTSP cameras (``harness/rtsp_camera.py``: H.264 640x480 at 25 fps, triggered together within +-2 ms, each
 stamping its frames with its own clock in RTCP sender reports) serve the demo rig's views of the studio with its
 moving ball (pre-encoded, one IDR a second, looped: the cameras cost this machine only the sending). The capture
 side (:class:`app.capture.live.LiveRun`, in this process: one reader thread per camera) sends frame sets to the
@@ -44,10 +44,10 @@ import websockets.sync.client as wsclient
 
 from app.capture.live import LiveRun
 from app.capture.settings import CaptureSettings
-from benchmarks._proc import tree_cpu_seconds
+from harness.proc import tree_cpu_seconds
 from benchmarks._report import Sections, md_table
-from tests.capture.rtsp_camera import Camera, RtspServer, encode_loop
-from tests.servers import CHECKOUT_KERNEL_CACHE, serve_app
+from harness.rtsp_camera import Camera, RtspServer, encode_loop
+from harness.servers import CHECKOUT_KERNEL_CACHE, serve_app
 from workers.streaming.framing import pack_message, unpack_message
 
 FPS = 25.0
@@ -245,7 +245,7 @@ def recovery(args: Any) -> dict[str, Any]:
 @sections.section("browser", "the viewer page rendering the live stream in headless Chromium during ingest: "
                              "capture-to-frame latency and fps", keys=("browser",))
 def browser(args: Any) -> dict[str, Any]:
-    from tests.browser import chromium
+    from harness.browser import chromium
 
     with Bench(args) as bench, chromium(args.webgl) as chrome:
         page = chrome.new_page(viewport={"width": 1280, "height": 900})
@@ -275,7 +275,7 @@ def markdown(results: dict[str, Any], kept: list[str]) -> str:
     st = results.get("setup", {})
     md = [f"RTSP cameras as issue 55 asks ({'ten' if st.get('cameras') == 10 else 'not ten: a --quick run'}): "
           f"{st.get('cameras', '?')} cameras {st.get('size', '?')} H.264 at "
-          f"{st.get('fps', FPS):g} fps (tests/capture/rtsp_camera.py: triggered together +-2 ms, each stamping its "
+          f"{st.get('fps', FPS):g} fps (harness/rtsp_camera.py: triggered together +-2 ms, each stamping its "
           "frames with its own clock in RTCP sender reports; the demo studio with its moving ball, pre-encoded, one "
           "IDR a second, sensor noise of sigma 2 grey levels, 1.5 Mbit/s at 640x480: "
           f"{st.get('bytes_per_frame', 0) / 1e3:.1f} KB per frame), read by `sweepcast live` (one reader thread per "

@@ -54,10 +54,10 @@ import numpy as np
 import piexif
 
 from benchmarks._notext import no_text_images
-from benchmarks._proc import machine_busy_seconds, tree_cpu_seconds
+from harness.proc import machine_busy_seconds, tree_cpu_seconds
 from benchmarks._report import Sections, md_table
 from benchmarks._timing import settle_server
-from tests.servers import exit_on_sigterm, serve_app
+from harness.servers import exit_on_sigterm, serve_app
 from workers.common.datasets import data_root, dataset
 from workers.orientation.geometry import rotate_view
 

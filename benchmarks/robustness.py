@@ -1,12 +1,12 @@
 """Robustness: what hostile input, load and lost processes do to the service.
 
-    python -m benchmarks.robustness [--quick]
-    python -m benchmarks.robustness --tenants [--quick]    (only the section robustness_tenants)
-    python -m benchmarks.robustness --sync-work            (only the section robustness_sync_work)
+    python -m benchmarks.robustness [--only service,tenants,sync_work] [--quick]
 
-Sections (each against servers this script starts on loopback and stops, whatever happens):
+Three parts, each its own results section (robustness, robustness_tenants, robustness_sync_work); without --only
+all three run. The part ``service`` (each against servers this script starts on loopback and stops, whatever
+happens):
 - kernel stress: the compiled depth searches on random rigs with misaligned arrays at 1, 2 and 4 threads
-  (:mod:`tests.sweep.kernel_stress`), each run in a subprocess; a crash is a run that ended with a signal.
+  (:mod:`harness.kernel_stress`), each run in a subprocess; a crash is a run that ended with a signal.
 - abuse cases: every hostile request of the reliability issue replayed; each must answer 4xx with the JSON
   error body (or a WebSocket error / close code), quickly, with the API's memory bounded.
 - fuzzing: schemathesis over the whole OpenAPI document (fixed seed, every check), cases and server errors.
@@ -14,12 +14,12 @@ Sections (each against servers this script starts on loopback and stops, whateve
 - kill cycles: photo batches in flight while a Ray worker and then the API itself are killed with SIGKILL
   and the API restarted on the same data; every job must end ``succeeded`` (none lost, none failed).
 The API's peak RSS (VmHWM of its process) is read after each section.
-With ``--tenants``, only the owners-and-keys section (its own RESULTS section, robustness_tenants, from
-:mod:`benchmarks._tenants`): cross-key probes over every resource operation and socket, quota probes, and the cost
-of the owner filter and of the key lookup.
-With ``--sync-work``, only the synchronous routes' bound (its own section, robustness_sync_work, from
-:mod:`benchmarks._sync_work`): a 49 MP wmf depth request's cost to the API process with the bound off and on, and
-``/healthz`` latency while three run.
+The part ``tenants`` (robustness_tenants, from :mod:`benchmarks._tenants`): cross-key probes over every resource
+operation and socket, quota probes, and the cost of the owner filter and of the key lookup; the script exits 1 when a
+probe saw another key's resource.
+The part ``sync_work`` (robustness_sync_work, from :mod:`benchmarks._sync_work`): a 49 MP wmf depth request's cost to
+the API process with the bound off and on, and ``/healthz`` latency while three run; the script exits 1 when the
+bound did not hold.
 """
 from __future__ import annotations
 
@@ -43,9 +43,10 @@ import numpy as np
 import piexif
 from websockets.sync.client import connect
 
-from benchmarks._proc import status_mb
-from benchmarks._report import md_table, prog, publish
-from tests.servers import ServedApp, serve_app
+from harness.proc import status_mb
+from benchmarks import _sync_work, _tenants
+from benchmarks._report import Sections, md_table
+from harness.servers import ServedApp, serve_app
 from workers.common.datasets import data_root, dataset
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -60,7 +61,7 @@ def kernel_stress(reps: int) -> dict:
     out = {}
     for threads in (1, 2, 4):
         t0 = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-m", "tests.sweep.kernel_stress", "--reps", str(reps), "--threads",
+        proc = subprocess.run([sys.executable, "-m", "harness.kernel_stress", "--reps", str(reps), "--threads",
                                str(threads), "--seed", str(1000 + threads)], cwd=ROOT, capture_output=True, text=True,
                               env={**os.environ, "NUMBA_NUM_THREADS": "4"})
         report = json.loads(proc.stdout.strip().splitlines()[-1]) if proc.returncode >= 0 and proc.stdout else {}
@@ -328,7 +329,7 @@ def photo_bytes() -> list[tuple[str, bytes]]:
     files = sorted(p for p in folder.rglob("*") if p.suffix.lower() in (".jpg", ".jpeg")) if folder else []
     if files:
         return [(p.name, p.read_bytes()) for p in files[:24]]
-    from tests.app.photos import noise_jpeg
+    from harness.photos import noise_jpeg
     return [(f"p{i}.jpg", noise_jpeg(seed=i)) for i in range(8)]
 
 
@@ -487,26 +488,9 @@ def markdown(r: dict) -> str:
     return "\n\n".join(parts)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="fewer repetitions, cases, clients and cycles")
-    ap.add_argument("--tenants", action="store_true", help="only the owners, keys and quotas section")
-    ap.add_argument("--sync-work", action="store_true", help="only the synchronous routes' bound (49 MP depth)")
-    args = ap.parse_args()
+def bench_service(args: argparse.Namespace) -> tuple[dict, str]:
+    """The part robustness: kernel stress, abuse cases, fuzzing, load and kill cycles (the module docstring)."""
     q = args.quick
-    if args.sync_work:
-        from benchmarks import _sync_work
-
-        found = _sync_work.sync_work()
-        publish("robustness_sync_work", found, _sync_work.markdown(found))
-        refused = {a["status"] for a in found["bounded"]["one_49mp"]["answers"]} == {413}
-        return 0 if refused and found["bounded"]["within_bound_4k"]["answers"][0]["status"] == 200 else 1
-    if args.tenants:
-        from benchmarks import _tenants
-
-        found = _tenants.tenants(q)
-        publish("robustness_tenants", found, _tenants.markdown(found))
-        return 0 if found["cross_key"]["all_404"] and found["cross_key"]["sockets_refused"] else 1
     results: dict = {"kernel_stress": kernel_stress(50 if q else 500)}
     data_dir = tempfile.mkdtemp(prefix="sc-robust-")
     yunet = data_root().parent / "models" / "yunet" / "face_detection_yunet_2023mar.onnx"
@@ -531,9 +515,34 @@ def main() -> int:
     results["api_peak_rss_mb"] = rss
     results["kill_cycles"] = kill_cycles(3 if q else 10, 8)
     print(json.dumps(results["kill_cycles"]), flush=True)
-    publish("robustness", results, markdown(results))
-    return 0
+    return results, markdown(results)
+
+
+def bench_tenants(args: argparse.Namespace) -> tuple[dict, str]:
+    """The part robustness_tenants (:mod:`benchmarks._tenants`)."""
+    found = _tenants.tenants(args.quick)
+    return found, _tenants.markdown(found)
+
+
+def bench_sync_work(_args: argparse.Namespace) -> tuple[dict, str]:
+    """The part robustness_sync_work (:mod:`benchmarks._sync_work`)."""
+    found = _sync_work.sync_work()
+    return found, _sync_work.markdown(found)
+
+
+def bound_held(found: dict) -> bool:
+    """The 49 MP requests were refused (413) and the 4K one within the bound was served."""
+    refused = {a["status"] for a in found["bounded"]["one_49mp"]["answers"]} == {413}
+    return refused and found["bounded"]["within_bound_4k"]["answers"][0]["status"] == 200
+
+
+sections = Sections("robustness", __doc__)
+sections.parser.add_argument("--quick", action="store_true", help="fewer repetitions, cases, clients and cycles")
+sections.part("service", "kernel stress, abuse cases, fuzzing, load, kill cycles", bench_service, results="robustness")
+sections.part("tenants", "owners, keys and quotas: cross-key probes, quota probes, the owner filter's cost",
+              bench_tenants, check=lambda found: found["cross_key"]["all_404"] and found["cross_key"]["sockets_refused"])
+sections.part("sync_work", "the synchronous routes' bound (49 MP depth requests)", bench_sync_work, check=bound_held)
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(sections.main())

@@ -46,14 +46,14 @@ import numpy as np
 import scipy.stats
 import websockets
 
-from benchmarks._proc import descendants, status, status_mb
+from harness.proc import descendants, status, status_mb
 from benchmarks._report import RESULTS_DIR, md_table, publish, shown_path
 from benchmarks._timing import load_average
 from benchmarks.chaos import photo_files
 from benchmarks.coldstart import make_flight
 from benchmarks.docker_stack import project_containers
 from benchmarks.streaming import demo_recording, frame_reply, frame_set_message, live_frame_sets
-from tests.servers import exit_on_sigterm, serve_app
+from harness.servers import exit_on_sigterm, serve_app
 
 FINAL = ("succeeded", "failed", "cancelled")
 BATCH_PHOTOS, BATCH_EVERY_S = 8, 30.0

@@ -16,25 +16,28 @@ Baseline in the same run: the same views rendered in this process by ``SweepRend
 overhead is latency minus render time.
 Also recorded: the first-run times (server ready, demo recording ready, first frame received).
 
-Run: ``python -m benchmarks.streaming [--quick]`` from the repository root.
+Run: ``python -m benchmarks.streaming --only viewers [--quick]`` from the repository root (this part, results
+``streaming``; with ``--viewers``, ``--sizes`` or ``--planes`` other than the defaults a steady-state run of its own,
+``streaming_viewers[_pN]``). Without ``--only`` every part below runs too, each writing its own results.
 
 Client mode (the virtual view rendered in the viewer's browser, WebGL2, headless Chromium):
-``python -m benchmarks.streaming_browser quality|fps|cost|latency [...]`` (:mod:`benchmarks.streaming_browser`).
+``python -m benchmarks.streaming_browser --only quality|fps|cost|latency|first_frame [...]``
+(:mod:`benchmarks.streaming_browser`).
 
-Two more sections, each its own run:
+Three more parts, each its own results section:
 
-- ``--viewer-sizes [--quiet 1.5]``: one viewer of the demo rig at each of CANDIDATE_SIZES (4:3, 320x240 ..
+- ``viewer_sizes [--quiet 1.5]``: one viewer of the demo rig at each of CANDIDATE_SIZES (4:3, 320x240 ..
   960x720): fps, latency p50/p95; the largest size with >= 20 fps is the viewer's default (``app.settings.
   DEFAULT_VIEWER_SIZE``, set by hand from this table). ``--quiet L`` waits before each size (up to 3 min)
   for the 1-minute load average to fall under L (the machine is shared). Section ``streaming_viewer_size``.
-- ``--hd``: real-rig sizes. (1) Undistortion at ``set_frames``: a 10-camera 1920x1080 rig with strong
+- ``hd [--hd-frames 6]``: real-rig sizes. (1) Undistortion at ``set_frames``: a 10-camera 1920x1080 rig with strong
   barrel distortion, ms per frame set for the remaps alone and for set_frames with and without
   distortion. (2) An 8-camera 1920x1080 distorted recording of the studio (rendered through the lens,
   H.264 videos + empty-studio PNGs) imported through the API (seconds until ready). (3) One viewer at
   640x360 on it, closed loop: orbiting on one frame, and playing (a new frame with every view), fps and
   latency p50/p95, and the session's cost per new frame set (decode, shrink 3x, set_frames). Section
   ``streaming_hd``.
-- ``--live [--viewers-live 1]``: live camera streams (the paper's use). A rig of 10 cameras 640x480 (the demo
+- ``live [--viewers-live 1]``: live camera streams (the paper's use). A rig of 10 cameras 640x480 (the demo
   rig's) is created through the API; frame sets of the studio with its moving ball (rendered here, JPEG quality
   90, ~50 KB per camera) are pushed over ``/v1/rigs/{id}/live`` closed-loop (the next set as soon as the previous
   one is acknowledged) while viewers on ``?source=live`` render 320x240 views closed-loop. Reports ingest sets/s,
@@ -61,10 +64,10 @@ import httpx
 import numpy as np
 import websockets
 
-from benchmarks._proc import tree_cpu_seconds
-from benchmarks._report import md_table, prog, publish
+from harness.proc import tree_cpu_seconds
+from benchmarks._report import Sections, md_table
 from benchmarks._timing import load_note, wait_quiet
-from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app
+from harness.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app
 from workers.streaming.framing import unpack_message
 from workers.streaming.params import Viewpoint
 from workers.streaming.recording import RecordingArchive
@@ -222,39 +225,29 @@ async def first_frame(url: str) -> None:
         await frame_reply(ws)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="5 s per configuration instead of 15")
-    ap.add_argument("--seconds", type=float, help="measurement time per configuration")
-    ap.add_argument("--viewer-sizes", action="store_true", help="only: the viewer's default size (one viewer per size)")
-    ap.add_argument("--hd", action="store_true", help="only: undistortion cost and an HD 8-camera recording at 640x360")
-    ap.add_argument("--hd-frames", type=int, default=6, help="frames of the HD recording (default 6)")
-    ap.add_argument("--viewers", type=int, nargs="+", default=list(VIEWERS),
-                    help=f"main section: viewer counts (default {' '.join(map(str, VIEWERS))})")
-    ap.add_argument("--sizes", nargs="+", default=[f"{w}x{h}" for w, h in SIZES],
-                    help="main section: view sizes WxH (default 320x240 640x480)")
-    ap.add_argument("--planes", type=int, default=PLANES, help=f"main section: depth planes (default {PLANES})")
-    ap.add_argument("--live", action="store_true", help="only: live ingest of 10 x 640x480 JPEG cameras with viewers")
-    ap.add_argument("--viewers-live", type=int, default=1, help="--live: viewers on the live source (default 1)")
-    ap.add_argument("--quiet", type=float, help="--viewer-sizes: before each size wait (up to 3 min) for the "
-                                                "1-minute load average to fall under this")
-    args = ap.parse_args()
-    seconds = args.seconds or (5.0 if args.quick else 15.0)
-    if args.viewer_sizes:
-        return viewer_sizes(seconds, args.quiet)
-    if args.hd:
-        return hd(seconds, args.hd_frames)
-    if args.live:
-        return live(seconds, args.viewers_live)
+def default_grid(args: argparse.Namespace) -> bool:
+    """Whether the viewers part runs its default grid (the viewer counts, sizes and planes of ``streaming``)."""
+    return (args.viewers == list(VIEWERS) and args.sizes == [f"{w}x{h}" for w, h in SIZES] and args.planes == PLANES)
+
+
+def viewers_results(args: argparse.Namespace) -> str:
+    """The viewers part's results: ``streaming`` for the default grid, else ``streaming_viewers[_pN]`` (a steady-state
+    run of its own)."""
+    if default_grid(args):
+        return "streaming"
+    return "streaming_viewers" + (f"_p{args.planes}" if args.planes != PLANES else "")
+
+
+def bench_viewers(args: argparse.Namespace) -> tuple[dict, str]:
+    """The part ``viewers`` (the module docstring): concurrent viewers of the first-run demo at each size."""
+    seconds = seconds_per_config(args)
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory(prefix="sweepcast-bench-") as tmp:
         data_dir = Path(tmp) / "data"
         log = Path(tmp) / "server.log"
         t_start = time.monotonic()
-        subset = (args.viewers != list(VIEWERS) or args.sizes != [f"{w}x{h}" for w, h in SIZES]
-                  or args.planes != PLANES)
         env = {"SWEEPCAST_DATA_DIR": str(data_dir)}
-        if subset:  # steady state only (its own section): kernels from the checkout's cache, not compiled first
+        if not default_grid(args):  # steady state only (its own section): kernels from the checkout's cache, not compiled first
             env["SWEEPCAST_NUMBA_CACHE_DIR"] = str(CHECKOUT_KERNEL_CACHE)
         with serve_app(env, log=log, wait=False) as app:
             proc = app.proc
@@ -286,9 +279,7 @@ def main() -> int:
     results["setup"] = {"cameras": 10, "camera_size": "640x480", "planes": args.planes, "method": "kojima",
                         "coarse_to_fine": True, "visual_hull": True, "seconds_per_config": seconds,
                         "load_average_before": load_before}
-    name = "streaming" if not subset else "streaming_viewers" + (f"_p{args.planes}" if args.planes != PLANES else "")
-    publish(name, results, markdown(results))
-    return 0
+    return results, markdown(results)
 
 
 ISSUE_GOALS = {("1", "640x480", 64): (30.0, 40.0), ("8", "320x240", 48): (15.0, None)}
@@ -354,10 +345,11 @@ CANDIDATE_SIZES = ((320, 240), (400, 300), (480, 360), (560, 420), (640, 480), (
 DEFAULT_SIZE_FPS = 20.0
 
 
-def viewer_sizes(seconds: float, quiet: float | None = None) -> int:
-    """One closed-loop viewer of the first-run demo at each candidate size; publish the table and the
-    largest size with >= DEFAULT_SIZE_FPS. With ``quiet``, each size waits (up to 3 minutes) for the
-    load average to fall under it."""
+def viewer_sizes(args: argparse.Namespace) -> tuple[dict, str]:
+    """The part ``viewer_sizes``: one closed-loop viewer of the first-run demo at each candidate size; the table and
+    the largest size with >= DEFAULT_SIZE_FPS. With ``--quiet``, each size waits (up to 3 minutes) for the load
+    average to fall under it."""
+    seconds, quiet = seconds_per_config(args), args.quiet
     load_before = os.getloadavg()[0]
     rows = {}
     with tempfile.TemporaryDirectory(prefix="sweepcast-bench-") as tmp:
@@ -380,18 +372,23 @@ def viewer_sizes(seconds: float, quiet: float | None = None) -> int:
     results = {"sizes": rows, "chosen": chosen, "threshold_fps": DEFAULT_SIZE_FPS, "demo_ready_s": demo_s,
                "setup": {"viewers": 1, "planes": PLANES, "method": "kojima", "coarse_to_fine": True,
                          "visual_hull": True, "seconds_per_config": seconds, "load_average_before": load_before}}
+    return results, viewer_size_markdown(results)
+
+
+def viewer_size_markdown(results: dict) -> str:
+    """The streaming_viewer_size section of RESULTS.md from its results."""
+    rows = results["sizes"]
     table = md_table(["size", "fps", "latency p50 ms", "latency p95 ms", "session render p50 ms", "server CPU cores",
                       "load avg at start"],
                      [[k, r["fps"], r["latency_p50_ms"], r["latency_p95_ms"], r["render_p50_ms"], r["server_cpu_cores"],
                        r["load_average"]] for k, r in rows.items()])
-    publish("streaming_viewer_size", results, (
+    return (
         "One closed-loop WebSocket viewer of the first-run demo (10 cameras 640x480, the photographic studio; 48 "
         "planes, Kojima, coarse-to-fine, 5x5 window, visual hull) per view size. "
-        f"Load average before the run: {load_before:.2f}; the demo recording was ready {demo_s:.0f} s after "
-        f"the server started.\n\n{table}\n\n"
-        f"Largest size with >= {DEFAULT_SIZE_FPS:g} fps: **{chosen or 'none'}** (the viewer's default: "
-        "`app.settings.DEFAULT_VIEWER_SIZE`, `SWEEPCAST_VIEWER_SIZE`).\n"))
-    return 0
+        f"Load average before the run: {results['setup']['load_average_before']:.2f}; the demo recording was ready "
+        f"{results['demo_ready_s']:.0f} s after the server started.\n\n{table}\n\n"
+        f"Largest size with >= {results['threshold_fps']:g} fps: **{results['chosen'] or 'none'}** (the viewer's "
+        "default: `app.settings.DEFAULT_VIEWER_SIZE`, `SWEEPCAST_VIEWER_SIZE`).\n")
 
 
 # --- real-rig sizes: undistortion, an HD recording, a 640x360 viewer -----------------------------------
@@ -426,14 +423,15 @@ def undistortion_cost(images: list[np.ndarray], repeats: int = 7) -> dict:
     distorted = SweepRenderer(rig, frames)
     pinhole = SweepRenderer(Rig(tuple(Camera(c.name, c.K, c.R, c.t, c.width, c.height) for c in rig.cameras)),
                             frames)
-    remap = median_ms(lambda: [distorted._undistorted(i, f) for i, f in enumerate(frames)], repeats)
+    remap = median_ms(lambda: [distorted.undistort(i, f) for i, f in enumerate(frames)], repeats)
     with_dist = median_ms(lambda: distorted.set_frames(frames), repeats)
     without = median_ms(lambda: pinhole.set_frames(frames), repeats)
     return {"cameras": 10, "size": f"{HD_SIZE[0]}x{HD_SIZE[1]}", "remap_ms": remap, "set_frames_ms": with_dist,
             "set_frames_pinhole_ms": without, "undistortion_ms": with_dist - without}
 
 
-def hd(seconds: float, frames: int) -> int:
+def hd(args: argparse.Namespace) -> tuple[dict, str]:
+    """The part ``hd`` (the module docstring): undistortion, an HD recording imported, a 640x360 viewer on it."""
     import dataclasses
 
     from workers.streaming.demo import demo_scene
@@ -446,6 +444,7 @@ def hd(seconds: float, frames: int) -> int:
     def ball(scene):
         return next(o for o in scene.objects if isinstance(o, Sphere) and o.radius < 0.2)
 
+    seconds, frames = seconds_per_config(args), args.hd_frames
     load_before = os.getloadavg()[0]
     rig = hd_rig(8)
     t0 = time.perf_counter()
@@ -519,8 +518,7 @@ def hd(seconds: float, frames: int) -> int:
                 "set_frames_ms": median_ms(lambda: renderer.set_frames(shrunk), 5),
             }
             archive.close()
-    publish("streaming_hd", results, hd_markdown(results))
-    return 0
+    return results, hd_markdown(results)
 
 
 def hd_markdown(results: dict) -> str:
@@ -561,20 +559,20 @@ def live_frame_sets(rig: Rig, sets: int, quality: int = 90) -> tuple[list[bytes]
     moving), one per camera of ``rig``."""
     import dataclasses
 
-    from workers.streaming.demo import _ball, demo_scene
+    from workers.streaming.demo import demo_ball, demo_scene
     from workers.synth import render_moved, render_views
 
     def jpeg(img: np.ndarray) -> bytes:
         return cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, quality])[1].tobytes()
 
     first = demo_scene(0.0)
-    k, _ = _ball(first)
+    k, _ = demo_ball(first)
     stills = render_views(dataclasses.replace(first, objects=first.objects[:k] + first.objects[k + 1:]),
                           list(rig.cameras))
     frames = []
     for f in range(sets):
         scene = demo_scene(f / (4 * sets))
-        frames.append([jpeg(render_moved(scene, still, _ball(scene)[1])) for still in stills])
+        frames.append([jpeg(render_moved(scene, still, demo_ball(scene)[1])) for still in stills])
     return [jpeg(s.background) for s in stills], frames
 
 
@@ -672,12 +670,14 @@ async def live_config(base: str, rig_id: str, sets: list[list[bytes]], viewers: 
     return out
 
 
-def live(seconds: float, viewers: int) -> int:
+def live(args: argparse.Namespace) -> tuple[dict, str]:
+    """The part ``live`` (the module docstring): frame sets pushed over the live socket while viewers render."""
     from workers.streaming.demo import demo_rig
     from workers.sweep.rig_io import rig_to_dict
 
     import pickle
 
+    seconds, viewers = seconds_per_config(args), args.viewers_live
     load_before = os.getloadavg()[0]
     rig = demo_rig()
     t0 = time.perf_counter()
@@ -735,8 +735,7 @@ def live(seconds: float, viewers: int) -> int:
     results["target"] = {**LIVE_TARGET, "met": both["ingest"]["sets_per_s"] >= LIVE_TARGET["ingest_sets_per_s"]
                          and min(v["fps"] for v in both["viewers"]) >= LIVE_TARGET["viewer_fps"]}
     results["load_average_after"] = os.getloadavg()[0]
-    publish("streaming_live", results, live_markdown(results))
-    return 0
+    return results, live_markdown(results)
 
 
 def live_set_costs(rig: Rig, background: list[bytes], sets: list[list[bytes]], repeats: int = 5) -> dict:
@@ -812,6 +811,31 @@ def live_limit(results: dict) -> str:
             f"takes {need:.1f} cores; this machine has {os.cpu_count()}.")
 
 
+def seconds_per_config(args: argparse.Namespace) -> float:
+    """Measurement time per configuration: ``--seconds``, else 5 s with ``--quick``, else 15 s."""
+    return args.seconds or (5.0 if args.quick else 15.0)
+
+
+sections = Sections("streaming", __doc__)
+sections.parser.add_argument("--quick", action="store_true", help="5 s per configuration instead of 15")
+sections.parser.add_argument("--seconds", type=float, help="measurement time per configuration")
+sections.parser.add_argument("--viewers", type=int, nargs="+", default=list(VIEWERS),
+                             help=f"viewers: viewer counts (default {' '.join(map(str, VIEWERS))})")
+sections.parser.add_argument("--sizes", nargs="+", default=[f"{w}x{h}" for w, h in SIZES],
+                             help="viewers: view sizes WxH (default 320x240 640x480)")
+sections.parser.add_argument("--planes", type=int, default=PLANES, help=f"viewers: depth planes (default {PLANES})")
+sections.parser.add_argument("--quiet", type=float, help="viewer_sizes: before each size wait (up to 3 min) for the "
+                                                         "1-minute load average to fall under this")
+sections.parser.add_argument("--hd-frames", type=int, default=6, help="hd: frames of the HD recording (default 6)")
+sections.parser.add_argument("--viewers-live", type=int, default=1, help="live: viewers on the live source (default 1)")
+sections.part("viewers", "concurrent viewers of the demo at each size (another grid: streaming_viewers[_pN])",
+              bench_viewers, results=viewers_results)
+sections.part("viewer_sizes", "one viewer at each candidate size: the viewer's default size", viewer_sizes,
+              results="streaming_viewer_size")
+sections.part("hd", "undistortion cost and an HD 8-camera recording at 640x360", hd)
+sections.part("live", "live ingest of 10 x 640x480 JPEG cameras with viewers", live)
+
+
 if __name__ == "__main__":
     with exit_on_sigterm():  # SIGTERM unwinds the serve_app block, which stops the server and its Ray
-        raise SystemExit(main())
+        raise SystemExit(sections.main())

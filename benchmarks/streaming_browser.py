@@ -1,6 +1,7 @@
 """The virtual view rendered in the viewer's browser (app/static/render, WebGL2) against the server's renderer.
 
-``python -m benchmarks.streaming_browser SECTION [...]``; each section writes its own part of RESULTS.md:
+``python -m benchmarks.streaming_browser --only PART[,PART] [...]`` (``--list``; without ``--only`` every part runs);
+each part writes its own section of RESULTS.md:
 
 - ``quality``: views held out of real and synthetic rigs (Middlebury Teddy view 4 and Art view 3, from two and from
   all other views; the demo studio seen from between its cameras, against the ray-cast truth), rendered by the
@@ -34,7 +35,6 @@
 """
 from __future__ import annotations
 
-import argparse
 import asyncio
 import json
 import os
@@ -49,9 +49,9 @@ import httpx
 import numpy as np
 import websockets
 
-from benchmarks._report import md_table, prog, publish
+from benchmarks._report import Sections, md_table
 from benchmarks._timing import settle_server
-from tests.browser import chromium, render_in_browser, static_site
+from harness.browser import chromium, render_in_browser, static_site
 from workers.common.datasets import dataset
 from workers.common.imagemetrics import psnr
 from workers.streaming.browser import encode_atlas, frame_atlas, render_spec
@@ -141,7 +141,7 @@ def demo_cases(quick: bool) -> list[dict]:
     return cases
 
 
-def quality(quick: bool) -> int:
+def quality(quick: bool) -> tuple[dict, str]:
     cases = middlebury_cases(quick) + demo_cases(quick)
     rows, results, refused = [], [], []
     with static_site() as base, chromium() as browser:
@@ -225,9 +225,7 @@ def quality(quick: bool) -> int:
             "semi-global path then carries the flipped choice along its scanline). With semi-global aggregation the "
             f"studio's views score {min(r['server_db'] for r in studio if 'semi' in r['config']):.0f}-"
             f"{max(r['server_db'] for r in studio if 'semi' in r['config']):.0f} dB against the truth with the levels.")
-    publish("streaming_browser_quality", {"cases": results, "worst_db": worst(list(CONFIGS)), "quick": quick},
-            "\n".join(md))
-    return 0
+    return {"cases": results, "worst_db": worst(list(CONFIGS)), "quick": quick}, "\n".join(md)
 
 
 # --- frame rate -------------------------------------------------------------------------------------
@@ -242,7 +240,7 @@ FPS_CONFIGS = {"viewer (coarse-to-fine)": {"coarse_to_fine": True}, "full resolu
 SWIFTSHADER_SGM_MAX = 640 * 480 * 64
 
 
-def fps(quick: bool, webgl: str) -> int:
+def fps(quick: bool, webgl: str) -> tuple[dict, str]:
     rig = demo_rig(10, (640, 480))
     views = render_views(demo_scene(0.25), list(rig.cameras))
     frames, backgrounds = [v.image for v in views], [v.background for v in views]
@@ -311,15 +309,13 @@ def fps(quick: bool, webgl: str) -> int:
                   f"({best['config']}) on {webgl}"
                   + (": a CPU floor, not the GPU figure (no GPU machine was lent to this run)." if webgl == "swiftshader"
                      else "."))
-    name = "streaming_browser_fps" + ("" if webgl == "swiftshader" else "_gpu")
-    publish(name, {"webgl": webgl, "gpu": gpu, "rows": results, "wire": wire}, "\n".join(md))
-    return 0
+    return {"webgl": webgl, "gpu": gpu, "rows": results, "wire": wire}, "\n".join(md)
 
 
 def settle(base: str, pid: int) -> dict:
     """Wait until the served app's start-up work is done (:func:`benchmarks._timing.settle_server`: its process
     tree under 0.1 CPU seconds over two seconds, at most 10 minutes)."""
-    from benchmarks._proc import tree_cpu_seconds
+    from harness.proc import tree_cpu_seconds
 
     return settle_server(base, pid, tree_cpu_seconds, interval_s=2.0, timeout_s=600.0)
 
@@ -385,7 +381,7 @@ async def paced_pusher(base: str, rig_id: str, sets: list[list[bytes]], backgrou
 
 
 async def measure_recording(base: str, pid: int, rig_id: str, rec: dict, n: int, factor: int, seconds: float) -> dict:
-    from benchmarks._proc import tree_cpu_seconds
+    from harness.proc import tree_cpu_seconds
 
     stop, loaded = asyncio.Event(), asyncio.Queue()
     cpu0, t0 = tree_cpu_seconds(pid), time.perf_counter()
@@ -402,7 +398,7 @@ async def measure_recording(base: str, pid: int, rig_id: str, rec: dict, n: int,
 
 
 async def measure_live(base: str, pid: int, rig_id: str, sets, background, n: int, seconds: float) -> dict:
-    from benchmarks._proc import tree_cpu_seconds
+    from harness.proc import tree_cpu_seconds
 
     stop, opened = asyncio.Event(), asyncio.Queue()
     viewers = [asyncio.create_task(live_browser_viewer(base, rig_id, stop, opened)) for _ in range(n)]
@@ -425,7 +421,7 @@ async def measure_live(base: str, pid: int, rig_id: str, sets, background, n: in
 def chromium_recording(base: str, pid: int, rig_id: str, rec: dict, n: int, seconds: float) -> dict:
     """``n`` viewer pages in browser mode (SwiftShader) that step through the recording once (every frame set
     fetched and drawn), then stay open: server CPU while they load and step, and afterwards."""
-    from benchmarks._proc import tree_cpu_seconds
+    from harness.proc import tree_cpu_seconds
 
     with chromium("swiftshader") as browser:
         cpu0, t0 = tree_cpu_seconds(pid), time.perf_counter()
@@ -452,9 +448,9 @@ def chromium_recording(base: str, pid: int, rig_id: str, rec: dict, n: int, seco
             "steady_cores": steady, "errors": errors}
 
 
-def cost(quick: bool, chromium_viewers: list[int]) -> int:
+def cost(quick: bool, chromium_viewers: list[int]) -> tuple[dict, str]:
     from benchmarks.streaming import demo_recording, live_frame_sets, run_config
-    from tests.servers import CHECKOUT_KERNEL_CACHE, serve_app
+    from harness.servers import CHECKOUT_KERNEL_CACHE, serve_app
 
     seconds = 10.0 if quick else 30.0
     load_before = os.getloadavg()[0]
@@ -517,10 +513,8 @@ def cost(quick: bool, chromium_viewers: list[int]) -> int:
     md.append(f"\nGoal: 32 browser viewers of a cached recording cost the server < 5 % of one core: "
               f"{100 * extra32:.2f} % over the idle server's {100 * idle:.2f} % (Ray's own processes) "
               f"({'met' if extra32 < 0.05 else 'missed'}).")
-    publish("streaming_browser_cost", {"load_before": load_before, "settle": settled, "idle_cores": idle, "recording": recording,
-                                       "pages": pages, "server_viewer": server_view, "live": live_rows,
-                                       "set_bytes": set_bytes}, "\n".join(md))
-    return 0
+    return {"load_before": load_before, "settle": settled, "idle_cores": idle, "recording": recording, "pages": pages,
+            "server_viewer": server_view, "live": live_rows, "set_bytes": set_bytes}, "\n".join(md)
 
 
 # --- interaction latency ------------------------------------------------------------------------------
@@ -542,9 +536,9 @@ def drags(page, canvas: str, count: int, mode: str) -> list[float]:
     return page.evaluate("viewerState.latencies")
 
 
-def latency(quick: bool, size: str) -> int:
+def latency(quick: bool, size: str) -> tuple[dict, str]:
     from benchmarks.streaming import demo_recording
-    from tests.servers import CHECKOUT_KERNEL_CACHE, serve_app
+    from harness.servers import CHECKOUT_KERNEL_CACHE, serve_app
 
     count = 8 if quick else 20
     load_before = os.getloadavg()[0]
@@ -577,15 +571,14 @@ def latency(quick: bool, size: str) -> int:
           "move to the frame drawn on its canvas (browser: the render on this machine's WebGL; server: the viewpoint "
           "sent, rendered, JPEG back, decoded, drawn).", "",
           md_table(["mode", "drags", "p50 ms", "p95 ms"], rows)]
-    publish("streaming_browser_latency", {"load_before": load_before, "gpu": gpu, "size": size,
-                                          "browser_ms": browser_ms, "server_ms": server_ms}, "\n".join(md))
-    return 0
+    return {"load_before": load_before, "gpu": gpu, "size": size, "browser_ms": browser_ms,
+            "server_ms": server_ms}, "\n".join(md)
 
 
 # --- first frame without a GPU ------------------------------------------------------------------------------
-def first_frame(quick: bool) -> int:
+def first_frame(quick: bool) -> tuple[dict, str]:
     from benchmarks.streaming import demo_recording
-    from tests.servers import CHECKOUT_KERNEL_CACHE, serve_app
+    from harness.servers import CHECKOUT_KERNEL_CACHE, serve_app
 
     repeats = 2 if quick else 5
     load_before = os.getloadavg()[0]
@@ -626,31 +619,25 @@ def first_frame(quick: bool) -> int:
           md_table(["browser", "pages", "median ms", "max ms", "the page says it renders on", "quality shown"], rows),
           "", f"Goal: the first frame <= {FIRST_FRAME_GOAL_MS:g} ms without a GPU (median, the two auto rows): "
               f"{worst:.0f} ms ({'met' if worst <= FIRST_FRAME_GOAL_MS else 'missed'})."]
-    publish("streaming_browser_first_frame", {"load_before": load_before, "settle": settled, "runs": runs,
-                                              "quick": quick}, "\n".join(md))
-    return 0
+    return {"load_before": load_before, "settle": settled, "runs": runs, "quick": quick}, "\n".join(md)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(prog=prog(), description=__doc__.splitlines()[0])
-    ap.add_argument("section", choices=["quality", "fps", "cost", "latency", "first_frame"])
-    ap.add_argument("--quick", action="store_true", help="half-size views / fewer repeats")
-    ap.add_argument("--webgl", choices=["swiftshader", "gpu"], default="swiftshader",
-                    help="fps: Chromium's WebGL on SwiftShader (any machine) or on this machine's GPU")
-    ap.add_argument("--size", default="320x240", help="latency: the view size (an option of the page's list)")
-    ap.add_argument("--chromium", type=int, nargs="*", default=[1, 8],
-                    help="cost: numbers of Chromium viewer pages (default 1 8)")
-    args = ap.parse_args()
-    if args.section == "latency":
-        return latency(args.quick, args.size)
-    if args.section == "cost":
-        return cost(args.quick, args.chromium)
-    if args.section == "fps":
-        return fps(args.quick, args.webgl)
-    if args.section == "first_frame":
-        return first_frame(args.quick)
-    return {"quality": quality}[args.section](args.quick)
+sections = Sections("streaming_browser", __doc__)
+sections.parser.add_argument("--quick", action="store_true", help="half-size views / fewer repeats")
+sections.parser.add_argument("--webgl", choices=["swiftshader", "gpu"], default="swiftshader",
+                             help="fps: Chromium's WebGL on SwiftShader (any machine) or on this machine's GPU")
+sections.parser.add_argument("--size", default="320x240", help="latency: the view size (an option of the page's list)")
+sections.parser.add_argument("--chromium", type=int, nargs="*", default=[1, 8],
+                             help="cost: numbers of Chromium viewer pages (default 1 8)")
+sections.part("quality", "the browser's picture against the server's on held-out views", lambda a: quality(a.quick))
+sections.part("fps", "browser render time per view size, planes and options (and the server's)",
+              lambda a: fps(a.quick, a.webgl),
+              results=lambda a: "streaming_browser_fps" + ("" if a.webgl == "swiftshader" else "_gpu"))
+sections.part("cost", "what browser-rendering viewers cost the server", lambda a: cost(a.quick, a.chromium))
+sections.part("latency", "pointer move to frame on screen, browser mode against server mode",
+              lambda a: latency(a.quick, a.size))
+sections.part("first_frame", "the viewer page's first view without a GPU", lambda a: first_frame(a.quick))
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(sections.main())

@@ -31,7 +31,7 @@ import httpx
 import websockets
 
 from benchmarks._report import Sections, md_table
-from tests.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app, stalled_websocket
+from harness.servers import CHECKOUT_KERNEL_CACHE, exit_on_sigterm, serve_app, stalled_websocket
 from workers.streaming.framing import unpack_message
 
 SIZE = (320, 240)
@@ -192,7 +192,7 @@ def bench_share(args: Any) -> tuple[dict[str, Any], str]:
 
 # --- stalled -------------------------------------------------------------------------------------
 def stalled_reader(base: str, path: str) -> socket.socket:
-    """A viewer socket that never reads (tests.servers.stalled_websocket), with a timeout for the closing checks."""
+    """A viewer socket that never reads (harness.servers.stalled_websocket), with a timeout for the closing checks."""
     sock = stalled_websocket(base, path)
     sock.settimeout(2.0)
     return sock

@@ -21,7 +21,7 @@ import numpy as np
 from benchmarks._report import md_table, prog, publish
 from workers.synth import arc_angles, arc_camera, default_arc_rig, default_scene, render, render_views
 from workers.common.imagemetrics import psnr
-from workers.sweep.renderer import RenderOptions, SweepRenderer, _wants_gpu
+from workers.sweep.renderer import RenderOptions, SweepRenderer, wants_gpu
 from workers.sweep.rig import Rig
 
 NEAR, FAR = 1.6, 3.6
@@ -62,7 +62,7 @@ def measure(renderers: dict[str, tuple[SweepRenderer, int]], cam, opt: RenderOpt
 
 
 def gpu_name() -> str | None:
-    if not _wants_gpu("auto"):
+    if not wants_gpu("auto"):
         return None
     from numba import cuda
     return cuda.get_current_device().name.decode() if isinstance(cuda.get_current_device().name, bytes) \

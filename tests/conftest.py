@@ -138,9 +138,9 @@ def _wait_ready(client, timeout: float = 60.0) -> None:
 
 
 def _postgres_or_skip(start):
-    """What ``start()`` (a context manager of tests.servers) yields, for a fixture; the test skipped where no
+    """What ``start()`` (a context manager of harness.servers) yields, for a fixture; the test skipped where no
     PostgreSQL binaries exist."""
-    from tests.servers import Unavailable
+    from harness.servers import Unavailable
 
     try:
         with start() as server:
@@ -152,7 +152,7 @@ def _postgres_or_skip(start):
 @pytest.fixture(scope="session")
 def postgres_server():
     """A throw-away PostgreSQL cluster on loopback for this test run (its URL)."""
-    from tests.servers import temp_postgres
+    from harness.servers import temp_postgres
 
     yield from _postgres_or_skip(temp_postgres)
 
@@ -160,7 +160,7 @@ def postgres_server():
 @pytest.fixture
 def stoppable_postgres():
     """A PostgreSQL server of this test's own, which it may stop and start (the session's is shared: never stopped)."""
-    from tests.servers import postgres_server as own_postgres_server
+    from harness.servers import postgres_server as own_postgres_server
 
     yield from _postgres_or_skip(own_postgres_server)
 
@@ -170,7 +170,7 @@ def postgres_url(postgres_server):
     """A fresh, empty database on the test PostgreSQL server."""
     import uuid
 
-    from tests.servers import create_database
+    from harness.servers import create_database
 
     return create_database(postgres_server, f"t_{uuid.uuid4().hex[:12]}")
 

@@ -8,7 +8,8 @@ coefficients ``(k1, k2, p1, p2[, k3[, k4, k5, k6[, s1..s4[, tx, ty]]]])``.
 
 API:
 - ``Camera(name, K, R, t, width, height, dist=None)``: validated on construction; a bad field raises
-  :class:`CameraError` (a ``ValueError``) naming the camera and the field.
+  :class:`CameraError` (an :class:`~workers.common.errors.InputError`, so a ``ValueError``: 422
+  ``invalid_camera`` in the service) naming the camera and the field.
 - ``cam.center`` (3,), ``cam.axis`` (3,) optical axis in world, ``cam.P`` (3, 4).
 - ``cam.project(X) -> (uv, z)``, ``cam.backproject(uv, depth) -> X``, ``cam.rays(uv) -> unit dirs``,
   ``cam.pixel_grid()``.
@@ -28,16 +29,21 @@ from typing import Any
 import cv2
 import numpy as np
 
+from workers.common.errors import InputError
+
 _ORTHO_TOL = 1e-5
 _DIST_LENGTHS = (4, 5, 8, 12, 14)
 
 
-class CameraError(ValueError):
-    """A camera's calibration is unusable; ``camera`` and ``field`` say which and where."""
+class CameraError(InputError):
+    """A camera's calibration is unusable; ``camera`` and ``field`` say which and where, ``problem`` what is wrong."""
+
+    code = "invalid_camera"
 
     def __init__(self, camera: str, field_name: str, problem: str) -> None:
         self.camera = camera
         self.field = field_name
+        self.problem = problem
         super().__init__(f"camera {camera!r}: field {field_name!r}: {problem}")
 
 

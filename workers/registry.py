@@ -46,7 +46,3 @@ def get_kind(name: str) -> JobKind:
                 return kind
     raise KeyError(f"unknown job kind {name!r}; the engines with jobs: {', '.join(ENGINES)}")
 
-
-def all_kinds() -> list[JobKind]:
-    """Every job kind of every engine (imports them all)."""
-    return [kind for engine in ENGINES for kind in importlib.import_module(f"workers.{engine}.job").JOBS]

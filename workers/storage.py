@@ -94,11 +94,6 @@ def safe_name(name: str, fallback: str = "file") -> str:
     return cleaned or fallback
 
 
-def new_key(prefix: str) -> str:
-    """A fresh unique key below ``prefix``."""
-    return check_key(f"{prefix.rstrip('/')}/{uuid.uuid4().hex}")
-
-
 class BlobStore(Protocol):
     url: str
     retry_after_s: float

@@ -6,7 +6,7 @@ from typing import Callable, TypeVar
 
 import cv2
 
-from fastapi import APIRouter, Depends, File, Form, UploadFile
+from fastapi import APIRouter, Depends, File, UploadFile
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 
@@ -15,12 +15,12 @@ from app.keys import Principal
 from app.errors import ApiError
 from app.limits import BATCH_BODY
 from app.routers.jobs import JobOut, job_accepted
-from app.services import Services, Upload, create_job, parse_params, run_compute, services
+from app.params_form import params_form
+from app.services import Services, Upload, create_job, run_compute, services
 from app.sync_work import BUSY_RESPONSE
 from app.uploads import check_size, read_upload
 from workers.common.images import ImageInputError, decode_image
 from workers.common.work import WorkEstimate
-from workers.depth.errors import DepthInputError
 from workers.depth.io import YuvFormat, yuv_sequence_frames
 from workers.depth.job import VIDEO_JOB, check_video_input
 from workers.depth.params import DepthFilterParams, DepthVideoParams, SynthesizeParams
@@ -39,7 +39,7 @@ SYNTHESIS_INSTEAD = "synthesise a smaller view (downscale the views, or give the
 router = APIRouter(prefix="/v1/depth", tags=["depth"], dependencies=[Depends(require_key)])
 
 R = TypeVar("R")
-PARAMS_HELP = "JSON object of {model} (see the schema of that name); default {{}}"
+SCHEMA_NAMED = " (see the schema of that name); default {}"
 
 
 class SynthesisOut(BaseModel):
@@ -55,10 +55,9 @@ class SynthesisOut(BaseModel):
 async def filter_depth(
     depth: UploadFile = File(..., description="decoded depth map: PNG or PGM, 8 or 16 bit inverse-depth levels"),
     texture: UploadFile | None = File(None, description="texture at the output size (guided methods: wmf)"),
-    params: str | None = Form(None, description=PARAMS_HELP.format(model="DepthFilterParams")),
+    p: DepthFilterParams = params_form(DepthFilterParams, SCHEMA_NAMED),
     svc: Services = Depends(services),
 ) -> Response:
-    p = parse_params(DepthFilterParams, params)
     depth_bytes = await read_upload(depth, svc.settings.max_upload_bytes)
     texture_bytes = await read_upload(texture, svc.settings.max_upload_bytes) if texture is not None else None
     limit = svc.settings.max_image_pixels
@@ -74,10 +73,9 @@ async def filter_depth(
 async def synthesize(
     textures: list[UploadFile] = File(..., description="one texture per source view, in camera order"),
     depths: list[UploadFile] = File(..., description="one depth map per source view, same order"),
-    params: str = Form(..., description=PARAMS_HELP.format(model="SynthesizeParams")),
+    p: SynthesizeParams = params_form(SynthesizeParams, SCHEMA_NAMED, required=True),
     svc: Services = Depends(services),
 ) -> SynthesisOut:
-    p = parse_params(SynthesizeParams, params)
     if len(textures) != len(depths):
         raise ApiError(422, f"got {len(textures)} textures and {len(depths)} depth maps: give one of each per view",
                        "invalid_request")
@@ -105,7 +103,7 @@ def _synthesize(views: list[tuple[bytes, bytes]], p: SynthesizeParams, limit: in
     try:
         mask = decode_image(holes, cv2.IMREAD_GRAYSCALE, limit)
     except ImageInputError as exc:  # pragma: no cover - our own PNG, at most the size of a checked input
-        raise DepthInputError(f"hole mask: {exc}", exc.code) from None
+        raise exc.about("hole mask") from None
     return image, holes, float((mask > 0).mean())
 
 
@@ -121,12 +119,11 @@ async def filter_video(
     depth: UploadFile = File(..., description="raw planar YUV depth frames (4:0:0 or 4:2:0, 8 or 16 bit LE), "
                                               "or an 8-bit H.264/HEVC depth video (input_format \"video\")"),
     texture: UploadFile | None = File(None, description="8-bit 4:2:0 texture at the output size (guided methods)"),
-    params: str = Form(..., description=PARAMS_HELP.format(model="DepthVideoParams")
-                       + "; width and height required for raw YUV"),
+    p: DepthVideoParams = params_form(DepthVideoParams, SCHEMA_NAMED + "; width and height required for raw YUV",
+                                      required=True),
     svc: Services = Depends(services),
     who: Principal = Depends(principal),
 ) -> JSONResponse:
-    p = parse_params(DepthVideoParams, params)
     uploads = [Upload("depth", depth.file, {"filename": depth.filename})]
     if texture is not None:
         check_size(texture, svc.settings.max_batch_bytes)

@@ -8,7 +8,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter, Depends, File, Form, UploadFile
+from fastapi import APIRouter, Depends, File, UploadFile
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
 
@@ -18,10 +18,11 @@ from app.errors import ApiError
 from app.limits import BATCH_BODY
 from app.jobstore import JobState, as_utc
 from app.routers.jobs import JobOut, job_accepted
-from app.services import Services, Upload, create_job, parse_params, run_compute, services
+from app.params_form import params_form
+from app.services import Services, Upload, create_job, run_compute, services
 from app.sync_work import BUSY_RESPONSE
 from app.uploads import read_upload
-from workers.common.safezip import SafeZip, ZipInputError, ZipLimits
+from workers.faces.dataset import check_dataset_zip
 from workers.faces.errors import FaceInputError
 from workers.faces.mesh import parse_estimate
 from workers.faces.model import FaceModel
@@ -83,31 +84,19 @@ async def _model(model_id: str, svc: Services, who: Principal) -> FaceModel:
              summary="Train a face model: from a dataset zip (meshes + manifest.csv) or the synthetic generator")
 async def train_model(
     dataset: UploadFile | None = File(None, description="zip of registered meshes with manifest.csv (person, expression, file)"),
-    params: str | None = Form(None, description='JSON object of FaceTrainParams, e.g. {"source": "synthetic"}'),
+    p: FaceTrainParams = params_form(FaceTrainParams, ', e.g. {"source": "synthetic"}'),
     svc: Services = Depends(services),
     who: Principal = Depends(principal),
 ) -> JSONResponse:
-    p = parse_params(FaceTrainParams, params)
     if dataset is None and p.source == "dataset":
         raise ApiError(422, "source 'dataset' needs a dataset zip in the 'dataset' field", "invalid_request")
     if dataset is not None and p.source == "synthetic":
         raise ApiError(422, "a dataset zip was sent but source is 'synthetic': send one or the other", "invalid_request")
     if dataset is not None:
-        await asyncio.to_thread(_check_dataset_zip, dataset, svc.settings.zip_limits)
+        await asyncio.to_thread(check_dataset_zip, dataset.file, svc.settings.zip_limits, dataset.filename or
+                                "the dataset zip")
     uploads = [Upload("dataset", dataset.file, {"filename": dataset.filename})] if dataset is not None else []
     return job_accepted(await create_job(svc, who, TRAIN_JOB, p, uploads))
-
-
-def _check_dataset_zip(dataset: UploadFile, limits: ZipLimits) -> None:
-    """422 at once, before a job is made, when the dataset is no readable zip or breaks the zip limits
-    (SafeZip reads the central directory only; the job reads the members)."""
-    try:
-        with SafeZip(dataset.file, limits, dataset.filename or "the dataset zip"):
-            pass
-    except ZipInputError as exc:
-        raise ApiError(422, str(exc), "invalid_dataset") from None
-    finally:
-        dataset.file.seek(0)
 
 
 @router.get("", response_model=FaceModelList, summary="The face models: the default and every one the key trained")
@@ -130,12 +119,11 @@ async def transform(
     model_id: str,
     mesh: UploadFile = File(..., description="the face, OBJ or PLY, registered to the model's topology"),
     neutral: UploadFile | None = File(None, description="the same person's neutral face (optional)"),
-    params: str = Form(..., description='JSON object of FaceTransformParams, e.g. {"impression": "smile_open", '
-                                        '"method": "svm", "q": 1.5}'),
+    p: FaceTransformParams = params_form(FaceTransformParams, ', e.g. {"impression": "smile_open", "method": "svm", '
+                                                              '"q": 1.5}', required=True),
     svc: Services = Depends(services),
     who: Principal = Depends(principal),
 ) -> TransformOut:
-    p = parse_params(FaceTransformParams, params)
     model = await _model(model_id, svc, who)
     mesh_bytes = await read_upload(mesh, svc.settings.max_upload_bytes)
     neutral_bytes = await read_upload(neutral, svc.settings.max_upload_bytes) if neutral is not None else None

@@ -15,15 +15,16 @@ from app.routers.jobs import JobOut, job_accepted
 from app.services import Services, Upload, create_job, run_compute, services
 from app.settings import Settings
 from app.uploads import check_size, read_upload
+from workers.common.errors import InputError
 from workers.common.models import models_dir
-from workers.orientation import errors
 from workers.orientation.detect import detector_config
-from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
 from workers.orientation.job import BATCH_JOB, OrientationBatchParams
 from workers.orientation.orient import DetectorConfig, OrientationReport, analyze, get_detector, orient_file
 
 _MEDIA = {"jpeg": "image/jpeg", "webp": "image/webp", "tiff": "image/tiff", "png": "image/png"}
+"""The media type of each format /orient returns a tagged photo in (its own format)."""
 XMP_MEDIA = "application/rdf+xml"
+"""The media type of an XMP sidecar."""
 
 router = APIRouter(prefix="/v1/photos", tags=["photos"], dependencies=[Depends(require_key)])
 
@@ -35,20 +36,6 @@ def orientation_config(settings: Settings) -> DetectorConfig:
 
 def _detector(svc: Services) -> Any:
     return get_detector(orientation_config(svc.settings))
-
-
-def _as_api_error(exc: errors.OrientationInputError, filename: str | None) -> ApiError:
-    """The engine's error (its status and code) with the file it came from."""
-    name = f"{filename}: " if filename else ""
-    return ApiError(exc.status, f"{name}{exc}", exc.code)
-
-
-def _tool_error(exc: Exception, filename: str | None) -> ApiError:
-    """exiftool missing (a deployment without it: 503) or refusing this file (422)."""
-    name = f"{filename}: " if filename else ""
-    if isinstance(exc, ExifToolUnavailable):
-        return ApiError(503, f"{name}{exc}", "metadata_tool_unavailable")
-    return ApiError(422, f"{name}exiftool could not write this file: {exc}", "unwritable_metadata")
 
 
 @router.post("/orientation", response_model=OrientationReport,
@@ -69,10 +56,8 @@ async def detect_orientation(file: UploadFile = File(..., description="a JPEG, W
     try:
         return await run_compute(svc, lambda: analyze(data, _detector(svc), svc.settings.max_image_pixels,
                                                       file.filename, mode=mode, force=force))
-    except errors.OrientationInputError as exc:
-        raise _as_api_error(exc, file.filename) from None
-    except (ExifToolUnavailable, ExifToolError) as exc:
-        raise _tool_error(exc, file.filename) from None
+    except InputError as exc:  # the engine's status and code, with the file it came from
+        raise exc.about(file.filename) from None
 
 
 @router.post("/orient", response_class=Response,
@@ -81,7 +66,7 @@ async def detect_orientation(file: UploadFile = File(..., description="a JPEG, W
              responses={415: {"description": "the file is not a JPEG, WebP, TIFF, PNG, HEIC/HEIF, AVIF or RAW photo"},
                         503: {"description": "metadata_tool_unavailable: the write needs ExifTool (PNG, a sidecar "
                                              "update) and this deployment has none"},
-                        200: {"content": {"image/jpeg": {}, XMP_MEDIA: {}},
+                        200: {"content": {media: {} for media in (*_MEDIA.values(), XMP_MEDIA)},
                               "description": "the photo with its tag set, image data untouched (image/jpeg, "
                                              "image/webp, image/tiff, image/png), or the XMP sidecar to store "
                                              "beside it (application/rdf+xml, Content-Disposition names it: "
@@ -106,10 +91,8 @@ async def orient_photo(file: UploadFile = File(..., description="a JPEG, WebP, T
     try:
         outcome = await run_compute(svc, lambda: orient_file(data, _detector(svc), force, svc.settings.max_image_pixels,
                                                              file.filename, mode=mode))
-    except errors.OrientationInputError as exc:
-        raise _as_api_error(exc, file.filename) from None
-    except (ExifToolUnavailable, ExifToolError) as exc:
-        raise _tool_error(exc, file.filename) from None
+    except InputError as exc:  # the engine's status and code, with the file it came from
+        raise exc.about(file.filename) from None
     report = outcome.report
     carried = report.written_orientation if report.written else report.file_orientation
     headers = {

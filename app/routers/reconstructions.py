@@ -1,7 +1,7 @@
 """Drone-video 3D reconstruction: a job per video (or zip of ordered stills)."""
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, File, Form, UploadFile
+from fastapi import APIRouter, Depends, File, UploadFile
 from fastapi.responses import JSONResponse
 
 from app.auth import principal, require_key
@@ -9,7 +9,8 @@ from app.keys import Principal
 from app.errors import ApiError
 from app.limits import BATCH_BODY
 from app.routers.jobs import JobOut, job_accepted
-from app.services import Services, Upload, create_job, parse_params, services
+from app.params_form import params_form
+from app.services import Services, Upload, create_job, services
 from app.uploads import check_size
 from workers.drone.job import RECONSTRUCT_JOB
 from workers.drone.params import ReconstructionParams
@@ -36,12 +37,11 @@ async def create_reconstruction(
     calibration: UploadFile | None = File(None, description="calibration file (OpenCV YAML/XML/JSON, COLMAP "
                                                             "cameras.txt, or 'fx fy cx cy')"),
     telemetry: UploadFile | None = File(None, description="the video's DJI .SRT telemetry file (GPS per frame)"),
-    params: str | None = Form(None, description='JSON object of ReconstructionParams, e.g. {"orthophoto": true, '
-                                                '"gsd_cm": 5} or {"fx": 702, "fy": 702, "cx": 600, "cy": 450}'),
+    p: ReconstructionParams = params_form(ReconstructionParams, ', e.g. {"orthophoto": true, "gsd_cm": 5} or '
+                                                                '{"fx": 702, "fy": 702, "cx": 600, "cy": 450}'),
     svc: Services = Depends(services),
     who: Principal = Depends(principal),
 ) -> JSONResponse:
-    p = parse_params(ReconstructionParams, params)
     if media.size == 0:
         raise ApiError(400, f"{media.filename or 'media'} is empty", "empty_file")
     uploads = [Upload("media", media.file, {"filename": media.filename, "content_type": media.content_type})]

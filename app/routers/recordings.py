@@ -8,7 +8,7 @@ from __future__ import annotations
 import asyncio
 from typing import Any, Literal
 
-from fastapi import APIRouter, Depends, File, Form, Query, Request, UploadFile
+from fastapi import APIRouter, Depends, File, Query, Request, UploadFile
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 
@@ -20,7 +20,8 @@ from app.frame_atlases import AtlasKey, build_atlas
 from app.stored_rigs import (delete_recording_data, load_rig, recording_or_404, recording_views, require_ready,
                             rig_json_bytes, rig_meta_or_404, view_limits)
 from app.routers.jobs import JobOut, job_accepted
-from app.services import Services, Upload, create_job, parse_params, run_compute, services
+from app.params_form import params_form
+from app.services import Services, Upload, create_job, run_compute, services
 from workers.streaming import actor
 from workers.streaming.browser import ATLAS_FORMATS
 from workers.streaming.session import MAX_SOURCE_FACTOR
@@ -30,7 +31,6 @@ from workers.streaming.params import (ARCHIVE_INPUT, BatchRenderParams, Recordin
                                       background_input, media_input)
 from workers.streaming.recording import (check_archive_upload, check_background_uploads, check_video_uploads,
                                          match_cameras)
-from workers.streaming.session import ViewError
 
 router = APIRouter(prefix="/v1/rigs", tags=["rigs"], dependencies=[Depends(require_key)])
 
@@ -72,11 +72,10 @@ async def create_recording(
     videos: list[UploadFile] | None = File(None, description="one video per camera, synchronised by frame index"),
     archive: UploadFile | None = File(None, description="a zip of per-camera image folders"),
     backgrounds: list[UploadFile] | None = File(None, description="optional empty-scene image per camera"),
-    params: str | None = Form(None, description="JSON object of RecordingRequest (name, fps of image folders)"),
+    req: RecordingRequest = params_form(RecordingRequest, " (name, fps of image folders)"),
     svc: Services = Depends(services),
     who: Principal = Depends(principal),
 ) -> JSONResponse:
-    req = parse_params(RecordingRequest, params)
     await rig_meta_or_404(svc, rig_id, who, change=True)
     rig = await load_rig(svc, rig_id)
     if (videos is None) == (archive is None):
@@ -198,10 +197,7 @@ async def create_render(rig_id: str, params: BatchRenderParams, svc: Services = 
     if params.frame_start >= frames or end >= frames:
         raise ApiError(422, f"frames {params.frame_start}..{end} are out of range: recording {recording['id']} has "
                             f"{frames} frames (0..{frames - 1})", "invalid_parameters")
-    try:
-        view_limits(svc.settings).check(params.width, params.height, params.planes)
-    except ViewError as exc:
-        raise ApiError(422, exc.detail, "invalid_parameters") from None
+    view_limits(svc.settings).check(params.width, params.height, params.planes)
     rig = await load_rig(svc, rig_id)
     job = await create_job(svc, who, RENDER_JOB, params,
                            [Upload("rig", rig_json_bytes(rig), {"filename": "rig.json"})],

@@ -26,8 +26,7 @@ from app.errors import ApiError
 from app.jobstore import JobState
 from app.routers.jobs import load_job
 from app.services import Services, run_compute, services
-from workers.orientation import errors
-from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
+from workers.common.errors import InputError
 from workers.orientation.job import BATCH_JOB, fixed_name, record_review, summary_of
 from workers.orientation.review import ReviewChoice, needs_review, write_choice
 from workers.runtime import results_prefix
@@ -136,12 +135,8 @@ async def decide_photo(job_id: str, choice: ReviewChoice,
     mode = "sidecar" if (job.params or {}).get("sidecar") else "file"
     try:
         return await run_compute(svc, _decide, svc, job, index, choice, mode)
-    except errors.OrientationInputError as exc:
-        raise ApiError(422, f"photo {index}: {exc}", exc.code) from None
-    except ExifToolUnavailable as exc:
-        raise ApiError(503, f"photo {index}: {exc}", "metadata_tool_unavailable") from None
-    except ExifToolError as exc:
-        raise ApiError(422, f"photo {index}: exiftool could not write it: {exc}", "unwritable_metadata") from None
+    except InputError as exc:  # the engine's status and code, with the photo it came from
+        raise exc.about(f"photo {index}") from None
 
 
 def _decide(svc: Services, job: Any, index: int, choice: ReviewChoice, mode: str) -> ReviewItem:

@@ -21,14 +21,13 @@ from app.stored_rigs import (delete_recording_data, load_rig, recording_views, r
 from app.routers.recordings import RecordingOut
 from app.services import Services, run_compute, services
 from app.uploads import check_size
-from workers.camera import CameraError
 from workers.storage import safe_name
 from workers.streaming import actor
 from workers.streaming import store as rigstore
 from workers.streaming.browser import live_background_atlas
 from workers.streaming.viewpoint import orbit_frame
-from workers.sweep.rig import Rig, RigError
-from workers.sweep.rig_io import CAMERA_LIST, load_uploaded_rig, metres_per_unit, rig_to_dict
+from workers.sweep.rig import Rig
+from workers.sweep.rig_io import load_uploaded_rig, rig_to_dict
 
 router = APIRouter(prefix="/v1/rigs", tags=["rigs"], dependencies=[Depends(require_key)])
 
@@ -81,31 +80,15 @@ async def create_rig(
 ) -> JSONResponse:
     for f in files:
         check_size(f, svc.settings.max_upload_bytes)
-    try:
-        metres_per_unit(units, CAMERA_LIST)
-    except RigError as exc:
-        raise ApiError(422, f"units: {str(exc).split(': ', 2)[-1]}", "invalid_parameters") from None
     contents = [(safe_name(f.filename or "rig.json", "rig.json"), await f.read()) for f in files]
-    try:
-        rig, fmt = await run_compute(svc, load_uploaded_rig, contents, width, height, units, camera_type)
-    except (RigError, CameraError, ValueError) as exc:
-        raise ApiError(422, f"unusable calibration: {exc}", "invalid_rig") from None
-    _check_rig(rig, svc)
+    rig, fmt = await run_compute(svc, load_uploaded_rig, contents, width, height, units, camera_type,
+                                 svc.settings.max_rig_cameras, svc.settings.max_image_pixels)
     rig_id = rigstore.new_rig_id()
     meta = await asyncio.to_thread(rigstore.save_rig, svc.store, rig_id, rig,
                                    {"name": name or contents[0][0], "format": fmt, "demo": False,
                                     "created_by": who.id})
     body = RigOut.model_validate(await _rig_out(svc, meta, rig)).model_dump(mode="json")
     return JSONResponse(body, 201, headers={"Location": f"/v1/rigs/{rig_id}"})
-
-
-def _check_rig(rig: Rig, svc: Services) -> None:
-    if len(rig) > svc.settings.max_rig_cameras:
-        raise ApiError(422, f"the rig has {len(rig)} cameras; the limit is {svc.settings.max_rig_cameras}", "invalid_rig")
-    for cam in rig.cameras:
-        if cam.width * cam.height > svc.settings.max_image_pixels:
-            raise ApiError(422, f"camera {cam.name} is {cam.width}x{cam.height}, over the limit of "
-                                f"{svc.settings.max_image_pixels:,} pixels", "invalid_rig")
 
 
 async def _rig_out(svc: Services, meta: dict[str, Any], rig: Rig) -> dict[str, Any]:

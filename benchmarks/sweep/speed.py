@@ -81,9 +81,9 @@ def lanes_vs_pixel(full: SweepRenderer, hull: SweepRenderer, ang: float, quick: 
         cam = arc_camera(ang, width=w, height=h, name="v")
         opts = RenderOptions(planes=p, near=NEAR, far=FAR, subpixel_bits=5, aggregation="none")
         s_planes = 1.0 / r.depth_planes(cam, p, NEAR, FAR)
-        Q, B, _ = r._geometry(cam)
-        lo, hi = r._search_window(Q, B, h, w, s_planes, use_hull)
-        m = interleaved({name: (lambda lanes=lanes: r._sweep(Q, B, cam.center, s_planes, use_hull, opts, lo, hi, lanes))
+        Q, B, _ = r.geometry(cam)
+        lo, hi = r.search_window(Q, B, h, w, s_planes, use_hull)
+        m = interleaved({name: (lambda lanes=lanes: r.sweep(Q, B, cam.center, s_planes, use_hull, opts, lo, hi, lanes))
                          for name, lanes in (("lanes", True), ("pixel", False))}, {"lanes": 7, "pixel": 7},
                         warm=("lanes", "pixel"))
         same = bool(np.array_equal(m["lanes"]["res"][0], m["pixel"]["res"][0]))

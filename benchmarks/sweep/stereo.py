@@ -127,12 +127,12 @@ def stereo_case(name: str, planes: int) -> dict:
         row["gt_dibr"] = {"psnr_db": psnr(gt_dibr, truth, mask), "ssim": ssim(gt_dibr, truth, mask), "bad1": 0.0,
                           "ms": gt_dibr_ms}
         # the sweep's colouring at the true depth: what a perfect depth would give this renderer
-        Q, B, G = renderer._geometry(virtual)
+        Q, B, G = renderer.geometry(virtual)
         s_true = fill_depth_holes(gt_target).astype(np.float64) / (REF_SPACINGS * w)
         oracles = {}
         for suffix, vis in (("", False), ("_vis", True)):
-            oracle, _, _ = renderer._shade(virtual, Q, B, G, s_true, False, RenderOptions(visibility=vis),
-                                           renderers_d_bnd(renderer, virtual, s_true))
+            oracle, _, _ = renderer.shade(virtual, Q, B, G, s_true, False, RenderOptions(visibility=vis),
+                                          renderers_d_bnd(renderer, virtual, s_true))
             oracles[suffix] = oracle
             row[f"gt_depth_sweep_shading{suffix}"] = {"psnr_db": psnr(oracle, truth, mask),
                                                       "ssim": ssim(oracle, truth, mask), "bad1": 0.0, "ms": float("nan")}
@@ -140,9 +140,9 @@ def stereo_case(name: str, planes: int) -> dict:
         row["tolerance_psnr"] = {}
         for tol in VISIBILITY_TOLERANCES:
             img = renderer.reshade(renders["sgm"], visibility=True, visibility_tolerance=tol).image
-            orc, _, _ = renderer._shade(virtual, Q, B, G, s_true, False,
-                                        RenderOptions(visibility=True, visibility_tolerance=tol),
-                                        renderers_d_bnd(renderer, virtual, s_true))
+            orc, _, _ = renderer.shade(virtual, Q, B, G, s_true, False,
+                                       RenderOptions(visibility=True, visibility_tolerance=tol),
+                                       renderers_d_bnd(renderer, virtual, s_true))
             row["tolerance_psnr"][str(tol)] = {"sweep_sgm_vis": psnr(img, truth, mask),
                                                "gt_depth_sweep_shading_vis": psnr(orc, truth, mask)}
         if sorted(sources) == sorted(gt):  # the two GT views are the sources: split by what each sees
@@ -153,8 +153,8 @@ def stereo_case(name: str, planes: int) -> dict:
             # coloured with visibility (a diagnostic of where the remaining error lies, not a pipeline)
             sgm = renders["sgm"]
             s_mix = np.where(half, s_true, pixel_inverse_depth(1.0 / sgm.planes, sgm.plane_index, sgm.plane_offset))
-            mixed, _, _ = renderer._shade(virtual, Q, B, G, s_mix, False, RenderOptions(visibility=True),
-                                          renderers_d_bnd(renderer, virtual, s_mix))
+            mixed, _, _ = renderer.shade(virtual, Q, B, G, s_mix, False, RenderOptions(visibility=True),
+                                         renderers_d_bnd(renderer, virtual, s_mix))
             mix_disp = s_mix * (REF_SPACINGS * w)
             row["sweep_sgm_gt_half_vis"] = {"psnr_db": psnr(mixed, truth, mask), "ssim": ssim(mixed, truth, mask),
                                             "bad1": float(np.mean(np.abs(mix_disp[scored] - gt_target[scored]) > 1.0)),

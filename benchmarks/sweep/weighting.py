@@ -54,7 +54,7 @@ def camera_samples(renderer: SweepRenderer, res: RenderResult) -> tuple[np.ndarr
     pixel has no surface). The cameras' images as the renderer holds them (undistorted)."""
     cam = res.camera
     h, w = res.depth.shape
-    Q, B, _ = renderer._geometry(cam)
+    Q, B, _ = renderer.geometry(cam)
     s_pix = pixel_inverse_depth(1.0 / res.planes, res.plane_index, res.plane_offset)
     x, y = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
     n = len(renderer.cameras)
@@ -65,7 +65,7 @@ def camera_samples(renderer: SweepRenderer, res: RenderResult) -> tuple[np.ndarr
         with np.errstate(divide="ignore", invalid="ignore"):
             u, v = a[0] / a[2], a[1] / a[2]
         ok = (s_pix > 0) & (a[2] > 0) & (u >= 0) & (u <= c.width - 1) & (v >= 0) & (v <= c.height - 1)
-        img = np.ascontiguousarray(renderer._imgs[i, :c.height, :c.width])
+        img = np.ascontiguousarray(renderer.camera_image(i))
         colours[:, :, i] = cv2.remap(img, np.where(ok, u, -1).astype(np.float32), np.where(ok, v, -1).astype(np.float32),
                                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         valid[:, :, i] = ok

@@ -20,7 +20,7 @@ from ray.cluster_utils import Cluster  # noqa: E402
 
 from app.main import create_app  # noqa: E402
 from app.settings import Settings  # noqa: E402
-from tests.app.photos import FACES_ONLY, batch_files  # noqa: E402
+from harness.photos import FACES_ONLY, batch_files  # noqa: E402
 
 
 def main() -> int:

@@ -15,8 +15,8 @@ import httpx
 import pytest
 from websockets.sync.client import connect
 
-from tests.app.photos import FACES_ONLY, batch_files
-from tests.servers import ray_cluster, serve_app
+from harness.photos import FACES_ONLY, batch_files
+from harness.servers import ray_cluster, serve_app
 
 
 
@@ -78,7 +78,7 @@ def test_a_replica_with_ray_join_node_joins_the_cluster_as_a_node_without_cpus(t
     import shutil
     import tempfile
 
-    from tests.servers import guarded, kill_mentioning
+    from harness.servers import guarded, kill_mentioning
 
     with ray_cluster(worker_nodes=1) as address:
         own = tempfile.mkdtemp(prefix="scjoin-")  # the joined node's folder, by which its processes are found

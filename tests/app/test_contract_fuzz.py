@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 
-from tests.servers import ServedApp, serve_app
+from harness.servers import ServedApp, serve_app
 
 CONFIG = Path(__file__).with_name("contract_fuzz.toml")
 RUN_TIMEOUT_S = 240  # ~30 s here, ~1-2 min on 2 busy cores; far past that, something hangs
@@ -166,7 +166,7 @@ def test_a_params_field_without_a_documented_model_fails_rendering() -> None:
     doc["paths"]["/v1/new"] = {"post": {
         "requestBody": {"content": {"multipart/form-data": {"schema": {"$ref": "#/components/schemas/B"}}}},
         "responses": {"200": {"description": "ok"}}}}
-    with pytest.raises(ContractError, match="POST /v1/new has a 'params' form field"):
+    with pytest.raises(ContractError, match="POST /v1/new has a 'params' form field without its model"):
         document_contract(doc)
 
 
@@ -186,7 +186,7 @@ def test_405_allows_every_method_of_the_path() -> None:
 
 def test_params_json_is_read_strictly() -> None:
     from app.errors import ApiError
-    from app.services import parse_params
+    from app.params_form import parse_params
     from workers.faces.job import FaceTrainParams
 
     assert parse_params(FaceTrainParams, '{"variance": 1, "source": "synthetic"}').variance == 1.0

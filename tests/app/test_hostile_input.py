@@ -300,7 +300,7 @@ def test_nan_and_infinity_are_refused_in_every_schema(client):
 def test_request_models_refuse_non_finite_floats():
     from workers.depth.params import CameraModel, DepthFilterParams, DepthVideoParams, SynthesizeParams
     from workers.faces.job import FaceTrainParams, FaceTransformParams
-    from workers.registry import all_kinds
+    from tests.common.test_registry import all_kinds
 
     models = {k.params for k in all_kinds()} | {DepthFilterParams, SynthesizeParams, CameraModel,
                                                           FaceTransformParams, FaceTrainParams, DepthVideoParams}
@@ -332,7 +332,7 @@ def test_a_full_disk_refuses_uploads_with_507_and_keeps_nothing(client, monkeypa
     import shutil as shutil_module
     from collections import namedtuple
 
-    from tests.app.photos import noise_jpeg
+    from harness.photos import noise_jpeg
 
     svc = client.app.state.services
     files = [("files", ("a.jpg", noise_jpeg(1), "image/jpeg")), ("files", ("b.jpg", noise_jpeg(2), "image/jpeg"))]

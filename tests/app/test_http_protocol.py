@@ -12,7 +12,7 @@ import pytest
 import uvicorn
 
 from app.http_protocol import http_protocol
-from tests.servers import free_port
+from harness.servers import free_port
 
 TIMEOUT = 0.6
 

@@ -9,9 +9,9 @@ import ray
 import ray.exceptions
 
 import workers.ray_tasks
-from tests.app.photos import FACES_ONLY, batch_files
+from harness.photos import FACES_ONLY, batch_files
 from tests.app.test_jobs_e2e import wait_final
-from tests.servers import ROOT
+from harness.servers import ROOT
 
 
 class MemoryMonitor:
@@ -145,7 +145,7 @@ def test_a_worker_the_kernel_killed_for_memory_is_told_apart_from_a_crash(client
 
 _FREE_AND_TRIM = """
 import json, os
-from benchmarks._proc import status_mb
+from harness.proc import status_mb
 from workers.runtime import give_back_freed_memory
 
 def resident_mb():

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.app.photos import FACES_ONLY, batch_files
+from harness.photos import FACES_ONLY, batch_files
 
 ROOT = Path(__file__).resolve().parents[2]
 

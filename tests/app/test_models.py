@@ -11,6 +11,7 @@ import pytest
 
 from app.cli import main as cli
 from app.main import fetch_missing_models
+from app.routers.photos import orientation_config
 from app.settings import Settings
 from workers.common.models import YUNET, ModelError, ModelFile, install, installed
 
@@ -71,11 +72,11 @@ def test_the_service_uses_an_installed_yunet_unless_a_setting_names_another(tmp_
     source = tmp_path / "model.onnx"
     source.write_bytes(payload)
     settings = Settings(data_dir=tmp_path / "data")
-    assert settings.resolved_yunet_model is None
+    assert orientation_config(settings).yunet_model is None
     install(model, settings.data_dir, source)
-    assert settings.resolved_yunet_model == settings.data_dir / "models" / YUNET.filename
+    assert orientation_config(settings).yunet_model == settings.data_dir / "models" / YUNET.filename
     other = tmp_path / "elsewhere.onnx"
-    assert Settings(data_dir=tmp_path / "data", orientation_yunet_model=other).resolved_yunet_model == other
+    assert orientation_config(Settings(data_dir=tmp_path / "data", orientation_yunet_model=other)).yunet_model == other
 
 
 def test_cli_refuses_a_file_that_is_not_the_pinned_model(tmp_path, capsys):

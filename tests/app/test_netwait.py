@@ -9,7 +9,7 @@ import pytest
 
 from app import netwait
 from app.netwait import split_address, wait_for_gcs, wait_for_port
-from tests.servers import free_port
+from harness.servers import free_port
 
 
 def test_addresses_are_host_and_port_with_or_without_a_scheme():

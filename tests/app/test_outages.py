@@ -6,9 +6,9 @@ import time
 
 import pytest
 
-from tests.app.photos import FACES_ONLY, batch_files
+from harness.photos import FACES_ONLY, batch_files
 from tests.app.test_jobs_e2e import wait_final
-from tests.servers import create_database
+from harness.servers import create_database
 
 KEY = "outage-test-key"
 AUTH = {"Authorization": f"Bearer {KEY}"}
@@ -76,7 +76,7 @@ def faulty_s3(s3_endpoint):
 
     import boto3
 
-    from tests.servers import FaultyProxy
+    from harness.servers import FaultyProxy
 
     bucket = f"b{uuid.uuid4().hex[:12]}"
     boto3.client("s3", endpoint_url=s3_endpoint, region_name="us-east-1").create_bucket(Bucket=bucket)

@@ -10,7 +10,7 @@ import numpy as np
 import piexif
 import pytest
 
-from tests.app.photos import gradient_jpeg, noise_jpeg
+from harness.photos import gradient_jpeg, noise_jpeg
 from workers.common.datasets import dataset
 
 
@@ -89,7 +89,8 @@ def turned(monkeypatch):
 
 
 def test_every_format_says_what_it_would_write_where(client, turned):
-    from tests.orientation.builders import avif, gray_pages, jpeg, tiff
+    from harness.photos import gray_pages, tiff
+    from tests.orientation.builders import avif, jpeg
 
     cases = [("a.jpg", jpeg(), "exif-ifd0", "the photo"), ("b.tif", tiff(gray_pages(2), ">"), "exif-ifd0", "the photo"),
              ("c.png", png_bytes(), "png-exif", "the photo"), ("d.avif", avif(), "xmp-sidecar", "d.avif.xmp"),
@@ -111,7 +112,8 @@ def test_every_format_says_what_it_would_write_where(client, turned):
 def test_orient_returns_a_tagged_tiff_and_a_sidecar_for_avif(client, turned):
     from PIL import Image
 
-    from tests.orientation.builders import avif, gray_pages, tiff
+    from harness.photos import gray_pages, tiff
+    from tests.orientation.builders import avif
     from workers.orientation.xmp import read_packet
 
     data = tiff(gray_pages(3), ">")

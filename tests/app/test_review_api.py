@@ -7,8 +7,8 @@ import cv2
 import numpy as np
 import piexif
 
-from tests.orientation.builders import asymmetric_image, encode, ifd0_entries, insert_app1, jpeg, rich_exif, \
-    split_around_app1
+from harness.photos import asymmetric_image
+from tests.orientation.builders import encode, ifd0_entries, insert_app1, jpeg, rich_exif, split_around_app1
 
 
 def review_photos() -> list[tuple[str, bytes, str]]:

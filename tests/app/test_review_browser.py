@@ -11,7 +11,7 @@ from tests.app.test_review_api import review_photos
 from tests.orientation.builders import split_around_app1
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (the test extra)")
-from tests.servers import serve_in_thread  # noqa: E402
+from harness.servers import serve_in_thread  # noqa: E402
 from tests.streaming.test_viewer_browser import CHROMIUM, CHROMIUM_ARGS, pytestmark  # noqa: E402,F401
 
 

@@ -5,7 +5,7 @@ import json
 
 import numpy as np
 
-from tests.app.photos import batch_files
+from harness.photos import batch_files
 from tests.app.test_jobs_e2e import wait_final
 
 

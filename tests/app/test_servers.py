@@ -1,4 +1,4 @@
-"""The throw-away servers of tests/servers.py never outlive their starter, whether it gets SIGTERM
+"""The throw-away servers of harness/servers.py never outlive their starter, whether it gets SIGTERM
 (the benchmarks' exit_on_sigterm) or SIGKILL (the watchdog, and the kernel's parent-death signal)."""
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.servers import ROOT, postgres_bin
+from harness.servers import ROOT, postgres_bin
 
 # Each scenario starts a server, prints a line once it runs, then waits to be killed. Argument 1: a
 # folder of its own (also its TMPDIR); argument 2: "handler" to run inside exit_on_sigterm(), as
@@ -21,7 +21,7 @@ from tests.servers import ROOT, postgres_bin
 PREAMBLE = """
 import contextlib, sys, time
 from pathlib import Path
-from tests import servers
+from harness import servers
 data, mode = Path(sys.argv[1]), sys.argv[2]
 with servers.exit_on_sigterm() if mode == "handler" else contextlib.nullcontext():
 """

@@ -4,7 +4,7 @@ import time
 import numpy as np
 import pytest
 
-from workers.storage import BlobNotFound, DirectoryBlobStore, InvalidKey, check_key, new_key, open_store, safe_name
+from workers.storage import BlobNotFound, DirectoryBlobStore, InvalidKey, check_key, open_store, safe_name
 
 
 @pytest.fixture(params=["directory", "s3"])
@@ -36,9 +36,7 @@ def test_keys_that_could_escape_are_refused(store, key):
         store.put(key, b"x")
 
 
-def test_generated_keys_and_safe_names():
-    key = new_key("uploads")
-    assert key.startswith("uploads/") and check_key(key) == key
+def test_safe_names():
     assert safe_name("../../etc/passwd") == "passwd"
     assert safe_name("C:\\Users\\me\\IMG 001.JPG") == "IMG_001.JPG"
     assert safe_name("...") == "file"

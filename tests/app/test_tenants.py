@@ -15,9 +15,9 @@ import time
 import pytest
 from starlette.websockets import WebSocketDisconnect
 
-from tests.app.photos import noise_jpeg
-from tests.app.tenancy import operations, probe, refused_as_missing
-from tests.streaming.capture import make_take, rig_json, zip_bytes
+from harness.photos import noise_jpeg
+from harness.tenancy import operations, probe, refused_as_missing
+from harness.takes import make_take, rig_json, zip_bytes
 from tests.streaming.conftest import wait_recording
 
 ADMIN = "admin-secret"

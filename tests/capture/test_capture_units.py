@@ -147,7 +147,7 @@ def test_a_camera_that_never_sent_a_frame_goes_stale_without_one():
 
 def test_sweepcast_live_says_why_it_cannot_start(capsys):
     from app.cli import main
-    from tests.servers import free_port
+    from harness.servers import free_port
 
     assert main(["live", "rig1", "rtsp://a/1", "rtsp://b/2", "--server", f"http://127.0.0.1:{free_port()}"]) == 2
     said = capsys.readouterr().err

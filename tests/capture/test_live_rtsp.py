@@ -1,4 +1,4 @@
-"""``sweepcast live`` end to end: RTSP cameras served by the tests (tests/capture/rtsp_camera.py), the capture side
+"""``sweepcast live`` end to end: RTSP cameras served by the tests (harness/rtsp_camera.py), the capture side
 reading them through PyAV, the service (uvicorn in this process) taking the sets. Every camera draws its trigger
 index into its picture, so a set's frames say which instant each came from. Small frames and seconds-long runs:
 the full ten 640x480 cameras at 25 fps are benchmarks/live_ingest.py's."""
@@ -21,9 +21,9 @@ from app.capture.mailbox import FrameMailbox
 from app.capture.readers import CameraReader
 from app.capture.settings import CaptureSettings
 from app.capture.sources import Source
-from tests.capture.rtsp_camera import Camera, RtspServer, SilentServer, draw_instant, read_instant
-from tests.servers import serve_in_thread
-from tests.streaming.capture import rig_json
+from harness.rtsp_camera import Camera, RtspServer, SilentServer, draw_instant, read_instant
+from harness.servers import serve_in_thread
+from harness.takes import rig_json
 from workers.streaming.demo import demo_rig
 from workers.streaming.framing import unpack_message
 from workers.streaming.video import H264Writer

@@ -82,12 +82,11 @@ def test_damaged_pixel_data_is_an_input_error():
 
 def test_depth_engine_decodes_through_the_checked_decoder():
     from workers.depth import io
-    from workers.depth.errors import DepthInputError
 
-    with pytest.raises(DepthInputError, match="depth map: the file is empty") as caught:
+    with pytest.raises(images.EmptyImage, match="depth map: the file is empty") as caught:
         io.decode_depth(b"")
     assert caught.value.code == "empty_file"
-    with pytest.raises(DepthInputError, match="texture: .*65000x65000") as caught:
+    with pytest.raises(images.TooManyPixels, match="texture: .*65000x65000") as caught:
         io.decode_texture(jpeg_declaring(65000, 65000), 1_000_000)
     assert caught.value.code == "too_many_pixels"
 

@@ -6,6 +6,7 @@ import pytest
 from pydantic import ValidationError
 
 from app.raycluster import worker_env
+from app.routers.photos import orientation_config
 from app.settings import Settings
 from workers.common import images
 from workers.common.models import YUNET
@@ -55,6 +56,6 @@ def test_one_yunet_lookup_for_service_and_workers(tmp_path):
     folder.mkdir()
     (folder / YUNET.filename).write_bytes(b"x")
     assert WorkerSettings().yunet_model(folder) == folder / YUNET.filename
-    assert Settings(data_dir=tmp_path).resolved_yunet_model == folder / YUNET.filename
+    assert orientation_config(Settings(data_dir=tmp_path)).yunet_model == folder / YUNET.filename
     chosen = Path("/elsewhere/yunet.onnx")
     assert WorkerSettings(orientation_yunet_model=chosen).yunet_model(folder) == chosen

@@ -4,6 +4,7 @@ import pytest
 from pydantic import ValidationError
 
 from tests.depth.scene import Scene
+from workers.camera import CameraError
 from workers.common.images import encode_png
 from workers.depth import io
 from workers.depth.errors import DepthInputError
@@ -106,6 +107,6 @@ def test_synthesize_bad_input():
     with pytest.raises(ValidationError, match="general geometry needs cameras"):
         SynthesizeParams(geometry="general", z_near=1, z_far=2)
     bad_cam = {"K": [[0, 0, 1], [0, 0, 1], [0, 0, 1]]}
-    with pytest.raises(DepthInputError, match="field 'K'"):
+    with pytest.raises(CameraError, match="field 'K'"):  # a camera of the parameters: 422 invalid_camera
         synthesize_bytes(data[:1], {"geometry": "general", "z_near": 1, "z_far": 2, "cameras": [bad_cam],
                                     "target_camera": bad_cam})

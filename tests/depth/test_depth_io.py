@@ -2,8 +2,9 @@ import cv2
 import numpy as np
 import pytest
 
-from workers.camera import Camera
+from workers.camera import Camera, CameraError
 from workers.depth import io
+from workers.common.images import NotAnImage
 from workers.depth.errors import DepthInputError
 
 
@@ -36,7 +37,7 @@ def test_grey_saved_as_colour_is_accepted_but_colour_is_not():
     ok, buf = cv2.imencode(".png", colour)
     with pytest.raises(DepthInputError, match="single-channel"):
         io.decode_depth(buf.tobytes())
-    with pytest.raises(DepthInputError, match="depth map: not a readable image"):
+    with pytest.raises(NotAnImage, match="depth map: not a readable image"):
         io.decode_depth(b"hello")
 
 
@@ -131,5 +132,5 @@ def test_bad_mpeg_camera_files():
     with pytest.raises(DepthInputError, match="no camera"):
         io.parse_mpeg_cameras("  ", 10, 10)
     bad_rotation = MPEG_TEXT.replace("1.0 0.0 0.0 -5.0", "2.0 0.0 0.0 -5.0")
-    with pytest.raises(DepthInputError, match="not orthonormal"):
+    with pytest.raises(CameraError, match="camera file: .*not orthonormal"):
         io.parse_mpeg_cameras(bad_rotation, 10, 10)

@@ -5,6 +5,8 @@ import av
 import numpy as np
 import pytest
 
+from workers.common.errors import InputError
+from workers.common.images import TooManyPixels
 from workers.depth.errors import DepthInputError
 from workers.depth.video import (
     available_codecs, code_depth, code_texture, coded_bits, decode_depth_video, encode_depth_frames,
@@ -96,7 +98,7 @@ def mpeg4_video(w=32, h=32, n=2) -> bytes:
     (mpeg4_video(), {}, "unsupported_format"),
 ])
 def test_probe_refuses_what_is_not_an_8_bit_h264_or_hevc_video(data, kwargs, code):
-    with pytest.raises(DepthInputError) as err:
+    with pytest.raises(InputError) as err:
         probe_depth_video(data, **kwargs)
     assert err.value.code == code
 
@@ -106,7 +108,7 @@ def test_frame_and_pixel_limits():
     with pytest.raises(DepthInputError, match="more than 2 frames") as err:
         probe_depth_video(data, max_frames=2)
     assert err.value.code == "too_many_frames"
-    with pytest.raises(DepthInputError, match="the limit is 1,000") as err:
+    with pytest.raises(TooManyPixels, match="the limit is 1,000") as err:
         probe_depth_video(data, max_pixels=1000)
     assert err.value.code == "too_many_pixels"
     with pytest.raises(DepthInputError) as err:

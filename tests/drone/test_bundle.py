@@ -3,41 +3,15 @@ perturbed poses (pinhole with known K, and the BAL camera), robust losses, BAL r
 import numpy as np
 import pytest
 
+from harness.bundle_problem import K, line_of_cameras
 from workers.drone import bundle
 from workers.drone.bal import read_bal
 from workers.drone.camera_models import BALModel, PinholeModel, pose_params, poses_from_params
 from workers.drone.geometry import camera_centre, rotation_angle_deg
 
-K = np.array([[400.0, 0, 319.5], [0, 400.0, 239.5], [0, 0, 1]])
-
-
-def _rot(v):
-    th = np.linalg.norm(v)
-    if th == 0:
-        return np.eye(3)
-    a = v / th
-    A = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + np.sin(th) * A + (1 - np.cos(th)) * A @ A
-
-
-def _problem(n_cams=6, n_pts=250, seed=0):
-    """Cameras on a line looking at points 6-10 m ahead; every point seen by every camera."""
-    rng = np.random.default_rng(seed)
-    X = np.column_stack([rng.uniform(-3, 3, n_pts), rng.uniform(-2, 2, n_pts), rng.uniform(6, 10, n_pts)])
-    R = np.stack([_rot(rng.normal(0, 0.05, 3)) for _ in range(n_cams)])
-    R[0] = np.eye(3)
-    C = np.column_stack([np.linspace(0, 2.5, n_cams), rng.normal(0, 0.1, n_cams), rng.normal(0, 0.1, n_cams)])
-    C[0] = 0
-    t = -np.einsum("nij,nj->ni", R, C)
-    ci = np.repeat(np.arange(n_cams), n_pts)
-    pj = np.tile(np.arange(n_pts), n_cams)
-    P = np.einsum("nij,nj->ni", R[ci], X[pj]) + t[ci]
-    obs = P[:, :2] / P[:, 2:] @ K[:2, :2].T + K[:2, 2]
-    return R, t, X, ci, pj, obs
-
 
 def test_pinhole_and_bal_jacobians_match_finite_differences():
-    R, t, X, ci, pj, obs = _problem(3, 20)
+    R, t, X, ci, pj, obs = line_of_cameras(3, 20)
     for model, params in [(PinholeModel(K, 3), pose_params(R, t)),
                           (BALModel(), np.hstack([pose_params(R, t - [0, 0, 20]), np.tile([400.0, 0.1, -0.02], (3, 1))]))]:
         r, Jc, Jp = model.evaluate(params, X, ci, pj, obs, True)
@@ -55,7 +29,7 @@ def test_pinhole_and_bal_jacobians_match_finite_differences():
 
 
 def test_schur_step_equals_the_dense_normal_equations():
-    R, t, X, ci, pj, obs = _problem(4, 30, seed=2)
+    R, t, X, ci, pj, obs = line_of_cameras(4, 30, seed=2)
     keep = np.random.default_rng(3).random(len(ci)) < 0.8  # not every camera sees every point
     ci, pj, obs = ci[keep], pj[keep], obs[keep] + np.random.default_rng(4).normal(0, 1, (keep.sum(), 2))
     model = PinholeModel(K, 4)
@@ -89,7 +63,7 @@ def test_schur_step_equals_the_dense_normal_equations():
 
 
 def test_ba_recovers_perturbed_poses_and_points():
-    R, t, X, ci, pj, obs = _problem()
+    R, t, X, ci, pj, obs = line_of_cameras()
     rng = np.random.default_rng(5)
     params = pose_params(R, t)
     noisy = params + np.r_[0, 0, 0, 0, 0, 0, rng.normal(0, [0.02] * 3 + [0.1] * 3, (5, 6)).ravel()].reshape(6, 6)
@@ -112,7 +86,7 @@ def test_ba_recovers_perturbed_poses_and_points():
 
 
 def test_bal_camera_refines_focal_and_distortion():
-    R, t, X, ci, pj, _ = _problem(5, 200, seed=6)
+    R, t, X, ci, pj, _ = line_of_cameras(5, 200, seed=6)
     # BAL looks down -z: flip the scene, give each camera f, k1, k2, and project with the model.
     flip = np.diag([1.0, -1.0, -1.0])
     truth = np.hstack([pose_params(flip @ R, t @ flip), np.tile([400.0, -0.05, 0.01], (5, 1))])
@@ -135,7 +109,7 @@ def test_bal_camera_refines_focal_and_distortion():
 
 @pytest.mark.parametrize("loss", ["huber", "cauchy"])
 def test_robust_loss_resists_outliers(loss):
-    R, t, X, ci, pj, obs = _problem(seed=8)
+    R, t, X, ci, pj, obs = line_of_cameras(seed=8)
     rng = np.random.default_rng(9)
     obs = obs + rng.normal(0, 0.3, obs.shape)
     bad = rng.random(len(obs)) < 0.05
@@ -169,3 +143,22 @@ def test_read_bal(tmp_path):
     path.write_text("2 3 5\n" + text.split("\n", 1)[1])
     with pytest.raises(ValueError):
         read_bal(path)
+
+
+def test_one_iteration_runs_as_named_steps_and_its_model_decrease_is_positive():
+    R, t, X, ci, pj, obs = line_of_cameras(4, 60, seed=3)
+    params = pose_params(R, t)
+    noisy = params + np.random.default_rng(3).normal(0, 0.01, params.shape)
+    fixed = np.zeros(params.shape, bool)
+    fixed[0] = True
+    seen: dict[str, object] = {}
+
+    def step(name, fn):
+        seen[name] = fn()
+        return seen[name]
+
+    size = bundle.iteration_steps(PinholeModel(K, 4), noisy, X + 0.01, ci, pj, obs, fixed, step)
+    assert list(seen) == ["residuals_and_jacobians", "normal_equation_blocks", "schur_complement",
+                          "reduced_system_cholesky", "back_substitution", "model_decrease"]
+    assert size == {"reduced_unknowns": 3 * 6, "point_pairs": size["point_pairs"]} and size["point_pairs"] > 0
+    assert seen["model_decrease"] > 0  # the damped step predicts a lower cost

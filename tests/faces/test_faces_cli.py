@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from workers.faces.cli import register
-from workers.faces.mesh import load_mesh, write_mesh
+from tests.faces.meshes import demo_mesh, load_mesh
+from workers.faces.mesh import write_mesh
 from workers.faces.model import load_face_model
-from workers.faces.synthetic import demo_mesh
 
 
 def run(argv: list[str]) -> int:

@@ -19,7 +19,8 @@ from workers.faces.job import (FaceTrainParams, FaceTransformParams, ensure_defa
                                transform_mesh_bytes)
 from workers.faces.mesh import read_mesh, write_mesh
 from workers.faces.model import load_face_model
-from workers.faces.synthetic import demo_mesh, generate_dataset
+from tests.faces.meshes import demo_mesh
+from workers.faces.synthetic import generate_dataset
 
 
 @dataclass

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.orientation.builders import FakeDetector, asymmetric_image, jpeg
+from harness.photos import asymmetric_image
+from tests.orientation.builders import FakeDetector, jpeg
 from tests.orientation.test_orientation_text import text_page, turned
 from workers.orientation import cli
 from workers.orientation.exif import read_exif, write_orientation

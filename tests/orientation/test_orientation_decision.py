@@ -6,10 +6,12 @@ import struct
 import numpy as np
 import pytest
 
-from tests.orientation.builders import (FakeDetector, asymmetric_image, encode, insert_app1, jpeg, split_around_app1,
-                                        tiff_block)
+from harness.photos import asymmetric_image
+from tests.orientation.builders import FakeDetector, encode, insert_app1, jpeg, split_around_app1, tiff_block
 from workers.orientation.detect import Face, decide
-from workers.orientation.errors import EmptyFile, OrientationInputError, TruncatedImage
+from workers.common.errors import InputError
+from workers.common.images import EmptyImage
+from workers.orientation.errors import TruncatedImage
 from workers.orientation.exif import read_exif, write_orientation
 from workers.orientation.geometry import ROTATIONS, rotate_view, view_box_to_image
 from workers.orientation.orient import analyze, orient_file
@@ -152,13 +154,13 @@ def test_unreadable_exif_is_replaced_even_when_upright():
 
 def test_a_damaged_heif_is_refused_before_detecting():
     detector = FakeDetector((90,))
-    with pytest.raises(OrientationInputError):
+    with pytest.raises(InputError):
         orient_file(b"\0\0\0\x18ftypheic" + b"\0" * 40, detector, filename="a.heic")
     assert detector.seen == []
 
 
 def test_orient_file_bad_inputs():
-    with pytest.raises(EmptyFile):
+    with pytest.raises(EmptyImage):
         _orient(b"", FakeDetector())
     data = jpeg(asymmetric_image(300, 400))
     with pytest.raises(TruncatedImage):

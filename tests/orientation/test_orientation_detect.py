@@ -4,7 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.orientation.builders import asymmetric_image, jpeg
+from harness.photos import asymmetric_image
+from tests.orientation.builders import jpeg
 from workers.common.datasets import data_root, dataset
 from workers.orientation.detect import (YUNET_MARGIN, YUNET_MIN_SCORE, DetectorConfig, Track, get_detector,
                                         group_tracks, yunet_votes)

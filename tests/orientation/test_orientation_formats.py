@@ -18,20 +18,19 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from tests.orientation.builders import (FakeDetector, asymmetric_image, avif, encode, gray_pages, insert_xmp, jpeg,
-                                        tiff, xmp_packet)
+from harness.photos import asymmetric_image, gray_pages, tiff
+from tests.orientation.builders import FakeDetector, avif, encode, exiftool_runs, insert_xmp, jpeg, xmp_packet
 from workers.common.datasets import dataset
 from workers.orientation import cli
 from workers.orientation.bmff import read_heif
 from workers.orientation.exif import read_exif
-from workers.orientation.exiftool import exiftool_version
 from workers.orientation.geometry import apply_orientation, heif_orientation, turn_orientation
 from workers.orientation.headers import parse_header
 from workers.orientation.metadata import inspect, new_sidecar, png_chunks, write_png_orientation, write_tiff_orientation
 from workers.orientation.orient import analyze, orient_file
 from workers.orientation.xmp import existing_sidecars, patch_packet, read_packet, sidecar_bytes, sidecar_path
 
-HAS_EXIFTOOL = exiftool_version() is not None
+HAS_EXIFTOOL = exiftool_runs()
 needs_exiftool = pytest.mark.skipif(not HAS_EXIFTOOL, reason="exiftool (libimage-exiftool-perl) is not installed")
 FORMATS = dataset("orientation", "formats")
 needs_formats = pytest.mark.skipif(FORMATS is None, reason="needs $SWEEPCAST_DATA/orientation/formats")

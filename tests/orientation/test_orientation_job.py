@@ -9,15 +9,15 @@ from typing import Any
 
 import pytest
 
-from tests.orientation.builders import FakeDetector, asymmetric_image, encode, jpeg
+from harness.photos import asymmetric_image
+from tests.orientation.builders import FakeDetector, encode, exiftool_runs, jpeg
 from workers.common.jobctx import JobInputError
 from workers.fanout import InProcess
 from workers.orientation import blocks, cli, job
 from workers.storage import DirectoryBlobStore
 from workers.workarea import WorkArea
-from workers.orientation.exiftool import exiftool_version
 
-HAS_EXIFTOOL = exiftool_version() is not None
+HAS_EXIFTOOL = exiftool_runs()
 from workers.orientation.exif import read_exif, write_orientation
 from workers.orientation.job import OrientationBatchParams, run_orientation_batch, sanitize_filename
 from workers.settings import WorkerSettings, worker_settings
@@ -116,7 +116,7 @@ def test_batch_with_one_corrupt_photo_among_good_ones(tmp_path, fake_detector):
         assert png["report"]["orientation"] == 6 and png["report"]["write"]["target"] == "png-exif"
         assert png["fixed_file"] == "fixed/0002-scan.png"
     else:
-        assert png["error"]["code"] == "metadata_tool" and "exiftool" in png["error"]["message"]
+        assert png["error"]["code"] == "metadata_tool_unavailable" and "exiftool" in png["error"]["message"]
     assert tagged["report"]["action"] == "kept_existing" and tagged["fixed_file"] is None
     assert tagged["report"]["decision"] == "not_analysed" and fake_detector.seen == [(120, 200)] * 2  # never shown
     assert "0000-IMG_0001_copy.jpg" in [p.name for p in (tmp_path / "out" / "fixed").iterdir()]

@@ -7,7 +7,8 @@ from dataclasses import asdict
 
 import pytest
 
-from tests.orientation.builders import FakeDetector, asymmetric_image, encode, jpeg
+from harness.photos import asymmetric_image
+from tests.orientation.builders import FakeDetector, encode, jpeg
 from tests.orientation.test_orientation_text import text_page, turned
 from workers.orientation import blocks
 from workers.orientation.blocks import BLOCK_MAX_PHOTOS, block_sizes

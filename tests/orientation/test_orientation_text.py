@@ -6,7 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.orientation.builders import FakeDetector, asymmetric_image, encode, jpeg, letter_marks
+from harness.photos import asymmetric_image
+from tests.orientation.builders import FakeDetector, encode, jpeg, letter_marks
 from workers.common.datasets import dataset
 from workers.orientation import text as text_mod
 from workers.orientation import textdata, textlines

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from workers.orientation.words import Evidence, OcrWord, evidence, known, overlapping, real_words, word_lists
+from workers.orientation.words import OcrWord, known, real_words, word_lists
 
 VOCABULARY = frozenset({"receipt", "total", "paris", "louvre", "lilt", "tilt"})
 
@@ -40,19 +40,6 @@ def test_a_script_no_word_list_holds_is_known_by_tesseracts_dictionary():
     with_hebrew = VOCABULARY | {"שלום"}
     assert known(w("שלום", dictionary=False), with_hebrew) and not known(w("שלוס", dictionary=True), with_hebrew)
     assert known(w("Paris", dictionary=False), with_hebrew)
-
-
-def test_evidence_maps_real_words_back_onto_the_stored_page():
-    # a 200 x 100 page read turned 90 degrees clockwise (the view is 100 x 200): a word at the view's top left
-    ev = evidence([w("Receipt", box=(0, 0, 50, 10)), w("lll")], 90, 200, 100, VOCABULARY)
-    assert ev == Evidence(words=2, letters=10, real=1, real_letters=7, regions=((0.0, 0.5, 0.05, 0.5),))
-
-
-def test_overlapping_counts_regions_that_share_area():
-    a = [(0.0, 0.0, 0.2, 0.1), (0.5, 0.5, 0.2, 0.1)]
-    assert overlapping(a, [(0.1, 0.0, 0.2, 0.1)]) == 1
-    assert overlapping(a, [(0.9, 0.9, 0.05, 0.05)]) == 0
-    assert overlapping([], a) == 0
 
 
 def test_word_lists_are_read_from_a_folder(tmp_path):

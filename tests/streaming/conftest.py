@@ -5,7 +5,7 @@ import time
 
 import pytest
 
-from tests.streaming.capture import Take, make_take, rig_json, zip_bytes
+from harness.takes import Take, make_take, rig_json, zip_bytes
 
 IDLE_S = 2.0
 

@@ -9,7 +9,7 @@ import pytest
 from starlette.websockets import WebSocketDisconnect
 
 from app.routers import recordings
-from tests.streaming.capture import frame_set, jpeg
+from harness.takes import frame_set, jpeg
 from tests.streaming.conftest import add_recording, add_rig
 from tests.streaming.test_sockets import receive, sessions_of, until
 from workers.streaming.browser import atlas_columns, frame_atlas

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.browser import chromium, have_chromium, render_in_browser, static_site
+from harness.browser import chromium, have_chromium, render_in_browser, static_site
 from workers.camera import Camera
 from workers.common.datasets import dataset
 from workers.common.imagemetrics import psnr

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.streaming.capture import png, rig_json, write_videos, zip_bytes
+from harness.takes import png, rig_json, write_videos, zip_bytes
 from tests.fakectx import FakeContext
 from workers.camera import Camera
 from workers.common.jobctx import JobInputError

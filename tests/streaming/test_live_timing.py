@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from tests.streaming.capture import frame_set, jpeg
+from harness.takes import frame_set, jpeg
 from tests.streaming.conftest import add_rig
 from tests.streaming.test_sockets import VIEW, until
 from workers.streaming.framing import FramingError, unpack_frame_set

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.streaming.capture import jpeg, png
+from harness.takes import jpeg, png
 from tests.streaming.conftest import wait_recording
 from tests.streaming.test_sockets import until
 from workers.streaming.demo import demo_scene

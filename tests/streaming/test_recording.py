@@ -5,7 +5,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from tests.streaming.capture import write_videos, zip_bytes
+from harness.takes import write_videos, zip_bytes
 from workers.streaming.recording import (ArchiveWriter, RecordingArchive, RecordingError, check_image_sizes,
                                          check_videos, import_image_zip, import_videos, match_cameras,
                                          scan_image_zip, temporal_median)

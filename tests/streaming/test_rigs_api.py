@@ -5,7 +5,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from tests.streaming.capture import png, rig_json, write_videos, zip_bytes
+from harness.takes import png, rig_json, write_videos, zip_bytes
 from tests.streaming.conftest import add_recording, add_rig, wait_recording, wait_until
 from workers.camera import rotation_to_quat
 from workers.streaming.demo import DEMO_SIZE

@@ -3,7 +3,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.streaming.capture import jpeg
+from harness.takes import jpeg
 from workers.streaming.background import BackgroundModel
 from workers.streaming.images import ImageError, decode_image, decode_reduced, reduced_size
 from workers.streaming.params import Orbit, Viewpoint

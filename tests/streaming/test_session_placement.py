@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from tests.servers import ray_cluster
+from harness.servers import ray_cluster
 from workers.streaming import actor
 from workers.streaming.actor import session_node
 

@@ -11,7 +11,7 @@ import pytest
 import ray
 from starlette.websockets import WebSocketDisconnect
 
-from tests.streaming.capture import frame_set, jpeg
+from harness.takes import frame_set, jpeg
 from app.routers.rig_sockets import MAX_TEXT_CHARS
 from app.stored_rigs import session_config
 from tests.streaming.conftest import IDLE_S, add_recording, add_rig, wait_until

@@ -11,8 +11,8 @@ import httpx
 import numpy as np
 import pytest
 
-from tests.servers import serve_in_thread
-from tests.streaming.capture import rig_json, zip_bytes
+from harness.servers import serve_in_thread
+from harness.takes import rig_json, zip_bytes
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (the test extra)")
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
@@ -190,7 +190,7 @@ def test_the_viewer_renders_in_the_browser_from_cached_frame_sets(server, take):
     as it measured), fetches each frame set once, keeps the orbit on the cameras' arc unless freed, renders the best
     level and an advanced switch's override too, starts no session on the server, and switches to server rendering
     on request."""
-    from tests.browser import chromium
+    from harness.browser import chromium
     from workers.common.imagemetrics import psnr
     from workers.streaming.params import Orbit
     from workers.streaming.viewpoint import orbit_camera, orbit_frame
@@ -287,7 +287,7 @@ def test_a_browser_whose_webgl_runs_on_the_cpu_asks_the_server_at_once(server):
     """Render auto on SwiftShader (WebGL2 on the CPU): the page opens the server's session straight away, without
     loading frame sets into the browser or timing a render there, says why, and shows the quality level the server
     drew (auto) from the levels the hello names."""
-    from tests.browser import chromium
+    from harness.browser import chromium
     from workers.streaming.quality import LEVELS
     from workers.streaming.rules import choices
     from workers.sweep.renderer import RenderOptions
@@ -318,8 +318,8 @@ def test_the_browser_renders_the_live_stream_from_relayed_frame_sets(server, tak
     source draws each new set with silhouettes from its own background model (started from the server's)."""
     import websockets.sync.client as wsclient
 
-    from tests.browser import chromium
-    from tests.streaming.capture import frame_set, jpeg
+    from harness.browser import chromium
+    from harness.takes import frame_set, jpeg
 
     base, rig_id = server
     with wsclient.connect(f"{base.replace('http', 'ws')}/v1/rigs/{rig_id}/live", max_size=None) as live:

@@ -6,7 +6,7 @@ import json
 import pytest
 from starlette.websockets import WebSocketDisconnect
 
-from tests.servers import create_database
+from harness.servers import create_database
 from tests.streaming.conftest import IDLE_S, add_recording, add_rig
 from tests.streaming.test_sockets import VIEW, receive, until
 

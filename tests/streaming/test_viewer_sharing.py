@@ -14,8 +14,8 @@ import httpx
 import pytest
 from websockets.sync.client import connect
 
-from tests.servers import serve_in_thread, stalled_websocket
-from tests.streaming.capture import frame_set, jpeg, rig_json, zip_bytes
+from harness.servers import serve_in_thread, stalled_websocket
+from harness.takes import frame_set, jpeg, rig_json, zip_bytes
 from workers.streaming.framing import unpack_message
 
 STALL_S = 1.0

@@ -58,7 +58,7 @@ def main() -> None:
         report["cases"][name] = {"same_filled": float(np.mean(rc.filled == rg.filled)), "same_found": same_found, "within_one_plane": near, "same_plane": exact,
                                  "psnr_gpu_vs_cpu": float(psnr(rc.image, rg.image)),
                                  "pixels_with_depth": float(np.mean(rc.plane_index >= 0))}
-    Q, B, _ = cpu._geometry(virtual)
+    Q, B, _ = cpu.geometry(virtual)
     s_planes = 1.0 / cpu.depth_planes(virtual, args.planes, 1.6, 3.6)
     lo = np.zeros((args.height, args.width), np.int32)
     hi = np.full((args.height, args.width), args.planes - 1, np.int32)

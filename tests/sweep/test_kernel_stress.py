@@ -1,5 +1,5 @@
 """The compiled depth searches under stress, each run in a subprocess: a memory error (the process ends
-with a signal) fails this test instead of killing the test runner. See :mod:`tests.sweep.kernel_stress`."""
+with a signal) fails this test instead of killing the test runner. See :mod:`harness.kernel_stress`."""
 import json
 import os
 import signal
@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[2]
 @pytest.mark.parametrize("threads", [1, 2, 4])
 def test_every_search_variant_equals_the_reference_on_random_misaligned_rigs(threads):
     env = {**os.environ, "NUMBA_NUM_THREADS": "4"}
-    proc = subprocess.run([sys.executable, "-m", "tests.sweep.kernel_stress", "--reps", "100", "--threads",
+    proc = subprocess.run([sys.executable, "-m", "harness.kernel_stress", "--reps", "100", "--threads",
                            str(threads), "--seed", str(100 + threads)], cwd=ROOT, env=env, capture_output=True,
                           text=True, timeout=600)
     if proc.returncode < 0:

@@ -8,7 +8,7 @@ from workers.sweep import costs
 from workers.sweep.renderer import RenderOptions, SweepRenderer
 
 from .conftest import FAR, NEAR
-from .numpy_search import plane_costs as numpy_costs
+from harness.numpy_search import plane_costs as numpy_costs
 
 
 def _window_sum(a: np.ndarray, r: int) -> np.ndarray:
@@ -144,7 +144,7 @@ def test_the_cost_volume_is_the_per_plane_variance(capture, between_camera):
     cam = between_camera.scaled(0.5)
     r = SweepRenderer(rig, [v.image for v in views])
     s_planes = 1.0 / r.depth_planes(cam, 6, NEAR, FAR)
-    Q, B, _ = r._geometry(cam)
+    Q, B, _ = r.geometry(cam)
     lo = np.zeros((cam.height, cam.width), np.int32)
     hi = np.full_like(lo, 5)
     hi[:, ::3] = 2  # some windows stop early: those planes get no votes

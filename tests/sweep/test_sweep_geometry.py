@@ -42,7 +42,7 @@ def test_renderer_geometry_matches_homographies():
     images = [np.zeros((120, 160, 3), np.uint8)] * 2
     r = SweepRenderer(cams, images)
     virtual = Camera.from_center("v", _K(120, 60, 50), np.eye(3), [0.2, 0, -0.3], 120, 100)
-    Q, B, _ = r._geometry(virtual)
+    Q, B, _ = r.geometry(virtual)
     z = 3.0
     Hs = plane_homographies(cams, virtual, z)
     for i in range(2):

@@ -46,7 +46,7 @@ def test_gpu_kernels_choose_the_cpu_planes_in_the_simulator():
     assert report["cases"]["window"]["pixels_with_depth"] > 0.5
 
 
-@pytest.mark.skipif(not (os.path.exists("/dev/nvidiactl") and renderer_module._wants_gpu("auto")),
+@pytest.mark.skipif(not (os.path.exists("/dev/nvidiactl") and renderer_module.wants_gpu("auto")),
                     reason="no CUDA GPU here")
 def test_gpu_matches_the_cpu_on_a_real_gpu():
     report = _check({}, "--width", "160", "--height", "120", "--cameras", "6", "--planes", "48")

@@ -12,8 +12,8 @@ from workers.sweep.renderer import RenderOptions, SweepRenderer
 from workers.sweep.silhouette import silhouette_box, silhouette_from_background
 
 from .conftest import FAR, NEAR
-from .numpy_search import best_plane as _best
-from .numpy_search import plane_costs as _numpy_costs
+from harness.numpy_search import best_plane as _best
+from harness.numpy_search import plane_costs as _numpy_costs
 
 
 @pytest.fixture(scope="module")
@@ -31,10 +31,10 @@ def test_packed_fixed_point_cost_of_each_plane_is_exact(small, bits, consistency
     s_planes = 1.0 / r.depth_planes(cam, 6, NEAR, FAR)
     want = _numpy_costs(list(rig.cameras), [v.image for v in views], None, cam, s_planes, bits,
                         trunc2=400.0 if consistency == "truncated" else 0.0)
-    Q, B, _ = r._geometry(cam)
+    Q, B, _ = r.geometry(cam)
     for j in range(len(s_planes)):
         lo = np.full((cam.height, cam.width), j, np.int32)  # a window of one plane: its own cost comes back
-        best, cost = r._sweep(Q, B, cam.center, s_planes, False, opt, lo, lo.copy())
+        best, cost = r.sweep(Q, B, cam.center, s_planes, False, opt, lo, lo.copy())
         finite = np.isfinite(want[j])
         np.testing.assert_array_equal(best, np.where(finite, j, -1))
         np.testing.assert_allclose(cost[finite], want[j][finite], rtol=1e-6, atol=1e-6)
@@ -72,8 +72,8 @@ def test_hull_windows_keep_every_plane_inside_all_silhouettes():
                       hull_dilate=0)
     virtual = Camera.look_at("v", [0.4, -3.2, 1.1], [0, 0, 0.3], fov_deg=50, width=96, height=72)
     s_planes = 1.0 / r.depth_planes(virtual, 40, 1.5, 6.0)
-    Q, B, _ = r._geometry(virtual)
-    lo, hi = r._search_window(Q, B, 72, 96, s_planes, True)
+    Q, B, _ = r.geometry(virtual)
+    lo, hi = r.search_window(Q, B, 72, 96, s_planes, True)
     inside = np.isfinite(_numpy_costs(cams, [np.zeros((96, 128, 3), np.uint8)] * 4, sils, virtual, s_planes, 6,
                                       min_views=1))
     j = np.arange(len(s_planes))[:, None, None]
@@ -171,8 +171,8 @@ def test_search_honours_each_pixels_window_at_any_width(small, hull):
     rng = np.random.default_rng(7)
     lo = rng.integers(0, P, (cam.height, cam.width)).astype(np.int32)
     hi = np.minimum(lo + rng.integers(-1, 8, lo.shape), P - 1).astype(np.int32)  # lo > hi: an empty window
-    Q, B, _ = r._geometry(cam)
-    best, _ = r._sweep(Q, B, cam.center, s_planes, hull, RenderOptions(subpixel_bits=4), lo, hi)
+    Q, B, _ = r.geometry(cam)
+    best, _ = r.sweep(Q, B, cam.center, s_planes, hull, RenderOptions(subpixel_bits=4), lo, hi)
     costs = _numpy_costs(list(rig.cameras), images, r.silhouettes() if hull else None, cam, s_planes, 4)
     j = np.arange(P)[:, None, None]
     costs[(j < lo) | (j > hi)] = np.inf

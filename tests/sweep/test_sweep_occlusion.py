@@ -86,7 +86,7 @@ def test_cross_view_check_rejects_the_band(two_plane):
     other pixel's by both."""
     a, b, images, virtual, depth, masks = two_plane
     r = SweepRenderer([a, b], images)
-    Q, B, _ = r._geometry(virtual)
+    Q, B, _ = r.geometry(virtual)
     s_planes = np.linspace(1 / ZF, 1 / ZB, 9)  # the square on plane 0, the wall on plane 8
     true = np.where(depth == ZF, 0, 8).astype(np.int32)
     cost = np.abs(np.arange(9)[None, None, :] - true[:, :, None]).astype(np.float32)

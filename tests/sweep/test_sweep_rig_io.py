@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from workers.camera import Camera, CameraError, quat_to_rotation, rotation_to_quat
+from workers.common.errors import InputError
 from workers.sweep.renderer import SweepRenderer
 from workers.sweep.rig import Rig, RigError, depth_range_from_box
 from workers.sweep.rig_io import (load_colmap_text, load_images, load_middlebury_par, load_middlebury_rectified,
@@ -208,5 +209,18 @@ def test_cameras_at_one_place_are_refused():
         Rig(same).require_baseline()
     Rig((same[0], Camera("b", K, np.eye(3), np.array([-0.1, 0, 0]), 640, 480))).require_baseline()  # 10 cm apart
     upload = [("rig.json", json.dumps(rig_to_dict(Rig(same))).encode())]
-    with pytest.raises(RigError, match="every camera stands at the same place"):  # as the rig route reads it
-        load_uploaded_rig(upload)
+    with pytest.raises(InputError, match="unusable calibration: .*every camera stands at the same place") as info:
+        load_uploaded_rig(upload)  # as the rig route reads it: 422 invalid_rig
+    assert (info.value.code, info.value.status) == ("invalid_rig", 422)
+
+
+def test_uploaded_rigs_over_the_service_limits_and_bad_units_are_refused_with_their_codes():
+    rig = json.dumps(rig_to_dict(Rig((_cam("x"), _cam("y", t=(0.5, 0, 2)))))).encode()
+    with pytest.raises(InputError, match="the rig has 2 cameras; the limit is 1") as info:
+        load_uploaded_rig([("rig.json", rig)], max_cameras=1)
+    assert info.value.code == "invalid_rig"
+    with pytest.raises(InputError, match="camera x is .*, over the limit of 10 pixels"):
+        load_uploaded_rig([("rig.json", rig)], max_pixels=10)
+    with pytest.raises(InputError, match="^units: 'furlongs' is not a unit") as info:
+        load_uploaded_rig([("rig.json", rig)], units="furlongs")
+    assert info.value.code == "invalid_parameters"

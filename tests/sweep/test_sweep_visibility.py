@@ -142,7 +142,7 @@ def test_point_hidden_from_every_camera_keeps_all_of_them(scene):
     patch[33:39, 45:51] = True
     depth[patch] = 8.0
     first = true_depth_render(two, virtual, depth, 2.0, 8.0)
-    zbuf, zbox = surface_zbuffers(*two._geometry(virtual)[:2], 1.0 / depth, two._sizes, two._imgs.shape[:3])
+    zbuf, zbox = surface_zbuffers(*two.geometry(virtual)[:2], 1.0 / depth, two._sizes, two._imgs.shape[:3])
     for i, c in enumerate((cams["A"], cams["B"])):  # the patch really is behind the wall in both buffers
         p, z = c.project(virtual.backproject(virtual.pixel_grid()[patch], 8.0))
         u, v = np.rint(p).astype(int).T
@@ -161,7 +161,7 @@ def test_zbuffer_of_a_fronto_parallel_wall():
     2x2 footprint) and every row; the rest of the camera's box holds no surface."""
     virtual, right = cam(0.0, "v"), cam(0.4, "r")
     renderer = SweepRenderer([right, AWAY], [BLANK, BLANK])
-    Q, B, _ = renderer._geometry(virtual)
+    Q, B, _ = renderer.geometry(virtual)
     zbuf, zbox = surface_zbuffers(Q, B, np.full((H, W), 1 / ZB), renderer._sizes, renderer._imgs.shape[:3])
     u0, u1, v0, v1 = zbox[0]
     assert (u0, v0, v1) == (0, 0, H - 1) and 88 <= u1 <= 89  # the corners' span, widened by a pixel for rounding

@@ -3,7 +3,9 @@
 It is a ``ValueError`` for library callers and a :class:`~workers.common.jobctx.JobInputError` for the job
 system (the job fails at once with its message, never retried). ``code`` is a short stable identifier for JSON
 error bodies and ``status`` the HTTP status the service answers with (one handler in :mod:`app.errors`), both
-class attributes a subclass sets for its cause, or given per instance.
+class attributes a subclass sets for its cause, or given per instance. A caller that knows more of where the
+error came from (the file a route was sent, the photo of a batch) says so with :meth:`InputError.about`, which keeps
+the class, code and status: nothing converts one input error into another to reach the client.
 """
 from __future__ import annotations
 
@@ -24,6 +26,13 @@ class InputError(ValueError, JobInputError):
             self.code = code
         if status is not None:
             self.status = status
+
+    def about(self, where: str | None) -> InputError:
+        """This error with ``where`` (a file name, "photo 3") before its message; itself when ``where`` is empty.
+        Raise it ``from None``: the copy is the error the caller answers with."""
+        if not where:
+            return self
+        return _rebuild(type(self), (f"{where}: {self}",), dict(self.__dict__))
 
     def __reduce__(self) -> tuple[Any, ...]:  # pickled whole across Ray, whatever a subclass's __init__ takes
         return _rebuild, (type(self), self.args, dict(self.__dict__))

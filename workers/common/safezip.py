@@ -14,9 +14,9 @@ and :meth:`SafeZip.read` stream-reads a member with a cap of its declared size (
 ``max_member_bytes``), so a header that lies is caught rather than trusted, and counts what it
 read against ``max_total_bytes``.
 
-Every problem raises the caller's error type (``error``, default :class:`ZipInputError`, which is
-a ``ValueError`` and a ``JobInputError``), with a message that names the archive by the label the
-caller gives (the client's file name, never a server path).
+Every problem raises the caller's error type (``error``, default :class:`ZipInputError`, an
+:class:`~workers.common.errors.InputError`: 422 ``invalid_archive``), with a message that names the archive by the
+label the caller gives (the client's file name, never a server path).
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import BinaryIO, Callable
 
-from workers.common.jobctx import JobInputError
+from workers.common.errors import InputError
 from workers.settings import WorkerSettings, worker_settings
 
 MiB = 1 << 20
@@ -42,8 +42,10 @@ _EOCD, _ZIP64_LOCATOR, _ZIP64_EOCD = b"PK\x05\x06", b"PK\x06\x07", b"PK\x06\x06"
 _READ_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, RuntimeError, OSError)
 
 
-class ZipInputError(ValueError, JobInputError):
+class ZipInputError(InputError):
     """A zip archive that is damaged, unsafe or over a limit; the message says which and why."""
+
+    code = "invalid_archive"
 
 
 @dataclass(frozen=True)

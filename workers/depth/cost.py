@@ -3,7 +3,7 @@
 The service refuses a request whose estimate is over its limits and admits the others within a shared memory
 budget (``app/sync_work.py``). The figures are per megapixel of output and were measured on the reference machine
 (2-core AMD EPYC, the whole request: decoding, the method, PNG encoding) on Middlebury Art scaled to 4 MP
-(realistic piecewise-smooth depth; ``benchmarks/robustness.py --sync-work`` checks them against measured requests):
+(realistic piecewise-smooth depth; ``python -m benchmarks.robustness --only sync_work`` checks them against measured requests):
 
 - CPU seconds grow with the taps each output pixel reads: the weighted mode filter's guide_window² window plus its
   2 * ceil(3 * sigma_depth) + 1 range smoothing, joint bilateral upsampling's (2 * jbu_radius + 1)² samples, the

@@ -1,6 +1,7 @@
 """The depth engine over encoded images (PNG/PGM in, PNG out): what the synchronous routes and the CLI call.
 
-User-caused problems raise :class:`DepthInputError` (an InputError: the service answers its status).
+User-caused problems raise an :class:`~workers.common.errors.InputError` (:class:`DepthInputError`, the decoder's
+image errors, :class:`~workers.camera.CameraError`): the service answers its status.
 """
 from __future__ import annotations
 
@@ -8,13 +9,12 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from workers.camera import CameraError
 from workers.common import images
 from workers.common.work import WorkEstimate
 
 from . import dibr, io
 from .cost import filter_estimate, synthesis_estimate
-from .errors import DepthInputError
+from .errors import DepthInputError, OutputTooLarge
 from .levels import levels_to_depth, levels_to_disparity
 from .methods import postprocess
 from .params import DepthFilterParams, SynthesizeParams
@@ -30,7 +30,7 @@ def filter_depth_bytes(
     depth: PNG/PGM bytes (8- or 16-bit grey levels). texture: image bytes at the output size, needed
     by guided methods ("wmf", "jbu", "wmf_dilation"; method "auto" picks one when it is given); its size also sets the output size when no scale/size is given.
     max_pixels: the largest input image and output (width x height); None: the process's limit
-    (:func:`workers.common.images.max_pixels_from_env`). Each is refused with DepthInputError before
+    (:func:`workers.common.images.max_pixels_from_env`). Each is refused with an InputError before
     it is decoded or allocated. Returns the filtered depth as PNG bytes with the input's bit depth.
     """
     p = params if isinstance(params, DepthFilterParams) else DepthFilterParams.model_validate(params)
@@ -125,8 +125,8 @@ def _check_target_size(p: SynthesizeParams, max_pixels: int) -> None:
     their decoding checks."""
     cam = p.target_camera
     if cam is not None and cam.width is not None and cam.height is not None and cam.width * cam.height > max_pixels:
-        raise DepthInputError(f"the target view would be {cam.width}x{cam.height} = {cam.width * cam.height:,} "
-                              f"pixels; the limit is {max_pixels:,} pixels", "output_too_large")
+        raise OutputTooLarge(f"the target view would be {cam.width}x{cam.height} = {cam.width * cam.height:,} "
+                             f"pixels; the limit is {max_pixels:,} pixels")
 
 
 def synthesize_levels(
@@ -139,11 +139,8 @@ def synthesize_levels(
         shifts = [p.target_position - x for x in p.positions]
         return dibr.synthesize_rectified(textures, disparities, shifts, **kw)
     h, w = depths[0][0].shape
-    try:
-        cams = [c.camera(f"view {i}", *textures[i].shape[1::-1]) for i, c in enumerate(p.cameras)]
-        target = p.target_camera.camera("target", w, h)
-    except CameraError as exc:
-        raise DepthInputError(str(exc)) from None
+    cams = [c.camera(f"view {i}", *textures[i].shape[1::-1]) for i, c in enumerate(p.cameras)]  # CameraError: 422
+    target = p.target_camera.camera("target", w, h)
     metres = [
         levels_to_depth(levels, p.z_near, p.z_far, bits, p.larger_is_nearer) for levels, bits in depths
     ]

@@ -22,7 +22,7 @@ import numpy as np
 from workers.camera import Camera, CameraError
 from workers.common import images
 
-from .errors import DepthInputError
+from .errors import DepthInputError, PartialFrames, TooManyFrames
 from .levels import check_bits, check_levels, level_dtype
 
 CHROMA_FORMATS = ("400", "420")
@@ -30,19 +30,20 @@ CHROMA_FORMATS = ("400", "420")
 
 def decode_image_checked(data: bytes, flags: int, what: str, max_pixels: int | None = None) -> np.ndarray:
     """:func:`workers.common.images.decode_image` (header size checked against ``max_pixels``, None:
-    the process's limit, before decoding) with its errors as DepthInputError naming ``what``."""
+    the process's limit, before decoding) with its errors naming ``what``."""
     try:
         return images.decode_image(data, flags, max_pixels)
     except images.ImageInputError as exc:
-        raise DepthInputError(f"{what}: {exc}", exc.code) from None
+        raise exc.about(what) from None
 
 
 def decode_depth(data: bytes, bits: int | None = None, max_pixels: int | None = None) -> tuple[np.ndarray, int]:
     """PNG/PGM bytes -> (levels (H, W) uint8/uint16, bit depth).
 
     bits: the expected bit depth (8..16); None takes 8 or 16 from the file. A file whose sample
-    size does not match ``bits`` raises DepthInputError, as does an image over ``max_pixels``
-    (width x height; None: the process's limit), refused before decoding.
+    size does not match ``bits`` raises DepthInputError; an image over ``max_pixels`` (width x height; None: the
+    process's limit), refused before decoding, or one that does not decode raises the decoder's
+    :class:`~workers.common.images.ImageInputError` naming the depth map.
     """
     img = decode_image_checked(data, cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION, "depth map", max_pixels)
     if img.ndim == 3:
@@ -128,10 +129,10 @@ class YuvFormat:
 
 
 def yuv_frame_count(file_size: int, fmt: YuvFormat) -> int:
-    """Frames in a file of ``file_size`` bytes; DepthInputError unless it is a positive whole number."""
+    """Frames in a file of ``file_size`` bytes; PartialFrames unless it is a positive whole number."""
     frames, rest = divmod(file_size, fmt.frame_bytes)
     if rest or frames == 0:
-        raise DepthInputError(
+        raise PartialFrames(
             f"YUV file has {file_size} bytes, which is not a whole number of {fmt.width}x{fmt.height} "
             f"{fmt.bits}-bit {':'.join(fmt.chroma)} frames ({fmt.frame_bytes} bytes each)"
         )
@@ -140,14 +141,14 @@ def yuv_frame_count(file_size: int, fmt: YuvFormat) -> int:
 
 def yuv_sequence_frames(file_size: int, fmt: YuvFormat, max_frames: int, name: str = "the sequence") -> int:
     """Frames of a raw YUV depth sequence of ``file_size`` bytes, the one rule of the upload route and the job:
-    DepthInputError (422) unless a positive whole number of ``fmt`` frames, (413, ``too_many_frames``) past
-    ``max_frames``; messages name the file (``name``)."""
+    PartialFrames unless a positive whole number of ``fmt`` frames, TooManyFrames past ``max_frames``; messages name
+    the file (``name``)."""
     try:
         count = yuv_frame_count(file_size, fmt)
-    except DepthInputError as exc:
-        raise DepthInputError(f"{name}: {exc}", status=422) from None
+    except PartialFrames as exc:
+        raise exc.about(name) from None
     if count > max_frames:
-        raise DepthInputError(f"{name} holds {count} frames; the limit is {max_frames}", "too_many_frames")
+        raise TooManyFrames(f"{name} holds {count} frames; the limit is {max_frames}")
     return count
 
 
@@ -227,7 +228,7 @@ def parse_mpeg_cameras(text: str, width: int, height: int) -> dict[str, Camera]:
         try:
             cams[name] = Camera.from_center(name, K, R_c2w.T, centre, width, height)
         except CameraError as exc:
-            raise DepthInputError(f"camera file: {exc}") from None
+            raise exc.about("camera file") from None
     if not cams:
         raise DepthInputError("camera file holds no camera")
     return cams

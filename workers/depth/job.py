@@ -23,7 +23,7 @@ from workers.common.validation import describe_errors
 from workers.registry import JobKind
 
 from . import io
-from .errors import DepthInputError
+from .errors import CorruptVideo, DepthInputError
 from .levels import levels_to_depth
 from .methods import GUIDED_METHODS
 from .params import DepthVideoParams
@@ -64,7 +64,7 @@ def run_depth_video(ctx: JobContext) -> dict[str, Any]:
         guides = _guides(ctx, stack, method, out_w, out_h, count)
         for index, frame in enumerate(frames_in):
             if index >= count:
-                raise DepthInputError(f"the video decodes to more frames than its {count} packets", "corrupt_video")
+                raise CorruptVideo(f"the video decodes to more frames than its {count} packets")
             out = pipeline(frame, next(guides))
             io.write_yuv_frame(fout, out, fmt_out)
             frames.append(_frame_stats(pipeline.upsampled, out, p))

@@ -10,7 +10,7 @@ import math
 import cv2
 import numpy as np
 
-from .errors import DepthInputError
+from .errors import DepthInputError, OutputTooLarge
 
 UPSAMPLERS = {"nearest": cv2.INTER_NEAREST_EXACT, "bilinear": cv2.INTER_LINEAR}
 MAX_SIDE = 32768
@@ -41,10 +41,10 @@ def target_size(
             raise DepthInputError(f"scale factor must be a positive number, got {scale}")
         tw, th = max(1, int(round(w * s))), max(1, int(round(h * s)))
     if tw > MAX_SIDE or th > MAX_SIDE:
-        raise DepthInputError(f"target size {tw}x{th} exceeds the {MAX_SIDE}-pixel limit per side", "output_too_large")
+        raise OutputTooLarge(f"target size {tw}x{th} exceeds the {MAX_SIDE}-pixel limit per side")
     if max_pixels is not None and tw * th > max_pixels:
-        raise DepthInputError(f"the output would be {tw}x{th} = {tw * th:,} pixels; the limit is {max_pixels:,} "
-                              f"pixels (ask for a smaller scale or out_width/out_height)", "output_too_large")
+        raise OutputTooLarge(f"the output would be {tw}x{th} = {tw * th:,} pixels; the limit is {max_pixels:,} "
+                             f"pixels (ask for a smaller scale or out_width/out_height)")
     return tw, th
 
 

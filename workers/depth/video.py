@@ -27,7 +27,9 @@ import av
 import cv2
 import numpy as np
 
-from .errors import DepthInputError
+from workers.common import images
+
+from .errors import CorruptVideo, DepthInputError, NotAVideo, TooManyFrames, UnsupportedVideo
 
 CODECS = {"h264": ("libx264", "h264"), "hevc": ("libx265", "hevc")}
 """codec name -> (PyAV encoder, raw elementary-stream muxer)."""
@@ -177,8 +179,7 @@ def _open(source: str | Path | BinaryIO | bytes, name: str) -> av.container.Inpu
     try:
         return av.open(source if not isinstance(source, Path) else str(source), "r")
     except (av.error.FFmpegError, OSError, UnicodeDecodeError, ValueError):
-        raise DepthInputError(f"{name} is not a video file that can be read (expected H.264 or HEVC)",
-                              "not_a_video") from None
+        raise NotAVideo(f"{name} is not a video file that can be read (expected H.264 or HEVC)") from None
 
 
 def _check_stream(stream: av.video.stream.VideoStream, name: str, max_pixels: int | None) -> tuple[str, int, int, str]:
@@ -186,16 +187,14 @@ def _check_stream(stream: av.video.stream.VideoStream, name: str, max_pixels: in
     codec, width, height = ctx.name, int(ctx.width), int(ctx.height)
     pix_fmt = ctx.pix_fmt or ""
     if codec not in ACCEPTED_DECODERS:
-        raise DepthInputError(f"{name} is coded with {codec}; depth videos must be H.264 or HEVC",
-                              "unsupported_format")
+        raise UnsupportedVideo(f"{name} is coded with {codec}; depth videos must be H.264 or HEVC")
     if pix_fmt and pix_fmt not in EIGHT_BIT_FORMATS:
-        raise DepthInputError(f"{name} has {pix_fmt} samples; depth videos must be 8-bit "
-                              f"({', '.join(EIGHT_BIT_FORMATS[:3])}, ...)", "unsupported_format")
+        raise UnsupportedVideo(f"{name} has {pix_fmt} samples; depth videos must be 8-bit "
+                               f"({', '.join(EIGHT_BIT_FORMATS[:3])}, ...)")
     if width <= 0 or height <= 0:
-        raise DepthInputError(f"{name} does not state its frame size", "corrupt_video")
-    if max_pixels is not None and width * height > max_pixels:
-        raise DepthInputError(f"{name} has {width}x{height} frames = {width * height:,} pixels; the limit is "
-                              f"{max_pixels:,}", "too_many_pixels")
+        raise CorruptVideo(f"{name} does not state its frame size")
+    if max_pixels is not None:
+        images.check_pixels(width, height, max_pixels, f"each frame of {name}")
     return codec, width, height, pix_fmt
 
 
@@ -206,8 +205,8 @@ def probe_depth_video(
     """Check a coded depth video without decoding it: one video stream, H.264/HEVC, 8-bit samples,
     at most ``max_pixels`` per frame and ``max_frames`` frames (counted from the packets).
 
-    DepthInputError codes: ``not_a_video``, ``unsupported_format``, ``too_many_pixels``,
-    ``too_many_frames``, ``corrupt_video``.
+    Raises NotAVideo, UnsupportedVideo, TooManyPixels (:mod:`workers.common.images`), TooManyFrames,
+    CorruptVideo (:mod:`workers.depth.errors`).
     """
     with _open(source, name) as container:
         stream = _video_stream(container, name)
@@ -219,22 +218,22 @@ def probe_depth_video(
                     frames += 1
                     _check_frame_count(frames, max_frames, name)
         except av.error.FFmpegError as exc:
-            raise DepthInputError(f"{name} is damaged: {exc}", "corrupt_video") from None
+            raise CorruptVideo(f"{name} is damaged: {exc}") from None
     if frames == 0:
-        raise DepthInputError(f"{name} holds no frames", "corrupt_video")
+        raise CorruptVideo(f"{name} holds no frames")
     return DepthVideoInfo(codec, width, height, frames, pix_fmt)
 
 
 def _video_stream(container, name: str):
-    """The first video stream of an open container (DepthInputError ``not_a_video`` when none)."""
+    """The first video stream of an open container (NotAVideo when none)."""
     if not container.streams.video:
-        raise DepthInputError(f"{name} has no video stream", "not_a_video")
+        raise NotAVideo(f"{name} has no video stream")
     return container.streams.video[0]
 
 
 def _check_frame_count(count: int, max_frames: int | None, name: str) -> None:
     if max_frames is not None and count > max_frames:
-        raise DepthInputError(f"{name} has more than {max_frames} frames, the limit", "too_many_frames")
+        raise TooManyFrames(f"{name} has more than {max_frames} frames, the limit")
 
 
 def decode_depth_video(
@@ -243,10 +242,10 @@ def decode_depth_video(
 ) -> Iterator[np.ndarray]:
     """Yield the luma planes (H, W) uint8 of a coded depth video, frame by frame.
 
-    max_frames / max_pixels: limits (DepthInputError ``too_many_frames`` / ``too_many_pixels``).
+    max_frames / max_pixels: limits (TooManyFrames / TooManyPixels).
     crop: (width, height) to cut each frame to (the size before :func:`encode_depth_frames` padded
     it). A frame whose size or sample format differs from the first one's, or a decoding error,
-    raises DepthInputError (``corrupt_video``).
+    raises CorruptVideo.
     """
     with _open(source, name) as container:
         stream = _video_stream(container, name)
@@ -257,14 +256,14 @@ def decode_depth_video(
                 count += 1
                 _check_frame_count(count, max_frames, name)
                 if (frame.width, frame.height) != (width, height) or frame.format.name not in EIGHT_BIT_FORMATS:
-                    raise DepthInputError(f"{name}: frame {count - 1} is {frame.width}x{frame.height} "
-                                          f"{frame.format.name}, expected {width}x{height} 8-bit", "corrupt_video")
+                    raise CorruptVideo(f"{name}: frame {count - 1} is {frame.width}x{frame.height} "
+                                          f"{frame.format.name}, expected {width}x{height} 8-bit")
                 luma = luma_plane(frame)
                 yield luma if crop is None else np.ascontiguousarray(luma[:crop[1], :crop[0]])
         except av.error.FFmpegError as exc:
-            raise DepthInputError(f"{name}: decoding failed after {count} frames: {exc}", "corrupt_video") from None
+            raise CorruptVideo(f"{name}: decoding failed after {count} frames: {exc}") from None
     if count == 0:
-        raise DepthInputError(f"{name} holds no decodable frame", "corrupt_video")
+        raise CorruptVideo(f"{name} holds no decodable frame")
 
 
 def nal_units(stream: bytes) -> list[bytes]:

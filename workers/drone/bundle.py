@@ -837,3 +837,30 @@ def shared_information(model: CameraModel, params: np.ndarray, points: np.ndarra
                 return np.zeros((g, g))
             info = info - B.T @ solve_s(B)
     return 0.5 * (info + info.T)
+
+
+def iteration_steps(model: CameraModel, params: np.ndarray, points: np.ndarray, cam_idx: np.ndarray,
+                    pt_idx: np.ndarray, obs: np.ndarray, fixed: np.ndarray,
+                    step: Callable[[str, Callable[[], object]], object], mu: float = 1e-4,
+                    dense_limit: int = 2000) -> dict[str, int]:
+    """One damped step of :func:`solve`'s Schur path (no robust loss, no shared intrinsics), each stage run as
+    ``step(name, fn)``, which must return ``fn()`` (a benchmark times it): residuals_and_jacobians,
+    normal_equation_blocks, schur_complement, reduced_system_cholesky, back_substitution, model_decrease.
+
+    params (n_cams, p) and fixed (n_cams, p) bool per the model; points (n_pts, 3); cam_idx, pt_idx (M,) int64;
+    obs (M, 2) pixels; mu: the damping. Returns the reduced system's size: ``reduced_unknowns``, ``point_pairs``."""
+    n_cams, n_pts = len(params), len(points)
+    st = _structure(n_cams, n_pts, model.n_params, cam_idx, pt_idx, fixed)
+    r, Jc, Jp = step("residuals_and_jacobians", lambda: model.evaluate(params, points, cam_idx, pt_idx, obs, True))
+    U, V, W, gc, gp = step("normal_equation_blocks",
+                           lambda: _normal_blocks(Jc, Jp, r, cam_idx, pt_idx, n_cams, n_pts))
+    blocks, rhs, Vinv = step("schur_complement", lambda: _schur(
+        U, V, W, gc, gp, cam_idx, st.order, st.point_start, st.pair_block, st.pair_start, st.blk_indptr,
+        st.blk_indices, mu, 1))
+    x = step("reduced_system_cholesky", lambda: _solve_reduced(st, blocks, rhs, dense_limit))
+    dc = np.zeros(n_cams * model.n_params)
+    dc[st.free_index >= 0] = x
+    dc = dc.reshape(n_cams, model.n_params)
+    dp = step("back_substitution", lambda: _back_substitute(dc, W, Vinv, gp, cam_idx, st.order, st.point_start))
+    step("model_decrease", lambda: _model_decrease(Jc, Jp, r, dc, dp, cam_idx, pt_idx))
+    return {"reduced_unknowns": st.n_free, "point_pairs": int((st.pair_block >= 0).sum())}

@@ -13,8 +13,6 @@ from workers.settings import worker_settings
 
 _DIST_LENGTHS = (4, 5, 8, 12, 14)
 
-MAX_DENSE_VOLUME_ENV = "SWEEPCAST_MAX_DENSE_VOLUME"
-
 
 def max_dense_volume_from_env() -> int:
     """Most cost-volume cells (depth-map pixels x planes) a dense pass with ``dense_aggregation: "sgm"``

@@ -94,12 +94,6 @@ def parse_srt(text: str | bytes) -> Telemetry:
     return _telemetry(entries)
 
 
-def parse_subtitle_texts(entries: list[tuple[float, float, str]]) -> Telemetry:
-    """Telemetry from subtitle texts already split into (start s, end s, text) (an embedded stream).
-    Raises ValueError when no entry has a position."""
-    return _telemetry(entries)
-
-
 def _telemetry(entries: list[tuple[float, float, str]]) -> Telemetry:
     samples: list[tuple[float, float, float, float, dict[str, float]]] = []
     focal: list[float] = []

@@ -14,12 +14,12 @@ import re
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import BinaryIO, Callable
 
 import numpy as np
 
-from workers.common.safezip import SafeZip
-from workers.faces.errors import FaceInputError
+from workers.common.safezip import SafeZip, ZipLimits
+from workers.faces.errors import DatasetError, FaceInputError
 from workers.faces.mesh import Mesh, check_finite, read_mesh, write_mesh
 
 NEUTRAL = "neutral"
@@ -91,6 +91,17 @@ def _validate(ds: FaceDataset) -> None:
         raise FaceInputError(f"each expression needs faces of at least two people; too few for {thin}")
 
 
+def check_dataset_zip(source: BinaryIO, limits: ZipLimits, label: str = "the dataset zip") -> None:
+    """Refuse at once, before a training job is made, a dataset that is no readable zip or breaks the zip
+    ``limits`` (:class:`DatasetError` naming ``label``): the central directory is read, the members are not (the job
+    reads them). ``source``: an open binary file, left at its start."""
+    try:
+        with SafeZip(source, limits, label, DatasetError):
+            pass
+    finally:
+        source.seek(0)
+
+
 def load_dataset_zip(
     source: bytes | str | Path, progress: Callable[[float, str], None] | None = None
 ) -> FaceDataset:
@@ -100,7 +111,7 @@ def load_dataset_zip(
     count, sizes, compression ratio and names checked; limits from the environment, i.e. the
     service's settings). Raises FaceInputError with the offending file named.
     """
-    with SafeZip(source, label="the dataset zip", error=FaceInputError) as archive:
+    with SafeZip(source, label="the dataset zip", error=DatasetError) as archive:
         infos = {i.filename: i for i in archive.members}
         manifest = _find_manifest(infos)
         rows = _read_manifest(archive.read(manifest).decode("utf-8-sig", errors="replace"))

@@ -185,12 +185,6 @@ def replace_vertices(data: bytes, vertices: np.ndarray, name: str | None = None)
     return _replace_obj(data, np.asarray(vertices, dtype=np.float64))
 
 
-def load_mesh(path: str | Path) -> Mesh:
-    """Read a mesh file from disk (see :func:`read_mesh`)."""
-    path = Path(path)
-    return read_mesh(path.read_bytes(), path.name)
-
-
 # ---------------------------------------------------------------------------------------- OBJ
 
 def _decode_text(data: bytes) -> str:

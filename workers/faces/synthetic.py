@@ -228,8 +228,3 @@ def generate_dataset(
     return FaceDataset(np.stack(faces), np.array(persons), np.array(labels), topology)
 
 
-def demo_mesh(expression: str = NEUTRAL, intensity: float = 0.6, seed: int = 1234) -> Mesh:
-    """One synthetic face mesh (a person not in the default training set) for demos and tests."""
-    tpl = template()
-    person = random_person(np.random.default_rng(seed))
-    return Mesh.from_faces(expression_face(tpl, person, expression, intensity), tpl.faces)

@@ -22,8 +22,7 @@ from typing import Any, Iterator, Sequence
 import cv2
 
 from workers.orientation.detect import DetectorConfig, OrientationDetector, get_detector
-from workers.orientation.errors import OrientationInputError
-from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
+from workers.common.errors import InputError
 from workers.orientation.headers import sniff_format
 from workers.orientation.metadata import WriteMode
 from workers.orientation.orient import analyze, orient_file
@@ -151,10 +150,8 @@ def process_photo(task: BlockTask, photo: PhotoRef, detector: OrientationDetecto
         entry["report"] = report.model_dump(mode="json")
         if needs_review(entry["report"]):
             entry["thumbnail"] = keep(review_thumbnail_name(index), thumbnail(data, filename, task.max_pixels))
-    except OrientationInputError as exc:
+    except InputError as exc:  # the photo's own problem (ExifTool's included): this photo fails, the others go on
         entry["error"] = {"code": exc.code, "message": str(exc)}
-    except (ExifToolUnavailable, ExifToolError) as exc:
-        entry["error"] = {"code": "metadata_tool", "message": str(exc)}
     return entry
 
 

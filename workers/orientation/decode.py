@@ -2,7 +2,7 @@
 
 The header is read and checked before decoding (:mod:`workers.orientation.headers`): an empty
 file, a non-image, an unsupported format, a decompression bomb and a truncated or damaged file
-are each refused with their own :class:`OrientationInputError`. Pixels are decoded with
+are each refused with their own :class:`~workers.common.errors.InputError`. Pixels are decoded with
 ``cv2.IMREAD_IGNORE_ORIENTATION`` (the detector must see the stored pixels, not the ones an
 existing EXIF tag would show) and, for JPEG, with libjpeg's DCT scaling
 (``IMREAD_REDUCED_GRAYSCALE_2/4/8``), which skips most of the inverse-DCT work of a large photo.
@@ -16,16 +16,7 @@ import cv2
 import numpy as np
 
 from workers.common import images
-from workers.orientation.errors import (CorruptImage, EmptyFile, NotAnImage, OrientationInputError, TooManyPixels,
-                                        TruncatedImage, UnsupportedFormat, UnwritableExif)
 from workers.orientation.headers import ImageHeader, check_header, parse_header
-
-__all__ = [
-    "CorruptImage", "DEFAULT_MAX_PIXELS", "DecodedImage", "EmptyFile", "NotAnImage", "OrientationInputError",
-    "TooManyPixels", "TruncatedImage", "UnsupportedFormat", "UnwritableExif", "WORKING_SIZE", "decode_at_least",
-    "decode_gray",
-    "reduction_factor",
-]
 
 WORKING_SIZE = 900
 """Longest side (px) of the decoded image handed to the detectors (a 4000 x 3000 photo decodes at 1/8 to
@@ -69,9 +60,9 @@ def decode_gray(data: bytes, max_pixels: int = DEFAULT_MAX_PIXELS, working_size:
 
     JPEG, PNG, WebP and TIFF: the stored pixels (any Orientation tag ignored). HEIF and AVIF: the
     *displayed* image (their irot/imir applied, as every HEIF reader does; ``header`` keeps the coded
-    size). RAW: the largest embedded JPEG preview (stored pixels; needs exiftool). Raises EmptyFile,
-    NotAnImage, UnsupportedFormat, TooManyPixels (header size above ``max_pixels``, before any
-    decoding), TruncatedImage or CorruptImage (and ExifToolUnavailable for a RAW file without exiftool).
+    size). RAW: the largest embedded JPEG preview (stored pixels; needs exiftool). Raises EmptyImage,
+    NotAnImage, UnsupportedImage, TooManyPixels (header size above ``max_pixels``, before any
+    decoding), TruncatedImage or UnreadableImage (and ExifToolUnavailable for a RAW file without exiftool).
     ``header``: what :func:`parse_header` said of ``data``, when the caller has it (else it is parsed here).
     """
     if header is None:
@@ -90,10 +81,10 @@ def decode_gray(data: bytes, max_pixels: int = DEFAULT_MAX_PIXELS, working_size:
     flags = _REDUCED_FLAGS[factor] | cv2.IMREAD_IGNORE_ORIENTATION
     try:  # the service's one checked decoder (its own header check agrees with the one above)
         gray = images.decode_image(data, flags, max_pixels)
-    except images.TooManyPixels as exc:
-        raise TooManyPixels(str(exc)) from None
-    except images.ImageInputError as exc:
-        raise CorruptImage(str(exc)) from None
+    except (images.TooManyPixels, images.UnreadableImage):
+        raise
+    except images.ImageInputError as exc:  # the header read above is an image's: the decoder failing means damage
+        raise images.UnreadableImage(str(exc)) from None
     if gray.ndim == 3:  # a TIFF OpenCV decodes only in colour, or with alpha
         gray = cv2.cvtColor(gray, cv2.COLOR_BGRA2GRAY if gray.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
     if gray.dtype != np.uint8:  # 16-bit TIFF
@@ -138,7 +129,7 @@ def _tiff_without_orientation(data: bytes, header: ImageHeader) -> bytes:
         values = tiff_values(data, ifd0.endian, tags[274]) if 274 in tags else None
         return _set_orientation(data, 1, ifd0) if values and values[0] != 1 else data
     except ValueError as exc:
-        raise CorruptImage(f"the TIFF's first image directory cannot be read: {exc}") from None
+        raise images.UnreadableImage(f"the TIFF's first image directory cannot be read: {exc}") from None
 
 
 def _decode_heif(data: bytes, header: ImageHeader) -> np.ndarray:
@@ -160,7 +151,7 @@ def _decode_heif(data: bytes, header: ImageHeader) -> np.ndarray:
             image.load()
         gray = np.asarray(image.convert("L"))
     except (OSError, ValueError, RuntimeError, SyntaxError) as exc:
-        raise CorruptImage(f"the {header.format.upper()} image cannot be decoded ({exc})") from None
+        raise images.UnreadableImage(f"the {header.format.upper()} image cannot be decoded ({exc})") from None
     if header.format == "avif":
         gray = np.ascontiguousarray(apply_orientation(gray, heif_orientation(read_heif(data).transforms)))
     return gray
@@ -168,7 +159,7 @@ def _decode_heif(data: bytes, header: ImageHeader) -> np.ndarray:
 
 def raw_preview(data: bytes) -> bytes:
     """The largest JPEG preview embedded in a camera RAW file (JpgFromRaw, PreviewImage, OtherImage or
-    ThumbnailImage), read by exiftool. Raises UnsupportedFormat when it has none."""
+    ThumbnailImage), read by exiftool. Raises UnsupportedImage when it has none."""
     import tempfile
     from pathlib import Path
 
@@ -183,5 +174,5 @@ def raw_preview(data: bytes) -> bytes:
             if out[:3] == b"\xff\xd8\xff" and len(out) > len(best):
                 best = out
     if not best:
-        raise UnsupportedFormat("the RAW file has no embedded JPEG preview to analyse")
+        raise images.UnsupportedImage("the RAW file has no embedded JPEG preview to analyse")
     return best

@@ -64,7 +64,7 @@ HAAR_FACE_PX = 26
 """... and its size (px) in the scan, which sets the scan's scale: the scan's short side is 364 px (a 3:2 photo is
 scanned at 546 x 364, a 4:3 one at 485 x 364). Earlier releases scanned a fixed long side (360 px, before that
 320 px), which shrank the large faces of a large photo below what the cascade finds. Chosen on faces of every size
-(``python -m benchmarks.orientation --face-sizes``; RESULTS.md, orientation_face_sizes, compares it with the earlier
+(``python -m benchmarks.orientation_face_sizes``; RESULTS.md, orientation_face_sizes, compares it with the earlier
 scans): it decides at least as many trials as the previous release at every face size, none wrong, for more CPU
 per photo. Tried and dropped: 1/12 of the short side at 26 px, which turned one upside-down face the wrong way
 (its eyes and mouth passed the part test)."""
@@ -73,7 +73,7 @@ HAAR_SCALE_FACTOR = 1.25
 """Pyramid step of the Haar face search. OpenCV slides the window by 2 px below twice the smallest face
 size and by 1 px above, so the cost is set by how many steps fall above. The previous release stepped by 1.35
 (on a 360 px long side); with the short-side scan 1.35 and 1.3 lost large faces that 1.25 keeps, and 1.2 with
-3 neighbours kept about as many at more CPU (``python -m benchmarks.orientation --face-sizes``)."""
+3 neighbours kept about as many at more CPU (``python -m benchmarks.orientation_face_sizes``)."""
 HAAR_MIN_NEIGHBORS = 2
 """Raw detections a face needs (OpenCV's facedetect sample, which the paper ran, used 2).
 

@@ -27,7 +27,8 @@ from typing import Literal
 
 import piexif
 
-from workers.orientation.errors import UnsupportedFormat, UnwritableExif
+from workers.common.images import UnsupportedImage
+from workers.orientation.errors import UnwritableExif
 from workers.orientation.headers import Ifd0, ImageHeader, parse_header, read_ifd0, riff_chunks
 
 ORIENTATION_TAG = 274
@@ -37,7 +38,6 @@ _EXIF_HEADER = b"Exif\x00\x00"
 _APP0, _APP1 = 0xE0, 0xE1
 _SHORT = 3
 _ROTATION_TO_ORIENTATION = {0: 1, 90: 6, 180: 3, 270: 8}
-_ORIENTATION_TO_ROTATION = {v: k for k, v in _ROTATION_TO_ORIENTATION.items()}
 
 ExifStatus = Literal["absent", "ok", "unreadable"]
 TAGGABLE_FORMATS = ("jpeg", "webp")
@@ -57,10 +57,6 @@ def require_orientation(value: int) -> None:
         raise ValueError(f"Orientation must be 1-8, not {value}")
 
 
-def rotation_for_orientation(value: int) -> int | None:
-    """Clockwise display rotation for Orientation 1, 6, 3, 8; None for mirrored or invalid values."""
-    return _ORIENTATION_TO_ROTATION.get(value)
-
 
 @dataclass(frozen=True)
 class ExifInfo:
@@ -76,7 +72,7 @@ class ExifInfo:
 
 
 def read_exif(data: bytes, header: ImageHeader | None = None) -> ExifInfo:
-    """The EXIF state of a JPEG or WebP (``header``: its parsed header, if at hand); UnsupportedFormat
+    """The EXIF state of a JPEG or WebP (``header``: its parsed header, if at hand); UnsupportedImage
     for other formats."""
     if header is None:
         header = _writable_header(data)
@@ -109,7 +105,7 @@ def write_orientation(data: bytes, value: int, header: ImageHeader | None = None
 
     ``header`` and ``state`` are the photo's parsed header and its :func:`read_exif` state, when at
     hand (else read here). An unreadable EXIF block is replaced by a valid one holding only the tag
-    (check :func:`read_exif` first to report it). Raises UnsupportedFormat for other formats and
+    (check :func:`read_exif` first to report it). Raises UnsupportedImage for other formats and
     UnwritableExif when the edited block would not fit in a JPEG segment (64 KiB).
     """
     require_orientation(value)
@@ -132,9 +128,9 @@ def write_orientation(data: bytes, value: int, header: ImageHeader | None = None
 
 
 def require_taggable(fmt: str) -> None:
-    """Raise UnsupportedFormat unless images of format ``fmt`` can carry the tag here (JPEG, WebP)."""
+    """Raise UnsupportedImage unless images of format ``fmt`` can carry the tag here (JPEG, WebP)."""
     if fmt not in TAGGABLE_FORMATS:
-        raise UnsupportedFormat(f"{fmt.upper()} files cannot be given an EXIF Orientation tag here; "
+        raise UnsupportedImage(f"{fmt.upper()} files cannot be given an EXIF Orientation tag here; "
                                 "send a JPEG (or WebP)")
 
 

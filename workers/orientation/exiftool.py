@@ -4,12 +4,14 @@ the reader of RAW files' embedded previews.
 
 One ``exiftool -stay_open True -@ -`` process per thread is started on first use and fed one command
 at a time: starting Perl for each file costs far more than a command on the open process
-(``benchmarks/orientation.py``, section orientation_writers). ExifTool never writes in place here:
+(``benchmarks/orientation_writers.py``, section orientation_writers). ExifTool never writes in place here:
 it writes a new file next to the target (``-o``), which the caller moves over the original with
 ``os.replace`` (atomic on one file system).
 
 It is optional: without it, JPEG, WebP and TIFF are still read and tagged by our own writers, and the
-operations that need it raise :class:`ExifToolUnavailable` with a message saying what to install.
+operations that need it raise :class:`ExifToolUnavailable` with a message saying what to install. Both of its
+errors are :class:`~workers.common.errors.InputError`s: they depend on the file sent (a PNG, a RAW photo), the service
+answers them with their status, a batch records them per photo, and retrying a job would not help.
 """
 from __future__ import annotations
 
@@ -21,8 +23,8 @@ import subprocess
 import threading
 import weakref
 from dataclasses import dataclass
-from functools import lru_cache
 
+from workers.common.errors import InputError
 from workers.settings import worker_settings
 
 EXIFTOOL_ENV = "SWEEPCAST_EXIFTOOL"
@@ -31,12 +33,18 @@ COMMAND_TIMEOUT_S = 60.0
 """A single command that takes longer is abandoned and its process killed."""
 
 
-class ExifToolUnavailable(RuntimeError):
-    """exiftool is not installed (or cannot run): the operation needs it."""
+class ExifToolUnavailable(InputError):
+    """exiftool is not installed (or cannot run) and this file needs it: 503, the deployment's to mend."""
+
+    code = "metadata_tool_unavailable"
+    status = 503
 
 
-class ExifToolError(RuntimeError):
-    """exiftool ran and reported an error for this file (message: its stderr)."""
+class ExifToolError(InputError):
+    """exiftool ran and refused this file (the message quotes its errors)."""
+
+    code = "unwritable_metadata"
+    status = 422
 
 
 @dataclass(frozen=True)
@@ -50,19 +58,6 @@ class Result:
 def exiftool_binary() -> str:
     """The exiftool the environment names (``$SWEEPCAST_EXIFTOOL``), else ``exiftool``."""
     return worker_settings().exiftool.strip() or "exiftool"
-
-
-@lru_cache(maxsize=4)
-def exiftool_version(binary: str | None = None) -> str | None:
-    """exiftool's version ("12.57"), or None when it is not installed or does not run."""
-    path = shutil.which(binary or exiftool_binary())
-    if path is None:
-        return None
-    try:
-        out = subprocess.run([path, "-ver"], capture_output=True, text=True, timeout=20)
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return out.stdout.strip() or None if out.returncode == 0 else None
 
 
 try:  # looked up here: the child may only call it (no loading, no allocating, after fork)
@@ -160,5 +155,5 @@ def run(args: list[str]) -> Result:
         raise
     errors = [line for line in result.stderr.splitlines() if line.startswith("Error")]
     if errors:
-        raise ExifToolError("; ".join(errors))
+        raise ExifToolError(f"exiftool refused this file: {'; '.join(errors)}")
     return result

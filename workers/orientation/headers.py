@@ -19,8 +19,8 @@ from functools import cached_property
 from typing import Literal
 
 from workers.orientation.bmff import BoxError, brand_kind, read_heif
-from workers.orientation.errors import (CorruptImage, EmptyFile, NotAnImage, TooManyPixels, TruncatedImage,
-                                        UnsupportedFormat)
+from workers.common.images import EmptyImage, NotAnImage, TooManyPixels, UnreadableImage, UnsupportedImage
+from workers.orientation.errors import TruncatedImage
 
 ImageFormat = Literal["jpeg", "png", "webp", "tiff", "heif", "avif", "raw"]
 Damage = Literal["truncated", "corrupt"]
@@ -109,9 +109,9 @@ _RAW_MAGIC: tuple[tuple[int, bytes], ...] = (
 
 def sniff_format(data: bytes, filename: str | None = None) -> ImageFormat:
     """The container format from the magic bytes (and, for TIFF-based RAW, the extension of
-    ``filename``); raises EmptyFile, UnsupportedFormat, NotAnImage."""
+    ``filename``); raises EmptyImage, UnsupportedImage, NotAnImage."""
     if len(data) == 0:
-        raise EmptyFile("the file is empty (0 bytes)")
+        raise EmptyImage("the file is empty (0 bytes)")
     if data[:3] == b"\xff\xd8\xff":
         return "jpeg"
     if data[:8] == _PNG_SIGNATURE:
@@ -128,7 +128,7 @@ def sniff_format(data: bytes, filename: str | None = None) -> ImageFormat:
         return kind  # type: ignore[return-value]
     for offset, magic, name in _OTHER_FORMATS:
         if data[offset:offset + len(magic)] == magic:
-            raise UnsupportedFormat(f"{name} images are not supported; send {SUPPORTED_TEXT}")
+            raise UnsupportedImage(f"{name} images are not supported; send {SUPPORTED_TEXT}")
     raise NotAnImage(f"not an image: the first bytes ({data[:8].hex(' ')}) match no {SUPPORTED_TEXT} header")
 
 
@@ -154,10 +154,10 @@ def check_header(header: ImageHeader, max_pixels: int) -> None:
     if header.pixels is None and header.format == "raw" and header.damage is None:
         return  # the embedded preview is checked when it is read
     if header.pixels is None:
-        cls = TruncatedImage if header.damage == "truncated" else CorruptImage
+        cls = TruncatedImage if header.damage == "truncated" else UnreadableImage
         raise cls(f"the {header.format.upper()} file ends or breaks before its image size: {header.detail}")
     if header.width <= 0 or header.height <= 0:
-        raise CorruptImage(f"the {header.format.upper()} header gives an empty size {header.width}x{header.height}")
+        raise UnreadableImage(f"the {header.format.upper()} header gives an empty size {header.width}x{header.height}")
     if header.pixels > max_pixels:
         raise TooManyPixels(
             f"the image is {header.width}x{header.height} = {header.pixels:,} pixels; "
@@ -165,7 +165,7 @@ def check_header(header: ImageHeader, max_pixels: int) -> None:
     if header.damage == "truncated":
         raise TruncatedImage(f"the {header.format.upper()} file is incomplete (truncated): {header.detail}")
     if header.damage == "corrupt":
-        raise CorruptImage(f"the {header.format.upper()} file is damaged: {header.detail}")
+        raise UnreadableImage(f"the {header.format.upper()} file is damaged: {header.detail}")
 
 
 def _parse_jpeg(data: bytes) -> ImageHeader:

@@ -95,7 +95,7 @@ def _read(path: Path) -> tuple[bytes, FileStat]:
 def orient_path(path: Path, detector: OrientationDetector, options: LibraryOptions,
                 known: AbstractSet[str] = frozenset()) -> PathOutcome:
     """Skip ``path`` when it is already tagged (unless ``force``) or its bytes' hash is in ``known``; else analyse it
-    and, as ``options`` say, write its orientation. Raises OrientationInputError subclasses for files that cannot be
+    and, as ``options`` say, write its orientation. Raises InputError subclasses for files that cannot be
     read, ExifToolUnavailable / ExifToolError where a write needs ExifTool."""
     data, stat = _read(path)
     header = parse_header(data, path.name)

@@ -25,7 +25,7 @@ tool that keeps most of the original:
 | HEIF, AVIF, RAW, BigTIFF | ``xmp-sidecar`` (never inside the file) | new: our template; existing: in place or ExifTool |
 
 An embedded XMP packet holding ``tiff:Orientation`` is patched to agree (same length, in place:
-:func:`workers.orientation.xmp.patch_packet`; PNG's through ExifTool). ``benchmarks/orientation.py``
+:func:`workers.orientation.xmp.patch_packet`; PNG's through ExifTool). ``benchmarks/orientation_writers.py``
 (section orientation_writers) measures each of our writers against Exiv2 (pyexiv2) and ExifTool.
 """
 from __future__ import annotations
@@ -43,7 +43,7 @@ from pydantic import BaseModel, Field
 
 from workers.orientation import exiftool
 from workers.orientation.bmff import BoxError, HeifInfo, read_heif
-from workers.orientation.errors import CorruptImage, UnsupportedFormat
+from workers.common.images import UnreadableImage, UnsupportedImage
 from workers.orientation.exif import (ORIENTATION_TAG, VALID_ORIENTATIONS, ExifInfo, _set_orientation, read_exif,
                                       require_orientation, tiff_block_state, write_orientation)
 from workers.orientation.geometry import heif_orientation
@@ -365,7 +365,7 @@ def write_in_file(data: bytes, insp: Inspection, value: int) -> tuple[bytes, lis
     """``data`` with its Orientation set to ``value`` where its format keeps it (and an embedded XMP
     tiff:Orientation set to agree); returns (new bytes, the other places updated). ``insp`` is what
     :func:`inspect` said of these very bytes: its header, EXIF state and packet span are used, not read again.
-    Raises UnsupportedFormat for formats that take no tag here, ExifToolUnavailable for a PNG without exiftool."""
+    Raises UnsupportedImage for formats that take no tag here, ExifToolUnavailable for a PNG without exiftool."""
     fmt = insp.format
     if fmt in ("jpeg", "webp") or (fmt == "tiff" and not insp.bigtiff):
         require_orientation(value)
@@ -380,7 +380,7 @@ def write_in_file(data: bytes, insp: Inspection, value: int) -> tuple[bytes, lis
     if fmt == "png":
         return write_png_orientation(data, value, update_xmp=insp.xmp_value is not None), (
             ["XMP packet in the file"] if insp.xmp_value is not None and insp.xmp_value != value else [])
-    raise UnsupportedFormat(f"{fmt.upper()} files are not written here; an XMP sidecar takes the orientation")
+    raise UnsupportedImage(f"{fmt.upper()} files are not written here; an XMP sidecar takes the orientation")
 
 
 def _patch_embedded(data: bytes, span: tuple[int, int], value: int) -> tuple[bytes, bool]:
@@ -395,12 +395,12 @@ def write_tiff_orientation(data: bytes, value: int, ifd0: Ifd0 | None = None) ->
     """A classic TIFF (either byte order, any number of pages) with IFD0's Orientation set to ``value``:
     the two value bytes patched in place when the tag is one SHORT, else a copy of IFD0 with the tag
     appended at the end of the file and the header pointed at it (every other byte, strip and page
-    unchanged). ``ifd0``: the file's IFD0, when already read. Raises CorruptImage when it cannot be read."""
+    unchanged). ``ifd0``: the file's IFD0, when already read. Raises UnreadableImage when it cannot be read."""
     require_orientation(value)
     try:
         return _set_orientation(data, value, ifd0)
     except ValueError as exc:
-        raise CorruptImage(f"the TIFF's first image directory cannot be read: {exc}") from None
+        raise UnreadableImage(f"the TIFF's first image directory cannot be read: {exc}") from None
 
 
 def write_png_orientation(data: bytes, value: int, update_xmp: bool = False) -> bytes:

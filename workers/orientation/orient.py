@@ -4,7 +4,7 @@
     report = analyze(data, detector, max_pixels, filename="a.heic")   # any format; says what it would write where
     outcome = orient_file(data, detector, force, max_pixels, filename="a.tif", mode="file")  # bytes to store
 
-They raise :class:`workers.orientation.errors.OrientationInputError` subclasses for bad input, and
+They raise :class:`~workers.common.errors.InputError` subclasses for bad input, and
 :class:`workers.orientation.exiftool.ExifToolUnavailable` when a write needs exiftool and it is missing.
 
 Orientation values are relative to the *stored* pixels (EXIF meaning; HEIF/AVIF: the coded image),

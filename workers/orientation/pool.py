@@ -22,8 +22,7 @@ from typing import AbstractSet, Iterator, Sequence
 import cv2
 
 from workers.orientation.detect import DetectorConfig, OrientationDetector, get_detector
-from workers.orientation.errors import OrientationInputError
-from workers.orientation.exiftool import ExifToolError, ExifToolUnavailable
+from workers.common.errors import InputError
 from workers.orientation.library import LibraryOptions, PathOutcome, Result, orient_path
 
 IN_FLIGHT_PER_HELPER = 2
@@ -106,5 +105,5 @@ def _guarded(path: Path, detector: OrientationDetector, options: LibraryOptions,
              known: AbstractSet[str]) -> PathOutcome:
     try:
         return orient_path(path, detector, options, known)
-    except (OrientationInputError, ExifToolUnavailable, ExifToolError) as exc:
+    except InputError as exc:  # the photo's own problem (ExifTool's included): this photo fails, the others go on
         return PathOutcome(Result(path, None, "error", error=str(exc)))

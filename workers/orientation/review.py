@@ -85,7 +85,7 @@ class ChoiceWrite:
 def write_choice(data: bytes, rotation: int, filename: str | None, mode: WriteMode = "file") -> ChoiceWrite:
     """Write ``rotation`` (clockwise degrees that show the analysed image upright) into ``data`` or its sidecar, with
     the engine's lossless writers, whatever orientation the file states now (a person looked at it). Raises
-    OrientationInputError subclasses for files that cannot take it, ExifToolUnavailable where a PNG needs ExifTool."""
+    InputError subclasses for files that cannot take it, ExifToolUnavailable where a PNG needs ExifTool."""
     header = parse_header(data, filename)
     insp = inspect(data, header)
     if header.format in ("heif", "avif"):  # the analysed image is the displayed one

@@ -46,9 +46,6 @@ SCRIPT_MODELS = {"Han": "HanS"}
 LATIN_SCRIPTS = frozenset({"Latin", "Common"})
 """Scripts the English readers read already: no script model for them."""
 
-class TextUnavailable(RuntimeError):
-    """The text cue cannot run here (its models are not installed): the engine then works on faces alone."""
-
 
 @dataclass(frozen=True)
 class TextResult:

@@ -19,8 +19,8 @@ in every direction. A *real word* (:func:`real_words`) is one that
 - stands on a line of the same size as the view's other real words (its height within ``REAL_WORD_HEIGHT_RATIO`` of
   their median): lines of text have one letter size; noise read as words comes in every size.
 
-:func:`evidence` sums one reading up; the decision rules (:mod:`workers.orientation.text`) compare a view's evidence
-with the opposite view's, region by region (:func:`overlapping`): text read upright reads as nonsense upside down.
+The line reader (:mod:`workers.orientation.linereader`) counts the real words of a reading each way up: text read
+upright reads as nonsense upside down.
 """
 from __future__ import annotations
 
@@ -29,9 +29,9 @@ import unicodedata
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import AbstractSet, Iterable, Sequence
+from typing import AbstractSet, Iterable
 
-from workers.orientation.geometry import Box, view_box_to_image
+from workers.orientation.geometry import Box
 
 TEXT_WORD_MIN_CONFIDENCE = 80.0
 """A word counts when Tesseract's word confidence (0-100) reaches this (chosen a priori: Tesseract's own "good word"
@@ -67,24 +67,6 @@ class OcrWord:
     confidence: float
     box: Box = (0.0, 0.0, 0.0, 0.0)
     dictionary: bool | None = None
-
-
-@dataclass(frozen=True)
-class Evidence:
-    """One reading (a page turned one way) summed up: confident letter words, their letters, and the real words.
-
-    ``regions`` are the real words' boxes on the *stored* page, as fractions of its width and height (x, y, w, h),
-    so that readings of different views can be compared region by region."""
-
-    words: int = 0
-    """Confident words of at least 3 letters (the count the OCR verification used before the dictionary)."""
-    letters: int = 0
-    """Letters of the confident words of at least 2 letters (the scene reading's count before the dictionary)."""
-    real: int = 0
-    """Real words (:func:`real_words`)."""
-    real_letters: int = 0
-    """Their letters."""
-    regions: tuple[Box, ...] = ()
 
 
 @lru_cache(maxsize=4)
@@ -170,29 +152,3 @@ def real_words(words: Iterable[OcrWord], vocabulary: AbstractSet[str] = frozense
     return [w for w in found if median / REAL_WORD_HEIGHT_RATIO <= w.box[3] <= median * REAL_WORD_HEIGHT_RATIO]
 
 
-def evidence(words: Sequence[OcrWord], rotation: int, width: int, height: int,
-             vocabulary: AbstractSet[str] = frozenset()) -> Evidence:
-    """``words`` read on the page (``width`` x ``height`` px, stored orientation) turned ``rotation`` degrees
-    clockwise, summed up with ``vocabulary`` (:func:`real_words`); the real words' boxes mapped back onto the stored
-    page (fractions)."""
-    real = real_words(words, vocabulary)
-    regions = []
-    for w in real:
-        x, y, bw, bh = view_box_to_image(w.box, rotation, width, height)
-        regions.append((round(x / width, 4), round(y / height, 4), round(bw / width, 4), round(bh / height, 4)))
-    return Evidence(words=sum(confident(w, 3) for w in words),
-                    letters=sum(letter_count(w.text) for w in words if confident(w, 2)),
-                    real=len(real), real_letters=sum(letter_count(w.text) for w in real), regions=tuple(regions))
-
-
-def overlapping(regions: Sequence[Box], others: Sequence[Box], min_share: float = 0.3) -> int:
-    """How many of ``regions`` overlap any of ``others`` by at least ``min_share`` of the smaller box's area."""
-    n = 0
-    for a in regions:
-        for b in others:
-            iw = min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0])
-            ih = min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1])
-            if iw > 0 and ih > 0 and iw * ih >= min_share * min(a[2] * a[3], b[2] * b[3]):
-                n += 1
-                break
-    return n

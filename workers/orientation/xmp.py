@@ -13,7 +13,7 @@ Embedded packets are patched in place (:func:`patch_packet`): the one or two ASC
 existing value are replaced by the new digit and the packet is padded or trimmed in its trailing
 whitespace to its old length, so the JPEG segment, TIFF tag or WebP chunk keeps its size and every
 other byte of the file. ExifTool re-serialises the whole packet (and, for TIFF, the whole file);
-``benchmarks/orientation.py`` (section orientation_writers) measures both.
+``benchmarks/orientation_writers.py`` (section orientation_writers) measures both.
 """
 from __future__ import annotations
 

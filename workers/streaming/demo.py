@@ -50,7 +50,7 @@ def demo_scene(phase: float) -> Scene:
     """The studio with its small ball at ``phase`` (0..1) of a circle around the object group."""
     scene = studio_scene()
     objects = list(scene.objects)
-    k, ball = _ball(scene)
+    k, ball = demo_ball(scene)
     a0 = np.arctan2(ball.center[1], ball.center[0])
     a = a0 + 2 * np.pi * phase
     objects[k] = dataclasses.replace(ball, center=(ORBIT_RADIUS * float(np.cos(a)), ORBIT_RADIUS * float(np.sin(a)),
@@ -58,7 +58,7 @@ def demo_scene(phase: float) -> Scene:
     return dataclasses.replace(scene, objects=tuple(objects))
 
 
-def _ball(scene: Scene) -> tuple[int, Sphere]:
+def demo_ball(scene: Scene) -> tuple[int, Sphere]:
     """Index and object of the studio's small (moving) ball."""
     return next((i, o) for i, o in enumerate(scene.objects) if isinstance(o, Sphere) and o.radius < 0.2)
 
@@ -73,13 +73,13 @@ def build_demo_recording(rig: Rig, out: str | Path, frames: int, fps: float,
     cams = list(rig.cameras)
     try:
         first = demo_scene(0.0)
-        k, _ = _ball(first)
+        k, _ = demo_ball(first)
         stills = render_views(dataclasses.replace(first, objects=first.objects[:k] + first.objects[k + 1:]), cams)
         for c, still in enumerate(stills):
             writer.set_background(c, still.background)
         for f in range(frames):
             scene = demo_scene(f / frames)
-            ball = _ball(scene)[1]
+            ball = demo_ball(scene)[1]
             for c, still in enumerate(stills):
                 writer.add(c, render_moved(scene, still, ball))
             if progress is not None:

@@ -14,11 +14,10 @@ from typing import Any
 
 import numpy as np
 
-from workers.camera import CameraError
 from workers.common.jobctx import JobContext, JobInputError
 from workers.registry import JobKind
 from workers.settings import worker_settings
-from workers.sweep.rig import Rig, RigError
+from workers.sweep.rig import Rig
 from workers.sweep.rig_io import rig_from_dict
 
 from .batch import render_path
@@ -30,13 +29,15 @@ from .store import ARCHIVE_NAME
 from .video import VideoError, probe_video
 
 DEFAULT_IMAGE_FPS = 25.0
-_USER_ERRORS = (RecordingError, VideoError, ImageError, RigError, CameraError)
+_USER_ERRORS = (VideoError, ImageError)
+"""The streaming library's message fragments (``camera X: the image ...``) that reach a job unprefixed: its input
+errors (RecordingError, RigError, CameraError) are InputErrors, which fail the job by themselves."""
 
 
 def _rig(ctx: JobContext) -> Rig:
     try:
         return rig_from_dict(json.loads(ctx.read_input("rig")))
-    except (ValueError, RigError, CameraError) as exc:
+    except ValueError as exc:  # JSON, RigError, CameraError
         raise JobInputError(f"the rig calibration is unusable: {exc}") from None
 
 
@@ -87,8 +88,6 @@ def run_batch_render(ctx: JobContext) -> dict[str, Any]:
         archive = RecordingArchive(ctx.input_path("recording"))
     except (KeyError, FileNotFoundError):
         raise JobInputError(f"recording {p.recording_id} is no longer stored") from None
-    except RecordingError as exc:
-        raise JobInputError(str(exc)) from None
     try:
         if list(archive.info.cameras) != rig.names:
             raise RecordingError("the recording was made for other cameras than the rig's")

@@ -36,6 +36,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from workers.camera import Camera, CameraError
+from workers.common.errors import InputError
 from workers.common.validation import describe_errors
 from workers.sweep.overlays import depth_image, regions_image
 from workers.sweep.renderer import RenderOptions, RenderResult, SweepRenderer
@@ -110,8 +111,10 @@ class SessionError(Exception):
         return type(self), (self.code, self.detail)
 
 
-class ViewError(SessionError, ValueError):
-    """A request the session cannot serve because of what the client sent (or has not sent yet)."""
+class ViewError(SessionError, InputError):
+    """A request the session cannot serve because of what the client sent (or has not sent yet): an
+    :class:`~workers.common.errors.InputError` (422 with its ``code`` where an HTTP route meets it, a batch render's
+    view limits)."""
 
 
 @dataclass(frozen=True)

@@ -232,7 +232,7 @@ class SweepRenderer:
         self.hull_dilate = int(hull_dilate)
         self.backgrounds = None
         if backgrounds is not None:
-            self.backgrounds = [self._undistorted(i, b) for i, b in enumerate(self._checked(backgrounds, "background"))]
+            self.backgrounds = [self.undistort(i, b) for i, b in enumerate(self._checked(backgrounds, "background"))]
         n = len(self.cameras)
         hm = max(c.height for c in self.cameras)
         wm = max(c.width for c in self.cameras)
@@ -251,7 +251,7 @@ class SweepRenderer:
         self.set_frames(images, silhouettes)
         self.device = "cpu"
         device = device or worker_settings().sweep_device
-        if _wants_gpu(device):
+        if wants_gpu(device):
             from .gpu import GpuSweep
             try:
                 self._gpu = GpuSweep(self._imgs, self._sils, self._sizes)
@@ -268,10 +268,10 @@ class SweepRenderer:
         imgs = self._checked(images, "image")
         sils = None
         if silhouettes is not None:
-            sils = [self._undistorted(i, np.asarray(s, bool).astype(np.uint8), nearest=True).astype(bool)
+            sils = [self.undistort(i, np.asarray(s, bool).astype(np.uint8), nearest=True).astype(bool)
                     for i, s in enumerate(self._checked(silhouettes, "silhouette", channels=None))]
         for i, img in enumerate(imgs):
-            img = self._undistorted(i, img)
+            img = self.undistort(i, img)
             c = self.cameras[i]
             self._imgs[i, :c.height, :c.width] = img
             if sils is None and self.backgrounds is not None:
@@ -321,12 +321,12 @@ class SweepRenderer:
         t1 = time.perf_counter()
         timings["prepare_ms"] = (t1 - t0) * 1e3
         h, w = virtual.height, virtual.width
-        Q, B, G = self._geometry(virtual)
+        Q, B, G = self.geometry(virtual)
         coarse = opt.coarse_to_fine and min(h, w) >= 8
         if coarse:
             coarse_cam = virtual.scaled(0.5)
-            Qc, Bc, _ = self._geometry(coarse_cam)
-            window = self._search_window(Qc, Bc, coarse_cam.height, coarse_cam.width, s_planes, use_hull)
+            Qc, Bc, _ = self.geometry(coarse_cam)
+            window = self.search_window(Qc, Bc, coarse_cam.height, coarse_cam.width, s_planes, use_hull)
             best_c, _, _, _ = self._choose(Qc, Bc, virtual.center, s_planes, use_hull, opt, *window)
             lo = np.empty((h, w), np.int32)
             hi = np.empty((h, w), np.int32)
@@ -335,7 +335,7 @@ class SweepRenderer:
             timings["coarse_ms"] = (t2 - t1) * 1e3
             t1 = t2
         else:
-            lo, hi = self._search_window(Q, B, h, w, s_planes, use_hull)
+            lo, hi = self.search_window(Q, B, h, w, s_planes, use_hull)
         # after an aggregated coarse level the fine search stays within a few planes of its choice: there
         # the pruned winner-take-all search keeps the full resolution's detail at a fraction of the cost; the
         # occlusion fill's check needs the cost volume, so with it the fine level aggregates within those windows
@@ -362,7 +362,7 @@ class SweepRenderer:
         d_bnd = self._d_bnd(virtual, depth, opt)
         if held is not None and opt.d_bnd is None and previous.d_bnd is not None and d_bnd is not None:
             d_bnd = previous.d_bnd  # derived from the same viewpoint: a new median depth would recolour still parts
-        image, regions, primary = self._shade(virtual, Q, B, G, s_pix, use_hull, opt, d_bnd, filled)
+        image, regions, primary = self.shade(virtual, Q, B, G, s_pix, use_hull, opt, d_bnd, filled)
         t3 = time.perf_counter()
         timings["shade_ms"] = (t3 - t2) * 1e3
         timings["total_ms"] = (t3 - t0) * 1e3
@@ -376,12 +376,12 @@ class SweepRenderer:
         t0 = time.perf_counter()
         opt = _for_previous(previous, options, kwargs)
         virtual = previous.camera
-        Q, B, G = self._geometry(virtual)
+        Q, B, G = self.geometry(virtual)
         s_planes = 1.0 / previous.planes
         d_bnd = self._d_bnd(virtual, previous.depth, opt)
         s_pix = pixel_inverse_depth(s_planes, previous.plane_index, previous.plane_offset)
-        image, regions, primary = self._shade(virtual, Q, B, G, s_pix, previous.visual_hull, opt, d_bnd,
-                                              previous.filled)
+        image, regions, primary = self.shade(virtual, Q, B, G, s_pix, previous.visual_hull, opt, d_bnd,
+                                             previous.filled)
         ms = (time.perf_counter() - t0) * 1e3
         return replace(previous, image=image, regions=regions, primary=primary, d_bnd=d_bnd,
                        timings={"shade_ms": ms, "total_ms": ms})
@@ -395,11 +395,11 @@ class SweepRenderer:
         how far a weight moves from pixel to pixel."""
         opt = _for_previous(previous, options, kwargs)
         virtual = previous.camera
-        Q, B, G = self._geometry(virtual)
+        Q, B, G = self.geometry(virtual)
         d_bnd = self._d_bnd(virtual, previous.depth, opt)
         s_pix = pixel_inverse_depth(1.0 / previous.planes, previous.plane_index, previous.plane_offset)
         weights = np.empty(s_pix.shape + (len(self.cameras),), np.float32)
-        self._shade(virtual, Q, B, G, s_pix, previous.visual_hull, opt, d_bnd, previous.filled, weights=weights)
+        self.shade(virtual, Q, B, G, s_pix, previous.visual_hull, opt, d_bnd, previous.filled, weights=weights)
         return weights
 
     def auto_d_bnd(self, virtual: Camera, depth: np.ndarray) -> float:
@@ -432,19 +432,24 @@ class SweepRenderer:
             raise RigError(virtual.name, "near/far", f"needs near < far, got {near:g} and {far:g}")
         return near, far
 
-    def _geometry(self, virtual: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Q (N, 3, 3), B (N, 3) and G (3, 3): see :mod:`workers.sweep.kernels`."""
+    def geometry(self, virtual: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The maps from ``virtual``'s pixels to the cameras', float64: Q (N, 3, 3) and B (N, 3) (camera i sees the
+        virtual pixel (u, v) at inverse depth s, 1/m along the virtual axis, at Q[i] (u, v, 1) + s B[i],
+        homogeneous), and G (3, 3) (the virtual pixel's ray); see :mod:`workers.sweep.kernels`. What
+        :meth:`search_window`, :meth:`sweep` and :meth:`shade` take."""
         G = virtual.R.T @ np.linalg.inv(virtual.K)
         M = self._P[:, :, :3]
         Q = np.ascontiguousarray(M @ G)
         B = np.ascontiguousarray(M @ virtual.center + self._P[:, :, 3])
         return Q, B, G
 
-    def _shade(self, virtual: Camera, Q: np.ndarray, B: np.ndarray, G: np.ndarray, s_pix: np.ndarray,
-               use_hull: bool, opt: RenderOptions, d_bnd: float | None, filled: np.ndarray | None = None,
-               weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Image (h, w, 3) uint8, regions (h, w) uint8 and primary (h, w) int16 at the inverse depths
-        s_pix (h, w) float64 (1/m; 0 where no surface); ``filled`` (h, w) bool: the occlusion fill's pixels
+    def shade(self, virtual: Camera, Q: np.ndarray, B: np.ndarray, G: np.ndarray, s_pix: np.ndarray,
+              use_hull: bool, opt: RenderOptions, d_bnd: float | None, filled: np.ndarray | None = None,
+              weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The colour pass at depths the caller gives (a render shades its own; a benchmark an oracle's): image
+        (h, w, 3) uint8, regions (h, w) uint8 and primary (h, w) int16 at the inverse depths s_pix (h, w) float64
+        (1/m; 0 where no surface); Q, B, G from :meth:`geometry`; d_bnd: Kojima's boundary distance (None: 1);
+        ``filled`` (h, w) bool: the occlusion fill's pixels
         (the visibility test's pixels when ``opt.visibility_scope`` is "filled"); fills ``weights`` (h, w, N)
         float32 with every camera's weight when given."""
         h, w = s_pix.shape
@@ -487,7 +492,7 @@ class SweepRenderer:
                 self._gpu = None
                 self.device = "cpu"
         if opt.aggregation == "none":
-            best, cost = self._sweep(Q, B, center, s_planes, use_hull, opt, lo, hi)
+            best, cost = self.sweep(Q, B, center, s_planes, use_hull, opt, lo, hi)
             return best, cost, np.zeros(best.shape, np.float32), None
         ssd, votes = self._volume(Q, B, center, s_planes, use_hull, opt, lo, hi)
         volume = aggregate(ssd, votes, opt, (lo, hi))
@@ -539,9 +544,10 @@ class SweepRenderer:
                          s_planes, lo, hi, self._bands(lo.shape[0]), BAND_ROWS, ssd, votes)
         return ssd, votes
 
-    def _sweep(self, Q: np.ndarray, B: np.ndarray, center: np.ndarray, s_planes: np.ndarray, use_hull: bool,
-               opt: RenderOptions, lo: np.ndarray, hi: np.ndarray, lanes: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """Best plane (h, w) int32 and its cost (h, w) float32 for windows lo..hi; center (3,): the
+    def sweep(self, Q: np.ndarray, B: np.ndarray, center: np.ndarray, s_planes: np.ndarray, use_hull: bool,
+              opt: RenderOptions, lo: np.ndarray, hi: np.ndarray, lanes: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """The depth search alone: best plane (h, w) int32 and its cost (h, w) float32 among the planes s_planes
+        (P,) (inverse depths, 1/m) within the windows lo..hi (:meth:`search_window`); center (3,): the
         virtual camera's centre; lanes False: the variance cost's per-pixel search (the same result; the
         baseline the 16-lane search is measured against)."""
         best = np.empty(lo.shape, np.int32)
@@ -578,8 +584,8 @@ class SweepRenderer:
         threads = numba.get_num_threads()
         return np.concatenate([np.arange(t, nb, threads) for t in range(threads)]).astype(np.int64)
 
-    def _search_window(self, Q: np.ndarray, B: np.ndarray, h: int, w: int, s_planes: np.ndarray,
-                       use_hull: bool) -> tuple[np.ndarray, np.ndarray]:
+    def search_window(self, Q: np.ndarray, B: np.ndarray, h: int, w: int, s_planes: np.ndarray,
+                      use_hull: bool) -> tuple[np.ndarray, np.ndarray]:
         """Plane windows lo, hi (h, w) int32 of a full search: every plane, or with the hull only those
         inside all silhouettes' bounding boxes (kernels.hull_windows)."""
         lo = np.zeros((h, w), np.int32)
@@ -603,8 +609,16 @@ class SweepRenderer:
             out.append(a)
         return out
 
-    def _undistorted(self, i: int, img: np.ndarray, nearest: bool = False) -> np.ndarray:
+    def undistort(self, i: int, img: np.ndarray, nearest: bool = False) -> np.ndarray:
+        """``img`` (H, W[, C]) of camera ``i`` (rig order) as the renderer holds its frames: undistorted (the same
+        array when the camera has no distortion); ``nearest``: nearest-neighbour remap (masks)."""
         return undistorted(self._undistort[i], img, nearest)
+
+    def camera_image(self, i: int) -> np.ndarray:
+        """Camera ``i``'s current frame as the search and the colour pass sample it: (H, W, 3) uint8 BGR,
+        undistorted (a view of the renderer's own buffer: read it, do not write it)."""
+        c = self.cameras[i]
+        return self._imgs[i, :c.height, :c.width]
 
 
 def search_bits(opt: RenderOptions) -> int:
@@ -612,7 +626,7 @@ def search_bits(opt: RenderOptions) -> int:
     return opt.subpixel_bits if 0 < opt.subpixel_bits <= kernels.MAX_BITS else kernels.MAX_BITS
 
 
-def _wants_gpu(device: str) -> bool:
+def wants_gpu(device: str) -> bool:
     """Whether a renderer asked for ``device`` (auto, cpu or cuda; see :class:`SweepRenderer`) runs its search
     on the GPU."""
     if device == "cpu":

@@ -6,14 +6,19 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from workers.camera import Camera
+from workers.common.errors import InputError
 
 
-class RigError(ValueError):
-    """A rig or its images are unusable; ``camera`` (or None for the whole rig) and ``field`` say where."""
+class RigError(InputError):
+    """A rig or its images are unusable; ``camera`` (or None for the whole rig) and ``field`` say where, ``problem``
+    what is wrong (an :class:`~workers.common.errors.InputError`: 422 ``invalid_rig`` in the service)."""
+
+    code = "invalid_rig"
 
     def __init__(self, camera: str | None, field_name: str, problem: str) -> None:
         self.camera = camera
         self.field = field_name
+        self.problem = problem
         where = f"camera {camera!r}" if camera is not None else "rig"
         super().__init__(f"{where}: field {field_name!r}: {problem}")
 

@@ -1,7 +1,8 @@
 """Rig importers (our JSON, COLMAP text, OpenCV FileStorage YAML, Middlebury ``_par.txt``, rectified
 Middlebury stereo sets) and image loading. Every importer returns a :class:`Rig` in our conventions
 (``x_cam = R X + t``, pixel (0, 0) at the centre of the top-left pixel); malformed input raises
-:class:`RigError` or :class:`CameraError` (both ``ValueError``) naming the camera and field.
+:class:`RigError` or :class:`CameraError` (both :class:`~workers.common.errors.InputError`, so ``ValueError``)
+naming the camera and field.
 
 Our JSON::
 
@@ -38,6 +39,7 @@ import cv2
 import numpy as np
 
 from workers.camera import Camera, CameraError, quat_to_rotation
+from workers.common.errors import InputError
 
 from .rig import Rig, RigError
 
@@ -443,7 +445,7 @@ def load_rig(path: str | Path, units: str | float | None = None, camera_type: st
     if fmt == CAMERA_LIST:
         return rig_from_camera_list(_read_json(path), scale, camera_type)
     if fmt == "json":
-        rig = rig_from_dict(_read_json(path))
+        rig = load_rig_json(path)
     elif fmt == "opencv":
         rig = load_opencv_yaml(path)
     elif fmt == "colmap":
@@ -457,17 +459,39 @@ def load_rig(path: str | Path, units: str | float | None = None, camera_type: st
 
 
 def load_uploaded_rig(files: Sequence[tuple[str, bytes]], width: int | None = None, height: int | None = None,
-                      units: str | float | None = None, camera_type: str | None = None) -> tuple[Rig, str]:
+                      units: str | float | None = None, camera_type: str | None = None,
+                      max_cameras: int | None = None, max_pixels: int | None = None) -> tuple[Rig, str]:
     """The rig (in metres) and its format's name from uploaded calibration files: (file name, bytes) pairs,
     names already safe (no folders). One file is read as :func:`load_rig` reads it (a Middlebury
     ``*_par.txt`` needs ``width``/``height``: an upload has no images beside it); several files only as
-    COLMAP text (``cameras.txt`` + ``images.txt``). Errors (RigError, CameraError, ValueError) name the
-    uploaded files, never the temporary folder they were read from; a rig whose cameras all stand at one place
-    is refused (:meth:`Rig.require_baseline`).
+    COLMAP text (``cameras.txt`` + ``images.txt``). A rig whose cameras all stand at one place
+    (:meth:`Rig.require_baseline`), with more than ``max_cameras`` cameras or a camera of more than ``max_pixels``
+    pixels (width x height) is refused.
+
+    Raises :class:`~workers.common.errors.InputError`: ``invalid_parameters`` for ``units`` that are no unit,
+    else ``invalid_rig`` ("unusable calibration: ...", naming the uploaded files, never the temporary folder
+    they were read from) or, for the limits, ``invalid_rig`` saying the limit.
     """
-    rig, fmt = _read_uploaded_rig(files, width, height, units, camera_type)
-    rig.require_baseline()
+    try:
+        metres_per_unit(units, CAMERA_LIST)
+    except RigError as exc:
+        raise InputError(f"units: {exc.problem}", "invalid_parameters") from None
+    try:
+        rig, fmt = _read_uploaded_rig(files, width, height, units, camera_type)
+        rig.require_baseline()
+    except ValueError as exc:  # RigError, CameraError, and the parsers' own (JSON, YAML, numbers)
+        raise InputError(f"unusable calibration: {exc}", "invalid_rig") from None
+    _check_rig_limits(rig, max_cameras, max_pixels)
     return rig, fmt
+
+
+def _check_rig_limits(rig: Rig, max_cameras: int | None, max_pixels: int | None) -> None:
+    if max_cameras is not None and len(rig) > max_cameras:
+        raise InputError(f"the rig has {len(rig)} cameras; the limit is {max_cameras}", "invalid_rig")
+    for cam in rig.cameras:
+        if max_pixels is not None and cam.width * cam.height > max_pixels:
+            raise InputError(f"camera {cam.name} is {cam.width}x{cam.height}, over the limit of {max_pixels:,} pixels",
+                             "invalid_rig")
 
 
 def _read_uploaded_rig(files: Sequence[tuple[str, bytes]], width: int | None, height: int | None,
@@ -495,7 +519,7 @@ def _read_uploaded_rig(files: Sequence[tuple[str, bytes]], width: int | None, he
                     raise ValueError("camera_type: only a plain camera list has camera types")
                 return load_middlebury_par(path, width, height).rescaled(metres_per_unit(units, fmt)), fmt
             return load_rig(path, units, camera_type), fmt
-        except (RigError, CameraError, ValueError) as exc:
+        except ValueError as exc:  # RigError, CameraError, and the parsers' own
             raise ValueError(_without_folder(str(exc), folder)) from None
 
 

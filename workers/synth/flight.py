@@ -9,7 +9,6 @@ World frame: z up, metres (as the rest of :mod:`workers.synth`). Cameras are
   and down (``tilt_deg`` from nadir), with optional smooth shake.
 - ``render_flight(scene, cameras, motion_blur=..., noise_sigma=...)``: BGR frames.
 - ``encode_video(frames, path, fps)``: an H.264 MP4.
-- ``write_flight_video(path, ...)``: all of the above in one call; returns the cameras.
 """
 from __future__ import annotations
 
@@ -169,15 +168,3 @@ def encode_video(frames: list[np.ndarray], path: str | Path, fps: float = 25.0, 
     return path
 
 
-def write_flight_video(
-    path: str | Path, n_frames: int = 60, *, seed: int = 0, fps: float = 25.0, motion_blur: float = 0.0,
-    noise_sigma: float = 0.0, shake_deg: float = 0.0, supersample: int = 1, scene: Scene | None = None,
-    **camera_kwargs,
-) -> list[Camera]:
-    """Render a flight over ``terrain_scene(seed)`` (or ``scene``) and encode it to ``path``;
-    returns the ground-truth cameras, one per frame (``camera_kwargs`` go to flight_cameras)."""
-    cams = flight_cameras(n_frames, shake_deg=shake_deg, seed=seed, **camera_kwargs)
-    frames = render_flight(scene or terrain_scene(seed), cams, motion_blur=motion_blur, noise_sigma=noise_sigma,
-                           supersample=supersample, seed=seed)
-    encode_video(frames, path, fps)
-    return cams

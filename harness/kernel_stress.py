@@ -7,12 +7,12 @@ silhouettes, random per-pixel plane windows, random row bands taken in a random 
 array the kernels read or write placed at an address offset from 16, 32 and 64-byte boundaries. Every
 search variant (the 16-lane variance search, the per-pixel variance and truncated searches, each with and
 without the visual hull) must choose a plane of least cost by the numpy definition
-(:mod:`tests.sweep.numpy_search`), the two variance searches must agree exactly, the unpruned cost
+(:mod:`harness.numpy_search`), the two variance searches must agree exactly, the unpruned cost
 volume (the input of cost aggregation) must give every plane's cost, and the occlusion fill's cross-view check
 on that volume must count the confirming cameras as its numpy definition does. Run it in a subprocess: a memory error then ends that
 process with a signal, which the caller reports, instead of killing the test runner.
 
-    python -m tests.sweep.kernel_stress --reps 50 --threads 2 --seed 1
+    python -m harness.kernel_stress --reps 50 --threads 2 --seed 1
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ from workers.sweep import lanes as lanes_mod
 from workers.sweep.occlusion import confirmed_views
 from workers.sweep.renderer import SweepRenderer
 
-from .numpy_search import best_plane, confirmations, plane_costs
+from harness.numpy_search import best_plane, confirmations, plane_costs
 
 # per-pixel float64 sums of the reference and the kernels may round a position differently when it lies
 # within an ulp of a half step; such a pixel may then pick another plane (seen: < 0.1% of pixels)
@@ -126,7 +126,7 @@ def run_case(case: dict, rng: np.random.Generator) -> dict:
     whether the two variance searches agree exactly."""
     cams, virtual, images, sils = case["cams"], case["virtual"], case["images"], case["sils"]
     r = SweepRenderer(cams, images, silhouettes=sils, hull_dilate=0)
-    Q, B, _ = r._geometry(virtual)
+    Q, B, _ = r.geometry(virtual)
     camf, cami = r._camera_table(Q, B, virtual.center, case["bits"])
     h, w = case["lo"].shape
     band_h = int(rng.integers(1, 9))

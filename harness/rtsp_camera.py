@@ -13,7 +13,7 @@ interleaving only, PLAY, GET_PARAMETER, TEARDOWN: what FFmpeg's RTSP client send
 camera drops its clients and refuses new ones (404) until it is back. :class:`SilentServer` accepts connections
 and never answers.
 
-Test code only: the capture side under test (``app/capture``) reads these streams through PyAV as it reads a
+Test and benchmark code only: the capture side under test (``app/capture``) reads these streams through PyAV as it reads a
 real camera's.
 """
 from __future__ import annotations

@@ -86,7 +86,7 @@ def start_watchdog(*, group: int | None = None, marker: str | None = None, grace
     process group ``group`` (SIGTERM to its leader, SIGKILL to the group after ``grace_s``) or every
     process whose command line mentions ``marker``. Stop it (terminate) once the server is down."""
     args = [str(os.getpid()), str(group or 0), marker or "", str(grace_s)]
-    return subprocess.Popen([sys.executable, "-c", "import sys; from tests.servers import watch; watch(*sys.argv[1:])",
+    return subprocess.Popen([sys.executable, "-c", "import sys; from harness.servers import watch; watch(*sys.argv[1:])",
                              *args], cwd=ROOT, start_new_session=True,  # Ctrl-C on a terminal is not for it
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
 

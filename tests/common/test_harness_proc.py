@@ -1,4 +1,5 @@
-"""The benchmarks' readers of /proc: memory, CPU time and the process tree, with NaN for a process that is gone."""
+"""The harness's readers of /proc (benchmarks and tests): memory, CPU time and the process tree, with NaN for a process
+that is gone."""
 from __future__ import annotations
 
 import math
@@ -9,7 +10,7 @@ import time
 
 import pytest
 
-from benchmarks._proc import cpu_seconds, descendants, status, status_mb, tree_cpu_seconds
+from harness.proc import cpu_seconds, descendants, status, status_mb, tree_cpu_seconds
 
 pytestmark = pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="needs Linux's /proc")
 GONE = 2**22 + 1  # above the kernel's largest pid
@@ -44,4 +45,20 @@ def test_the_tree_holds_grandchildren_and_their_cpu():
     finally:
         for pid in reversed(descendants(parent.pid)):
             os.kill(pid, 9)
+        parent.wait()
+
+
+def test_reaped_children_count_only_when_asked():
+    busy = "import time\nt = time.process_time()\nwhile time.process_time() - t < 0.4: pass"
+    parent = subprocess.Popen([sys.executable, "-c", f"import subprocess, sys, time\n"
+                               f"subprocess.run([sys.executable, '-c', {busy!r}])\ntime.sleep(30)"])
+    try:
+        deadline = time.monotonic() + 20
+        while cpu_seconds(parent.pid, reaped=True) - cpu_seconds(parent.pid) < 0.3:  # the child ran, was waited for
+            assert time.monotonic() < deadline
+            time.sleep(0.1)
+        assert descendants(parent.pid) == [parent.pid]  # it is gone: only the reaped count still has its CPU
+        assert tree_cpu_seconds(parent.pid, reaped=True) - tree_cpu_seconds(parent.pid) >= 0.3
+    finally:
+        parent.kill()
         parent.wait()

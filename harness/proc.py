@@ -26,13 +26,15 @@ def status_mb(pid: int, field: str, fields: dict[str, str] | None = None) -> flo
     return int(value.split()[0]) / 1024 if value else float("nan")
 
 
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU seconds of one process (all its threads); NaN when it is gone."""
+def cpu_seconds(pid: int, reaped: bool = False) -> float:
+    """User + system CPU seconds of one process (all its threads); ``reaped``: with those of the children it has
+    waited for (gone processes a tree reading would miss); NaN when it is gone."""
     try:
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     except OSError:
         return float("nan")
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    ticks = fields[11:15] if reaped else fields[11:13]  # utime, stime, then cutime, cstime
+    return sum(int(v) for v in ticks) / os.sysconf("SC_CLK_TCK")
 
 
 def descendants(root: int) -> list[int]:
@@ -53,9 +55,10 @@ def descendants(root: int) -> list[int]:
     return out
 
 
-def tree_cpu_seconds(root: int) -> float:
-    """User + system CPU seconds of ``root`` and its descendants alive now (those gone meanwhile count 0)."""
-    return sum(s for s in map(cpu_seconds, descendants(root)) if not math.isnan(s))
+def tree_cpu_seconds(root: int, reaped: bool = False) -> float:
+    """User + system CPU seconds of ``root`` and its descendants alive now (those gone meanwhile count 0, unless
+    ``reaped``: then the children each of them has waited for count too)."""
+    return sum(s for s in (cpu_seconds(pid, reaped) for pid in descendants(root)) if not math.isnan(s))
 
 
 def machine_busy_seconds() -> float:

@@ -49,6 +49,32 @@ def test_an_unknown_section_is_refused(toy):
         sections.main(markdown, ["--only", "c"])
 
 
+def test_parts_publish_their_own_results_whole_and_only_the_chosen_ones_run(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(_report, "RESULTS_DIR", tmp_path)
+    monkeypatch.setattr(_report, "RESULTS_MD", tmp_path / "RESULTS.md")
+    parts = _report.Sections("toy", "A toy benchmark of two parts.")
+    parts.parser.add_argument("--planes", type=int, default=48)
+    ran = []
+    parts.part("speed", "how fast", lambda args: (ran.append("speed") or {"fps": 30}, "fps 30"))
+    parts.part("sizes", "which size", lambda args: (ran.append("sizes") or {"size": args.planes}, f"{args.planes} planes"),
+               results=lambda args: "toy_sizes" if args.planes == 48 else f"toy_sizes_p{args.planes}")
+    (tmp_path / "toy_speed.json").write_text(json.dumps({"fps": 1, "old": True}))
+    assert parts.main(argv=["--only", "sizes", "--planes", "64", "--settle", "0"]) == 0
+    assert ran == ["sizes"] and json.loads((tmp_path / "toy_sizes_p64.json").read_text())["size"] == 64
+    assert json.loads((tmp_path / "toy_speed.json").read_text()) == {"fps": 1, "old": True}  # not chosen: untouched
+    assert parts.main(argv=["--settle", "0"]) == 0
+    speed = json.loads((tmp_path / "toy_speed.json").read_text())
+    assert ran == ["sizes", "speed", "sizes"] and speed["fps"] == 30 and "old" not in speed
+    md = (tmp_path / "RESULTS.md").read_text()
+    assert "## toy_speed" in md and "fps 30" in md and "## toy_sizes\n" in md and "## toy_sizes_p64" in md
+    assert not (tmp_path / "toy.json").exists()
+    assert parts.main(argv=["--list"]) == 0
+    assert capsys.readouterr().out.split() == ["speed", "how", "fast", "sizes", "which", "size"]
+    parts.part("promise", "a check", lambda args: ({"all_404": False}, "not met"), check=lambda r: r["all_404"])
+    assert parts.main(argv=["--only", "promise", "--settle", "0"]) == 1  # published, and the exit status says so
+    assert json.loads((tmp_path / "toy_promise.json").read_text())["all_404"] is False
+
+
 def test_load_note_names_other_work_only_after_a_settle_wait():
     from benchmarks._timing import load_note
 

@@ -1,5 +1,5 @@
 """Cross-key probes, shared by the isolation tests (tests/app/test_tenants.py) and the benchmark
-(python -m benchmarks.robustness --tenants): every operation of the service's own OpenAPI document that names a resource,
+(python -m benchmarks.robustness --only tenants): every operation of the service's own OpenAPI document that names a resource,
 called with another key's resource ids, in a shape the operation accepts (so that its answer is about the owner,
 never about the body)."""
 from __future__ import annotations
