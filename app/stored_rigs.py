@@ -17,6 +17,7 @@ from workers.streaming import store as rigstore
 from workers.streaming.actor import LIVE, SessionConfig
 from workers.streaming.job import DEMO_JOB, RECORDING_JOB
 from workers.streaming.quality import LEVELS as QUALITY_LEVELS
+from workers.streaming.rules import viewpoint_controls
 from workers.streaming.session import SessionLimits
 from workers.streaming.viewpoint import orbit_frame
 from workers.sweep.rig import Rig
@@ -143,7 +144,7 @@ async def delete_recording_data(svc: Services, rig_id: str, recording: dict[str,
 class Source:
     """What a socket shows: a rig and ``source`` ("live" or a recording id), with what a client
     needs to start (the rig's cameras and orbit frame, the recording's frames and rate, the view size
-    to start at)."""
+    to start at, what a viewer may ask for)."""
 
     rig_id: str
     source: str
@@ -151,6 +152,8 @@ class Source:
     recording: dict[str, Any] | None
     view_size: tuple[int, int] = (640, 480)
     """The view size (width, height) px a viewer starts at (the ``viewer_size`` setting)."""
+    max_planes: int | None = None
+    """The most depth planes a viewer may ask for (the ``max_view_planes`` setting; None: the renderer's own limit)."""
 
     def hello(self) -> dict[str, Any]:
         return {
@@ -160,6 +163,7 @@ class Source:
             "cameras": [{"name": c.name, "width": c.width, "height": c.height} for c in self.rig.cameras],
             "orbit": orbit_frame(self.rig).to_dict(),
             "quality_levels": QUALITY_LEVELS,
+            "controls": viewpoint_controls(self.max_planes),
         }
 
 
@@ -170,17 +174,18 @@ async def resolve_source(svc: Services, rig_id: str, source: str | None, who: Pr
     the rig (live frames in), which the key must be allowed (:func:`rig_meta_or_404`); viewing is a read."""
     await rig_meta_or_404(svc, rig_id, who, change)
     rig = await load_rig(svc, rig_id)
-    size = svc.settings.viewer_size_px
+
+    def shown(name: str, recording: dict[str, Any] | None) -> Source:
+        return Source(rig_id, name, rig, recording, svc.settings.viewer_size_px, svc.settings.max_view_planes)
+
     if source == LIVE:
-        return Source(rig_id, LIVE, rig, None, size)
+        return shown(LIVE, None)
     if source is None:
         ready = [r for r in await recording_views(svc, rig_id) if r["state"] == "ready"]
-        if not ready:
-            return Source(rig_id, LIVE, rig, None, size)
-        return Source(rig_id, ready[-1]["id"], rig, ready[-1], size)
+        return shown(ready[-1]["id"], ready[-1]) if ready else shown(LIVE, None)
     recording = await recording_or_404(svc, rig_id, source)
     require_ready(recording)
-    return Source(rig_id, source, rig, recording, size)
+    return shown(source, recording)
 
 
 def view_limits(settings: Settings) -> SessionLimits:

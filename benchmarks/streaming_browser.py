@@ -557,6 +557,7 @@ def latency(quick: bool, size: str) -> tuple[dict, str]:
             page.wait_for_function("() => viewerState.ready && viewerState.received > 0", timeout=600_000)
             gpu = page.evaluate("viewerState.gpu")
             browser_ms = drags(page, "#glview", count, "browser")
+            page.click("#advanced summary")  # the Render switch is among the advanced ones
             page.select_option("#render-choice", "server")
             page.wait_for_function("() => viewerState.mode === 'server' && viewerState.ready", timeout=600_000)
             drags(page, "#view", 3, "server")  # the session's first renders load its frames

@@ -170,8 +170,11 @@ async def get_frame_set(
                                                   "max-age=31536000, immutable"}
     if request.headers.get("if-none-match") == key.etag:
         return Response(status_code=304, headers=headers)
-    rig = await load_rig(svc, rig_id)
-    data = await svc.atlases.get(key, lambda: run_compute(svc, build_atlas, svc.store, rig, key))
+
+    async def encode() -> bytes:  # only when no viewer asked for it before: a cached atlas reads nothing stored
+        return await run_compute(svc, build_atlas, svc.store, await load_rig(svc, rig_id), key)
+
+    data = await svc.atlases.get(key, encode)
     return Response(data, media_type=ATLAS_FORMATS[format][1], headers=headers)
 
 

@@ -1,7 +1,8 @@
 """WebSockets of a rig: viewers (``/v1/rigs/{id}/view``) and live ingest (``/v1/rigs/{id}/live``).
 
 Viewer socket (``?source=<recording id>|live``, default the newest ready recording, else live):
-the server sends ``{"type": "hello", ...}`` (cameras, frames, fps, orbit frame), then
+the server sends ``{"type": "hello", ...}`` (cameras, frames, fps, orbit frame, quality levels, and ``controls``: what a
+viewer may ask for, :func:`workers.streaming.rules.viewpoint_controls`), then
 ``{"type": "ready", "session": {...}}`` once the session runs. The client sends viewpoints as JSON
 text (:class:`workers.streaming.params.Viewpoint`); the server answers each rendered one with a
 binary message (4-byte big-endian header length, JSON header ``{"type": "frame", "id", "frame",
@@ -13,7 +14,8 @@ that is not JSON or nests too deeply to parse (``bad_json``). A binary message c
 
 A viewer that renders in its own browser (WebGL2; the viewer page's default where it can) opens the socket
 with ``?render=browser`` and sends no viewpoints. Its hello adds ``"render_mode": "browser"``, ``"render"``
-(the rig's geometry, silhouette settings and overlay colours: :func:`workers.streaming.browser.render_spec`) and
+(the rig's geometry at every source factor, silhouette settings, overlay colours and the renderer's rules:
+:func:`workers.streaming.browser.render_spec`) and
 ``"target_fps"``; for a recording, ``"frame_sets": {"url": ".../frames/{frame}", "format", "quality"}`` (one
 atlas per frame set over HTTP, immutable, cached by the browser: no session is started and nothing more comes
 on the socket), for the live stream ``"live": {"background_url", "background_rate"}`` and then every frame set

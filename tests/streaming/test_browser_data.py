@@ -8,10 +8,12 @@ import numpy as np
 import pytest
 from starlette.websockets import WebSocketDisconnect
 
+from app.routers import recordings
 from harness.takes import frame_set, jpeg
 from tests.streaming.conftest import add_recording, add_rig
 from tests.streaming.test_sockets import receive, sessions_of, until
 from workers.streaming.browser import atlas_columns, frame_atlas
+from workers.sweep.weighting import METHOD_CODES
 
 
 @pytest.fixture
@@ -24,7 +26,7 @@ def decode(data: bytes) -> np.ndarray:
     return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
 
 
-def test_frame_sets_come_as_immutable_cacheable_atlases(recorded, take):
+def test_frame_sets_come_as_immutable_cacheable_atlases(recorded, take, monkeypatch):
     client, rig_id, rec = recorded
     url = f"/v1/rigs/{rig_id}/recordings/{rec}/frames"
     r = client.get(f"{url}/1", params={"format": "png"})
@@ -39,8 +41,11 @@ def test_frame_sets_come_as_immutable_cacheable_atlases(recorded, take):
     assert again.status_code == 304 and not again.content
     services = client.app.state.services
     encoded = services.atlases.encoded
-    assert client.get(f"{url}/1", params={"format": "png"}).content == r.content
-    assert services.atlases.encoded == encoded  # the second viewer's request cost no encode
+    loads = []
+    with monkeypatch.context() as patch:  # a load of the rig now would be recorded, and fail the request
+        patch.setattr(recordings, "load_rig", lambda *args: loads.append(args))
+        assert client.get(f"{url}/1", params={"format": "png"}).content == r.content
+    assert services.atlases.encoded == encoded and not loads  # the second viewer's request cost no encode, no rig
     half = client.get(f"{url}/0", params={"factor": 2, "format": "jpeg", "quality": 95})
     assert half.headers["content-type"] == "image/jpeg" and half.headers["etag"] != r.headers["etag"]
     small = decode(half.content)
@@ -70,8 +75,11 @@ def test_a_browser_viewer_of_a_recording_gets_the_geometry_and_starts_no_session
         hello, _, _ = until(ws, "hello")
         assert hello["render_mode"] == "browser" and hello["frames"] == 3 and hello["target_fps"] > 0
         spec = hello["render"]
-        assert [c["name"] for c in spec["cameras"]] == take.rig.names and spec["radius"] > 0
-        assert np.allclose(spec["cameras"][0]["K"], take.rig.cameras[0].K)
+        assert [c["name"] for c in hello["cameras"]] == take.rig.names and spec["radius"] > 0
+        assert "cameras" not in spec and "orbit" not in spec  # said once, in the hello itself
+        assert len(spec["poses"]) == len(take.rig) and spec["sources"][0]["factor"] == 1
+        assert np.allclose(spec["sources"][0]["cameras"][0]["K"], take.rig.cameras[0].K)
+        assert spec["rules"]["codes"]["method"] == METHOD_CODES and spec["rules"]["defaults"]["planes"] == 48
         assert spec["silhouettes"]["threshold"] == 20.0 and len(spec["silhouettes"]["clean"]) == 17  # the 5x5 disk
         assert len(spec["style"]["colour_map"]) == 256
         url = hello["frame_sets"]["url"].replace("{frame}", "2")

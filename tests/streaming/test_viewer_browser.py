@@ -289,6 +289,8 @@ def test_a_browser_whose_webgl_runs_on_the_cpu_asks_the_server_at_once(server):
     drew (auto) from the levels the hello names."""
     from harness.browser import chromium
     from workers.streaming.quality import LEVELS
+    from workers.streaming.rules import choices
+    from workers.sweep.renderer import RenderOptions
 
     base, rig_id = server
     with chromium("swiftshader") as browser:
@@ -297,6 +299,12 @@ def test_a_browser_whose_webgl_runs_on_the_cpu_asks_the_server_at_once(server):
         settled(page, 0)
         assert page.evaluate("viewerState.mode") == "server"
         assert page.locator("#mode").inner_text().startswith("the server (WebGL runs on the CPU here (ANGLE")
+        # the menus offer the server's choices (the hello's controls), "as the quality level" first where it may
+        options = "(select) => [...select.options].map((o) => o.value)"
+        assert page.eval_on_selector("#method", options) == choices(RenderOptions.model_fields["method"])
+        assert page.eval_on_selector("#occlusions", options) == ["", *choices(RenderOptions.model_fields["occlusions"])]
+        assert page.eval_on_selector("#quality", options) == ["auto", *LEVELS]
+        assert page.locator("#planes").input_value() == "48" and page.locator("#planes").get_attribute("max") == "256"
         assert page.evaluate("viewerState.local === null && viewerState.renderTimes.length === 0")
         assert page.evaluate("viewerState.hello.quality_levels") == LEVELS
         header = page.evaluate("viewerState.lastHeader")

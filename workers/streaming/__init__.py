@@ -25,5 +25,9 @@ Modules (import from them; arrays follow workers.camera conventions, images uint
 - ``batch``: camera paths and ``render_path`` (H.264 MP4 + zip of depth PNGs).
 - ``demo``: ``demo_rig`` (10 cameras, 640x480), ``demo_scene`` (the photographic studio of
   ``workers.synth.studio_scene``), ``build_demo_recording``.
+- ``browser``: what a viewer that renders in its browser gets: ``render_spec(rig)`` (the rig at every source
+  factor, silhouettes, overlay colours, the renderer's rules), ``frame_atlas`` (a frame set as one image).
+- ``rules``: the server's rules as data for the viewer page: ``viewpoint_controls`` (what a viewer may ask for),
+  ``renderer_rules`` (RenderOptions' defaults and choices, shader codes and constants, the fill's visibility rule).
 - ``job``: job entry points ``run_recording_import``, ``run_batch_render``, ``run_demo_recording``.
 """

@@ -21,8 +21,8 @@ from workers.sweep.silhouette import BG_THRESHOLD, HULL_DILATE_PX, cleaning_disk
 from workers.sweep.undistort import undistort_maps, undistorted
 
 from .images import decode_stored
-from .session import OVERLAY_WEIGHT, shrunk_images, shrunk_rig
-from .viewpoint import orbit_frame
+from .rules import renderer_rules
+from .session import MAX_SOURCE_FACTOR, OVERLAY_WEIGHT, shrunk_images, shrunk_rig, views_up_to
 
 
 def atlas_columns(cameras: int) -> int:
@@ -48,18 +48,18 @@ def frame_atlas(images: Sequence[np.ndarray], rig: Rig, factor: int) -> np.ndarr
 
 
 def render_spec(rig: Rig) -> dict[str, Any]:
-    """The rig as app/static/render/rig.js takes it (JSON-able): the cameras' pinhole calibration at the recorded
-    size (frames arrive undistorted), the focus point and radius behind the automatic depth range, the rig's
-    depth range if it has one, the orbit frame, how silhouettes are made, and the overlay colours (RGB)."""
-    focus = rig.focus_point()
+    """The rig as app/static/render/rig.js takes it (JSON-able), beside what the hello already says (the cameras'
+    names and sizes, the orbit frame): each camera's pose, its pinhole calibration at every source factor the server
+    shrinks frames by (:func:`frame_sources`; frames arrive undistorted), the focus point and radius behind the
+    automatic depth range, the rig's depth range if it has one, the atlas layout, how silhouettes are made, the
+    overlay colours (RGB), and the renderer's rules (:func:`workers.streaming.rules.renderer_rules`)."""
     disk = cleaning_disk()
     ramp = cv2.applyColorMap(np.arange(256, dtype=np.uint8)[:, None], cv2.COLORMAP_TURBO)[:, 0, ::-1]
     return {
-        "cameras": [{"name": c.name, "K": c.K.tolist(), "R": c.R.tolist(), "t": c.t.tolist(), "width": c.width,
-                     "height": c.height} for c in rig.cameras],
-        "focus": focus.tolist(), "radius": rig.radius(),
+        "poses": [{"R": c.R.tolist(), "t": c.t.tolist()} for c in rig.cameras],
+        "sources": frame_sources(rig),
+        "focus": rig.focus_point().tolist(), "radius": rig.radius(),
         "depth_range": list(rig.depth_range) if rig.depth_range else None,
-        "orbit": orbit_frame(rig).to_dict(),
         "atlas_columns": atlas_columns(len(rig)),
         "silhouettes": {
             "threshold": BG_THRESHOLD, "dilate": HULL_DILATE_PX,
@@ -69,7 +69,19 @@ def render_spec(rig: Rig) -> dict[str, Any]:
             "palette": [[int(v) for v in bgr[::-1]] for bgr in PALETTE], "blend2": list(BLEND_COLOR[::-1]),
             "blend3": list(BLEND3_COLOR[::-1]), "weight": OVERLAY_WEIGHT, "colour_map": ramp.tolist(),
         },
+        "rules": renderer_rules(),
     }
+
+
+def frame_sources(rig: Rig) -> list[dict[str, Any]]:
+    """The frames a recording's views sweep, one entry per source factor f = 1..MAX_SOURCE_FACTOR:
+    ``{"factor": f, "views_up_to": [w, h], "cameras": [{"K", "width", "height"}]}``, the cameras' calibration
+    for frames shrunk by f (:func:`workers.streaming.session.shrunk_rig`, rig order). A view of width x height px
+    sweeps the frames of the largest factor whose ``views_up_to`` holds it, factor 1 where none does
+    (:func:`workers.streaming.session.source_factor`)."""
+    return [{"factor": f, "views_up_to": list(views_up_to(rig, f)),
+             "cameras": [{"K": c.K.tolist(), "width": c.width, "height": c.height} for c in shrunk_rig(rig, f).cameras]}
+            for f in range(1, MAX_SOURCE_FACTOR + 1)]
 
 
 ATLAS_FORMATS = {"jpeg": (".jpg", "image/jpeg"), "png": (".png", "image/png")}

@@ -57,10 +57,17 @@ MAX_LEVELS = 3
 
 def source_factor(rig: Rig, width: int, height: int) -> int:
     """The factor (1..MAX_SOURCE_FACTOR) a recording session shrinks ``rig``'s images by for views of
-    ``width`` x ``height`` px: the largest integer that keeps every camera's image at least that size
-    (a view never samples images coarser than itself)."""
-    k = int(min(min(c.width for c in rig.cameras) / width, min(c.height for c in rig.cameras) / height))
-    return max(1, min(k, MAX_SOURCE_FACTOR))
+    ``width`` x ``height`` px: the largest whose shrunk images are all at least that size (:func:`views_up_to`; a
+    view never samples images coarser than itself), 1 where none is."""
+    fits = [f for f in range(2, MAX_SOURCE_FACTOR + 1)
+            if width <= views_up_to(rig, f)[0] and height <= views_up_to(rig, f)[1]]
+    return max(fits, default=1)
+
+
+def views_up_to(rig: Rig, factor: int) -> tuple[int, int]:
+    """The largest view (width, height) px that ``rig``'s images shrunk by ``factor`` serve: every camera's image
+    at least that size (the smallest camera's width and height over ``factor``, rounded down)."""
+    return min(c.width for c in rig.cameras) // factor, min(c.height for c in rig.cameras) // factor
 
 
 def shrunk_camera(cam: Camera, factor: int) -> Camera:

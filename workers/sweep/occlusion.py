@@ -36,6 +36,10 @@ from .kernels import plane_point
 from .layout import FAST as _FAST
 from .layout import Z_MIN as _Z_MIN
 
+CONFIRM_TOLERANCE_PX = 1
+"""How far (px, each axis of the virtual view) a camera's winning virtual pixel may lie from a pixel and still confirm
+its plane (:func:`confirmed_views`)."""
+
 
 @njit(cache=True, parallel=True, fastmath=_FAST, error_model="numpy")
 def view_winners(Q, B, s_planes, cost, lo, hi, sizes, win_cost, win_pix):  # pragma: no cover - compiled
@@ -107,7 +111,8 @@ def confirmations(Q, B, s_planes, best, sizes, win_pix, tol_px, out):  # pragma:
 
 
 def confirmed_views(Q: np.ndarray, B: np.ndarray, s_planes: np.ndarray, cost: np.ndarray, lo: np.ndarray,
-                    hi: np.ndarray, best: np.ndarray, sizes: np.ndarray, tol_px: int = 1) -> np.ndarray:
+                    hi: np.ndarray, best: np.ndarray, sizes: np.ndarray,
+                    tol_px: int = CONFIRM_TOLERANCE_PX) -> np.ndarray:
     """The cross-view check (module docstring): (h, w) uint8, how many cameras' own choices confirm each
     pixel's plane ``best`` (h, w) int32. cost (h, w, P) float32 is the (aggregated) cost volume the planes
     were chosen on, ``inf`` where not a candidate, lo/hi (h, w) int32 its plane windows; Q (N, 3, 3), B (N, 3),

@@ -39,6 +39,7 @@ log = logging.getLogger(__name__)
 MAX_PLANES = 1024
 MAX_VIEW_PIXELS = 4096 * 4096
 BAND_ROWS = 16  # rows per work item of the sweep kernel (the pixel above seeds the search within a band)
+REFINE_RADIUS = 1  # after a coarse level, a fine pixel's planes span the coarse choices of the 3 x 3 around its parent
 
 
 class RenderOptions(BaseModel):
@@ -329,7 +330,7 @@ class SweepRenderer:
             best_c, _, _, _ = self._choose(Qc, Bc, virtual.center, s_planes, use_hull, opt, *window)
             lo = np.empty((h, w), np.int32)
             hi = np.empty((h, w), np.int32)
-            kernels.refine_windows(best_c, h, w, 1, opt.refine_margin, opt.planes, lo, hi)
+            kernels.refine_windows(best_c, h, w, REFINE_RADIUS, opt.refine_margin, opt.planes, lo, hi)
             t2 = time.perf_counter()
             timings["coarse_ms"] = (t2 - t1) * 1e3
             t1 = t2
@@ -409,7 +410,7 @@ class SweepRenderer:
         z = float(np.median(depth[ok])) if ok.any() else 1.0
         centre = np.array([[(virtual.width - 1) / 2, (virtual.height - 1) / 2]])
         spacing = neighbour_angle(self._centers, virtual.backproject(centre, z)[0])
-        return suggest_d_bnd(spacing if spacing > 0 else FALLBACK_SPACING_RAD, 0.5)
+        return suggest_d_bnd(spacing if spacing > 0 else FALLBACK_SPACING_RAD, AUTO_BLEND_FRACTION)
 
     def _d_bnd(self, virtual: Camera, depth: np.ndarray, opt: RenderOptions) -> float | None:
         if opt.method not in ("kojima", "kojima_k"):
@@ -645,6 +646,8 @@ def wants_gpu(device: str) -> bool:
 
 FALLBACK_SPACING_RAD = float(np.radians(10.0))
 """Camera spacing assumed by :meth:`SweepRenderer.auto_d_bnd` when every camera stands at one place."""
+AUTO_BLEND_FRACTION = 0.5
+"""The share of the way between neighbouring cameras that the automatic D_bnd blends over (:func:`suggest_d_bnd`)."""
 
 
 def _for_previous(previous: RenderResult, options: RenderOptions | None, kwargs: dict) -> RenderOptions:

@@ -40,8 +40,8 @@ export const vec3 = {
   unit: (a) => vec3.scale(a, 1 / vec3.norm(a)),
 };
 
-/** Python's round(): halves to even (sizes must round as the server's do). */
-export function roundHalfEven(x) {
+/** Python's round(): halves to even (sizes must round as the server's do: Camera.scaled). */
+function roundHalfEven(x) {
   const r = Math.round(x);
   return Math.abs(x % 1) === 0.5 && r % 2 !== 0 ? r - 1 : r;
 }
@@ -50,11 +50,6 @@ export class Camera {
   /** name; K, R row-major arrays of 9; t array of 3; width, height in pixels. */
   constructor(name, K, R, t, width, height) {
     Object.assign(this, { name, K: [...K], R: [...R], t: [...t], width, height });
-  }
-
-  /** From the rig JSON's camera dict ({name, K, R, t, width, height}, K and R as rows). */
-  static fromDict(d) {
-    return new Camera(d.name, d.K.flat(), d.R.flat(), d.t, d.width, d.height);
   }
 
   /** Centre in world coordinates: -R^T t. */
@@ -86,21 +81,6 @@ export class Camera {
     K[5] = (this.K[5] + 0.5) * factor - 0.5;
     const w = Math.max(1, roundHalfEven(this.width * factor));
     const h = Math.max(1, roundHalfEven(this.height * factor));
-    return new Camera(this.name, K, this.R, this.t, w, h);
-  }
-
-  /** The camera of its image shrunk by the integer ``factor`` as the server shrinks recordings
-   * (workers.streaming.session.shrunk_camera: K scaled per axis by the exact size ratios). */
-  shrunk(factor) {
-    if (factor === 1) return this;
-    const w = Math.max(1, roundHalfEven(this.width / factor));
-    const h = Math.max(1, roundHalfEven(this.height / factor));
-    const sx = w / this.width;
-    const sy = h / this.height;
-    const K = [...this.K];
-    K[0] *= sx; K[1] *= sx; K[3] *= sy; K[4] *= sy;
-    K[2] = (this.K[2] + 0.5) * sx - 0.5;
-    K[5] = (this.K[5] + 0.5) * sy - 0.5;
     return new Camera(this.name, K, this.R, this.t, w, h);
   }
 

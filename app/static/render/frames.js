@@ -3,7 +3,8 @@
 // channel difference exceeds the threshold, cleaned by an opening and a closing with the server's disk, then
 // dilated by the hull margin (a square). Frame sets arrive as one image, an atlas of the cameras' frames in
 // rig order, ``columns`` cells per row, each cell the size of the largest camera image.
-import { bindTextures, drawFullscreen, framebuffer, program, release, textureArray } from "./gl.js";
+import { release, target, textureArray } from "./gl.js";
+import { Pass } from "./pass.js";
 
 export const SHADERS = ["fullscreen.vert", "silhouette.frag", "background.frag"];
 
@@ -27,8 +28,8 @@ export class FrameSet {
     this.scratch = textureArray(gl, "r8", this.width, this.height, this.layers);
     this.hasSilhouettes = false;
     this.maxTaps = Math.max(this.params.clean.length, (2 * this.params.dilate + 1) ** 2, 1);
-    this.prog = program(gl, "fullscreen.vert", "silhouette.frag", { MAX_TAPS: this.maxTaps });
-    this.modelProg = program(gl, "fullscreen.vert", "background.frag");
+    this.silhouettePass = new Pass(gl, "silhouette.frag", { defines: { MAX_TAPS: this.maxTaps } });
+    this.modelPass = new Pass(gl, "background.frag");
     this.model = null; // live: the float background model, two arrays (ping-pong)
     this.flaggedRun = 0;
     this.fill(this.silhouettes, 1);
@@ -94,7 +95,7 @@ export class FrameSet {
     this.setBackgrounds(atlas, columns);
     const gl = this.gl;
     if (!this.model) this.model = [0, 1].map(() => textureArray(gl, "rgba32f", this.width, this.height, this.layers));
-    this.modelPass(2, this.backgrounds, this.model[0], 0, this.backgrounds); // a float copy of the 8-bit model
+    this.modelStep(2, this.backgrounds, this.model[0], 0, this.backgrounds); // a float copy of the 8-bit model
     this.flaggedRun = 0;
   }
 
@@ -109,9 +110,9 @@ export class FrameSet {
         this.model = [0, 1].map(() => textureArray(gl, "rgba32f", this.width, this.height, this.layers));
         this.backgrounds = this.backgrounds || textureArray(gl, "rgba8", this.width, this.height, this.layers);
       }
-      this.modelPass(0, this.model[0], this.model[1], this.flaggedRun === 1 ? 1 : 1 / this.flaggedRun, this.scratch);
+      this.modelStep(0, this.model[0], this.model[1], this.flaggedRun === 1 ? 1 : 1 / this.flaggedRun, this.scratch);
       this.model.reverse();
-      this.modelPass(2, this.model[0], this.backgrounds, 0, this.scratch);
+      this.modelStep(2, this.model[0], this.backgrounds, 0, this.scratch);
       this.fill(this.silhouettes, 0);
       this.hasSilhouettes = true;
       return;
@@ -123,42 +124,29 @@ export class FrameSet {
       return;
     }
     this.makeSilhouettes((mask) => {
-      this.modelPass(1, this.model[0], this.model[1], rate, mask);
+      this.modelStep(1, this.model[0], this.model[1], rate, mask);
       this.model.reverse();
     });
-    this.modelPass(2, this.model[0], this.backgrounds, 0, this.scratch);
+    this.modelStep(2, this.model[0], this.backgrounds, 0, this.scratch);
   }
 
-  modelPass(mode, src, dst, weight, mask) {
-    const gl = this.gl;
-    const prog = this.modelProg;
-    gl.useProgram(prog.program);
-    bindTextures(gl, prog, { uImages: this.images, uModel: src, uMask: mask });
-    gl.uniform1i(prog.uniforms.uMode, mode);
-    gl.uniform1f(prog.uniforms.uWeight, weight);
+  /** One step of the live background model (background.frag, ``mode``) from ``src`` into ``dst``, a camera a draw. */
+  modelStep(mode, src, dst, weight, mask) {
+    this.modelPass.set({ uImages: this.images, uModel: src, uMask: mask, uMode: mode, uWeight: weight });
     for (let i = 0; i < this.layers; i++) {
-      const fb = framebuffer(gl, [{ tex: dst, layer: i }]);
-      gl.uniform1i(prog.uniforms.uLayer, i);
-      drawFullscreen(gl, fb);
-      gl.deleteFramebuffer(fb.fb);
+      this.modelPass.set({ uLayer: i });
+      this.modelPass.draw(target(this.gl, [{ tex: dst, layer: i }]));
     }
   }
 
+  /** One silhouette step (silhouette.frag, ``mode``) with ``kernel`` (offsets) from mask ``src`` into ``dst``. */
   morph(mode, kernel, src, dst) {
-    const gl = this.gl;
-    gl.useProgram(this.prog.program);
-    bindTextures(gl, this.prog, { uImages: this.images, uBackgrounds: this.backgrounds, uMask: src });
-    const u = this.prog.uniforms;
-    gl.uniform1i(u.uMode, mode);
-    gl.uniform1f(u.uThreshold, this.params.threshold);
-    gl.uniform1i(u.uTaps, kernel.length);
-    if (kernel.length) gl.uniform2iv(u["uKernel[0]"], Int32Array.from(kernel.flat()));
+    this.silhouettePass.set({ uImages: this.images, uBackgrounds: this.backgrounds, uMask: src, uMode: mode,
+      uThreshold: this.params.threshold, uTaps: kernel.length });
+    this.silhouettePass.set({ uKernel: kernel.length ? kernel : [[0, 0]] }); // no taps: the foreground reads none
     this.sizes.forEach(([w, h], i) => {
-      const fb = framebuffer(gl, [{ tex: dst, layer: i }]);
-      gl.uniform1i(u.uLayer, i);
-      gl.uniform2i(u.uSize, w, h);
-      drawFullscreen(gl, fb);
-      gl.deleteFramebuffer(fb.fb);
+      this.silhouettePass.set({ uLayer: i, uSize: [w, h] });
+      this.silhouettePass.draw(target(this.gl, [{ tex: dst, layer: i }]));
     });
   }
 
@@ -166,16 +154,15 @@ export class FrameSet {
   fill(tex, value) {
     const gl = this.gl;
     for (let i = 0; i < this.layers; i++) {
-      const fb = framebuffer(gl, [{ tex, layer: i }]);
+      gl.bindFramebuffer(gl.FRAMEBUFFER, target(gl, [{ tex, layer: i }]).fb);
       gl.clearBufferfv(gl.COLOR, 0, [value, value, value, value]);
-      gl.deleteFramebuffer(fb.fb);
     }
   }
 
   dispose() {
     release(this.gl, this.images, this.backgrounds, this.silhouettes, this.scratch, ...(this.model || []));
-    this.gl.deleteProgram(this.prog.program);
-    this.gl.deleteProgram(this.modelProg.program);
+    this.silhouettePass.dispose();
+    this.modelPass.dispose();
   }
 }
 

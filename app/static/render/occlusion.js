@@ -8,15 +8,15 @@
 // one camera's layer, the depth test keeping the least value per camera pixel: the fragment writes that value
 // (a cost, a depth) as its depth, scaled by a power of two (exact in a float32 depth buffer), and ties keep the
 // first drawn, the server's order. 320x240 with 48 planes and 10 cameras is 37 M points a frame.
-import { bindTextures, drawFullscreen, framebuffer, release, texture2d, textureArray } from "./gl.js";
-import { rigPass } from "./cost.js";
+import { depthBuffer, release, target, texture2d, textureArray } from "./gl.js";
+import { Pass } from "./pass.js";
+import { planeUniforms, rigUniforms } from "./planes.js";
 
 export const SHADERS = ["rig.glsl", "fullscreen.vert", "winners.vert", "winners.frag", "confirm.frag", "fill.frag",
   "splat.vert", "splat.frag"];
 const COST_SCALE = 2 ** -40;  // costs (colour levels squared, semi-global totals) below 2^40 stay under 1
 const DEPTH_SCALE = 2 ** -40; // depths along a camera's axis likewise
 const FAR = 3.4e38;           // an empty z-buffer pixel: nothing of the view in front
-const TOLERANCE_PX = 1;       // workers/sweep/occlusion.py confirmed_views' tol_px
 
 /** Whether the rejected pixels are filled along the rows: the cameras spread at least as far along the view's x
  * axis as along its y axis (workers/sweep/occlusion.py fill_along_rows). */
@@ -39,40 +39,36 @@ class CameraTargets {
   constructor(gl, w, h, n, kind) {
     Object.assign(this, { gl, width: w, height: h, count: n, kind });
     this.colour = textureArray(gl, kind, w, h, n);
-    this.depth = gl.createRenderbuffer();
-    gl.bindRenderbuffer(gl.RENDERBUFFER, this.depth);
-    gl.renderbufferStorage(gl.RENDERBUFFER, gl.DEPTH_COMPONENT32F, w, h);
-    this.targets = Array.from({ length: n }, (_, i) => {
-      const t = framebuffer(gl, [{ tex: this.colour, layer: i }]);
-      gl.framebufferRenderbuffer(gl.FRAMEBUFFER, gl.DEPTH_ATTACHMENT, gl.RENDERBUFFER, this.depth);
-      return t;
-    });
+    this.depth = depthBuffer(gl, w, h);
   }
 
-  /** Draw ``count`` points into camera i's layer, cleared to ``clear`` (RGBA) and an empty depth, keeping the least
-   * depth per pixel. */
-  scatter(i, count, clear) {
+  /** Draw ``pass``'s ``count`` points into camera i's layer, cleared to ``clear`` (RGBA) and an empty depth,
+   * keeping the least depth per pixel. */
+  scatter(pass, i, count, clear) {
     const gl = this.gl;
-    gl.bindFramebuffer(gl.FRAMEBUFFER, this.targets[i].fb);
-    gl.viewport(0, 0, this.width, this.height);
+    const into = target(gl, [{ tex: this.colour, layer: i }], this.depth);
+    gl.bindFramebuffer(gl.FRAMEBUFFER, into.fb);
     gl.clearBufferfv(gl.COLOR, 0, clear);
     gl.clearBufferfv(gl.DEPTH, 0, [1.0]);
     gl.enable(gl.DEPTH_TEST);
     gl.depthFunc(gl.LESS);
-    gl.drawArrays(gl.POINTS, 0, count);
+    pass.drawPoints(into, count);
     gl.disable(gl.DEPTH_TEST);
   }
 
   dispose() {
-    release(this.gl, this.colour, ...this.targets);
-    this.gl.deleteRenderbuffer(this.depth);
+    release(this.gl, this.colour, this.depth);
   }
 }
 
 export class Occlusions {
-  constructor(gl, programs) {
+  /** The passes, compiled with the renderer's ``defines`` (N_CAM, the server's rules). */
+  constructor(gl, defines) {
     this.gl = gl;
-    this.programs = programs; // { winners, confirm, fill, splat }
+    this.winners = new Pass(gl, "winners.frag", { vertex: "winners.vert", defines });
+    this.confirm = new Pass(gl, "confirm.frag", { defines });
+    this.fillPass = new Pass(gl, "fill.frag");
+    this.splat = new Pass(gl, "splat.frag", { vertex: "splat.vert", defines });
     const [, largest] = gl.getParameter(gl.ALIASED_POINT_SIZE_RANGE);
     this.pointsOk = largest >= 2;
     this.cameraTargets = new Map(); // "w h n kind" -> CameraTargets
@@ -97,49 +93,36 @@ export class Occlusions {
   viewTextures(w, h) {
     if (!this.view || this.view.width !== w || this.view.height !== h) {
       this.releaseView();
-      const rejected = texture2d(this.gl, "r8", w, h);
-      const filled = texture2d(this.gl, "rgba32f", w, h);
-      this.view = { width: w, height: h, rejected, filled, rejectedTarget: framebuffer(this.gl, [rejected]),
-        filledTarget: framebuffer(this.gl, [filled]) };
+      this.view = { width: w, height: h, rejected: texture2d(this.gl, "r8", w, h),
+        filled: texture2d(this.gl, "rgba32f", w, h) };
     }
     return this.view;
   }
 
   /**
    * The occlusion fill (workers/sweep/renderer.py _fill_occlusions) of ``depth`` in place: the pixels whose plane
-   * fewer than ``minViews`` cameras' own choices from ``volume`` confirm take the farther neighbouring depth along
-   * the line (``rows``, else the columns). depth: { tex, target } a resolve output of the view's size; volume: the
-   * array texture the planes were chosen on; sweep: the renderer's sweep ({ geometry, cameras, planes }).
+   * fewer than sweep.minViews cameras' own choices from ``volume`` confirm take the farther neighbouring depth along
+   * the line (``rows``, else the columns). depth: a resolve output of the view's size (a 2D texture); volume: the
+   * array texture the planes were chosen on; sweep: the renderer's sweep ({ geometry, cameras, planes, minViews }).
    */
-  fill(sweep, volume, depth, minViews, rows) {
+  fill(sweep, volume, depth, rows) {
     const gl = this.gl;
-    const { width: w, height: h } = depth.tex;
-    const P = sweep.planes.count;
+    const { width: w, height: h } = depth;
     const winners = this.targetsFor(sweep.cameras, "rg32f");
-    const wp = this.programs.winners;
-    rigPass(gl, wp, sweep);
-    bindTextures(gl, wp, { uVolume: volume });
-    gl.uniform1i(wp.uniforms.uWidth, w);
-    gl.uniform2f(wp.uniforms.uTarget, winners.width, winners.height);
-    gl.uniform1f(wp.uniforms.uDepthScale, COST_SCALE);
+    this.winners.set({ ...rigUniforms(sweep), ...planeUniforms(sweep.planes), uVolume: volume, uWidth: w,
+      uTarget: [winners.width, winners.height], uDepthScale: COST_SCALE });
     sweep.cameras.forEach((_, i) => {
-      gl.uniform1i(wp.uniforms.uCamera, i);
-      winners.scatter(i, w * h * P, [-1, 0, 0, 0]);
+      this.winners.set({ uCamera: i });
+      winners.scatter(this.winners, i, w * h * sweep.planes.count, [-1, 0, 0, 0]);
     });
     const view = this.viewTextures(w, h);
-    const cp = this.programs.confirm;
-    rigPass(gl, cp, sweep);
-    bindTextures(gl, cp, { uDepth: depth.tex, uWinners: winners.colour });
-    gl.uniform1i(cp.uniforms.uTolerance, TOLERANCE_PX);
-    gl.uniform1i(cp.uniforms.uMinViews, minViews);
-    drawFullscreen(gl, view.rejectedTarget);
-    const fp = this.programs.fill;
-    gl.useProgram(fp.program);
-    bindTextures(gl, fp, { uDepth: depth.tex, uRejected: view.rejected });
-    gl.uniform1i(fp.uniforms.uRows, rows ? 1 : 0);
-    drawFullscreen(gl, view.filledTarget);
-    gl.bindFramebuffer(gl.READ_FRAMEBUFFER, view.filledTarget.fb);
-    gl.bindFramebuffer(gl.DRAW_FRAMEBUFFER, depth.target.fb);
+    this.confirm.set({ ...rigUniforms(sweep), uS0: sweep.planes.s0, uDs: sweep.planes.ds, uMinViews: sweep.minViews,
+      uDepth: depth, uWinners: winners.colour });
+    this.confirm.draw(target(gl, [view.rejected]));
+    this.fillPass.set({ uDepth: depth, uRejected: view.rejected, uRows: rows });
+    this.fillPass.draw(target(gl, [view.filled]));
+    gl.bindFramebuffer(gl.READ_FRAMEBUFFER, target(gl, [view.filled]).fb);
+    gl.bindFramebuffer(gl.DRAW_FRAMEBUFFER, target(gl, [depth]).fb);
     gl.blitFramebuffer(0, 0, w, h, 0, 0, w, h, gl.COLOR_BUFFER_BIT, gl.NEAREST);
     gl.bindFramebuffer(gl.READ_FRAMEBUFFER, null);
     gl.bindFramebuffer(gl.DRAW_FRAMEBUFFER, null);
@@ -148,27 +131,24 @@ export class Occlusions {
   /** The z-buffers of the view's surface (``depth``, a resolve output texture) in every camera: an array texture,
    * layer i camera i's nearest depth (m along its axis) per pixel, FAR where nothing of the view lies. */
   zbuffers(sweep, depth) {
-    const gl = this.gl;
     const targets = this.targetsFor(sweep.cameras, "r32f");
-    const sp = this.programs.splat;
-    rigPass(gl, sp, sweep);
-    bindTextures(gl, sp, { uDepth: depth });
-    gl.uniform2f(sp.uniforms.uTarget, targets.width, targets.height);
-    gl.uniform1f(sp.uniforms.uDepthScale, DEPTH_SCALE);
+    this.splat.set({ ...rigUniforms(sweep), uDepth: depth, uTarget: [targets.width, targets.height],
+      uDepthScale: DEPTH_SCALE });
     sweep.cameras.forEach((_, i) => {
-      gl.uniform1i(sp.uniforms.uCamera, i);
-      targets.scatter(i, depth.width * depth.height, [FAR, 0, 0, 0]);
+      this.splat.set({ uCamera: i });
+      targets.scatter(this.splat, i, depth.width * depth.height, [FAR, 0, 0, 0]);
     });
     return targets.colour;
   }
 
   releaseView() {
     const v = this.view;
-    if (v) release(this.gl, v.rejected, v.filled, v.rejectedTarget, v.filledTarget);
+    if (v) release(this.gl, v.rejected, v.filled);
   }
 
   dispose() {
     for (const t of this.cameraTargets.values()) t.dispose();
     this.releaseView();
+    for (const p of [this.winners, this.confirm, this.fillPass, this.splat]) p.dispose();
   }
 }

@@ -1,12 +1,12 @@
 // The picture shown: the view, the view under its region map, or the depth map
 // (workers/streaming/session.py _composed, workers/sweep/overlays.py). Colours come from the server's hello.
-import { bindTextures, drawFullscreen } from "./gl.js";
+import { release } from "./gl.js";
+import { Pass } from "./pass.js";
 
 export const SHADERS = ["fullscreen.vert", "present.frag"];
-export const OVERLAYS = ["none", "regions", "depth"];
 
 /** The depth colour map (256 RGB triples) as a 256 x 1 RGBA8 texture. */
-export function colourMapTexture(gl, rgb) {
+function colourMapTexture(gl, rgb) {
   const data = new Uint8Array(256 * 4);
   rgb.forEach(([r, g, b], i) => data.set([r, g, b, 255], 4 * i));
   const t = gl.createTexture();
@@ -17,17 +17,27 @@ export function colourMapTexture(gl, rgb) {
   return { texture: t, width: 256, height: 1 };
 }
 
-/** Compose ``overlay`` into ``target`` (a framebuffer record; null: the canvas, flipped to show row 0 on top). */
-export function present(gl, prog, work, style, overlay, inverseRange, target) {
-  gl.useProgram(prog.program);
-  bindTextures(gl, prog, { uColour: work.colour, uRegions: work.regions, uDepth: work.depth, uColourMap: style.colourMap });
-  const u = prog.uniforms;
-  gl.uniform3fv(u["uPalette[0]"], Float32Array.from(style.palette.flat()));
-  gl.uniform3fv(u.uBlend2, Float32Array.from(style.blend2));
-  gl.uniform3fv(u.uBlend3, Float32Array.from(style.blend3));
-  gl.uniform1f(u.uOverlayWeight, style.weight);
-  gl.uniform1i(u.uOverlay, Math.max(0, OVERLAYS.indexOf(overlay)));
-  gl.uniform2f(u.uInverseRange, inverseRange[0], inverseRange[1]);
-  gl.uniform1i(u.uFlip, target ? 0 : 1);
-  drawFullscreen(gl, target, work.width, work.height);
+export class Presenter {
+  /** The present pass for the hello's ``style`` (palette, blend2, blend3, weight: RGB and the overlay's weight;
+   * colour_map: 256 RGB triples), compiled with the renderer's ``defines`` (PALETTE, OVERLAY_* codes). */
+  constructor(gl, style, defines) {
+    this.gl = gl;
+    this.colourMap = colourMapTexture(gl, style.colour_map);
+    this.pass = new Pass(gl, "present.frag", { defines });
+    this.pass.set({ uPalette: style.palette, uBlend2: style.blend2, uBlend3: style.blend3,
+      uOverlayWeight: style.weight, uColourMap: this.colourMap });
+  }
+
+  /** Compose ``overlay`` (its code: the render block's rules.codes.overlay) of ``work`` (its colour, regions and
+   * depth) with the depth map's ``inverseRange`` into ``into`` (a target; the canvas: flipped to show row 0 on top). */
+  present(work, overlay, inverseRange, into) {
+    this.pass.set({ uColour: work.colour, uRegions: work.regions, uDepth: work.depth, uOverlay: overlay,
+      uInverseRange: inverseRange, uFlip: into.fb === null });
+    this.pass.draw(into);
+  }
+
+  dispose() {
+    release(this.gl, this.colourMap);
+    this.pass.dispose();
+  }
 }

@@ -33,11 +33,16 @@ export function glMatrices(rows) {
   return out;
 }
 
-/** Upload the rig uniforms of rig.glsl for ``geometry`` and ``cameras`` to program ``prog``. */
-export function setRigUniforms(gl, prog, geometry, cameras, hull) {
-  const u = prog.uniforms;
-  gl.uniformMatrix3fv(u["uQ[0]"], false, glMatrices(geometry.Q));
-  gl.uniform3fv(u["uB[0]"], Float32Array.from(geometry.B.flat()));
-  gl.uniform2fv(u["uLast[0]"], Float32Array.from(cameras.flatMap((c) => [c.width - 1, c.height - 1])));
-  gl.uniform1i(u.uHull, hull ? 1 : 0);
+/** The uniforms of rig.glsl for ``sweep`` ({ geometry, cameras, hull, frames, ... }), as every pass that sees the
+ * rig takes them. */
+export function rigUniforms(sweep) {
+  return {
+    uQ: glMatrices(sweep.geometry.Q), uB: sweep.geometry.B, uLast: sweep.cameras.map((c) => [c.width - 1, c.height - 1]),
+    uHull: sweep.hull, uImages: sweep.frames.images, uSilhouettes: sweep.frames.silhouettes,
+  };
+}
+
+/** The planes' uniforms (inverse depth of plane 0, step, count) of ``planes`` (inversePlanes). */
+export function planeUniforms(planes) {
+  return { uS0: planes.s0, uDs: planes.ds, uPlanes: planes.count };
 }

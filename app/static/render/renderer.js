@@ -2,54 +2,51 @@
 // WebGL2 passes, from frame sets the server ships once. One instance per rig and canvas.
 //
 //   const r = await BrowserRenderer.create(gl, hello.render);   // the viewer socket's hello, render block
-//   r.useFactor(r.rig.sourceFactor(w, h));                       // frames at the size the view needs
+//   r.useFactor(r.rig.sourceFor(w, h).factor);                   // frames at the size the view needs
 //   r.frames.setBackgrounds(bitmap, columns); r.frames.setFrames(bitmap, columns);
-//   const info = r.render(r.rig.orbitCamera(orbit, 50, w, h), { method: "kojima", planes: 48 });
+//   const info = r.render(orbitCamera(hello.orbit, orbit, fov, w, h), { method: "kojima", planes: 48 });
 //   r.present("none");                                           // to the canvas
 //
-// Options are the server's RenderOptions (same names and defaults); what the browser does not implement
-// (the truncated cost, coarser depth sampling) raises an Unsupported error so that a viewer can ask the server
-// instead.
-import { windowedWinner, SHADERS as AGGREGATION_SHADERS } from "./aggregation.js";
-import { searchPixels, SHADERS as COST_SHADERS } from "./cost.js";
-import { MAX_PLANES as SGM_MAX_PLANES, MAX_VOLUME_BYTES, SemiGlobal, SHADERS as SGM_SHADERS, volumeBytes } from "./semiglobal.js";
+// Options are the server's RenderOptions: their defaults, choices, the codes the shaders take and the fill's
+// visibility rule come in the render block's ``rules`` (workers/streaming/rules.py renderer_rules); what the browser
+// does not implement (the truncated cost, coarser depth sampling) raises an Unsupported error so that a viewer can
+// ask the server instead.
+import { SHADERS as AGGREGATION_SHADERS, WindowAggregation } from "./aggregation.js";
+import { Cost, SHADERS as COST_SHADERS } from "./cost.js";
 import { FrameSet, SHADERS as FRAME_SHADERS } from "./frames.js";
-import { bindTextures, drawFullscreen, framebuffer, loadShaders, program, readBytes, readFloat, release, texture2d,
-  textureArray } from "./gl.js";
+import { canvasTarget, readBytes, readFloat, release, target, texture2d } from "./gl.js";
 import { fillAlongRows, Occlusions, SHADERS as OCCLUSION_SHADERS } from "./occlusion.js";
-import { colourMapTexture, present, SHADERS as OVERLAY_SHADERS } from "./overlays.js";
+import { Presenter, SHADERS as OVERLAY_SHADERS } from "./overlays.js";
 import { inversePlanes, sweepGeometry } from "./planes.js";
-import { median, Rig } from "./rig.js";
-import { shade, SHADERS as WEIGHTING_SHADERS } from "./weighting.js";
-
-export const DEFAULTS = {
-  method: "kojima", d_bnd: null, k: 3, planes: 48, near: null, far: null, visual_hull: null,
-  coarse_to_fine: false, refine_margin: 2, consistency: "variance", min_views: 2, aggregation: "window",
-  window: 2, cost_cap: 40, sgm_p1: 2, sgm_p2: 32, sgm_directions: 8, subplane: true, fill: [0, 0, 0], visibility: null,
-  visibility_tolerance: 0.2, occlusions: "keep", subpixel_bits: 0,
-};
-const SAMPLES = 320 * 240; // depth samples read back for the statistics (every pixel up to this size)
+import { Rig } from "./rig.js";
+import { MAX_PLANES as SGM_MAX_PLANES, MAX_VOLUME_BYTES, SemiGlobal, SHADERS as SGM_SHADERS, volumeBytes } from "./semiglobal.js";
+import { loadShaders } from "./programs.js";
+import { DepthStatistics, SHADERS as STATISTICS_SHADERS } from "./statistics.js";
+import { Shading, SHADERS as WEIGHTING_SHADERS } from "./weighting.js";
 
 export class Unsupported extends Error {}
 
-/** Which options the browser cannot render (null when it can): the viewer then asks the server. */
+/** Which of the given options the browser cannot render (null when it can): the viewer then asks the server.
+ * (The depth search's step is the server's finest: BrowserRenderer.render refuses a coarser subpixel_bits.) */
 export function unsupported(options) {
-  const o = { ...DEFAULTS, ...options };
+  const o = options;
   if (o.aggregation === "sgm" && o.planes > SGM_MAX_PLANES) return `semi-global aggregation of over ${SGM_MAX_PLANES} planes runs on the server`;
-  if (o.consistency !== "variance") return "the truncated cost runs on the server";
-  if (o.subpixel_bits && o.subpixel_bits !== 6) return "the browser samples the depth search at 1/64 px only";
+  if (o.consistency !== undefined && o.consistency !== "variance") return "the truncated cost runs on the server";
   return null;
 }
 
-/** Where the colour is visibility-aware (workers/sweep/renderer.py RenderOptions.visibility_scope): "all" pixels
- * (visibility true), the occlusion fill's pixels ("filled": visibility null with occlusions "fill"), or "none". */
-export function visibilityScope(o) {
-  if (o.visibility !== null && o.visibility !== undefined) return o.visibility ? "all" : "none";
-  return o.occlusions === "fill" ? "filled" : "none";
+/** The shaders' #defines of the server's rules (the render block's ``rules``): each code as KIND_NAME
+ * (METHOD_KOJIMA_K 4, OVERLAY_DEPTH 2) and the depth search's constants under their own names (rules.glsl). */
+export function ruleDefines(rules) {
+  const defines = { ...rules.glsl };
+  for (const [kind, codes] of Object.entries(rules.codes)) {
+    for (const [name, code] of Object.entries(codes)) defines[`${kind}_${name}`.toUpperCase()] = code;
+  }
+  return defines;
 }
 
 class Workspace {
-  /** The textures and framebuffers of the passes at w x h. */
+  /** The textures the passes draw into at w x h (each pass makes its render targets of them: gl.js target). */
   constructor(gl, w, h) {
     Object.assign(this, { gl, width: w, height: h });
     const f = () => texture2d(gl, "rgba32f", w, h);
@@ -59,22 +56,11 @@ class Workspace {
     this.colour = texture2d(gl, "rgba8", w, h);
     this.regions = texture2d(gl, "rgba8", w, h);
     this.final = texture2d(gl, "rgba8", w, h);
-    this.sumsTarget = framebuffer(gl, [this.ssd, this.votes]);
-    this.rowsTarget = framebuffer(gl, [this.ssdRows, this.votesRows]);
-    this.stateTargets = [0, 1].map((i) => framebuffer(gl, [this.stateA[i], this.stateB[i]]));
-    this.depthTarget = framebuffer(gl, [this.depth]);
-    this.shadeTarget = framebuffer(gl, [this.colour, this.regions]);
-    this.finalTarget = framebuffer(gl, [this.final]);
-    this.stride = Math.max(1, Math.ceil(Math.sqrt((w * h) / SAMPLES)));
-    this.samples = texture2d(gl, "rgba32f", Math.ceil(w / this.stride), Math.ceil(h / this.stride));
-    this.samplesTarget = framebuffer(gl, [this.samples]);
   }
 
   dispose() {
-    const { gl } = this;
-    release(gl, this.ssd, this.votes, this.ssdRows, this.votesRows, ...this.stateA, ...this.stateB, this.depth,
-      this.colour, this.regions, this.final, this.samples, this.sumsTarget, this.rowsTarget, ...this.stateTargets,
-      this.depthTarget, this.shadeTarget, this.finalTarget, this.samplesTarget);
+    release(this.gl, this.ssd, this.votes, this.ssdRows, this.votesRows, ...this.stateA, ...this.stateB, this.depth,
+      this.colour, this.regions, this.final);
   }
 }
 
@@ -82,34 +68,23 @@ export class BrowserRenderer {
   /** A renderer for the hello's ``render`` block (rig geometry, silhouette settings, overlay style). */
   static async create(gl, spec) {
     await loadShaders([...new Set([...COST_SHADERS, ...AGGREGATION_SHADERS, ...WEIGHTING_SHADERS, ...OVERLAY_SHADERS,
-      ...FRAME_SHADERS, ...SGM_SHADERS, ...OCCLUSION_SHADERS, "sample.frag"])]);
+      ...FRAME_SHADERS, ...SGM_SHADERS, ...OCCLUSION_SHADERS, ...STATISTICS_SHADERS])]);
     return new BrowserRenderer(gl, spec);
   }
 
   constructor(gl, spec) {
     this.gl = gl;
     this.spec = spec;
+    this.rules = spec.rules;
     this.rig = new Rig(spec);
-    const defines = { N_CAM: this.rig.size, PALETTE: spec.style.palette.length };
-    this.programs = {
-      sweep: program(gl, "fullscreen.vert", "sweep.frag", defines),
-      boxrows: program(gl, "fullscreen.vert", "boxrows.frag", defines),
-      winner: program(gl, "fullscreen.vert", "winner.frag", defines),
-      resolve: program(gl, "fullscreen.vert", "resolve.frag", defines),
-      search: program(gl, "fullscreen.vert", "search.frag", defines),
-      shade: program(gl, "fullscreen.vert", "shade.frag", defines),
-      present: program(gl, "fullscreen.vert", "present.frag", defines),
-      sample: program(gl, "fullscreen.vert", "sample.frag", defines),
-      winners: program(gl, "winners.vert", "winners.frag", defines),
-      confirm: program(gl, "fullscreen.vert", "confirm.frag", defines),
-      fill: program(gl, "fullscreen.vert", "fill.frag", defines),
-      splat: program(gl, "splat.vert", "splat.frag", defines),
-    };
-    this.style = { ...spec.style, colourMap: colourMapTexture(gl, spec.style.colour_map) };
-    this.placeholder = texture2d(gl, "rgba32f", 1, 1);
-    this.placeholderArray = textureArray(gl, "r32f", 1, 1, 1);
-    this.semiGlobal = new SemiGlobal(gl);
-    this.occlusions = new Occlusions(gl, this.programs);
+    const defines = { N_CAM: this.rig.size, PALETTE: spec.style.palette.length, ...ruleDefines(spec.rules) };
+    this.cost = new Cost(gl, defines);
+    this.window = new WindowAggregation(gl, this.cost);
+    this.semiGlobal = new SemiGlobal(gl, this.window);
+    this.occlusions = new Occlusions(gl, defines);
+    this.shading = new Shading(gl, defines);
+    this.presenter = new Presenter(gl, spec.style, defines);
+    this.statistics = new DepthStatistics(gl);
     this.factor = null;
     this.frames = null;
     this.work = null;
@@ -117,7 +92,7 @@ export class BrowserRenderer {
     this.last = null;
   }
 
-  /** Work at frames shrunk by ``factor`` (Rig.sourceFactor); true when that changed (upload frames again). */
+  /** Work at frames shrunk by ``factor`` (Rig.sourceFor); true when that changed (upload frames again). */
   useFactor(factor) {
     if (factor === this.factor) return false;
     this.factor = factor;
@@ -141,18 +116,15 @@ export class BrowserRenderer {
    * depth in work.depth. Returns { ms, d_bnd, depth_range, depth_found, coverage, planes, visual_hull }.
    */
   render(virtual, options = {}) {
-    const why = unsupported(options);
-    if (why) throw new Unsupported(why);
+    const o = this.options(options);
     if (!this.frames) throw new Error("no frames yet: call useFactor and upload a frame set first");
     const t0 = performance.now();
-    const o = { ...DEFAULTS, ...options };
     const gl = this.gl;
     const [near, far] = this.depthRange(virtual, o);
     const planes = inversePlanes(near, far, o.planes);
     const hull = o.visual_hull ?? this.frames.hasSilhouettes;
     if (hull && !this.frames.hasSilhouettes) throw new Error("visual_hull requested, but there are no backgrounds");
-    const sweep = { cameras: this.cameras, planes, hull, minViews: o.min_views, frames: this.frames,
-      placeholder: this.placeholder, refine: null };
+    const sweep = { cameras: this.cameras, planes, hull, minViews: o.min_views, frames: this.frames, refine: null };
     const fillOcclusions = o.occlusions === "fill";
     if (fillOcclusions && o.aggregation === "none") {
       throw new Error("occlusions 'fill' checks the planes on a cost volume: use aggregation 'window' or 'sgm'");
@@ -167,18 +139,15 @@ export class BrowserRenderer {
     const fine = { ...sweep, geometry: sweepGeometry(virtual, this.cameras) };
     gl.disable(gl.BLEND);
     const volume = this.chooseDepth(sweep, fine, half, o, fillOcclusions, work);
-    if (fillOcclusions) {
-      this.occlusions.fill(fine, volume, { tex: work.depth, target: work.depthTarget }, o.min_views,
-        fillAlongRows(virtual, this.rig.centres));
-    }
-    const stats = this.depthStats(work);
+    if (fillOcclusions) this.occlusions.fill(fine, volume, work.depth, fillAlongRows(virtual, this.rig.centres));
+    const stats = this.statistics.of(work.depth);
     const dBnd = ["kojima", "kojima_k"].includes(o.method) ? (o.d_bnd ?? this.rig.autoDBnd(virtual, stats.median)) : null;
-    const scope = visibilityScope(o); // the server's RenderOptions.visibility_scope
+    const scope = this.rules.visibility_scope[JSON.stringify(o.visibility ?? null)][o.occlusions];
     const visibility = scope === "none" ? null : { zbuffers: this.occlusions.zbuffers(fine, work.depth),
       tolerance: o.visibility_tolerance, filledOnly: scope === "filled" };
-    shade(gl, this.programs.shade, fine, virtual, this.rig.centres, work.depth, { method: o.method, dBnd, k: o.k,
-      globalCamera: this.rig.globalCamera(virtual), fill: [o.fill[2], o.fill[1], o.fill[0]] }, work.shadeTarget,
-    visibility, this.placeholderArray);
+    const weighting = { method: this.rules.codes.method[o.method], dBnd, k: o.k,
+      globalCamera: this.rig.globalCamera(virtual), fill: [o.fill[2], o.fill[1], o.fill[0]] };
+    this.shading.shade(fine, virtual, this.rig.centres, work.depth, weighting, visibility, work.colour, work.regions);
     this.last = { virtual, stats };
     const ms = performance.now() - t0;
     return {
@@ -187,33 +156,46 @@ export class BrowserRenderer {
     };
   }
 
+  /** ``options`` over the server's defaults, checked: an Error for a value that is none of the server's choices,
+   * Unsupported for what the browser does not render. */
+  options(options) {
+    const o = { ...this.rules.defaults, ...options };
+    for (const [name, values] of Object.entries(this.rules.choices)) {
+      if (!values.includes(o[name])) throw new Error(`${name} must be one of ${values.join(", ")}; got ${o[name]}`);
+    }
+    const why = unsupported(o) ?? (o.subpixel_bits > 0 && o.subpixel_bits < this.rules.glsl.SEARCH_BITS
+      ? `the browser samples the depth search at 1/${2 ** this.rules.glsl.SEARCH_BITS} px only` : null);
+    if (why) throw new Unsupported(why);
+    return o;
+  }
+
   /** The chosen planes of the view into work.depth: the coarse level first with ``half`` (its camera), then each
    * fine pixel's window of planes, searched per pixel, or with ``keepVolume`` (the occlusion fill) aggregated
    * into a cost volume as the server's fine level then does. Returns that volume (null without). */
   chooseDepth(sweep, fine, half, o, keepVolume, work) {
     if (half) {
       const coarse = this.workspace(half.width, half.height, true);
-      this.choose({ ...sweep, geometry: sweepGeometry(half, this.cameras) }, o, coarse, coarse.depthTarget);
+      this.choose({ ...sweep, geometry: sweepGeometry(half, this.cameras) }, o, coarse);
       if (!keepVolume) {
-        searchPixels(this.gl, this.programs.search, fine, coarse.depth, o.refine_margin, work.depthTarget);
+        this.cost.searchPixels(fine, coarse.depth, o.refine_margin, work.depth);
         return null;
       }
       const refine = { coarse: coarse.depth, margin: o.refine_margin };
-      return this.semiGlobal.winner(this.programs, { ...fine, refine }, o, work, work.depthTarget);
+      return this.semiGlobal.winner({ ...fine, refine }, o, work, work.depth);
     }
-    if (keepVolume) return this.semiGlobal.winner(this.programs, fine, o, work, work.depthTarget);
-    this.choose(fine, o, work, work.depthTarget);
+    if (keepVolume) return this.semiGlobal.winner(fine, o, work, work.depth);
+    this.choose(fine, o, work);
     return null;
   }
 
-  /** Plane choice by the options' aggregation into ``target`` (a depth framebuffer of ``work``'s size). */
-  choose(sweep, o, work, target) {
+  /** Plane choice by the options' aggregation into work.depth. */
+  choose(sweep, o, work) {
     if (o.aggregation === "none") {
-      searchPixels(this.gl, this.programs.search, sweep, null, 0, target);
+      this.cost.searchPixels(sweep, null, 0, work.depth);
     } else if (o.aggregation === "sgm") {
-      this.semiGlobal.winner(this.programs, sweep, o, work, target);
+      this.semiGlobal.winner(sweep, o, work, work.depth);
     } else {
-      windowedWinner(this.gl, this.programs, sweep, o.window, o.subplane, work, target);
+      this.window.winner(sweep, o.window, o.subplane, work, work.depth);
     }
   }
 
@@ -244,50 +226,21 @@ export class BrowserRenderer {
     return [near, far];
   }
 
-  /** Median depth (m), inverse-depth range and coverage of the chosen depths (every pixel up to 320x240,
-   * else an even grid of about that many): a readback, and the only sync point of a render. */
-  depthStats(work) {
-    const gl = this.gl;
-    let values;
-    if (work.stride === 1) {
-      values = readFloat(gl, work.depth, 4);
-    } else {
-      const prog = this.programs.sample;
-      gl.useProgram(prog.program);
-      bindTextures(gl, prog, { uDepth: work.depth });
-      gl.uniform1i(prog.uniforms.uStride, work.stride);
-      drawFullscreen(gl, work.samplesTarget);
-      values = readFloat(gl, work.samples, 4);
-    }
-    const depths = [];
-    let minInverse = Infinity;
-    let maxInverse = -Infinity;
-    const n = values.length / 4;
-    for (let i = 0; i < n; i++) {
-      const s = values[4 * i];
-      if (s > 0) {
-        depths.push(Math.fround(1 / s));
-        minInverse = Math.min(minInverse, s);
-        maxInverse = Math.max(maxInverse, s);
-      }
-    }
-    return { median: depths.length ? median(depths) : NaN, minInverse, maxInverse, found: depths.length > 0,
-      coverage: depths.length / n };
-  }
-
   /** Draw the last render with ``overlay`` ("none", "regions", "depth") to the canvas, and keep it in work.final. */
   present(overlay = "none", toCanvas = true) {
     const work = this.work;
     const stats = this.last.stats;
     const range = stats.found ? [stats.minInverse, stats.maxInverse] : [0, 1];
-    present(this.gl, this.programs.present, work, this.style, overlay, range, work.finalTarget);
-    if (toCanvas) present(this.gl, this.programs.present, work, this.style, overlay, range, null);
+    const code = this.rules.codes.overlay[overlay];
+    if (code === undefined) throw new Error(`unknown overlay ${overlay}`);
+    this.presenter.present(work, code, range, target(this.gl, [work.final]));
+    if (toCanvas) this.presenter.present(work, code, range, canvasTarget(work.width, work.height));
   }
 
   /** Wait until the GPU has drawn everything asked of it so far (a one-pixel readback of the presented view). */
   finish() {
     const gl = this.gl;
-    gl.bindFramebuffer(gl.FRAMEBUFFER, this.work.finalTarget.fb);
+    gl.bindFramebuffer(gl.FRAMEBUFFER, target(gl, [this.work.final]).fb);
     gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, new Uint8Array(4));
   }
 
@@ -304,10 +257,8 @@ export class BrowserRenderer {
   dispose() {
     for (const w of [this.work, this.coarse]) if (w) w.dispose();
     if (this.frames) this.frames.dispose();
-    this.semiGlobal.dispose();
-    this.occlusions.dispose();
-    release(this.gl, this.placeholder, this.placeholderArray, this.style.colourMap);
-    for (const p of Object.values(this.programs)) this.gl.deleteProgram(p.program);
+    for (const part of [this.cost, this.window, this.semiGlobal, this.occlusions, this.shading, this.presenter,
+      this.statistics]) part.dispose();
   }
 }
 

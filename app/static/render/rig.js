@@ -1,55 +1,56 @@
 // The rig as the browser renderer needs it: its cameras (at a source factor), the working volume that sets the
 // automatic depth range, the camera spacing that sets the automatic D_bnd, and orbits around it. Mirrors
 // workers/sweep/rig.py, workers/sweep/weighting.py and workers/streaming/viewpoint.py; the server sends what
-// depends on the rig alone (focus point, radius, orbit frame) in the socket's hello, so only per-view geometry
-// is computed here.
+// depends on the rig alone (the cameras at every source factor, focus point, radius) and the constants of its
+// rules in the hello's render block, and the orbit frame in the hello itself, so only per-view geometry is
+// computed here.
 import { Camera, vec3 } from "./camera.js";
-
-export const NEAR_FAR_RATIO = 20.0;           // rig.NEAR_FAR_RATIO
-export const FALLBACK_SPACING_RAD = (10 * Math.PI) / 180; // renderer.FALLBACK_SPACING_RAD
-export const MAX_SOURCE_FACTOR = 8;           // session.MAX_SOURCE_FACTOR
 
 export class Rig {
   /**
-   * spec: the hello's ``render`` block: { cameras: [{name, K, R, t, width, height}], focus: [3], radius,
-   * depth_range: [near, far] | null, orbit: {...} } (calibration undistorted: frames come undistorted).
+   * spec: the hello's ``render`` block: { poses: [{R, t}] (rig order), sources: [{factor, views_up_to: [w, h],
+   * cameras: [{K, width, height}]}] (workers/streaming/browser.py frame_sources), focus: [3], radius,
+   * depth_range: [near, far] | null, rules: { constants } } (calibration undistorted: frames come undistorted).
    */
   constructor(spec) {
-    this.spec = spec;
-    this.cameras = spec.cameras.map((c) => Camera.fromDict(c));
+    this.poses = spec.poses;
+    this.sources = spec.sources;
     this.focus = spec.focus;
     this.radius = spec.radius;
     this.depthRange = spec.depth_range || null;
-    this.orbit = spec.orbit;
-    this.centres = this.cameras.map((c) => c.center);
-    this.axes = this.cameras.map((c) => c.axis);
+    this.constants = spec.rules.constants;
+    const cameras = this.camerasAt(1);
+    this.centres = cameras.map((c) => c.center);
+    this.axes = cameras.map((c) => c.axis);
   }
 
   get size() {
-    return this.cameras.length;
+    return this.poses.length;
   }
 
-  /** The factor (1..8) the server shrinks frames by for a view of width x height (session.source_factor). */
-  sourceFactor(width, height) {
-    const w = Math.min(...this.cameras.map((c) => c.width));
-    const h = Math.min(...this.cameras.map((c) => c.height));
-    const k = Math.floor(Math.min(w / width, h / height));
-    return Math.max(1, Math.min(k, MAX_SOURCE_FACTOR));
+  /** The source a view of width x height px sweeps: { factor, cameras } of the largest factor whose frames serve
+   * it, else factor 1's (the server's table: session.source_factor). */
+  sourceFor(width, height) {
+    const fits = (s) => width <= s.views_up_to[0] && height <= s.views_up_to[1];
+    return this.sources.findLast((s) => s.factor > 1 && fits(s)) ?? this.sources[0];
   }
 
-  /** The cameras for frames shrunk by ``factor`` (session.shrunk_camera). */
+  /** The cameras (Camera, rig order) of frames shrunk by ``factor``, as the server sent them. */
   camerasAt(factor) {
-    return this.cameras.map((c) => c.shrunk(factor));
+    const source = this.sources.find((s) => s.factor === factor);
+    if (!source) throw new Error(`the server sent no cameras for source factor ${factor}`);
+    return source.cameras.map((c, i) => new Camera(String(i), c.K.flat(), this.poses[i].R.flat(), this.poses[i].t,
+      c.width, c.height));
   }
 
   /** (near, far) metres along ``virtual``'s axis: the rig's depth range, else its working volume's
-   * (Rig.auto_depth_range: far = z_c + R, near = max(z_c - R/2, far / 20)). */
+   * (Rig.auto_depth_range: far = z_c + R, near = max(z_c - R/2, far / NEAR_FAR_RATIO)). */
   autoDepthRange(virtual) {
     if (this.depthRange) return this.depthRange;
     const z = virtual.toCamera(this.focus)[2];
     const far = z + this.radius;
     if (!(far > 0)) throw new Error("the rig's working volume is behind the virtual camera; give near/far");
-    return [Math.max(z - 0.5 * this.radius, far / NEAR_FAR_RATIO), far];
+    return [Math.max(z - 0.5 * this.radius, far / this.constants.near_far_ratio), far];
   }
 
   /** Median over cameras of the angle (rad) to the nearest other camera seen from ``point`` (neighbour_angle);
@@ -69,14 +70,14 @@ export class Rig {
     return nearest.length ? median(nearest) : 0;
   }
 
-  /** D_bnd blending over half the angle between neighbouring cameras, seen from the point on ``virtual``'s
-   * central ray at depth ``medianDepth`` (SweepRenderer.auto_d_bnd; suggest_d_bnd with f = 0.5). */
+  /** D_bnd blending over a share (AUTO_BLEND_FRACTION) of the angle between neighbouring cameras, seen from the
+   * point on ``virtual``'s central ray at depth ``medianDepth`` (SweepRenderer.auto_d_bnd; suggest_d_bnd). */
   autoDBnd(virtual, medianDepth) {
     const z = Number.isFinite(medianDepth) && medianDepth > 0 ? medianDepth : 1.0;
     const point = virtual.backproject((virtual.width - 1) / 2, (virtual.height - 1) / 2, z);
     const spacing = this.neighbourAngle(point);
-    const angle = spacing > 0 ? spacing : FALLBACK_SPACING_RAD;
-    return (0.5 * angle * angle) / 2;
+    const angle = spacing > 0 ? spacing : this.constants.fallback_spacing_rad;
+    return (this.constants.auto_blend_fraction * angle * angle) / 2;
   }
 
   /** The camera whose optical axis is closest to ``virtual``'s (the global method's one camera). */
@@ -88,21 +89,22 @@ export class Rig {
     });
     return best;
   }
+}
 
-  /** The virtual camera of an orbit {azimuth, elevation?, distance?} (degrees, metres) at width x height with
-   * horizontal field of view ``fov`` (viewpoint.orbit_camera). */
-  orbitCamera(orbit, fov, width, height) {
-    const f = this.orbit;
-    const elevation = Math.min(89, Math.max(-89, orbit.elevation ?? f.elevation));
-    const distance = orbit.distance ?? f.distance;
-    const target = orbit.target ?? f.target;
-    const a = (orbit.azimuth * Math.PI) / 180;
-    const e = (elevation * Math.PI) / 180;
-    const side = f.side ?? vec3.cross(f.up, f.forward);
-    const horizontal = vec3.add(vec3.scale(f.forward, Math.cos(a)), vec3.scale(side, Math.sin(a)));
-    const eye = vec3.add(target, vec3.scale(vec3.add(vec3.scale(horizontal, Math.cos(e)), vec3.scale(f.up, Math.sin(e))), distance));
-    return Camera.lookAt("virtual", eye, target, f.up, fov, width, height);
-  }
+/** The virtual camera of ``orbit`` {azimuth, elevation?, distance?, target?} (degrees, metres) in orbit frame
+ * ``frame`` (the hello's ``orbit``: viewpoint.OrbitFrame) at width x height with horizontal field of view ``fov``
+ * (viewpoint.orbit_camera). */
+export function orbitCamera(frame, orbit, fov, width, height) {
+  const f = frame;
+  const elevation = Math.min(89, Math.max(-89, orbit.elevation ?? f.elevation));
+  const distance = orbit.distance ?? f.distance;
+  const target = orbit.target ?? f.target;
+  const a = (orbit.azimuth * Math.PI) / 180;
+  const e = (elevation * Math.PI) / 180;
+  const side = f.side ?? vec3.cross(f.up, f.forward);
+  const horizontal = vec3.add(vec3.scale(f.forward, Math.cos(a)), vec3.scale(side, Math.sin(a)));
+  const eye = vec3.add(target, vec3.scale(vec3.add(vec3.scale(horizontal, Math.cos(e)), vec3.scale(f.up, Math.sin(e))), distance));
+  return Camera.lookAt("virtual", eye, target, f.up, fov, width, height);
 }
 
 /** The median of a list of numbers (the mean of the two middle ones for an even count, as numpy's). */

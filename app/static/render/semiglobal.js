@@ -5,9 +5,9 @@
 // total and the paths, both twice to read one while writing the other), 74 MB at 320x240 with 48 planes.
 // The occlusion fill (occlusion.js) needs the volume the planes were chosen on, so with it the window aggregation
 // runs here too: the windowed variance into one volume (no paths), and the winner over it.
-import { bindTextures, drawFullscreen, framebuffer, isSoftware, program, release, textureArray } from "./gl.js";
-import { resolve, rowSums } from "./aggregation.js";
+import { isSoftware, release, target, textureArray } from "./gl.js";
 import { PLANES_PER_PASS } from "./cost.js";
+import { Pass } from "./pass.js";
 
 export const SHADERS = ["fullscreen.vert", "boxrows.frag", "costlayer.frag", "sgm.frag", "sgmwinner.frag", "resolve.frag"];
 export const MAX_PLANES = 128; // the path state lives in registers: 32 groups of four planes
@@ -34,52 +34,60 @@ const DIRECTIONS = {
 };
 
 class Volumes {
-  /** The cost volume, totals and paths (with ``paths``) for w x h and ``groups`` layers of four planes, with the
-   * framebuffers that write them (``out`` groups a draw: every draw writes that many layers of a total and of a
-   * path). */
+  /** The cost volume, totals and paths (with ``paths``) for w x h and ``groups`` layers of four planes; ``out``
+   * groups a draw of the paths (every draw writes that many layers of a total and of a path). */
   constructor(gl, w, h, groups, out, paths) {
     Object.assign(this, { gl, width: w, height: h, groups, out, paths });
     const volume = () => textureArray(gl, "rgba32f", w, h, groups);
     this.cost = volume();
-    this.costTargets = Array.from({ length: groups }, (_, g) => framebuffer(gl, [{ tex: this.cost, layer: g }]));
     if (!paths) return;
     this.total = [volume(), volume()];
     this.path = [volume(), volume()];
-    // pathTargets[t][s][d]: draw d's groups of total t and path s
-    this.pathTargets = [0, 1].map((t) => [0, 1].map((s) => Array.from({ length: Math.ceil(groups / out) }, (_, d) => {
-      const layers = Array.from({ length: out }, (_, i) => d * out + i);
-      const into = (tex) => layers.map((layer) => (layer < groups ? { tex, layer } : null));
-      return framebuffer(gl, [...into(this.total[t]), ...into(this.path[s])]);
-    })));
+  }
+
+  /** The target of layer ``g`` of the cost volume. */
+  costTarget(g) {
+    return target(this.gl, [{ tex: this.cost, layer: g }]);
+  }
+
+  /** The target of draw ``d`` of the paths: its groups of total ``t`` and of path ``s``. */
+  pathTarget(t, s, d) {
+    const layers = Array.from({ length: this.out }, (_, i) => d * this.out + i);
+    const into = (tex) => layers.map((layer) => (layer < this.groups ? { tex, layer } : null));
+    return target(this.gl, [...into(this.total[t]), ...into(this.path[s])]);
+  }
+
+  get draws() {
+    return Math.ceil(this.groups / this.out);
   }
 
   dispose() {
-    release(this.gl, this.cost, ...this.costTargets);
-    if (this.paths) release(this.gl, ...this.total, ...this.path, ...this.pathTargets.flat(2));
+    release(this.gl, this.cost, ...(this.paths ? [...this.total, ...this.path] : []));
   }
 }
 
 export class SemiGlobal {
-  constructor(gl) {
+  /** ``window``: the renderer's WindowAggregation (the window sums and the resolve pass). */
+  constructor(gl, window) {
     this.gl = gl;
+    this.window = window;
     const buffers = gl.getParameter(gl.MAX_DRAW_BUFFERS);
     this.out = buffers >= 8 ? 4 : 2; // groups per draw: half the attachments take totals, half paths
-    this.programs = new Map(); // groups -> { costlayer, sgm, winner } (NG is a compile-time constant)
+    this.passes = new Map(); // groups -> { costlayer, sgm, winner } (NG is a compile-time constant)
     this.volumes = new Map(); // "w h groups paths" -> Volumes: the coarse and the fine level's, kept between renders
     this.block = isSoftware(gl) ? SOFTWARE_BLOCK : GPU_BLOCK;
   }
 
-  programsFor(groups) {
-    if (!this.programs.has(groups)) {
-      const gl = this.gl;
+  passesFor(groups) {
+    if (!this.passes.has(groups)) {
       const defines = { NG: groups, NOUT: this.out };
-      this.programs.set(groups, {
-        costlayer: program(gl, "fullscreen.vert", "costlayer.frag", defines),
-        sgm: program(gl, "fullscreen.vert", "sgm.frag", defines),
-        winner: program(gl, "fullscreen.vert", "sgmwinner.frag", defines),
+      this.passes.set(groups, {
+        costlayer: new Pass(this.gl, "costlayer.frag", { defines }),
+        sgm: new Pass(this.gl, "sgm.frag", { defines }),
+        winner: new Pass(this.gl, "sgmwinner.frag", { defines }),
       });
     }
-    return this.programs.get(groups);
+    return this.passes.get(groups);
   }
 
   volumesFor(w, h, groups, paths) {
@@ -96,46 +104,38 @@ export class SemiGlobal {
   }
 
   /**
-   * The winner of every pixel over a stored cost volume into ``out`` (a resolve output: inverse depth, plane,
-   * offset, cost): semi-global (o.aggregation "sgm") or the window's variance ("window"). Returns the volume the
-   * planes were chosen on (an array texture of four planes a layer, at least BIG where a plane is no candidate).
-   * programs: the renderer's {sweep, boxrows, resolve}; work: its Workspace at this size (sums, row sums and
-   * states); o: RenderOptions' fields (window, cost_cap, sgm_p1, sgm_p2, sgm_directions, subplane).
+   * The winner of every pixel over a stored cost volume into ``out`` (a 2D texture; resolve output: inverse depth,
+   * plane, offset, cost): semi-global (o.aggregation "sgm") or the window's variance ("window"). Returns the volume
+   * the planes were chosen on (an array texture of four planes a layer, at least BIG where a plane is no candidate).
+   * work: the renderer's Workspace at this size (sums, row sums and states); o: RenderOptions' fields (window,
+   * cost_cap, sgm_p1, sgm_p2, sgm_directions, subplane).
    */
-  winner(programs, sweep, o, work, out) {
-    const gl = this.gl;
+  winner(sweep, o, work, out) {
     const P = sweep.planes.count;
     const paths = o.aggregation === "sgm";
     if (paths && P > MAX_PLANES) throw new Error(`semi-global aggregation in the browser takes at most ${MAX_PLANES} planes`);
     const groups = Math.ceil(P / PLANES_PER_PASS);
-    const own = this.programsFor(groups);
+    const own = this.passesFor(groups);
     const vol = this.volumesFor(work.width, work.height, groups, paths);
-    this.costVolume(programs, own.costlayer, sweep, o, work, vol, paths);
+    this.costVolume(own.costlayer, sweep, o, work, vol, paths);
     const chosenOn = paths ? vol.total[this.paths(own.sgm, vol, o)] : vol.cost;
-    gl.useProgram(own.winner.program);
-    bindTextures(gl, own.winner, { uTotal: chosenOn });
-    gl.uniform1i(own.winner.uniforms.uPlanes, P);
-    drawFullscreen(gl, work.stateTargets[0]);
-    resolve(gl, programs.resolve, sweep.planes, o.subplane, work.stateA[0], out);
+    own.winner.set({ uTotal: chosenOn, uPlanes: P });
+    own.winner.draw(target(this.gl, [work.stateA[0], work.stateB[0]]));
+    this.window.resolve(sweep.planes, o.subplane, work.stateA[0], out);
     return chosenOn;
   }
 
   /** C = min(sqrt(windowed variance), cost_cap) (``robust``) or the windowed variance, BIG where the pixel did not
    * vote for the plane. */
-  costVolume(programs, costlayer, sweep, o, work, vol, robust) {
-    const gl = this.gl;
+  costVolume(costlayer, sweep, o, work, vol, robust) {
     for (let g = 0; g < vol.groups; g++) {
       const first = g * PLANES_PER_PASS;
-      rowSums(gl, programs, sweep, first, o.window, work);
-      gl.useProgram(costlayer.program);
-      bindTextures(gl, costlayer, { uSsdRows: work.ssdRows, uVotesRows: work.votesRows, uVotes: work.votes });
-      const u = costlayer.uniforms;
-      gl.uniform1i(u.uRadius, o.window);
-      gl.uniform1i(u.uFirst, first);
-      gl.uniform1i(u.uPlanes, sweep.planes.count);
-      gl.uniform1f(u.uCap, o.cost_cap);
-      gl.uniform1i(u.uRobust, robust ? 1 : 0);
-      drawFullscreen(gl, vol.costTargets[g]);
+      this.window.rowSums(sweep, first, o.window, work);
+      costlayer.set({
+        uSsdRows: work.ssdRows, uVotesRows: work.votesRows, uVotes: work.votes, uRadius: o.window, uFirst: first,
+        uPlanes: sweep.planes.count, uCap: o.cost_cap, uRobust: robust,
+      });
+      costlayer.draw(vol.costTarget(g));
     }
   }
 
@@ -143,15 +143,11 @@ export class SemiGlobal {
   paths(sgm, vol, o) {
     const gl = this.gl;
     const { width: w, height: h } = vol;
-    gl.useProgram(sgm.program);
-    const u = sgm.uniforms;
-    gl.uniform1f(u.uP1, o.sgm_p1);
-    gl.uniform1f(u.uP2, o.sgm_p2);
+    sgm.set({ uP1: o.sgm_p1, uP2: o.sgm_p2 });
     gl.enable(gl.SCISSOR_TEST);
     let total = 0;
     DIRECTIONS[o.sgm_directions].forEach(([dx, dy], d) => {
-      gl.uniform2i(u.uStep, dx, dy);
-      gl.uniform1i(u.uFirstDirection, d === 0 ? 1 : 0);
+      sgm.set({ uStep: [dx, dy], uFirstDirection: d === 0 });
       const lines = dx !== 0 ? w : h;
       const forward = (dx !== 0 ? dx : dy) > 0;
       for (let b = 0, first = 0; first < lines; b++, first += this.block) {
@@ -160,13 +156,12 @@ export class SemiGlobal {
         const low = forward ? first : lines - first - count;
         if (dx !== 0) gl.scissor(low, 0, count, h);
         else gl.scissor(0, low, w, count);
-        gl.uniform1i(u.uStart, start);
         const path = b % 2;
-        bindTextures(gl, sgm, { uCost: vol.cost, uPathIn: vol.path[1 - path], uTotalIn: vol.total[total] });
-        vol.pathTargets[1 - total][path].forEach((target, draw) => {
-          gl.uniform1i(u.uGroup, draw * vol.out);
-          drawFullscreen(gl, target);
-        });
+        sgm.set({ uStart: start, uCost: vol.cost, uPathIn: vol.path[1 - path], uTotalIn: vol.total[total] });
+        for (let draw = 0; draw < vol.draws; draw++) {
+          sgm.set({ uGroup: draw * vol.out });
+          sgm.draw(vol.pathTarget(1 - total, path, draw));
+        }
       }
       total = 1 - total;
     });
@@ -176,6 +171,6 @@ export class SemiGlobal {
 
   dispose() {
     for (const v of this.volumes.values()) v.dispose();
-    for (const p of this.programs.values()) for (const q of Object.values(p)) this.gl.deleteProgram(q.program);
+    for (const p of this.passes.values()) for (const q of Object.values(p)) q.dispose();
   }
 }

@@ -1,35 +1,34 @@
 // The colour pass: each pixel coloured from the rig cameras at its chosen depth by one of the five weightings
 // (workers/sweep/weighting.py; the formulas are in shaders/shade.frag), D_bnd derived from the rig when not given.
-import { bindTextures, drawFullscreen } from "./gl.js";
-import { glMatrices, setRigUniforms } from "./planes.js";
+import { target } from "./gl.js";
+import { Pass } from "./pass.js";
+import { glMatrices, rigUniforms } from "./planes.js";
 
 export const SHADERS = ["fullscreen.vert", "rig.glsl", "shade.frag"];
-export const METHODS = ["global", "nearest", "ulr", "kojima", "kojima_k"];
 
-/** Shade ``depth`` (a resolve output) of ``virtual`` into work.shadeTarget (colour, regions). ``visibility``:
- * { zbuffers (Occlusions.zbuffers), tolerance, filledOnly } for visibility-aware colour (at every pixel, or with
- * filledOnly at the occlusion fill's pixels only), else null; ``placeholderArray`` (any array texture) fills its
- * sampler without. */
-export function shade(gl, prog, sweep, virtual, centres, depth, weighting, target, visibility, placeholderArray) {
-  gl.useProgram(prog.program);
-  setRigUniforms(gl, prog, sweep.geometry, sweep.cameras, sweep.hull);
-  bindTextures(gl, prog, {
-    uImages: sweep.frames.images, uSilhouettes: sweep.frames.silhouettes, uDepth: depth,
-    uZbuf: visibility ? visibility.zbuffers : placeholderArray,
-  });
-  const u = prog.uniforms;
-  gl.uniformMatrix3fv(u.uG, false, glMatrices([sweep.geometry.G]));
-  gl.uniform3fv(u.uEye, Float32Array.from(virtual.center));
-  gl.uniform3fv(u["uCentres[0]"], Float32Array.from(centres.flat()));
-  const code = METHODS.indexOf(weighting.method);
-  if (code < 0) throw new Error(`unknown method ${weighting.method}`);
-  gl.uniform1i(u.uMethod, code);
-  gl.uniform1f(u.uDBnd, weighting.dBnd ?? 1.0);
-  gl.uniform1i(u.uK, weighting.k);
-  gl.uniform1i(u.uGlobal, weighting.globalCamera);
-  gl.uniform3fv(u.uFill, Float32Array.from(weighting.fill));
-  gl.uniform1i(u.uVisibility, visibility ? 1 : 0);
-  gl.uniform1f(u.uVisScale, 1 + (visibility ? visibility.tolerance : 0));
-  gl.uniform1i(u.uFilledOnly, visibility && visibility.filledOnly ? 1 : 0);
-  drawFullscreen(gl, target);
+export class Shading {
+  /** The colour pass, compiled with the renderer's ``defines`` (N_CAM, the server's rules: METHOD_* codes). */
+  constructor(gl, defines) {
+    this.gl = gl;
+    this.pass = new Pass(gl, "shade.frag", { defines });
+  }
+
+  /** Shade ``depth`` (a resolve output) of ``virtual`` into ``colour`` and ``regions`` (2D textures) by
+   * ``weighting`` ({ method: its code (the render block's rules.codes.method), dBnd, k, globalCamera, fill: RGB }).
+   * ``centres``: the rig cameras' centres; ``visibility``: { zbuffers (Occlusions.zbuffers), tolerance, filledOnly }
+   * for visibility-aware colour (at every pixel, or with filledOnly at the occlusion fill's pixels only), else null. */
+  shade(sweep, virtual, centres, depth, weighting, visibility, colour, regions) {
+    this.pass.set({
+      ...rigUniforms(sweep), uDepth: depth, uG: glMatrices([sweep.geometry.G]), uEye: virtual.center,
+      uCentres: centres, uMethod: weighting.method, uDBnd: weighting.dBnd ?? 1.0, uK: weighting.k,
+      uGlobal: weighting.globalCamera, uFill: weighting.fill, uVisibility: visibility !== null,
+      uZbuf: visibility ? visibility.zbuffers : null, uVisScale: 1 + (visibility ? visibility.tolerance : 0),
+      uFilledOnly: visibility !== null && visibility.filledOnly,
+    });
+    this.pass.draw(target(this.gl, [colour, regions]));
+  }
+
+  dispose() {
+    this.pass.dispose();
+  }
 }

@@ -1,8 +1,9 @@
 #version 300 es
 // The cross-view check's second half (workers/sweep/occlusion.py confirmations): a camera confirms a pixel's plane
 // when the winner of the camera pixel nearest to where it sees the pixel's point (at the plane, without the
-// sub-plane offset) is the pixel itself or a virtual pixel within uTolerance px of it on each axis. Writes 1 where
-// the pixel has a plane and fewer than uMinViews cameras confirm it (to be filled), else 0.
+// sub-plane offset) is the pixel itself or a virtual pixel within CONFIRM_TOLERANCE_PX (the server's, defined at
+// compile time) of it on each axis. Writes 1 where the pixel has a plane and fewer than uMinViews cameras confirm it
+// (to be filled), else 0.
 precision highp float;
 precision highp int;
 precision highp sampler2DArray;
@@ -11,7 +12,6 @@ uniform highp sampler2D uDepth;         // resolve output (.y: plane or -1)
 uniform highp sampler2DArray uWinners;  // per camera: (winning virtual pixel or -1, its cost)
 uniform float uS0;
 uniform float uDs;
-uniform int uTolerance;
 uniform int uMinViews;
 out vec4 oRejected;
 
@@ -26,7 +26,7 @@ void main() {
     vec2 uv;
     if (!projected(i, vec2(p), uS0 + float(j) * uDs, uv) || !insideImage(i, uv)) continue;
     int q = int(texelFetch(uWinners, ivec3(ivec2(floor(uv + 0.5)), i), 0).x);
-    if (q >= 0 && abs(q / width - p.y) <= uTolerance && abs(q % width - p.x) <= uTolerance) n++;
+    if (q >= 0 && abs(q / width - p.y) <= CONFIRM_TOLERANCE_PX && abs(q % width - p.x) <= CONFIRM_TOLERANCE_PX) n++;
   }
   if (n < uMinViews) oRejected = vec4(1.0);
 }

@@ -13,7 +13,7 @@ uniform vec3 uPalette[PALETTE];      // RGB 0..255, one-camera region colours by
 uniform vec3 uBlend2;
 uniform vec3 uBlend3;
 uniform float uOverlayWeight;
-uniform int uOverlay;                // 0 none, 1 regions, 2 depth
+uniform int uOverlay;                // the server's code of the overlay (OVERLAY_NONE, _REGIONS, _DEPTH)
 uniform vec2 uInverseRange;          // min, max inverse depth found in the view
 uniform bool uFlip;
 out vec4 oColour;
@@ -23,13 +23,13 @@ void main() {
   ivec2 p = ivec2(gl_FragCoord.xy);
   if (uFlip) p.y = size.y - 1 - p.y;
   vec4 colour = texelFetch(uColour, p, 0);
-  if (uOverlay == 1) {
+  if (uOverlay == OVERLAY_REGIONS) {
     vec2 r = roundEven(texelFetch(uRegions, p, 0).rg * 255.0);
     if (r.x > 0.0) {
       vec3 tint = r.x >= 3.0 ? uBlend3 : (r.x == 2.0 ? uBlend2 : uPalette[(int(r.y) - 1) % PALETTE]);
       colour.rgb = roundEven(roundEven(colour.rgb * 255.0) * (1.0 - uOverlayWeight) + tint * uOverlayWeight) / 255.0;
     }
-  } else if (uOverlay == 2) {
+  } else if (uOverlay == OVERLAY_DEPTH) {
     float s = texelFetch(uDepth, p, 0).x;
     if (s > 0.0) {
       float span = uInverseRange.y > uInverseRange.x ? uInverseRange.y - uInverseRange.x : 1.0;

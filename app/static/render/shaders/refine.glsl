@@ -1,10 +1,9 @@
-// The fine level's window of planes after a coarse one (workers/sweep/kernels.py refine_windows, radius 1): the
-// coarse choices around the pixel's parent, their min - margin .. max + margin; every plane without a coarse level.
+// The fine level's window of planes after a coarse one (workers/sweep/kernels.py refine_windows): the coarse choices
+// within REFINE_RADIUS (the server's, defined at compile time) of the pixel's parent, their min - margin .. max +
+// margin; every plane without a coarse level.
 uniform highp sampler2D uCoarse;  // the coarse level's resolve output (.y: plane or -1)
 uniform bool uRefine;             // false: every plane
 uniform int uMargin;
-
-const int REFINE_RADIUS = 1;
 
 // lo .. hi (inclusive; hi < lo: no plane) of pixel p among uPlanes planes.
 void planeWindow(ivec2 p, int planes, out int lo, out int hi) {

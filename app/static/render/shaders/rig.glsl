@@ -10,14 +10,15 @@ uniform vec3 uB[N_CAM];
 uniform vec2 uLast[N_CAM];                  // (W - 1, H - 1) of each camera's image
 uniform bool uHull;                         // cull with the silhouettes
 
-const float Z_MIN = 1e-9;     // a point this close to a camera's centre plane, or behind it, gets no vote
+// Z_MIN (a point this close to a camera's centre plane, or behind it, gets no vote) and SEARCH_BITS are the server's
+// (workers/sweep/layout.py), defined at compile time.
 const float BIG = 1e30;       // "no cost": costs are colour levels squared, far below
-const float SEARCH_STEP = 64.0; // the depth search samples at 1/64 px, as the server's kernels
+const float SEARCH_STEP = float(1 << SEARCH_BITS); // the depth search samples at 1/64 px, as the server's kernels do
 
 // The pixel position (u, v) where camera i sees virtual pixel xy at inverse depth s; false behind the camera.
 bool projected(int i, vec2 xy, float s, out vec2 uv) {
   vec3 h = uQ[i] * vec3(xy, 1.0) + s * uB[i];
-  if (!(h.z > Z_MIN)) return false;
+  if (!(h.z > float(Z_MIN))) return false;
   uv = h.xy / h.z;
   return true;
 }
@@ -25,7 +26,7 @@ bool projected(int i, vec2 xy, float s, out vec2 uv) {
 // The same, with the point's depth along camera i's axis (its depth over the virtual one's times 1 / s).
 bool projectedDepth(int i, vec2 xy, float s, out vec2 uv, out float depth) {
   vec3 h = uQ[i] * vec3(xy, 1.0) + s * uB[i];
-  if (!(h.z > Z_MIN)) return false;
+  if (!(h.z > float(Z_MIN))) return false;
   uv = h.xy / h.z;
   depth = h.z / s;
   return true;

@@ -1,13 +1,14 @@
 #version 300 es
 // The colour of each virtual pixel at its chosen depth, by one of the five weightings
 // (workers/sweep/kernels.py shade, workers/sweep/weighting.py): cameras are compared by the cosine of the
-// angle between their ray to the surface point and the virtual ray to it (the paper's Fig. 1).
-//   0 global: one camera for the whole view (uGlobal), the nearest one where it cannot see the point
-//   1 nearest: the camera of largest cosine (the primary)
-//   2 ulr: the k nearest by angle, w_i = 1 - theta_i / theta_(k+1), normalised
-//   3 kojima: primary and secondary, eqs. 1-6: D12 = cos1 - cos2 >= D_bnd: primary alone, else
+// angle between their ray to the surface point and the virtual ray to it (the paper's Fig. 1). uMethod is one of
+// the server's codes (weighting.METHOD_CODES), defined at compile time as METHOD_<NAME>:
+//   global: one camera for the whole view (uGlobal), the nearest one where it cannot see the point
+//   nearest: the camera of largest cosine (the primary)
+//   ulr: the k nearest by angle, w_i = 1 - theta_i / theta_(k+1), normalised
+//   kojima: primary and secondary, eqs. 1-6: D12 = cos1 - cos2 >= D_bnd: primary alone, else
 //     w1 = (1 + D12 / D_bnd) / 2, w2 = 1 - w1
-//   4 kojima_k: every camera i with D_1i < D_bnd, weight rho(D_1i) = (D_bnd - D) / (D_bnd + D), normalised
+//   kojima_k: every camera i with D_1i < D_bnd, weight rho(D_1i) = (D_bnd - D) / (D_bnd + D), normalised
 // With uVisibility a camera that the view's own surface hides the point from (its z-buffer, splat.vert) takes no
 // part, as if its image did not contain the point; all take part where that would leave none. With uFilledOnly too,
 // only at the pixels the occlusion fill gave a depth (their cost is NaN: fill.frag), as RenderOptions.visibility
@@ -32,12 +33,6 @@ uniform float uVisScale;         // 1 + the visibility tolerance
 uniform bool uFilledOnly;        // the visibility test at the filled pixels only
 layout(location = 0) out vec4 oColour;
 layout(location = 1) out vec4 oRegions;  // r: regions / 255, g: (primary + 1) / 255
-
-const int GLOBAL = 0;
-const int NEAREST = 1;
-const int ULR = 2;
-const int KOJIMA = 3;
-const int KOJIMA_K = 4;
 
 // Whether camera i sees the point at uv and ``depth`` past the view's surface: depth <= uVisScale x the nearest
 // buffered depth over the four pixels its colour is sampled from (workers/sweep/kernels.py unhidden).
@@ -103,7 +98,7 @@ void main() {
   // the cameras of largest cosine first (a partial selection sort; ties keep camera order)
   int order[N_CAM];
   for (int a = 0; a < N_CAM; a++) order[a] = a;
-  int ranked = uMethod == KOJIMA ? 2 : (uMethod == ULR ? min(uK + 1, N_CAM) : 1);
+  int ranked = uMethod == METHOD_KOJIMA ? 2 : (uMethod == METHOD_ULR ? min(uK + 1, N_CAM) : 1);
   int r = min(ranked, m);
   for (int a = 0; a < r; a++) {
     int bi = a;
@@ -118,13 +113,13 @@ void main() {
   float w[N_CAM];
   w[0] = 1.0;
   int n = 1;
-  if (uMethod == KOJIMA && m >= 2) {
+  if (uMethod == METHOD_KOJIMA && m >= 2) {
     float d12 = cosv[order[0]] - cosv[order[1]];
     float w1 = d12 >= uDBnd ? 1.0 : 0.5 * (1.0 + d12 / uDBnd);
     w[0] = w1;
     w[1] = 1.0 - w1;
     n = 2;
-  } else if (uMethod == ULR && m >= 2) {
+  } else if (uMethod == METHOD_ULR && m >= 2) {
     // the threshold is the angle of the (k+1)-th nearest camera, or of the farthest when there are fewer
     n = m > uK ? uK : m;
     float th = m > uK ? theta[order[uK]] : theta[order[m - 1]];
@@ -134,7 +129,7 @@ void main() {
       total += w[a];
     }
     for (int a = 0; a < n; a++) w[a] = total > 0.0 ? w[a] / total : 1.0 / float(n);
-  } else if (uMethod == KOJIMA_K && m >= 2) {
+  } else if (uMethod == METHOD_KOJIMA_K && m >= 2) {
     float cmax = cosv[0];
     for (int a = 1; a < m; a++) cmax = max(cmax, cosv[a]);
     float total = 0.0;
@@ -146,7 +141,7 @@ void main() {
     }
     for (int a = 0; a < m; a++) w[a] /= total;
     n = m;
-  } else if (uMethod == GLOBAL) {
+  } else if (uMethod == METHOD_GLOBAL) {
     for (int a = 0; a < m; a++) {
       if (cam[a] == uGlobal) order[0] = a;
     }
