@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.browser import have_chromium, png_b64
+from harness.browser import have_chromium, png_b64
 from tests.streaming.test_browser_renderer import page  # noqa: F401 - the fixture: a page of a site serving app/static
 from workers.camera import Camera
 from workers.streaming.browser import frame_atlas, render_spec
