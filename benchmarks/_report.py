@@ -253,10 +253,11 @@ class Sections:
 
     def stored_markdown(self, results: dict[str, Any], kept: list[str]) -> list[str]:
         """The markdown of every section :meth:`add` declared that ``results`` holds, in order, those in
-        ``kept`` marked as from an earlier run."""
-        return [results[k].get("markdown", f"### {k}\n\n(see results/{self.name}.json)\n")
-                + ("\n(from an earlier run)\n" if k in kept else "") for k in (s.name for s in self._merged())
-                if k in results]
+        ``kept`` marked as from an earlier run (a :meth:`section`'s results carry no markdown: the script's own
+        ``markdown`` renders them)."""
+        return [results[k]["markdown"] + ("\n(from an earlier run)\n" if k in kept else "")
+                for k in (s.name for s in self._merged())
+                if isinstance(results.get(k), dict) and "markdown" in results[k]]
 
     def previous(self) -> dict[str, Any]:
         """The results file as it is now (``{}`` without one), upgraded to sections."""
