@@ -159,6 +159,38 @@ def test_sift_ratio_matches_known_correspondence():
     assert ok[inner].mean() > 0.95
 
 
+def test_sift_keypoints_lie_on_the_features_they_find():
+    # Dark Gaussian blobs at known sub-pixel centres (pixel centres at integers): SIFT finds each at its centre.
+    yy, xx = np.mgrid[0:240, 0:320].astype(np.float64)
+    rng = np.random.default_rng(0)
+    img = np.full((240, 320), 128.0)
+    centres = []
+    for cy in range(30, 220, 40):
+        for cx in range(30, 300, 40):
+            c = (cx + rng.uniform(-0.5, 0.5), cy + rng.uniform(-0.5, 0.5))
+            centres.append(c)
+            img -= 90 * np.exp(-((xx - c[0]) ** 2 + (yy - c[1]) ** 2) / 18.0)
+    k, _ = sift_features(np.clip(np.rint(img), 0, 255).astype(np.uint8))
+    c = np.array(centres)
+    nearest = c[np.argmin(np.linalg.norm(k[:, None] - c[None], axis=2), axis=1)]
+    err = k - nearest
+    assert len(k) >= len(c)
+    assert np.all(np.abs(np.median(err, axis=0)) < 0.05)
+
+
+def test_sift_keypoints_agree_between_a_photo_and_its_half_turn():
+    # Two flight lines flown in opposite directions: one photo's axes are the other's turned half a turn.
+    g0 = _texture(5, (240, 320))
+    g1 = np.ascontiguousarray(g0[::-1, ::-1])
+    k0, d0 = sift_features(g0)
+    k1, d1 = sift_features(g1)
+    m = sift_ratio_matches(d0, d1, 0.7)
+    assert len(m) > 50
+    d = k1[m[:, 1]] - ([319, 239] - k0[m[:, 0]])
+    d = d[np.linalg.norm(d, axis=1) < 2]
+    assert np.all(np.abs(np.median(d, axis=0)) < 0.1)
+
+
 def test_trackers_build_tracks_on_the_flight(flight):
     p = ReconstructionParams(max_features=400)
     frames = [Frame(i, i / 25, f"f{i}", img, cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
