@@ -457,17 +457,26 @@ def _engine(config: DetectorConfig) -> Engine:
     return Engine(faces, text, text_status(config.text, config.tessdata, config.wordlists))
 
 
-@lru_cache(maxsize=16)
-def _build(config: DetectorConfig) -> OrientationDetector:
+def detector_name(config: DetectorConfig) -> str:
+    """The name of the face detector ``config`` builds (paper, yunet or combined; ``_mcs`` with the paper's own part
+    cascades), known without building it. Raises ValueError when the method needs a YuNet model and none is
+    configured."""
     method = config.resolved_method()
-    parts = PartSpec.mcs(config.haar_mcs_dir) if config.haar_mcs_dir is not None else PartSpec.opencv()
-    suffix = "_mcs" if config.haar_mcs_dir is not None else ""
-    if method == "paper":
-        return PaperDetector(parts, name="paper" + suffix)
-    if config.yunet_model is None:
+    if method != "paper" and config.yunet_model is None:
         raise ValueError(f"the {method!r} orientation detector needs a YuNet model file, and none is configured "
                          "(set SWEEPCAST_ORIENTATION_YUNET_MODEL)")
+    return method + ("_mcs" if config.haar_mcs_dir is not None and method != "yunet" else "")
+
+
+@lru_cache(maxsize=16)
+def _build(config: DetectorConfig) -> OrientationDetector:
+    name = detector_name(config)
+    method = config.resolved_method()
+    parts = PartSpec.mcs(config.haar_mcs_dir) if config.haar_mcs_dir is not None else PartSpec.opencv()
+    if method == "paper":
+        return PaperDetector(parts, name=name)
     if method == "yunet":
-        return YuNetDetector(config.yunet_model, name="yunet")
-    return YuNetDetector(config.yunet_model, parts, name="combined" + suffix,
-                         paper=PaperDetector(parts, name="paper" + suffix) if PAPER_FALLBACK else None)
+        return YuNetDetector(config.yunet_model, name=name)
+    return YuNetDetector(config.yunet_model, parts, name=name,
+                         paper=PaperDetector(parts, name="paper" + name.removeprefix("combined"))
+                         if PAPER_FALLBACK else None)
