@@ -45,6 +45,16 @@ def test_a_damaged_yunet_model_is_refused_when_the_detector_is_built(tmp_path: P
     damaged.write_bytes(model_path().read_bytes()[:5000])
     with pytest.raises(FileNotFoundError, match="cannot load the YuNet model"):
         YuNetFaceFinder(damaged)
+    from workers.orientation.onnxshape import _model_class
+
+    empty = _model_class()()  # an ONNX model with a 4-axis input and no graph to run
+    axes = empty.graph.input.add().type.tensor_type.shape.dim
+    for _ in range(4):
+        axes.add().dim_value = 1
+    hollow = tmp_path / "hollow.onnx"
+    hollow.write_bytes(empty.SerializeToString())
+    with pytest.raises(FileNotFoundError, match="cannot load the YuNet model"):
+        YuNetFaceFinder(hollow)
     not_yunet = tmp_path / "other.onnx"
     not_yunet.write_bytes(model_path().read_bytes())  # a valid ONNX model, but not a face detector
     with pytest.raises(FileNotFoundError, match="not YuNet's"):

@@ -174,6 +174,15 @@ def _decode_grid(out: dict[str, np.ndarray], stride: int, cols: int,
     return np.stack([cx - w / 2, cy - h / 2, w, h], axis=1).astype(np.float32), score[cells]
 
 
+def _ort_load_errors() -> tuple[type[Exception], ...]:
+    """What onnxruntime raises for a model it cannot load (its own exception types, not RuntimeError's)."""
+    from onnxruntime.capi import onnxruntime_pybind11_state as state
+
+    names = ("Fail", "InvalidArgument", "NoSuchFile", "NoModel", "InvalidProtobuf", "InvalidGraph", "NotImplemented",
+             "RuntimeException")
+    return tuple(getattr(state, n) for n in names if isinstance(getattr(state, n, None), type))
+
+
 def _yunet_session(model: Path):
     """An onnxruntime session (one thread) of the YuNet ``model`` with its input's height and width made free.
     Raises FileNotFoundError when the file is missing or is not a YuNet model."""
@@ -190,7 +199,7 @@ def _yunet_session(model: Path):
     try:
         graph = free_input_size(model.read_bytes(), {2: "height", 3: "width"})
         session = onnxruntime.InferenceSession(graph, options, providers=["CPUExecutionProvider"])
-    except (ValueError, RuntimeError, onnxruntime.capi.onnxruntime_pybind11_state.Fail) as exc:
+    except (ValueError, RuntimeError, *_ort_load_errors()) as exc:
         raise FileNotFoundError(f"cannot load the YuNet model {model}: {exc}") from None
     names = {o.name for o in session.get_outputs()}
     if not {f"{k}_{s}" for k in ("cls", "obj", "bbox") for s in YUNET_STRIDES} <= names:
