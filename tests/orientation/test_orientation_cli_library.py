@@ -207,3 +207,18 @@ def test_a_yunet_model_that_cannot_be_loaded_is_said_when_a_photo_needs_it(tmp_p
     broken.write_bytes(b"not a model")
     assert run(["orient", str(tmp_path / "lib"), "--jobs", "1", "--yunet", str(broken)]) == 2
     assert "cannot load the YuNet model" in capsys.readouterr().err
+
+
+def test_a_word_list_changed_since_a_run_makes_the_next_run_analyse_again(tmp_path, fake):
+    lists = tmp_path / "dict"
+    lists.mkdir()
+    (lists / "words").write_text("hello\nworld\n")
+    photos(tmp_path / "lib", 2)
+    command = ["orient", str(tmp_path / "lib"), "--jobs", "1", "--wordlists", str(lists)]
+    assert run(command) == 0
+    fake.seen.clear()
+    assert run(command) == 0
+    assert fake.seen == []  # nothing changed: nothing analysed
+    (lists / "words").write_text("hello\nworld\norientation\n")  # the text cue now knows another word
+    assert run(command) == 0
+    assert len(fake.seen) == 2

@@ -193,13 +193,14 @@ before the other English readings (:meth:`TextCue._readings`)."""
 @dataclass(frozen=True)
 class _ScriptReading:
     """The script OSD saw on the first lines' strips (``name``), the Tesseract model that reads it (``model``; None
-    when none does), and the strips."""
+    when none does), and the strips ((``STRIP_HEIGHT``, w) uint8 each)."""
 
     name: str | None
     model: str | None
     strips: list[np.ndarray]
 
     def read(self, cue: "TextCue", lines: list[TextLine]) -> PairVerdict:
+        """The strips read both ways up by ``model`` with English (``lines``: theirs, for the turns)."""
         return cue.tesseract.read_strips(self.strips, lines[0], cue.vocabulary, f"{self.model}+eng", "script")
 
 

@@ -98,17 +98,17 @@ def wordfreq_vocabulary() -> tuple[frozenset[str], str]:
 
 
 def vocabulary_origin(setting: Path | None = None) -> list[object]:
-    """Which word lists :func:`find_vocabulary` reads, without reading them: the files of the folder it uses (name,
-    size, modification time) or the ``wordfreq`` version. Cheap: a key that changes when the words may."""
-    for folder in ([Path(setting)] if setting is not None else [DEBIAN_WORDLISTS]):
-        files = sorted(p for p in folder.glob("*") if p.is_file() and not p.name.upper().startswith("README"))
-        if files or setting is not None:
-            return [str(folder)] + [[p.name, p.stat().st_size, p.stat().st_mtime_ns] for p in files]
-    try:
-        from importlib.metadata import version
+    """Which word lists :func:`find_vocabulary` reads, without reading them: the folder it uses and its files (name,
+    size, modification time), or the ``wordfreq`` version. Cheap: a key that changes when the words may."""
+    from importlib.metadata import PackageNotFoundError, version
 
+    folder = Path(setting) if setting is not None else DEBIAN_WORDLISTS
+    files = sorted(p for p in folder.glob("*") if p.is_file() and not p.name.upper().startswith("README"))
+    if files or setting is not None:
+        return [str(folder)] + [[p.name, p.stat().st_size, p.stat().st_mtime_ns] for p in files]
+    try:
         return ["wordfreq", version("wordfreq")]
-    except ImportError:  # pragma: no cover - importlib.metadata is in the standard library
+    except PackageNotFoundError:
         return ["wordfreq", None]
 
 
