@@ -179,3 +179,46 @@ def test_a_photo_named_twice_is_analysed_once(tmp_path, fake):
     [path] = photos(tmp_path / "lib", 1)
     assert run(["orient", str(tmp_path / "lib"), str(path), "--jobs", "1", "--report", str(tmp_path / "r")]) == 0
     assert len(fake.seen) == 1 and len(rows(tmp_path / "r", tmp_path / "lib")) == 1
+
+
+def test_a_library_already_done_does_not_build_the_engine_and_a_changed_text_cue_is_a_new_engine(tmp_path, fake,
+                                                                                                 monkeypatch):
+    photos(tmp_path / "lib", 3)
+    report = ["--report", str(tmp_path / "report")]  # the state is kept beside it
+    assert run(["orient", str(tmp_path / "lib"), "--jobs", "1", *report]) == 0
+    assert len(fake.seen) == 3
+
+    def no_engine(config):
+        raise AssertionError("the engine was built for a library with nothing left to analyse")
+
+    monkeypatch.setattr(cli, "get_detector", no_engine)
+    assert run(["orient", str(tmp_path / "lib"), "--jobs", "1", *report]) == 0
+    assert [row["decision"] for row in rows(tmp_path / "report", tmp_path / "lib")] == ["rotated"] * 3
+
+    monkeypatch.setattr(cli, "get_detector", lambda config: fake)
+    fake.seen.clear()
+    assert run(["orient", str(tmp_path / "lib"), "--jobs", "1", "--no-text", *report]) == 0  # another engine
+    assert len(fake.seen) == 3
+
+
+def test_a_yunet_model_that_cannot_be_loaded_is_said_when_a_photo_needs_it(tmp_path, capsys):
+    photos(tmp_path / "lib", 1)
+    broken = tmp_path / "face_detection_yunet_2023mar.onnx"
+    broken.write_bytes(b"not a model")
+    assert run(["orient", str(tmp_path / "lib"), "--jobs", "1", "--yunet", str(broken)]) == 2
+    assert "cannot load the YuNet model" in capsys.readouterr().err
+
+
+def test_a_word_list_changed_since_a_run_makes_the_next_run_analyse_again(tmp_path, fake):
+    lists = tmp_path / "dict"
+    lists.mkdir()
+    (lists / "words").write_text("hello\nworld\n")
+    photos(tmp_path / "lib", 2)
+    command = ["orient", str(tmp_path / "lib"), "--jobs", "1", "--wordlists", str(lists)]
+    assert run(command) == 0
+    fake.seen.clear()
+    assert run(command) == 0
+    assert fake.seen == []  # nothing changed: nothing analysed
+    (lists / "words").write_text("hello\nworld\norientation\n")  # the text cue now knows another word
+    assert run(command) == 0
+    assert len(fake.seen) == 2

@@ -267,3 +267,17 @@ def test_aerial_photos_and_textures_are_never_decided_by_a_face():
         for rotation in ROTATIONS:
             report = analyze(jpeg(rotate_view(image, rotation)), engine)
             assert report.rotation_degrees is None and report.cue == "none", (path.name, rotation, report.faces)
+
+
+def test_a_job_checks_its_configuration_without_building_the_text_cue(monkeypatch, tmp_path):
+    from workers.orientation import detect
+
+    def no_text(*args):
+        raise AssertionError("the text cue was built to check a configuration")
+
+    monkeypatch.setattr(detect, "get_text_cue", no_text)
+    assert detect.face_detector(DetectorConfig(method="paper", text=True)).name == "paper"
+    with pytest.raises(ValueError, match="needs a YuNet model"):
+        detect.face_detector(DetectorConfig(method="combined", text=True))
+    with pytest.raises(FileNotFoundError):
+        detect.face_detector(DetectorConfig(yunet_model=tmp_path / "missing.onnx", text=True))

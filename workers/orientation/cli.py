@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import concurrent.futures.process  # BrokenProcessPool, caught in _orient_library
 import csv
 import io
 import json
@@ -33,7 +34,7 @@ from workers.common.cliutil import ProgressBar, format_table
 from workers.common.images import MAX_PIXELS_ENV, max_pixels_from_env
 from workers.common.models import models_dir
 from workers.common.pace import Pace
-from workers.orientation.detect import DetectorConfig, Engine, get_detector
+from workers.orientation.detect import DetectorConfig, get_detector
 from workers.orientation.headers import RAW_EXTENSIONS
 from workers.orientation.job import YUNET_MODEL_ENV, configured_yunet
 from workers.orientation.library import LibraryOptions, PathOutcome, Result
@@ -129,18 +130,21 @@ def _orient_library(args: argparse.Namespace) -> int:
         return 2
     config = DetectorConfig(method=args.method, yunet_model=args.yunet, text=args.text, tessdata=args.tessdata,
                             wordlists=args.wordlists)
-    try:
-        detector = get_detector(config)
-    except (ValueError, FileNotFoundError) as exc:
-        print(f"sweepcast orient: {exc}", file=sys.stderr)
-        return 2
     options = LibraryOptions(write=args.write, sidecar=args.sidecar, naming=args.sidecar_name, force=args.force,
                              max_pixels=args.max_pixels or max_pixels_from_env())
-    state = LibraryState(args.state or default_state_path(args.report, args.paths),
-                         fingerprint(detector, config, options), args.resume)
+    try:  # the engine itself is built only when a photo needs it (_run): a library already done costs no second
+        key = fingerprint(config, options)
+    except ValueError as exc:
+        print(f"sweepcast orient: {exc}", file=sys.stderr)
+        return 2
+    state = LibraryState(args.state or default_state_path(args.report, args.paths), key, args.resume)
     results: list[Result | None] = [None] * len(files)
     try:
-        _run(files, options, state, args.jobs, config, detector, results)
+        _run(files, options, state, args.jobs, config, results)
+    except EngineUnavailable as exc:
+        state.close(complete=False)
+        print(f"sweepcast orient: {exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         state.close(complete=False)
         print(f"\nsweepcast orient: interrupted after {_count(results)} of {len(files)} photos; what they decided is "
@@ -167,11 +171,17 @@ def _count(results: list[Result | None]) -> int:
     return sum(r is not None for r in results)
 
 
+class EngineUnavailable(Exception):
+    """The engine of the run's configuration cannot be built (a YuNet model missing or damaged)."""
+
+
 def _run(files: list[Path], options: LibraryOptions, state: LibraryState, jobs: int, config: DetectorConfig,
-         detector: Engine, results: list[Result | None]) -> None:
+         results: list[Result | None]) -> None:
     """Analyse ``files`` (``results[i]`` filled in as each is done), remembering each in ``state``, with a progress
-    bar whose time left counts only the photos still to analyse. Interrupted (Ctrl-C), it lets the photos under way
-    finish, keeps what they decided, and raises KeyboardInterrupt."""
+    bar whose time left counts only the photos still to analyse; the engine is built once the photos unchanged since
+    a run decided them are set aside, and only when others remain (else EngineUnavailable when it cannot be).
+    Interrupted (Ctrl-C), it lets the photos under way finish, keeps what they decided, and raises
+    KeyboardInterrupt."""
     bar = ProgressBar("orient")
     pace = Pace(len(files))
 
@@ -192,6 +202,14 @@ def _run(files: list[Path], options: LibraryOptions, state: LibraryState, jobs: 
             todo.append(i)
         else:
             take(i, PathOutcome(None, sha))
+    if not todo:
+        bar.close()
+        return
+    try:
+        detector = get_detector(config)
+    except (ValueError, FileNotFoundError) as exc:
+        bar.close()
+        raise EngineUnavailable(str(exc)) from None
     with FilePool([files[i] for i in todo], options, state.known(options), jobs, config, detector) as pool:
         try:
             for k, outcome in pool.outcomes():

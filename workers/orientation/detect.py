@@ -445,29 +445,52 @@ def get_detector(config: DetectorConfig) -> Engine:
     Raises ValueError when the method needs a YuNet model and none is configured, and
     FileNotFoundError when a configured model or cascade file cannot be loaded.
     """
+    return _engine(_normalised(config))
+
+
+def face_detector(config: DetectorConfig) -> OrientationDetector:
+    """The face detector of ``config`` alone, built once per process (tenths of a second; its text cue, about a second
+    more, is not built): what a batch job checks its configuration with before its photos go to other processes.
+    Raises as :func:`get_detector`."""
+    return _build(_faces_only(_normalised(config)))
+
+
+def _normalised(config: DetectorConfig) -> DetectorConfig:
     method = config.resolved_method()
-    return _engine(config.model_copy(update={
-        "method": method, "yunet_model": config.yunet_model if method != "paper" else None}))
+    return config.model_copy(update={"method": method, "yunet_model": config.yunet_model if method != "paper" else None})
+
+
+def _faces_only(config: DetectorConfig) -> DetectorConfig:
+    return config.model_copy(update={"text": True, "tessdata": None, "wordlists": None})
 
 
 @lru_cache(maxsize=16)
 def _engine(config: DetectorConfig) -> Engine:
-    faces = _build(config.model_copy(update={"text": True, "tessdata": None, "wordlists": None}))
+    faces = _build(_faces_only(config))
     text = get_text_cue(config.tessdata, config.wordlists) if config.text else None
     return Engine(faces, text, text_status(config.text, config.tessdata, config.wordlists))
 
 
-@lru_cache(maxsize=16)
-def _build(config: DetectorConfig) -> OrientationDetector:
+def detector_name(config: DetectorConfig) -> str:
+    """The name of the face detector ``config`` builds (paper, yunet or combined; ``_mcs`` with the paper's own part
+    cascades), known without building it. Raises ValueError when the method needs a YuNet model and none is
+    configured."""
     method = config.resolved_method()
-    parts = PartSpec.mcs(config.haar_mcs_dir) if config.haar_mcs_dir is not None else PartSpec.opencv()
-    suffix = "_mcs" if config.haar_mcs_dir is not None else ""
-    if method == "paper":
-        return PaperDetector(parts, name="paper" + suffix)
-    if config.yunet_model is None:
+    if method != "paper" and config.yunet_model is None:
         raise ValueError(f"the {method!r} orientation detector needs a YuNet model file, and none is configured "
                          "(set SWEEPCAST_ORIENTATION_YUNET_MODEL)")
+    return method + ("_mcs" if config.haar_mcs_dir is not None and method != "yunet" else "")
+
+
+@lru_cache(maxsize=16)
+def _build(config: DetectorConfig) -> OrientationDetector:
+    name = detector_name(config)
+    method = config.resolved_method()
+    parts = PartSpec.mcs(config.haar_mcs_dir) if config.haar_mcs_dir is not None else PartSpec.opencv()
+    if method == "paper":
+        return PaperDetector(parts, name=name)
     if method == "yunet":
-        return YuNetDetector(config.yunet_model, name="yunet")
-    return YuNetDetector(config.yunet_model, parts, name="combined" + suffix,
-                         paper=PaperDetector(parts, name="paper" + suffix) if PAPER_FALLBACK else None)
+        return YuNetDetector(config.yunet_model, name=name)
+    return YuNetDetector(config.yunet_model, parts, name=name,
+                         paper=PaperDetector(parts, name="paper" + name.removeprefix("combined"))
+                         if PAPER_FALLBACK else None)

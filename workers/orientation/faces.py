@@ -2,7 +2,8 @@
 
 Both search a shrunk copy of the view (faces smaller than the search's smallest window there are lost; the facial
 parts are searched later in the full-resolution view) and return candidates in view pixels: YuNet a copy
-``scan_size`` px on its long side, Haar a copy whose short side follows the photo (:class:`ShortSideScan`). Instances hold OpenCV state and are not thread-safe.
+``scan_size`` px on its long side, Haar a copy whose short side follows the photo (:class:`ShortSideScan`). The Haar
+instances hold OpenCV state and are not thread-safe.
 """
 from __future__ import annotations
 
@@ -112,24 +113,95 @@ def _scaled_region(box: Box, s: float, shape: tuple[int, ...]) -> tuple[int, int
             min(shape[0], int(np.ceil((y + h) * s))))
 
 
+YUNET_STRIDES = (8, 16, 32)
+"""The strides (px) of YuNet's three output grids; its input is padded to a multiple of the largest."""
+YUNET_NMS_IOU = 0.3
+"""Overlap (IoU) above which the weaker of two YuNet boxes is dropped (OpenCV's ``FaceDetectorYN`` default)."""
+
+
 class YuNetFaceFinder:
-    """OpenCV's YuNet CNN face detector (``cv2.FaceDetectorYN``) on a 3-channel copy of the grey scan."""
+    """The YuNet CNN face detector (Wu et al., 2023; OpenCV zoo's ``face_detection_yunet_2023mar.onnx``) run with
+    onnxruntime on one core, at the size of the copy it is given.
+
+    The model file declares a fixed 640 x 640 input, but its graph has no fixed size (its reshapes flatten the
+    grids, its upsampling uses scales): the input's size is made free before the session is built, so a 320 x 240
+    copy costs what its pixels cost. onnxruntime runs it in about half the CPU of OpenCV's ``FaceDetectorYN``
+    (``benchmarks/orientation_text.py``), with the same detections: the outputs are decoded as OpenCV decodes them
+    (score = sqrt(cls x obj), boxes from each grid cell, then non-maximum suppression)."""
 
     def __init__(self, model: Path, score_floor: float = 0.5) -> None:
-        model = Path(model)
-        if not model.is_file():
-            raise FileNotFoundError(f"YuNet model not found: {model}")
-        try:
-            self._net = cv2.FaceDetectorYN.create(str(model), "", (320, 320), score_floor, 0.3, 5000)
-        except cv2.error as exc:
-            raise FileNotFoundError(f"cannot load the YuNet model {model}: {exc.err or exc}") from None
+        self._session = _yunet_session(Path(model))
+        self._outputs = [o.name for o in self._session.get_outputs()]
+        self._input = self._session.get_inputs()[0].name
+        self.score_floor = score_floor
 
     def find(self, view: np.ndarray, scan_size: int) -> list[Candidate]:
         """Faces in ``view`` ((H, W) uint8 grey), searched on a copy at most ``scan_size`` px on its long
         side, with their scores in [0, 1]; boxes in view px."""
         scan, s = _shrink(view, scan_size)
-        self._net.setInputSize((scan.shape[1], scan.shape[0]))
-        _, rows = self._net.detect(cv2.cvtColor(scan, cv2.COLOR_GRAY2BGR))
-        if rows is None:
-            return []
-        return [Candidate(tuple(float(v) / s for v in row[:4]), float(row[14])) for row in rows]
+        boxes, scores = self.detect(scan)
+        return [Candidate(tuple(float(v) / s for v in box), float(score)) for box, score in zip(boxes, scores)]
+
+    def detect(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(boxes (n, 4) float32 x, y, w, h px of ``gray``, scores (n,) float32 in [0, 1], best first) of the faces
+        YuNet finds in ``gray`` ((H, W) uint8) scoring at least ``score_floor``."""
+        h, w = gray.shape[:2]
+        step = YUNET_STRIDES[-1]
+        ph, pw = -(-h // step) * step, -(-w // step) * step
+        padded = cv2.copyMakeBorder(gray, 0, ph - h, 0, pw - w, cv2.BORDER_CONSTANT, value=0)
+        x = np.ascontiguousarray(np.broadcast_to(padded.astype(np.float32)[None, None], (1, 3, ph, pw)))
+        out = dict(zip(self._outputs, self._session.run(self._outputs, {self._input: x})))
+        found = [_decode_grid(out, stride, pw // stride, self.score_floor) for stride in YUNET_STRIDES]
+        boxes = np.concatenate([b for b, _ in found])
+        scores = np.concatenate([s for _, s in found])
+        if len(scores) > 1:  # OpenCV's suppression, on its integer boxes
+            keep = np.asarray(cv2.dnn.NMSBoxes(boxes.astype(np.int32).tolist(), scores.tolist(), self.score_floor,
+                                               YUNET_NMS_IOU), dtype=np.int64).reshape(-1)
+            boxes, scores = boxes[keep], scores[keep]
+        return boxes, scores
+
+
+def _decode_grid(out: dict[str, np.ndarray], stride: int, cols: int,
+                 floor: float) -> tuple[np.ndarray, np.ndarray]:
+    """(boxes (n, 4) x, y, w, h px, scores (n,)) of the cells of YuNet's ``stride`` grid (``cols`` cells a row)
+    scoring at least ``floor``: a cell's box is centred at (cell + offset) x stride, its size exp(size) x stride."""
+    score = np.sqrt(np.clip(out[f"cls_{stride}"][0, :, 0], 0, 1) * np.clip(out[f"obj_{stride}"][0, :, 0], 0, 1))
+    cells = np.flatnonzero(score >= floor)
+    pred = out[f"bbox_{stride}"][0][cells]
+    cx = (cells % cols + pred[:, 0]) * stride
+    cy = (cells // cols + pred[:, 1]) * stride
+    w, h = np.exp(pred[:, 2]) * stride, np.exp(pred[:, 3]) * stride
+    return np.stack([cx - w / 2, cy - h / 2, w, h], axis=1).astype(np.float32), score[cells]
+
+
+def _ort_load_errors() -> tuple[type[Exception], ...]:
+    """What onnxruntime raises for a model it cannot load (its own exception types, not RuntimeError's)."""
+    from onnxruntime.capi import onnxruntime_pybind11_state as state
+
+    names = ("Fail", "InvalidArgument", "NoSuchFile", "NoModel", "InvalidProtobuf", "InvalidGraph", "NotImplemented",
+             "RuntimeException")
+    return tuple(getattr(state, n) for n in names if isinstance(getattr(state, n, None), type))
+
+
+def _yunet_session(model: Path):
+    """An onnxruntime session (one thread) of the YuNet ``model`` with its input's height and width made free.
+    Raises FileNotFoundError when the file is missing or is not a YuNet model."""
+    import onnxruntime
+
+    from workers.orientation.onnxshape import free_input_size
+
+    if not model.is_file():
+        raise FileNotFoundError(f"YuNet model not found: {model}")
+    options = onnxruntime.SessionOptions()
+    options.intra_op_num_threads = 1  # callers run photos in parallel processes, one core each
+    options.inter_op_num_threads = 1
+    options.log_severity_level = 3
+    try:
+        graph = free_input_size(model.read_bytes(), {2: "height", 3: "width"})
+        session = onnxruntime.InferenceSession(graph, options, providers=["CPUExecutionProvider"])
+    except (ValueError, RuntimeError, *_ort_load_errors()) as exc:
+        raise FileNotFoundError(f"cannot load the YuNet model {model}: {exc}") from None
+    names = {o.name for o in session.get_outputs()}
+    if not {f"{k}_{s}" for k in ("cls", "obj", "bbox") for s in YUNET_STRIDES} <= names:
+        raise FileNotFoundError(f"cannot load the YuNet model {model}: its outputs are not YuNet's ({sorted(names)})")
+    return session

@@ -33,7 +33,7 @@ from workers.common.jobctx import JobContext, JobInputError
 from workers.common.pace import Pace, describe_seconds
 from workers.orientation.blocks import (FILES, BlockTask, PhotoRef, analyse_block, files_of, finished_photos,
                                         fixed_name, plan_blocks, review_thumbnail_name, sanitize_filename)
-from workers.orientation.detect import Method, detector_config, get_detector
+from workers.orientation.detect import Method, detector_config, face_detector
 from workers.orientation.review import ChoiceWrite, needs_review
 from workers.registry import JobKind
 from workers.settings import worker_settings
@@ -71,7 +71,8 @@ def run_orientation_batch(ctx: JobContext) -> dict[str, Any]:
     try:
         config = detector_config(ctx.settings, ctx.settings.models_dir, params.method)
         config = config.model_copy(update={"text": config.text and params.text})
-        get_detector(config)  # a configuration that cannot work fails the job here, once
+        face_detector(config)  # a configuration that cannot work fails the job here, once (the text cue, which
+        # never fails a job, is built only where photos are analysed: about a second saved in this process)
     except ValueError as exc:
         raise JobInputError(str(exc)) from None
     photos = [PhotoRef(i, name, str(ctx.input_meta.get(name, {}).get("filename") or name))

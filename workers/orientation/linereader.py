@@ -215,6 +215,9 @@ class TesseractLines:
                 api.SetVariable("min_characters_to_try", "20")
             else:
                 api = tesserocr.PyTessBaseAPI(path=str(self.tessdata), lang=lang, psm=tesserocr.PSM.SINGLE_BLOCK)
+                # The strips are dark on light already (strip_page): Tesseract's second reading of every line it
+                # reads poorly, inverted, only costs time (most lines of a page read the wrong way up are poor).
+                api.SetVariable("tessedit_do_invert", "0")
             apis[lang] = api
         return apis[lang]
 

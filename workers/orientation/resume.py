@@ -21,36 +21,48 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any, Iterable, TextIO
 
 import cv2
 
-from workers.orientation.detect import DetectorConfig, OrientationDetector
+from workers.orientation.detect import DetectorConfig, detector_name
 from workers.orientation.library import FileStat, LibraryOptions, PathOutcome, Result, file_stat
 from workers.orientation.orient import OrientationReport
+from workers.orientation.textdata import text_plan
 from workers.orientation.xmp import replace_file
 
 ENGINE_DIR = Path(__file__).resolve().parent
 
 
-def fingerprint(detector: OrientationDetector, config: DetectorConfig, options: LibraryOptions) -> str:
+def fingerprint(config: DetectorConfig, options: LibraryOptions) -> str:
     """A short hash of everything besides a photo's bytes that can change what a run decides or writes for it: the
-    engine's code, OpenCV's version, ``detector`` (its name and its text cue, :class:`Engine`'s ``text_info``), its
-    configuration and model file, and the options that change the answer."""
+    engine's code, OpenCV's and onnxruntime's versions, the detector ``config`` names (:func:`detector_name`), its
+    configuration and model file, what its text cue is made of (:func:`text_plan`), and the options that change the
+    answer. Found without building the engine (a run with nothing left to analyse never builds it). Raises
+    ValueError for a configuration no detector can be built from."""
     model = config.yunet_model
     parts = {
         "engine": _engine_digest(),
         "opencv": cv2.__version__,
-        "detector": detector.name,
+        "onnxruntime": _version("onnxruntime"),
+        "detector": detector_name(config),
         "config": config.model_dump(mode="json"),
         "model": [model.stat().st_size, model.stat().st_mtime_ns] if model is not None and model.is_file() else None,
-        "text": getattr(detector, "text_info", None),  # a face detector alone has no text cue
+        "text": text_plan(config.text, config.tessdata, config.wordlists),
         "force": options.force,
         "mode": options.mode,
         "naming": options.naming,
     }
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _version(package: str) -> str | None:
+    try:
+        return version(package)
+    except PackageNotFoundError:
+        return None
 
 
 def _engine_digest() -> str:

@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from workers.common.errors import InputError
 from workers.orientation.decode import DEFAULT_MAX_PIXELS, decode_gray
 from workers.orientation.exif import orientation_for_rotation
 from workers.orientation.geometry import turn_orientation
@@ -38,12 +39,15 @@ def needs_review(report: dict[str, Any] | None) -> bool:
 def thumbnail(data: bytes, filename: str | None = None, max_pixels: int = DEFAULT_MAX_PIXELS,
               side: int = THUMBNAIL_SIDE) -> bytes:
     """A JPEG at most ``side`` px long of the pixels the detector analysed: the stored pixels in colour where
-    OpenCV decodes the format (JPEG, PNG, WebP, TIFF; EXIF ignored), else the engine's own grey decode (HEIF/AVIF as
-    displayed, RAW's preview). Call it on a photo already analysed (its size was checked then)."""
+    OpenCV decodes the format (JPEG, PNG, WebP, TIFF; EXIF ignored; a JPEG at the smallest DCT scale still at
+    least ``side`` px long, so a 12 MP photo is decoded at 1/8 and not in full), else the engine's own grey decode
+    (HEIF/AVIF as displayed, RAW's preview). Call it on a photo already analysed (its size was checked then)."""
     buffer = np.frombuffer(data, np.uint8)
     image = None
-    if sniff_format(data, filename) in ("jpeg", "png", "webp", "tiff"):
-        image = cv2.imdecode(buffer, cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
+    fmt = sniff_format(data, filename)
+    if fmt in ("jpeg", "png", "webp", "tiff"):
+        flags = _colour_flags(data, filename, side) if fmt == "jpeg" else cv2.IMREAD_COLOR
+        image = cv2.imdecode(buffer, flags | cv2.IMREAD_IGNORE_ORIENTATION)
     if image is None:
         image = decode_gray(data, max_pixels, side * 2, filename=filename).gray
     s = min(1.0, side / max(image.shape[:2]))
@@ -54,6 +58,20 @@ def thumbnail(data: bytes, filename: str | None = None, max_pixels: int = DEFAUL
     if not ok:  # pragma: no cover - OpenCV encodes any 8-bit image
         raise ValueError("could not encode the thumbnail")
     return buf.tobytes()
+
+
+_REDUCED_COLOUR = {8: cv2.IMREAD_REDUCED_COLOR_8, 4: cv2.IMREAD_REDUCED_COLOR_4, 2: cv2.IMREAD_REDUCED_COLOR_2}
+
+
+def _colour_flags(data: bytes, filename: str | None, side: int) -> int:
+    """The colour decode flag of a JPEG whose long side (from its header) is at least ``side`` px at that scale."""
+    try:
+        header = parse_header(data, filename)
+    except InputError:  # the full decode below says what is wrong, as before
+        return cv2.IMREAD_COLOR
+    long_side = max(header.width or 0, header.height or 0)
+    factor = next((f for f in (8, 4, 2) if -(-long_side // f) >= side), 1)
+    return _REDUCED_COLOUR.get(factor, cv2.IMREAD_COLOR)
 
 
 class ReviewChoice(BaseModel):

@@ -135,23 +135,43 @@ class TextCue:
         return None
 
     def _readings(self, image: np.ndarray, lines: list[TextLine]):
-        """Each reader's reading of ``lines`` (one axis, px of ``image``), cheapest first, as (verdict, script seen)."""
+        """Each reader's reading of ``lines`` (one axis, px of ``image``), cheapest first, as (verdict, script seen):
+        Tesseract's English on the first lines, then on more; PaddleOCR's recogniser; a Tesseract script model for the
+        script its OSD sees on the lines. Where English reads no word it knows on the first lines either way up, the
+        script is asked first (``SCRIPT_FIRST``): a page in Arabic or Hebrew is read by its own model without the
+        English readers' every line both ways up (most of its CPU), a page in Latin script goes on as before."""
+        script: _ScriptReading | None = None
         if self.tesseract is not None:
-            verdict, start = None, 0
-            for batch in TESSERACT_LINES:
-                if start >= len(lines) or (verdict is not None and verdict.turn is not None):
+            verdict = self.tesseract.read(image, lines[:TESSERACT_LINES[0]], self.vocabulary)
+            if SCRIPT_FIRST and verdict.turn is None and not (verdict.first.real or verdict.second.real):
+                script = self._script(image, lines)
+                if script.model is not None:
+                    yield verdict, None
+                    yield script.read(self, lines), script.name
+            start = TESSERACT_LINES[0]
+            for batch in TESSERACT_LINES[1:]:
+                if start >= len(lines) or verdict.turn is not None:
                     break
-                more = self.tesseract.read(image, lines[start:start + batch], self.vocabulary)
-                verdict, start = (more if verdict is None else joined(verdict, more)), start + batch
+                verdict = joined(verdict, self.tesseract.read(image, lines[start:start + batch], self.vocabulary))
+                start += batch
             yield verdict, None
         if self.recognizer is not None:
             yield self.recognizer.read(image, lines[:RECOGNIZER_LINES], self.vocabulary), None
-        if self.tesseract is not None and self.tessdata is not None and self.tessdata.script_models:
-            strips = [cut_strip(image, ln, STRIP_HEIGHT) for ln in lines[:TESSERACT_LINES[0]]]
-            script = self.tesseract.script(strip_page(strips)[0])
-            model = SCRIPT_MODELS.get(script or "", script)
-            if script and script not in LATIN_SCRIPTS and model in self.tessdata.script_models:
-                yield self.tesseract.read_strips(strips, lines[0], self.vocabulary, f"{model}+eng", "script"), script
+        if script is None:
+            script = self._script(image, lines)
+            if script.model is not None:
+                yield script.read(self, lines), script.name
+
+    def _script(self, image: np.ndarray, lines: list[TextLine]) -> "_ScriptReading":
+        """The script Tesseract's OSD sees on the strips of the first lines, and the model that reads it (None: no
+        OSD or script models, a Latin script, or no model for it)."""
+        if self.tesseract is None or self.tessdata is None or not self.tessdata.script_models:
+            return _ScriptReading(None, None, [])
+        strips = [cut_strip(image, ln, STRIP_HEIGHT) for ln in lines[:TESSERACT_LINES[0]]]
+        name = self.tesseract.script(strip_page(strips)[0])
+        model = SCRIPT_MODELS.get(name or "", name)
+        usable = bool(name) and name not in LATIN_SCRIPTS and model in self.tessdata.script_models
+        return _ScriptReading(name, model if usable else None, strips)
 
     def status(self) -> dict[str, object]:
         """What the readiness report says of the cue: its gate, readers and data, and where the data came from."""
@@ -163,6 +183,25 @@ class TextCue:
                 "tessdata": str(td.folder) if td else None, "tessdata_source": td.source if td else None,
                 "script_models": list(td.script_models) if td else [],
                 "wordlists": self.vocabulary_source, "wordlist_words": len(self.vocabulary)}
+
+
+SCRIPT_FIRST = True
+"""Where Tesseract's English reads no word it knows on a page's first lines either way up, its script model is asked
+before the other English readings (:meth:`TextCue._readings`)."""
+
+
+@dataclass(frozen=True)
+class _ScriptReading:
+    """The script OSD saw on the first lines' strips (``name``), the Tesseract model that reads it (``model``; None
+    when none does), and the strips ((``STRIP_HEIGHT``, w) uint8 each)."""
+
+    name: str | None
+    model: str | None
+    strips: list[np.ndarray]
+
+    def read(self, cue: "TextCue", lines: list[TextLine]) -> PairVerdict:
+        """The strips read both ways up by ``model`` with English (``lines``: theirs, for the turns)."""
+        return cue.tesseract.read_strips(self.strips, lines[0], cue.vocabulary, f"{self.model}+eng", "script")
 
 
 QUARTER_TURN_PASS = True

@@ -95,3 +95,49 @@ def wordfreq_vocabulary() -> tuple[frozenset[str], str]:
         words.update(w for w in wordfreq.top_n_list(lang, count) if w.isalpha())
     version = getattr(wordfreq, "__version__", "")
     return frozenset(words), f"wordfreq {version} ({', '.join(WORDFREQ_LANGUAGES)})".replace("  ", " ")
+
+
+def vocabulary_origin(setting: Path | None = None) -> list[object]:
+    """Which word lists :func:`find_vocabulary` reads, without reading them: the folder it uses and its files (name,
+    size, modification time), or the ``wordfreq`` version. Cheap: a key that changes when the words may."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    folder = Path(setting) if setting is not None else DEBIAN_WORDLISTS
+    files = sorted(p for p in folder.glob("*") if p.is_file() and not p.name.upper().startswith("README"))
+    if files or setting is not None:
+        return [str(folder)] + [[p.name, p.stat().st_size, p.stat().st_mtime_ns] for p in files]
+    try:
+        return ["wordfreq", version("wordfreq")]
+    except PackageNotFoundError:
+        return ["wordfreq", None]
+
+
+def text_plan(enabled: bool = True, tessdata: Path | None = None, wordlists: Path | None = None) -> dict[str, object]:
+    """What the text cue of these settings is made of, found without building it (no network, Tesseract model or word
+    list is loaded: milliseconds, where building the cue takes about a second): whether its packages import, their
+    versions, its detector model, Tesseract's model folder and the word lists. ``sweepcast orient`` keys what it
+    remembers of a library with it, so that a run with nothing left to analyse does not build the engine."""
+    if not enabled:
+        return {"enabled": False}
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        import onnxruntime  # noqa: F401 - the gate and the recogniser run on it
+        import rapidocr  # noqa: F401
+
+        from workers.orientation.textlines import model_path
+
+        gate = model_path()
+    except (ImportError, OSError) as exc:
+        return {"enabled": True, "available": False, "detail": str(exc)}
+    try:
+        import tesserocr  # noqa: F401
+        tesseract = version("tesserocr")
+    except (ImportError, PackageNotFoundError):
+        tesseract = None
+    found = find_tessdata(tessdata)
+    stat = gate.stat()
+    return {"enabled": True, "available": True, "gate": [str(gate), stat.st_size, stat.st_mtime_ns],
+            "versions": [version("rapidocr"), version("onnxruntime"), tesseract],
+            "tessdata": [str(found.folder), found.source, sorted(found.languages)] if found else None,
+            "wordlists": vocabulary_origin(wordlists)}

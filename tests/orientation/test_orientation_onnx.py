@@ -1,0 +1,83 @@
+"""The face detector on onnxruntime: a model's declared input size freed without changing the model, and YuNet's
+faces as OpenCV's own YuNet finds them (when the model is there)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import onnxruntime
+import pytest
+
+from workers.common.datasets import data_root, dataset
+from workers.orientation.detect import DetectorConfig, get_detector
+from workers.orientation.faces import YuNetFaceFinder
+from workers.orientation.onnxshape import free_input_size
+from workers.orientation.textlines import model_path
+
+YUNET = data_root().parent / "models" / "yunet" / "face_detection_yunet_2023mar.onnx"
+FACES = dataset("faces", "dev")
+
+
+def _session(model: bytes) -> onnxruntime.InferenceSession:
+    return onnxruntime.InferenceSession(model, providers=["CPUExecutionProvider"])
+
+
+def test_freeing_the_input_size_keeps_what_the_model_computes():
+    original = model_path().read_bytes()  # the gate's text detector, shipped with rapidocr
+    freed = free_input_size(original, {2: "rows", 3: "columns"})
+    x = np.random.default_rng(1).uniform(-1, 1, (1, 3, 96, 160)).astype(np.float32)
+    before, after = _session(original), _session(freed)
+    want = before.run(None, {before.get_inputs()[0].name: x})[0]
+    got = after.run(None, {after.get_inputs()[0].name: x})[0]
+    np.testing.assert_array_equal(got, want)
+    assert after.get_inputs()[0].shape[2:] == ["rows", "columns"]
+
+
+@pytest.mark.parametrize("junk", [b"", b"not a model at all", b"\x08\x07\x12\x04junk"])
+def test_a_file_that_is_not_an_onnx_model_is_refused(junk: bytes):
+    with pytest.raises(ValueError):
+        free_input_size(junk, {2: "rows", 3: "columns"})
+
+
+def test_a_damaged_yunet_model_is_refused_when_the_detector_is_built(tmp_path: Path):
+    damaged = tmp_path / "face_detection_yunet_2023mar.onnx"
+    damaged.write_bytes(model_path().read_bytes()[:5000])
+    with pytest.raises(FileNotFoundError, match="cannot load the YuNet model"):
+        YuNetFaceFinder(damaged)
+    from workers.orientation.onnxshape import _model_class
+
+    empty = _model_class()()  # an ONNX model with a 4-axis input and no graph to run
+    axes = empty.graph.input.add().type.tensor_type.shape.dim
+    for _ in range(4):
+        axes.add().dim_value = 1
+    hollow = tmp_path / "hollow.onnx"
+    hollow.write_bytes(empty.SerializeToString())
+    with pytest.raises(FileNotFoundError, match="cannot load the YuNet model"):
+        YuNetFaceFinder(hollow)
+    not_yunet = tmp_path / "other.onnx"
+    not_yunet.write_bytes(model_path().read_bytes())  # a valid ONNX model, but not a face detector
+    with pytest.raises(FileNotFoundError, match="not YuNet's"):
+        get_detector(DetectorConfig(method="yunet", yunet_model=not_yunet, text=False))
+
+
+@pytest.mark.data
+@pytest.mark.skipif(FACES is None or not YUNET.is_file(), reason="needs $SWEEPCAST_DATA/faces/dev and the YuNet model")
+def test_yunet_on_onnxruntime_finds_the_faces_opencv_finds_at_any_size():
+    finder = YuNetFaceFinder(YUNET)
+    photos = sorted(p for p in FACES.rglob("*") if p.suffix.lower() in (".jpg", ".jpeg"))[:8]
+    compared = 0
+    for path in photos:
+        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        for long_side in (320, 500):  # neither is the 640 x 640 the model declares
+            s = long_side / max(gray.shape)
+            small = cv2.resize(gray, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+            opencv = cv2.FaceDetectorYN.create(str(YUNET), "", (small.shape[1], small.shape[0]), 0.5, 0.3, 5000)
+            _, rows = opencv.detect(cv2.cvtColor(small, cv2.COLOR_GRAY2BGR))
+            want = np.empty((0, 5)) if rows is None else rows[:, [0, 1, 2, 3, 14]]
+            boxes, scores = finder.detect(small)
+            got = np.c_[boxes, scores]
+            assert len(got) == len(want), path.name
+            np.testing.assert_allclose(got[np.lexsort(got.T)], want[np.lexsort(want.T)], atol=1e-3)
+            compared += len(got)
+    assert compared > 0
