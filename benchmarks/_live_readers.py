@@ -128,7 +128,7 @@ def markdown(result: dict[str, Any]) -> list[str]:
           f"({result['bytes_per_frame'] / 1e3:.1f} KB per frame, the cameras of the ingest section served from a "
           "process of their own) read by (a) one reader thread per camera, as `sweepcast live` runs them (a frame is "
           "converted to BGR when a set takes it), (b) one reader process per camera (`benchmarks/_reader_process.py`: "
-          "the same reader in a child process, which converts each frame to BGR into a ring of 4 frame slots in "
+          "the same reader in a child process, which converts each frame to BGR into a ring of 8 frame slots in "
           "shared memory and sends the slot's number down a pipe; a thread in the parent copies it out into the "
           "camera's mailbox), and (c) reader threads that convert each frame to BGR as they decode it, as the "
           "processes must. The same set assembler takes sets from the mailboxes in all three and takes their pixels "

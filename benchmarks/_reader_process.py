@@ -24,10 +24,11 @@ import numpy as np
 
 from app.capture.mailbox import Frame, FrameMailbox
 
-RING_SLOTS = 4
-"""Frame slots per camera: the parent copies a frame out within milliseconds of its record; four frames (160 ms at
-25 fps) leave room for a parent that is descheduled for a while. A frame overwritten before it was copied is
-counted (``torn``), never delivered."""
+RING_SLOTS = 8
+"""Frame slots per camera, as many as a mailbox keeps frames (``CaptureSettings.keep_frames``' default): the parent
+copies a frame out within milliseconds of its record, but a reader that has just connected decodes the frames FFmpeg
+buffered while probing the stream (0.2 s: five frames) in one burst. A frame overwritten before it was copied is
+counted (``torn``), never delivered: an old frame dropped, as a mailbox drops its oldest."""
 RECORD = struct.Struct("<qqdd")
 """One frame handed over: slot, frame number, capture time, arrival time (s since the epoch)."""
 WRITING = -1
