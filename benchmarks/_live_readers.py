@@ -23,6 +23,8 @@ from benchmarks._report import md_table
 from benchmarks._readers_trial import DESIGNS
 
 ROUNDS = 2
+AGE_MARGIN_MS = 5.0
+"""Newest-frame ages (p95, ms) this close count as the same: the two rounds of one design differ by about as much."""
 TRIAL_SLACK_S = 120.0
 """Seconds a trial may take beyond its window (starting ten readers, the first set, the warm-up, stopping)."""
 
@@ -116,7 +118,19 @@ def verdict(trials: list[dict[str, Any]]) -> str:
             f"({process['newest_age_p95_ms']:.0f} against {thread['newest_age_p95_ms']:.0f} ms); reader threads "
             f"that convert each frame to BGR as they decode it, as a reader process must, are at "
             f"{early['newest_age_p95_ms']:.0f} ms for {early['cores']:.2f} cores and "
-            f"{early['parent_peak_rss_mb']:.0f} MB.")
+            f"{early['parent_peak_rss_mb']:.0f} MB. " + conclusion(thread, process, early))
+
+
+def conclusion(thread: dict[str, float], process: dict[str, float], early: dict[str, float]) -> str:
+    """Which design the means favour, in one sentence."""
+    dearer = process["cores"] > thread["cores"] and process["parent_peak_rss_mb"] + process["children_peak_rss_mb"] \
+        > thread["parent_peak_rss_mb"]
+    if not dearer:
+        return "Processes were not dearer in this run: the choice of threads is open again (see the table)."
+    if early["newest_age_p95_ms"] <= process["newest_age_p95_ms"] + AGE_MARGIN_MS:
+        return ("So reader threads stay: processes cost more for nothing threads cannot have (converting each frame "
+                "as it is decoded).")
+    return "Reader threads stay on CPU and memory; processes deliver younger frames than threads can."
 
 
 def markdown(result: dict[str, Any]) -> list[str]:
