@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from benchmarks._report import md_table
+from benchmarks._reader_process import REPOSITORY
 from benchmarks._readers_trial import DESIGNS
 
 ROUNDS = 2
@@ -40,7 +41,7 @@ def camera_process(rig: Any, streams: list[list[bytes]], fps: float) -> Iterator
         path = Path(folder) / "cameras.pickle"
         path.write_bytes(pickle.dumps(spec))
         server = subprocess.Popen([sys.executable, "-m", "benchmarks._camera_process", str(path)],
-                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=REPOSITORY)
         try:
             base = server.stdout.readline().strip()
             if not base.startswith("rtsp://"):
@@ -67,7 +68,8 @@ def measure(rig: Any, streams: list[list[bytes]], fps: float, seconds: float) ->
                 print(f"[readers] round {round_}: {design} readers ...", file=sys.stderr, flush=True)
                 done = subprocess.run([sys.executable, "-m", "benchmarks._readers_trial", design, str(seconds),
                                        str(fps), str(first.width), str(first.height), *urls],
-                                      stdout=subprocess.PIPE, text=True, timeout=seconds + TRIAL_SLACK_S)
+                                      stdout=subprocess.PIPE, text=True, timeout=seconds + TRIAL_SLACK_S,
+                                      cwd=REPOSITORY)
                 if done.returncode:
                     raise SystemExit(f"the {design} trial failed (exit {done.returncode}); its messages are above")
                 trials.append({**json.loads(done.stdout.strip().splitlines()[-1]), "round": round_})

@@ -18,6 +18,7 @@ import subprocess
 import sys
 import threading
 from multiprocessing import resource_tracker, shared_memory
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -29,6 +30,8 @@ RING_SLOTS = 8
 copies a frame out within milliseconds of its record, but a reader that has just connected decodes the frames FFmpeg
 buffered while probing the stream (0.2 s: five frames) in one burst. A frame overwritten before it was copied is
 counted (``torn``), never delivered: an old frame dropped, as a mailbox drops its oldest."""
+REPOSITORY = Path(__file__).resolve().parents[1]
+"""Where ``python -m benchmarks._reader_process`` finds its modules, whatever the caller's working directory."""
 RECORD = struct.Struct("<qqdd")
 """One frame handed over: slot, frame number, capture time, arrival time (s since the epoch)."""
 WRITING = -1
@@ -86,7 +89,7 @@ class ProcessReader:
         self.torn = 0
         self._child = subprocess.Popen([sys.executable, "-m", "benchmarks._reader_process", str(camera), url,
                                         str(size[0]), str(size[1]), self.ring.name],
-                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, cwd=REPOSITORY)
         self.pid = self._child.pid
         self._thread = threading.Thread(target=self._receive, name=f"receiver-{camera}", daemon=True)
         self._thread.start()
