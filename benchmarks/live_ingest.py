@@ -16,13 +16,19 @@ service (``python -m app serve``, its own process) while a viewer watches the li
   default size (WebGL2: SwiftShader on a machine without a GPU, a CPU floor; ``--webgl gpu`` on a GPU machine),
   p50/p95 and fps, measured from BROWSER_SETTLE_S after its first frame;
 - recovery: one camera stopped for ``--outage`` seconds, then started again: seconds from its stream's return to the
-  first set sent with it fresh (``recovery`` section, three outages).
+  first set sent with it fresh (``recovery`` section, three outages);
+- reader threads against reader processes (``readers`` section, :mod:`benchmarks._live_readers`): the same cameras
+  read by one thread per camera, by one process per camera handing frames over through shared memory, and by
+  threads that convert to BGR as they decode, in turn, two rounds (``--seconds`` each, default 20): frames/s per
+  camera and in all,
+  CPU of the reader side and its reader processes, the age of the newest frame when a set is taken (p50/p95), peak
+  resident memory. No service: the readers and the set assembler only.
 
 Goals (issue 55): every set's spread <= half a frame period (20 ms); >= 15 sets/s with a viewer at >= 15 fps;
 capture-to-frame p95 <= 250 ms in browser mode; a camera back within 5 s of its stream returning.
 
-Run: ``python -m benchmarks.live_ingest [--only ingest,recovery,browser] [--seconds 20] [--quick]``. ``--quick``:
-4 cameras at 320x240 for 5 s (a check that it runs, not a figure).
+Run: ``python -m benchmarks.live_ingest [--only ingest,recovery,browser,readers] [--seconds 20] [--quick]``.
+``--quick``: 4 cameras at 320x240 for 5 s (a check that it runs, not a figure).
 """
 from __future__ import annotations
 
@@ -45,6 +51,7 @@ import websockets.sync.client as wsclient
 from app.capture.live import LiveRun
 from app.capture.settings import CaptureSettings
 from harness.proc import tree_cpu_seconds
+from benchmarks import _live_readers
 from benchmarks._report import Sections, md_table
 from harness.rtsp_camera import Camera, RtspServer, encode_loop
 from harness.servers import CHECKOUT_KERNEL_CACHE, serve_app
@@ -63,7 +70,8 @@ BROWSER_SETTLE_S = 15.0
 GOALS = {"spread_ms": 20.0, "sets_per_s": 15.0, "viewer_fps": 15.0, "browser_p95_ms": 250.0, "recovery_s": 5.0}
 
 sections = Sections("live_ingest", __doc__)
-sections.parser.add_argument("--seconds", type=float, help="measurement window per section (default 20; --quick 5)")
+sections.parser.add_argument("--seconds", type=float, help="measurement window per section, per trial in "
+                                                           "readers (default 20; --quick 5)")
 sections.parser.add_argument("--outage", type=float, default=5.0, help="seconds each camera outage lasts (default 5)")
 sections.parser.add_argument("--webgl", choices=["swiftshader", "gpu"], default="swiftshader",
                              help="the browser section's WebGL (default swiftshader: a CPU floor)")
@@ -271,18 +279,28 @@ def browser(args: Any) -> dict[str, Any]:
     return {"browser": out}
 
 
+@sections.section("readers", "reader threads against reader processes, alternately: frames/s, CPU, the newest "
+                             "frame's age when a set is taken, peak memory", keys=("readers",))
+def readers(args: Any) -> dict[str, Any]:
+    rig, _, streams = rig_and_streams(args.quick)
+    return _live_readers.measure(rig, streams, FPS, args.seconds or (5.0 if args.quick else 20.0))
+
+
 def markdown(results: dict[str, Any], kept: list[str]) -> str:
     st = results.get("setup", {})
-    md = [f"RTSP cameras as issue 55 asks ({'ten' if st.get('cameras') == 10 else 'not ten: a --quick run'}): "
-          f"{st.get('cameras', '?')} cameras {st.get('size', '?')} H.264 at "
-          f"{st.get('fps', FPS):g} fps (harness/rtsp_camera.py: triggered together +-2 ms, each stamping its "
-          "frames with its own clock in RTCP sender reports; the demo studio with its moving ball, pre-encoded, one "
-          "IDR a second, sensor noise of sigma 2 grey levels, 1.5 Mbit/s at 640x480: "
-          f"{st.get('bytes_per_frame', 0) / 1e3:.1f} KB per frame), read by `sweepcast live` (one reader thread per "
-          "camera, in the benchmark's process) and sent to the service (`python -m app serve`, its own process) on the "
-          "same 2 cores. Reader CPU per camera: each reader thread's CPU time (demuxing, decoding, stamping; its frames are "
-          "converted and JPEG-encoded only when a set uses them, counted in the capture side's cores, which also hold "
-          "the simulated cameras' sending)."]
+    md = []
+    if any(k in results for k in ("setup", "browser", "recovery")):  # the sections that run the service
+        md.append(
+            f"RTSP cameras as issue 55 asks ({'ten' if st.get('cameras') == 10 else 'not ten: a --quick run'}): "
+            f"{st.get('cameras', '?')} cameras {st.get('size', '?')} H.264 at "
+            f"{st.get('fps', FPS):g} fps (harness/rtsp_camera.py: triggered together +-2 ms, each stamping its "
+            "frames with its own clock in RTCP sender reports; the demo studio with its moving ball, pre-encoded, one "
+            "IDR a second, sensor noise of sigma 2 grey levels, 1.5 Mbit/s at 640x480: "
+            f"{st.get('bytes_per_frame', 0) / 1e3:.1f} KB per frame), read by `sweepcast live` (one reader thread "
+            "per camera, in the benchmark's process) and sent to the service (`python -m app serve`, its own process) "
+            "on the same 2 cores. Reader CPU per camera: each reader thread's CPU time (demuxing, decoding, stamping; "
+            "its frames are converted and JPEG-encoded only when a set uses them, counted in the capture side's "
+            "cores, which also hold the simulated cameras' sending).")
     rows = []
     for name, key in (("ingest alone", "alone"), (f"ingest + a server-rendered viewer {st.get('view', '')}", "viewer")):
         r = results.get("ingest", {}).get(key)
@@ -309,7 +327,10 @@ def markdown(results: dict[str, Any], kept: list[str]) -> str:
         md += ["", f"### Recovery: a camera's stream stopped for {rec['outage_s']:g} s, three times", "",
                "Seconds from its stream's return to the first set sent with it fresh: "
                + ", ".join("never (30 s)" if s is None else f"{s:.2f}" for s in rec["seconds"]) + "."]
-    md += ["", "### Goals", ""] + goal_lines(results)
+    if results.get("readers"):
+        md += _live_readers.markdown(results["readers"])
+    goals = goal_lines(results)
+    md += ["", "### Goals", "", *goals] if goals else []
     return "\n".join(md) + "\n"
 
 
