@@ -4,12 +4,12 @@ why, waits (0.25 s, doubling up to ``max_backoff_seconds``) and opens it again, 
 runs.
 
 Threads, not processes, measured (``python -m benchmarks.live_ingest --only readers``: ten 640x480 H.264 cameras at
-25 fps, two runs on 2 shared cores): a process per camera, each converting its frames to BGR into shared memory for
-the parent to copy out, delivered the same 250 frames/s for 1.1-1.2 times the CPU (0.57 against 0.49 cores) and 5-5.5
-times the memory (about 95 MB a process: 1.2 GB in all against 0.22 GB). PyAV and OpenCV decode with the GIL
-released, so ten reader threads decode on every core, and a frame reaches the assembler without a copy. The
-processes' newest frame was younger when a set was taken (p95 70 against 84 ms) only because they convert each frame
-as they decode it: threads that do the same were as young (68 ms) for about the threads' CPU (0.50 cores). Here a
+25 fps, two rounds on 2 cores, the machine otherwise idle): a process per camera, each converting its frames to BGR
+into shared memory for the parent to copy out, delivered the same 250 frames/s for 1.06 times the CPU (0.61 against
+0.58 cores) and 5.7 times the memory (about 95 MB a process: 1.19 GB in all against 0.21 GB). PyAV and OpenCV decode
+with the GIL released, so ten reader threads decode on every core, and a frame reaches the assembler without a copy.
+The processes' newest frame was younger when a set was taken (p95 57 against 61 ms) only because they convert each
+frame as they decode it: threads that do the same were as young (56 ms) for less CPU (0.53 cores). Here a
 frame is converted when a set takes it (:class:`~app.capture.mailbox.Frame`), so frames no set uses, when sets are
 slower than the cameras, cost nothing. Each reader decodes on its own thread alone (no FFmpeg worker threads), so its
 CPU time (``cpu_seconds``) is what the camera costs to demux and decode (``benchmarks/live_ingest.py`` reports it per
