@@ -21,7 +21,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any, Iterable, TextIO
 
@@ -30,7 +29,7 @@ import cv2
 from workers.orientation.detect import DetectorConfig, detector_name
 from workers.orientation.library import FileStat, LibraryOptions, PathOutcome, Result, file_stat
 from workers.orientation.orient import OrientationReport
-from workers.orientation.textdata import text_plan
+from workers.orientation.textdata import package_version, text_plan
 from workers.orientation.xmp import replace_file
 
 ENGINE_DIR = Path(__file__).resolve().parent
@@ -46,7 +45,7 @@ def fingerprint(config: DetectorConfig, options: LibraryOptions) -> str:
     parts = {
         "engine": _engine_digest(),
         "opencv": cv2.__version__,
-        "onnxruntime": _version("onnxruntime"),
+        "onnxruntime": package_version("onnxruntime"),
         "detector": detector_name(config),
         "config": config.model_dump(mode="json"),
         "model": [model.stat().st_size, model.stat().st_mtime_ns] if model is not None and model.is_file() else None,
@@ -56,13 +55,6 @@ def fingerprint(config: DetectorConfig, options: LibraryOptions) -> str:
         "naming": options.naming,
     }
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:16]
-
-
-def _version(package: str) -> str | None:
-    try:
-        return version(package)
-    except PackageNotFoundError:
-        return None
 
 
 def _engine_digest() -> str:

@@ -100,16 +100,21 @@ def wordfreq_vocabulary() -> tuple[frozenset[str], str]:
 def vocabulary_origin(setting: Path | None = None) -> list[object]:
     """Which word lists :func:`find_vocabulary` reads, without reading them: the folder it uses and its files (name,
     size, modification time), or the ``wordfreq`` version. Cheap: a key that changes when the words may."""
-    from importlib.metadata import PackageNotFoundError, version
-
     folder = Path(setting) if setting is not None else DEBIAN_WORDLISTS
     files = sorted(p for p in folder.glob("*") if p.is_file() and not p.name.upper().startswith("README"))
     if files or setting is not None:
         return [str(folder)] + [[p.name, p.stat().st_size, p.stat().st_mtime_ns] for p in files]
+    return ["wordfreq", package_version("wordfreq")]
+
+
+def package_version(distribution: str) -> str | None:
+    """The installed version of ``distribution`` (a PyPI name), None when it is not installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
     try:
-        return ["wordfreq", version("wordfreq")]
+        return version(distribution)
     except PackageNotFoundError:
-        return ["wordfreq", None]
+        return None
 
 
 def text_plan(enabled: bool = True, tessdata: Path | None = None, wordlists: Path | None = None) -> dict[str, object]:
@@ -119,7 +124,7 @@ def text_plan(enabled: bool = True, tessdata: Path | None = None, wordlists: Pat
     remembers of a library with it, so that a run with nothing left to analyse does not build the engine."""
     if not enabled:
         return {"enabled": False}
-    from importlib.metadata import PackageNotFoundError, version
+    from importlib.metadata import version
 
     try:
         import onnxruntime  # noqa: F401 - the gate and the recogniser run on it
@@ -132,8 +137,8 @@ def text_plan(enabled: bool = True, tessdata: Path | None = None, wordlists: Pat
         return {"enabled": True, "available": False, "detail": str(exc)}
     try:
         import tesserocr  # noqa: F401
-        tesseract = version("tesserocr")
-    except (ImportError, PackageNotFoundError):
+        tesseract = package_version("tesserocr")
+    except ImportError:
         tesseract = None
     found = find_tessdata(tessdata)
     stat = gate.stat()
