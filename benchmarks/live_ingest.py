@@ -185,13 +185,28 @@ class Bench:
             "capture_side_cores": (time.process_time() - own0) / wall,
             "server_cores": (tree_cpu_seconds(self.app.proc.pid) - server0) / wall,
             "tolerance_ms": run.assembler.tolerance * 1e3, "refused": dict(run.uplink.errors),
+            "service_ms": _service_ms(run.uplink),
         }
+
+
+def _service_ms(uplink: Any) -> dict[str, float | None]:
+    """Medians over the uplink's last 100 acknowledgements: the service's decode, its wait for the renderer's lock,
+    the apply under it (ms, as each ack reports them), and send to ack at the client."""
+    acks = list(uplink.acks)
+
+    def median(key: str) -> float | None:
+        values = [a[key] for a in acks if a.get(key) is not None]
+        return round(statistics.median(values), 2) if values else None
+
+    ack_ms = list(uplink.ack_ms)
+    return {"decode_ms": median("decode_ms"), "lock_wait_ms": median("lock_wait_ms"), "apply_ms": median("apply_ms"),
+            "send_to_ack_ms": round(statistics.median(ack_ms), 2) if ack_ms else None}
 
 
 def server_viewer(bench: Bench, seconds: float) -> dict[str, Any]:
     """A closed-loop viewer rendered on the server (VIEW, PLANES): fps, and capture-to-frame latency per frame (now
     minus its set's capture instant)."""
-    latencies, frames = [], 0
+    latencies, frames, levels, ms = [], 0, {}, []
     with wsclient.connect(f"{bench.ws}/v1/rigs/{bench.rig_id}/view?source=live", max_size=None) as ws:
         while json.loads(ws.recv())["type"] != "ready":
             pass
@@ -204,11 +219,14 @@ def server_viewer(bench: Bench, seconds: float) -> dict[str, Any]:
                 if json.loads(reply).get("type") == "error":
                     raise SystemExit(f"the viewer got an error: {reply}")
             header, _ = unpack_message(reply)
+            levels[str(header.get("quality"))] = levels.get(str(header.get("quality")), 0) + 1
+            ms.append(header.get("render_ms") or 0.0)
             if header.get("captured") is not None:
                 latencies.append((time.time() - header["captured"]) * 1e3)
             frames += 1
     return {"fps": frames / seconds, "capture_to_frame_p50_ms": float(np.percentile(latencies, 50)),
-            "capture_to_frame_p95_ms": float(np.percentile(latencies, 95)), "frames": frames}
+            "capture_to_frame_p95_ms": float(np.percentile(latencies, 95)), "frames": frames, "levels": levels,
+            "render_ms_p50": float(np.median(ms)) if ms else None}
 
 
 @sections.section("ingest", "ten RTSP cameras to the service with a server-rendered viewer: sets/s, spread, CPU, "
@@ -315,6 +333,15 @@ def markdown(results: dict[str, Any], kept: list[str]) -> str:
             ["configuration", "sets/s sent", "sets/s acked", "spread p50 ms", "spread max ms",
              "reader CPU per camera (% of a core)", "capture side cores", "service cores", "viewer fps",
              "capture-to-frame p50 ms", "p95 ms"], rows)]
+        svc = [[name, *(r.get("service_ms", {}).get(k, "-") for k in ("decode_ms", "lock_wait_ms", "apply_ms",
+                                                                      "send_to_ack_ms"))]
+               for name, key in (("ingest alone", "alone"), ("with the viewer", "viewer"))
+               if (r := results.get("ingest", {}).get(key)) and r.get("service_ms")]
+        if svc:
+            md += ["", "Where a set's time goes in the service (medians of the last 100 acknowledgements: decoding its "
+                   "JPEGs, waiting for the renderer's lock while a view is drawn, applying it under the lock: "
+                   "background model, silhouettes, the renderer's frames), and from send to ack at the client:", "",
+                   md_table(["configuration", "decode ms", "lock wait ms", "apply ms", "send to ack ms"], svc)]
     b = results.get("browser")
     if b:
         md += ["", f"### Browser-rendered viewer ({b['webgl']}: {b['gpu']})", "",
