@@ -23,6 +23,7 @@ from app.ray_watch import watch_ray
 from app.services import Services, build_services
 from app.settings import Settings
 from workers.common.models import MODELS, ModelError, install, installed
+from workers.common.packages import package_version
 
 log = logging.getLogger("sweepcast")
 
@@ -78,7 +79,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app = TransportApp(
         title="sweepcast",
-        version=_version(),
+        version=package_version("sweepcast") or "0.0.0",
         description=API_DESCRIPTION,
         lifespan=lifespan,
     )
@@ -163,15 +164,6 @@ async def fetch_missing_models(settings: Settings) -> None:
         except ModelError as exc:
             log.warning("optional model %s not installed: %s; 'sweepcast models fetch %s --from FILE' installs "
                         "a copy you have", model.name, exc, model.name)
-
-
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("sweepcast")
-    except PackageNotFoundError:
-        return "0.0.0"
 
 
 def render_openapi() -> str:

@@ -9,7 +9,7 @@ import numpy as np
 
 from workers.orientation.linereader import LineReading, PairVerdict
 from workers.orientation.text import TextCue
-from workers.orientation.textdata import Tessdata, package_version
+from workers.orientation.textdata import Tessdata
 from workers.orientation.textlines import TextLine
 
 NOTHING = PairVerdict(LineReading("tesseract", 0), LineReading("tesseract", 180))
@@ -93,8 +93,3 @@ def test_a_page_english_reads_is_never_asked_for_its_script():
     readers = Readers("Arabic", {"tesseract": 0})
     _read(readers)
     assert readers.asked == ["tesseract 8 lines"]
-
-
-def test_package_version_names_an_installed_distribution_and_none_for_a_missing_one():
-    assert package_version("numpy") == np.__version__
-    assert package_version("no-such-distribution-sweepcast") is None

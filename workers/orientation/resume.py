@@ -26,10 +26,11 @@ from typing import Any, Iterable, TextIO
 
 import cv2
 
+from workers.common.packages import package_version
 from workers.orientation.detect import DetectorConfig, detector_name
 from workers.orientation.library import FileStat, LibraryOptions, PathOutcome, Result, file_stat
 from workers.orientation.orient import OrientationReport
-from workers.orientation.textdata import package_version, text_plan
+from workers.orientation.textdata import text_plan
 from workers.orientation.xmp import replace_file
 
 ENGINE_DIR = Path(__file__).resolve().parent

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
+from workers.common.packages import package_version
 from workers.orientation.words import word_lists
 
 DEBIAN_TESSDATA = "/usr/share/tesseract-ocr/*/tessdata"
@@ -107,16 +108,6 @@ def vocabulary_origin(setting: Path | None = None) -> list[object]:
     return ["wordfreq", package_version("wordfreq")]
 
 
-def package_version(distribution: str) -> str | None:
-    """The installed version of ``distribution`` (a PyPI name), None when it is not installed."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version(distribution)
-    except PackageNotFoundError:
-        return None
-
-
 def text_plan(enabled: bool = True, tessdata: Path | None = None, wordlists: Path | None = None) -> dict[str, object]:
     """What the text cue of these settings is made of, found without building it (no network, Tesseract model or word
     list is loaded: milliseconds, where building the cue takes about a second): whether its packages import, their
@@ -124,8 +115,6 @@ def text_plan(enabled: bool = True, tessdata: Path | None = None, wordlists: Pat
     remembers of a library with it, so that a run with nothing left to analyse does not build the engine."""
     if not enabled:
         return {"enabled": False}
-    from importlib.metadata import version
-
     try:
         import onnxruntime  # noqa: F401 - the gate and the recogniser run on it
         import rapidocr  # noqa: F401
@@ -143,6 +132,6 @@ def text_plan(enabled: bool = True, tessdata: Path | None = None, wordlists: Pat
     found = find_tessdata(tessdata)
     stat = gate.stat()
     return {"enabled": True, "available": True, "gate": [str(gate), stat.st_size, stat.st_mtime_ns],
-            "versions": [version("rapidocr"), version("onnxruntime"), tesseract],
+            "versions": [package_version("rapidocr"), package_version("onnxruntime"), tesseract],
             "tessdata": [str(found.folder), found.source, sorted(found.languages)] if found else None,
             "wordlists": vocabulary_origin(wordlists)}
