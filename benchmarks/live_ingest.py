@@ -32,6 +32,7 @@ Run: ``python -m benchmarks.live_ingest [--only ingest,recovery,browser,readers]
 """
 from __future__ import annotations
 
+import collections
 import io
 import json
 import os
@@ -206,7 +207,7 @@ def _service_ms(uplink: Any) -> dict[str, float | None]:
 def server_viewer(bench: Bench, seconds: float) -> dict[str, Any]:
     """A closed-loop viewer rendered on the server (VIEW, PLANES): fps, and capture-to-frame latency per frame (now
     minus its set's capture instant)."""
-    latencies, frames, levels, ms = [], 0, {}, []
+    latencies, frames, levels, ms = [], 0, collections.Counter(), []
     with wsclient.connect(f"{bench.ws}/v1/rigs/{bench.rig_id}/view?source=live", max_size=None) as ws:
         while json.loads(ws.recv())["type"] != "ready":
             pass
@@ -219,13 +220,14 @@ def server_viewer(bench: Bench, seconds: float) -> dict[str, Any]:
                 if json.loads(reply).get("type") == "error":
                     raise SystemExit(f"the viewer got an error: {reply}")
             header, _ = unpack_message(reply)
-            levels[str(header.get("quality"))] = levels.get(str(header.get("quality")), 0) + 1
-            ms.append(header.get("render_ms") or 0.0)
+            levels[str(header.get("quality"))] += 1
+            if header.get("render_ms") is not None:
+                ms.append(header["render_ms"])
             if header.get("captured") is not None:
                 latencies.append((time.time() - header["captured"]) * 1e3)
             frames += 1
     return {"fps": frames / seconds, "capture_to_frame_p50_ms": float(np.percentile(latencies, 50)),
-            "capture_to_frame_p95_ms": float(np.percentile(latencies, 95)), "frames": frames, "levels": levels,
+            "capture_to_frame_p95_ms": float(np.percentile(latencies, 95)), "frames": frames, "levels": dict(levels),
             "render_ms_p50": float(np.median(ms)) if ms else None}
 
 
