@@ -245,7 +245,9 @@ def bench_cli(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                                                                          again))]
     md = (f"### The CLI\n\n`sweepcast orient` over the library ({len(photos)} photos: {_mix_text(photos)}), a dry run "
           f"from a fresh state, then again as the next run would (YuNet {'on' if yunet else 'not installed'}, the text "
-          "cue on). CPU: the command and every process it waited for; machine: every core's busy time over the run.\n\n"
+          "cue on). CPU: the command and every process it waited for (with `--jobs 2` its helpers are forked by a fork "
+          "server it does not wait for, so this column leaves them out: read the machine's); machine: every core's busy "
+          "time over the run, on a machine otherwise idle.\n\n"
           + md_table(["run", "photos/s", "wall s", "CPU ms/photo", "machine busy ms/photo"], rows)
           + f"\n\nDecisions (`--jobs 2`): {_tally_text(two['decisions'])}. `--jobs 1` decided the same: "
             f"{one['decisions'] == two['decisions']}.\n")

@@ -51,6 +51,15 @@ class WorkerSettings(BaseSettings):
         None, description="Orientation: the folder of word lists (one word a line) whose words the text cue accepts "
                           "as real; default: /usr/share/dict when it holds lists (Debian wamerican, wngerman, "
                           "wfrench, ...), else the wordfreq package's lists.")
+    orientation_gate_precision: Literal["auto", "int8", "float"] = Field(
+        "float", description="Orientation: the text-line gate's network in float (float), in 8-bit integers (int8: "
+                             "~0.6x its CPU, so a photo with neither faces nor text ~0.8x, but a few text photos "
+                             "fewer decided), or in 8 bits where the CPU has integer dot-product instructions (auto: "
+                             "x86 VNNI). The 8-bit model is built once per machine into model_cache_dir and checked "
+                             "against the float model first.")
+    model_cache_dir: Path | None = Field(
+        None, description="Where models built on this machine are kept (the gate's 8-bit model); default "
+                          "~/.cache/sweepcast/models.")
     exiftool: str = Field("exiftool", description="The exiftool binary the orientation engine uses for PNG eXIf, "
                                                   "XMP sidecars and RAW previews: a name on PATH or a path.")
 

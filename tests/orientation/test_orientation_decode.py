@@ -39,12 +39,25 @@ def test_vp8x_webp_size_comes_from_the_extended_header():
 
 
 def test_reduction_factor_brings_the_long_side_under_the_working_size():
-    assert reduction_factor(800, 600, 1000) == 1
-    assert reduction_factor(2000, 1500, 1000) == 2
-    assert reduction_factor(4000, 3000, 1000) == 4
-    assert reduction_factor(6000, 4000, 1000) == 8
-    assert reduction_factor(20000, 100, 1000) == 8
+    assert reduction_factor(800, 600, 1000, None) == 1
+    assert reduction_factor(2000, 1500, 1000, None) == 2
+    assert reduction_factor(4000, 3000, 1000, None) == 4
+    assert reduction_factor(6000, 4000, 1000, None) == 8
+    assert reduction_factor(20000, 100, 1000, None) == 8
     assert reduction_factor(4000, 3000) == 8  # a 12 MP photo is searched at 500 x 375 by default
+
+
+def test_reduction_factor_keeps_a_square_photo_to_the_pixels_of_an_oblong_one():
+    assert reduction_factor(3464, 3464) == 8  # 433 x 433, as a 4:3 12 MP photo decodes to 500 x 375
+    assert reduction_factor(3464, 3464, working_pixels=None) == 4  # by the long side alone: 866 x 866
+    assert reduction_factor(1600, 1200) == 2  # 800 x 600: within both
+    assert reduction_factor(2480, 3508) == 4  # an A4 scan at 300 dpi: 620 x 877, as oblong as 4:3 or more
+
+
+def test_beyond_eighth_size_a_square_image_is_resized_to_the_working_pixels():
+    data = encode(np.full((7000, 7000), 128, np.uint8), ".png")  # an eighth is 875 x 875: above 900 x 675 pixels
+    assert decode_gray(data).gray.shape == (779, 779)
+    assert decode_gray(data, working_pixels=None).gray.shape == (875, 875)
 
 
 def test_twelve_megapixel_jpeg_decodes_at_an_eighth():

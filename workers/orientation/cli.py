@@ -34,7 +34,7 @@ from workers.common.cliutil import ProgressBar, format_table
 from workers.common.images import MAX_PIXELS_ENV, max_pixels_from_env
 from workers.common.models import models_dir
 from workers.common.pace import Pace
-from workers.orientation.detect import DetectorConfig, get_detector
+from workers.orientation.detect import DetectorConfig, face_detector, get_detector
 from workers.orientation.headers import RAW_EXTENSIONS
 from workers.orientation.job import YUNET_MODEL_ENV, configured_yunet
 from workers.orientation.library import LibraryOptions, PathOutcome, Result
@@ -86,8 +86,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"refuse images larger than this (default ${MAX_PIXELS_ENV} or 64,000,000)")
     p.add_argument("--json", action="store_true", help="print the reports as JSON instead of a table")
     p.add_argument("--jobs", type=_positive, default=usable_cores(), metavar="N",
-                   help="processes that analyse photos at once, this one and N-1 more (default: the cores this "
-                        f"process may use, {usable_cores()} here)")
+                   help="processes that analyse photos at once (1: this one; N > 1: N helpers this one hands photos "
+                        f"to; default: the cores this process may use, {usable_cores()} here)")
     p.add_argument("--no-resume", dest="resume", action="store_false",
                    help="analyse every photo again, forgetting what earlier runs decided")
     p.add_argument("--state", type=Path, default=None, metavar="FILE",
@@ -205,12 +205,15 @@ def _run(files: list[Path], options: LibraryOptions, state: LibraryState, jobs: 
     if not todo:
         bar.close()
         return
-    try:
-        detector = get_detector(config)
-    except (ValueError, FileNotFoundError) as exc:
-        bar.close()
-        raise EngineUnavailable(str(exc)) from None
-    with FilePool([files[i] for i in todo], options, state.known(options), jobs, config, detector) as pool:
+    with FilePool([files[i] for i in todo], options, state.known(options), jobs, config) as pool:
+        try:  # the helpers build their engines; this process checks the configuration (tenths of a second)
+            if pool.helpers:
+                face_detector(config)
+            else:
+                pool.detector = get_detector(config)
+        except (ValueError, FileNotFoundError) as exc:
+            bar.close()
+            raise EngineUnavailable(str(exc)) from None
         try:
             for k, outcome in pool.outcomes():
                 take(todo[k], outcome)

@@ -21,6 +21,11 @@ from workers.orientation.headers import ImageHeader, check_header, parse_header
 WORKING_SIZE = 900
 """Longest side (px) of the decoded image handed to the detectors (a 4000 x 3000 photo decodes at 1/8 to
 500 x 375). Chosen on the dev photos (``benchmarks/orientation.py``)."""
+WORKING_PIXELS = 900 * 675
+"""Most pixels of the decoded image handed to the detectors: those of a 4:3 photo at the working size, so that an
+image as oblong as 4:3 or more is decoded as before, and a square 12 MP photo (3464 x 3464) decodes at 1/8 to
+433 x 433 as a 4:3 one decodes to 500 x 375, not at 1/4 to 866 x 866 (1.2 times the pixels of the budget, four times
+those of the 4:3 photo, and about twice the face detector's CPU)."""
 DEFAULT_MAX_PIXELS = images.DEFAULT_MAX_PIXELS
 """Default pixel limit (width x height) when the caller gives none."""
 
@@ -45,18 +50,22 @@ class DecodedImage:
     """Stored-image pixels per decoded pixel along y (>= 1)."""
 
 
-def reduction_factor(width: int, height: int, working_size: int = WORKING_SIZE) -> int:
-    """The smallest of 1, 2, 4, 8 that brings the long side (px) to at most ``working_size``; else 8."""
-    long_side = max(width, height)
+def reduction_factor(width: int, height: int, working_size: int = WORKING_SIZE,
+                     working_pixels: int | None = WORKING_PIXELS) -> int:
+    """The smallest of 1, 2, 4, 8 that brings the long side (px) to at most ``working_size`` and the pixels to at most
+    ``working_pixels`` (None: any number); else 8."""
     for factor in (1, 2, 4):
-        if -(-long_side // factor) <= working_size:
+        w, h = -(-width // factor), -(-height // factor)
+        if max(w, h) <= working_size and (working_pixels is None or w * h <= working_pixels):
             return factor
     return 8
 
 
 def decode_gray(data: bytes, max_pixels: int = DEFAULT_MAX_PIXELS, working_size: int = WORKING_SIZE,
-                filename: str | None = None, header: ImageHeader | None = None) -> DecodedImage:
-    """Check and decode ``data`` to grey with its long side <= ``working_size``.
+                filename: str | None = None, header: ImageHeader | None = None,
+                working_pixels: int | None = WORKING_PIXELS) -> DecodedImage:
+    """Check and decode ``data`` to grey with its long side <= ``working_size`` and at most ``working_pixels`` pixels
+    (None: any number).
 
     JPEG, PNG, WebP and TIFF: the stored pixels (any Orientation tag ignored). HEIF and AVIF: the
     *displayed* image (their irot/imir applied, as every HEIF reader does; ``header`` keeps the coded
@@ -69,15 +78,15 @@ def decode_gray(data: bytes, max_pixels: int = DEFAULT_MAX_PIXELS, working_size:
         header = parse_header(data, filename)
     check_header(header, max_pixels)
     if header.format in ("heif", "avif"):
-        return _fit(_decode_heif(data, header), header, working_size)
+        return _fit(_decode_heif(data, header), header, working_size, working_pixels)
     if header.format == "raw":
         preview = raw_preview(data)
-        decoded = decode_gray(preview, max_pixels, working_size)
+        decoded = decode_gray(preview, max_pixels, working_size, working_pixels=working_pixels)
         return DecodedImage(decoded.gray, ImageHeader("raw", decoded.header.width, decoded.header.height),
                             decoded.scale_x, decoded.scale_y)
     if header.format == "tiff":
         data = _tiff_without_orientation(data, header)
-    factor = reduction_factor(header.width, header.height, working_size)
+    factor = reduction_factor(header.width, header.height, working_size, working_pixels)
     flags = _REDUCED_FLAGS[factor] | cv2.IMREAD_IGNORE_ORIENTATION
     try:  # the service's one checked decoder (its own header check agrees with the one above)
         gray = images.decode_image(data, flags, max_pixels)
@@ -89,7 +98,7 @@ def decode_gray(data: bytes, max_pixels: int = DEFAULT_MAX_PIXELS, working_size:
         gray = cv2.cvtColor(gray, cv2.COLOR_BGRA2GRAY if gray.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
     if gray.dtype != np.uint8:  # 16-bit TIFF
         gray = (gray.astype(np.float32) * (255.0 / max(1.0, float(np.iinfo(gray.dtype).max)))).astype(np.uint8)
-    return _fit(gray, header, working_size)
+    return _fit(gray, header, working_size, working_pixels)
 
 
 def decode_at_least(data: bytes, long_side: float, max_pixels: int = DEFAULT_MAX_PIXELS, filename: str | None = None,
@@ -101,15 +110,18 @@ def decode_at_least(data: bytes, long_side: float, max_pixels: int = DEFAULT_MAX
         header = parse_header(data, filename)
     full = max(header.width, header.height)
     factor = next((f for f in (8, 4, 2) if -(-full // f) >= long_side), 1)
-    return decode_gray(data, max_pixels, max(1, -(-full // factor)), filename=filename, header=header)
+    return decode_gray(data, max_pixels, max(1, -(-full // factor)), filename=filename, header=header,
+                       working_pixels=None)
 
 
-def _fit(gray: np.ndarray, header: ImageHeader, working_size: int) -> DecodedImage:
-    """``gray`` reduced to a long side <= ``working_size`` (INTER_AREA), with its scale to the decoded size."""
+def _fit(gray: np.ndarray, header: ImageHeader, working_size: int, working_pixels: int | None) -> DecodedImage:
+    """``gray`` reduced to a long side <= ``working_size`` and at most ``working_pixels`` pixels (INTER_AREA), with its
+    scale to the decoded size."""
     full_h, full_w = gray.shape[:2]
-    long_side = max(gray.shape)
-    if long_side > working_size:  # beyond what DCT scaling (at most 1/8) reaches
-        s = working_size / long_side
+    s = working_size / max(gray.shape)
+    if working_pixels is not None:
+        s = min(s, (working_pixels / (full_h * full_w)) ** 0.5)
+    if s < 1:  # beyond what DCT scaling (at most 1/8) reaches, or a format without it
         size = (max(1, round(gray.shape[1] * s)), max(1, round(gray.shape[0] * s)))
         gray = cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
     if header.format in ("heif", "avif"):  # boxes are in the displayed image: its size, not the coded one

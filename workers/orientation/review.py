@@ -49,7 +49,7 @@ def thumbnail(data: bytes, filename: str | None = None, max_pixels: int = DEFAUL
         flags = _colour_flags(data, filename, side) if fmt == "jpeg" else cv2.IMREAD_COLOR
         image = cv2.imdecode(buffer, flags | cv2.IMREAD_IGNORE_ORIENTATION)
     if image is None:
-        image = decode_gray(data, max_pixels, side * 2, filename=filename).gray
+        image = decode_gray(data, max_pixels, side * 2, filename=filename, working_pixels=None).gray
     s = min(1.0, side / max(image.shape[:2]))
     if s < 1.0:
         image = cv2.resize(image, (max(1, round(image.shape[1] * s)), max(1, round(image.shape[0] * s))),

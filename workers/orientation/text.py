@@ -176,7 +176,9 @@ class TextCue:
     def status(self) -> dict[str, object]:
         """What the readiness report says of the cue: its gate, readers and data, and where the data came from."""
         td = self.tessdata
-        return {"available": True, "enabled": True, "gate": str(self.detector.model),
+        gate = self.detector.model
+        return {"available": True, "enabled": True, "gate": str(gate.path), "gate_precision": gate.precision,
+                "gate_detail": gate.detail,
                 "readers": [r for r, on in (("tesseract", self.tesseract is not None),
                                             ("recognizer", self.recognizer is not None),
                                             ("script", bool(self.tesseract and td and td.script_models))) if on],

@@ -119,9 +119,12 @@ def text_plan(enabled: bool = True, tessdata: Path | None = None, wordlists: Pat
         import onnxruntime  # noqa: F401 - the gate and the recogniser run on it
         import rapidocr  # noqa: F401
 
+        from workers.orientation.quantize import int8_fast
         from workers.orientation.textlines import model_path
+        from workers.settings import worker_settings
 
         gate = model_path()
+        precision = worker_settings().orientation_gate_precision
     except (ImportError, OSError) as exc:
         return {"enabled": True, "available": False, "detail": str(exc)}
     try:
@@ -132,6 +135,7 @@ def text_plan(enabled: bool = True, tessdata: Path | None = None, wordlists: Pat
     found = find_tessdata(tessdata)
     stat = gate.stat()
     return {"enabled": True, "available": True, "gate": [str(gate), stat.st_size, stat.st_mtime_ns],
+            "gate_precision": [precision, int8_fast()],
             "versions": [package_version("rapidocr"), package_version("onnxruntime"), tesseract],
             "tessdata": [str(found.folder), found.source, sorted(found.languages)] if found else None,
             "wordlists": vocabulary_origin(wordlists)}

@@ -28,6 +28,8 @@ from typing import Callable, Literal
 import cv2
 import numpy as np
 
+from workers.orientation.quantize import Precision, gate_model
+
 Axis = Literal["h", "v"]
 LoadImage = Callable[[float], tuple[np.ndarray, float]]
 """Given how many times larger than the gate's image an image of the same photo should be, the photo decoded that
@@ -158,33 +160,28 @@ def model_path() -> Path:
 
 class LineDetector:
     """The DB text-line detector on one core (callers run photos in parallel processes). Thread-safe: onnxruntime
-    sessions may be run from several threads."""
+    sessions may be run from several threads. ``precision``: the network in float (``float``), in 8-bit integers
+    (``int8``: about 0.6x the CPU, a few lines fewer; :mod:`workers.orientation.quantize`), or in 8 bits where the CPU
+    runs them fast (``auto``). ``model`` (a float ONNX file) replaces rapidocr's."""
 
-    def __init__(self, model: Path | None = None) -> None:
+    def __init__(self, model: Path | None = None, precision: Precision = "float") -> None:
         import onnxruntime
 
         options = onnxruntime.SessionOptions()
         options.intra_op_num_threads = 1
         options.inter_op_num_threads = 1
         options.log_severity_level = 3
-        self.model = model or model_path()
-        self._session = onnxruntime.InferenceSession(str(self.model), options, providers=["CPUExecutionProvider"])
+        self.model = gate_model(model or model_path(), precision, lambda page: network_input(page, max(page.shape))[0])
+        self._session = onnxruntime.InferenceSession(str(self.model.path), options,
+                                                     providers=["CPUExecutionProvider"])
         self._input = self._session.get_inputs()[0].name
 
     def probability(self, gray: np.ndarray, side: int) -> tuple[np.ndarray, float]:
         """(text probability map (h, w) float32 in [0, 1], its scale relative to ``gray``) for ``gray`` ((H, W) uint8)
-        resized so that its long side is ``side`` px (one scale for both axes; the copy padded with its edge to
-        multiples of 32 px, the network's stride; the map cut back to the copy)."""
-        h, w = gray.shape[:2]
-        s = side / max(h, w)
-        nh, nw = max(1, round(h * s)), max(1, round(w * s))
-        small = cv2.resize(gray, (nw, nh), interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR)
-        ph, pw = -(-nh // 32) * 32, -(-nw // 32) * 32
-        small = cv2.copyMakeBorder(small, 0, ph - nh, 0, pw - nw, cv2.BORDER_REPLICATE)
-        x = (small.astype(np.float32) * (2.0 / 255.0) - 1.0)[None, None]  # the model's (x / 255 - 0.5) / 0.5
-        x = np.ascontiguousarray(np.repeat(x, 3, axis=1))
+        resized so that its long side is ``side`` px (:func:`network_input`; the map cut back to the copy)."""
+        x, (nh, nw) = network_input(gray, side)
         out = self._session.run(None, {self._input: x})[0][0, 0]
-        return out[:nh, :nw], nw / w
+        return out[:nh, :nw], nw / gray.shape[1]
 
     def lines(self, gray: np.ndarray, side: int) -> tuple[list[TextLine], list[TextLine], float]:
         """(the lines in ``gray`` ((H, W) uint8), the thin ones (too small to keep), both in px of ``gray``; the
@@ -227,6 +224,20 @@ class LineDetector:
         crop = image[round(y0 * factor):round(y1 * factor), round(x0 * factor):round(x1 * factor)]
         lines, _, _ = self.lines(crop, side)
         return [ln.scaled(1.0 / factor, (x0, y0)) for ln in lines]
+
+
+def network_input(gray: np.ndarray, side: int) -> tuple[np.ndarray, tuple[int, int]]:
+    """(the network's input (1, 3, H', W') float32 in [-1, 1], the copy's (h, w) px inside it) for ``gray`` ((H, W)
+    uint8) resized so that its long side is ``side`` px (one scale for both axes), padded with its edge to multiples
+    of 32 px (the network's stride)."""
+    h, w = gray.shape[:2]
+    s = side / max(h, w)
+    nh, nw = max(1, round(h * s)), max(1, round(w * s))
+    small = cv2.resize(gray, (nw, nh), interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR)
+    ph, pw = -(-nh // 32) * 32, -(-nw // 32) * 32
+    small = cv2.copyMakeBorder(small, 0, ph - nh, 0, pw - nw, cv2.BORDER_REPLICATE)
+    x = (small.astype(np.float32) * (2.0 / 255.0) - 1.0)[None, None]  # the model's (x / 255 - 0.5) / 0.5
+    return np.ascontiguousarray(np.repeat(x, 3, axis=1)), (nh, nw)
 
 
 def upscaler(gray: np.ndarray) -> LoadImage:
@@ -348,12 +359,17 @@ def _line(rect: tuple, score: float, min_height: float = LINE_MIN_HEIGHT) -> Tex
 _LOCK = threading.Lock()
 
 
-@lru_cache(maxsize=1)
-def _shared() -> LineDetector:
-    return LineDetector()
+@lru_cache(maxsize=3)
+def _shared(precision: Precision) -> LineDetector:
+    return LineDetector(precision=precision)
 
 
-def get_line_detector() -> LineDetector:
-    """The process's line detector (the model loads once)."""
+def get_line_detector(precision: Precision | None = None) -> LineDetector:
+    """The process's line detector of this ``precision`` (default: the ``orientation_gate_precision`` setting), its
+    model loaded once."""
+    if precision is None:
+        from workers.settings import worker_settings
+
+        precision = worker_settings().orientation_gate_precision
     with _LOCK:
-        return _shared()
+        return _shared(precision)
