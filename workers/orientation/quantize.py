@@ -55,6 +55,17 @@ class GateModel:
     detail: str
 
 
+def one_core_session(model: Path):
+    """An onnxruntime session of ``model`` on one core (callers run photos in parallel processes, one core each)."""
+    import onnxruntime
+
+    options = onnxruntime.SessionOptions()
+    options.intra_op_num_threads = 1
+    options.inter_op_num_threads = 1
+    options.log_severity_level = 3
+    return onnxruntime.InferenceSession(str(model), options, providers=["CPUExecutionProvider"])
+
+
 def int8_fast() -> bool:
     """Whether this CPU has integer dot-product instructions onnxruntime uses for 8-bit convolutions (x86 VNNI)."""
     if platform.machine().lower() not in ("x86_64", "amd64"):
@@ -155,12 +166,7 @@ def quantize(source: Path, work: Path, to_input: Callable[[np.ndarray], np.ndarr
 def agreement(source: Path, built: Path, to_input: Callable[[np.ndarray], np.ndarray]) -> float:
     """Intersection over union of the text pixels (probability >= 0.3) of the two models over the calibration
     pages (1.0 when neither finds any)."""
-    import onnxruntime
-
-    options = onnxruntime.SessionOptions()
-    options.intra_op_num_threads = 1
-    options.log_severity_level = 3
-    sessions = [onnxruntime.InferenceSession(str(p), options, providers=["CPUExecutionProvider"]) for p in (source, built)]
+    sessions = [one_core_session(p) for p in (source, built)]
     both = either = 0
     for page in calibration_pages():
         x = to_input(page)

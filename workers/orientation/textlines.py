@@ -28,7 +28,7 @@ from typing import Callable, Literal
 import cv2
 import numpy as np
 
-from workers.orientation.quantize import Precision, gate_model
+from workers.orientation.quantize import Precision, gate_model, one_core_session
 
 Axis = Literal["h", "v"]
 LoadImage = Callable[[float], tuple[np.ndarray, float]]
@@ -165,15 +165,8 @@ class LineDetector:
     runs them fast (``auto``). ``model`` (a float ONNX file) replaces rapidocr's."""
 
     def __init__(self, model: Path | None = None, precision: Precision = "float") -> None:
-        import onnxruntime
-
-        options = onnxruntime.SessionOptions()
-        options.intra_op_num_threads = 1
-        options.inter_op_num_threads = 1
-        options.log_severity_level = 3
         self.model = gate_model(model or model_path(), precision, lambda page: network_input(page, max(page.shape))[0])
-        self._session = onnxruntime.InferenceSession(str(self.model.path), options,
-                                                     providers=["CPUExecutionProvider"])
+        self._session = one_core_session(self.model.path)
         self._input = self._session.get_inputs()[0].name
 
     def probability(self, gray: np.ndarray, side: int) -> tuple[np.ndarray, float]:
