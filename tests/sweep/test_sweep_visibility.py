@@ -155,6 +155,31 @@ def test_point_hidden_from_every_camera_keeps_all_of_them(scene):
                                   two.reshade(first, visibility=False).image[patch])
 
 
+def test_a_camera_where_the_view_stands_is_never_hidden(scene):
+    """The view at camera A's place: no surface can pass in front of another from there, yet A's z-buffer holds the
+    square's pixels in the 2x2 footprints of the wall pixels beside its edges (a neighbour that has not moved against
+    them, not an occluder). A keeps every weight it has without visibility; B, 0.8 m away, is still dropped where the
+    square hides the wall from it. The wall pixels beside the square's edges have the square's depth among the four
+    buffered pixels A samples them from: the nearest-depth test alone dropped A there (what the test guards)."""
+    cams, images, _, _, _ = scene
+    at_a = cam(-0.4, "virtual")
+    _, depth = cast(at_a)
+    two = SweepRenderer([cams["A"], cams["B"]], [images["A"], images["B"]])
+    first = true_depth_render(two, at_a, depth, ZF, ZB)
+    blend = {"method": "kojima_k", "d_bnd": 0.5}  # both cameras weighted wherever they see the point
+    w_off = two.blend_weights(first, visibility=False, **blend)
+    w_on = two.blend_weights(first, visibility=True, **blend)
+    np.testing.assert_array_equal(w_on[..., 0] > 0, w_off[..., 0] > 0)
+    assert ((w_off[..., 1] > 0) & (w_on[..., 1] == 0)).sum() >= 30  # B: the wall strip the square hides from it
+    Q, B, _ = two.geometry(at_a)
+    sizes = np.array([[W, H], [W, H]], np.int64)
+    zbuf, _ = surface_zbuffers(Q, B, 1.0 / depth.astype(np.float64), sizes, (2, H, W))
+    taps = np.minimum.reduce([zbuf[0, :-1, :-1], zbuf[0, :-1, 1:], zbuf[0, 1:, :-1], zbuf[0, 1:, 1:]])
+    nearer = taps * (1.0 + RenderOptions().visibility_tolerance) < ZB  # the visibility test's margin
+    beside = (depth[:-1, :-1] == ZB) & nearer & (w_off[:-1, :-1, 0] > 0)  # A sees (x, y) at (x, y)
+    assert beside.sum() >= 10
+
+
 def test_zbuffer_of_a_fronto_parallel_wall():
     """Known answer: the virtual view's wall at z = 4 m, seen by a camera 0.4 m to the right with the same
     orientation, lies at 4 m along its axis over the columns it projects to, -8..87 px (clipped; +1 for the

@@ -19,6 +19,7 @@ from typing import Any, Literal, Union, get_args, get_origin
 from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 
+from workers.sweep.kernels import MIN_OCCLUDER_PARALLAX_PX
 from workers.sweep.layout import MAX_BITS, Z_MIN
 from workers.sweep.occlusion import CONFIRM_TOLERANCE_PX
 from workers.sweep.renderer import AUTO_BLEND_FRACTION, FALLBACK_SPACING_RAD, REFINE_RADIUS, RenderOptions
@@ -95,7 +96,8 @@ def renderer_rules() -> dict[str, Any]:
       ``fallback_spacing_rad`` and ``auto_blend_fraction`` of the automatic D_bnd);
     - ``glsl``: the depth search's constants the shaders take as ``#define`` s: ``Z_MIN`` (a point this close to a
       camera's centre plane gets no vote), ``SEARCH_BITS`` (samples at 1 / 2**bits px), ``REFINE_RADIUS`` (the
-      coarse choices around a pixel's parent that set its planes), ``CONFIRM_TOLERANCE_PX`` (the cross-view check);
+      coarse choices around a pixel's parent that set its planes), ``CONFIRM_TOLERANCE_PX`` (the cross-view check),
+      ``MIN_OCCLUDER_PARALLAX_PX`` (how far a nearer surface must have moved against a point to hide it);
     - ``visibility_scope``: where the colour is visibility-aware, by visibility and occlusions
       (:func:`visibility_scopes`).
     """
@@ -107,6 +109,6 @@ def renderer_rules() -> dict[str, Any]:
         "constants": {"near_far_ratio": NEAR_FAR_RATIO, "fallback_spacing_rad": FALLBACK_SPACING_RAD,
                       "auto_blend_fraction": AUTO_BLEND_FRACTION},
         "glsl": {"Z_MIN": Z_MIN, "SEARCH_BITS": MAX_BITS, "REFINE_RADIUS": REFINE_RADIUS,
-                 "CONFIRM_TOLERANCE_PX": CONFIRM_TOLERANCE_PX},
+                 "CONFIRM_TOLERANCE_PX": CONFIRM_TOLERANCE_PX, "MIN_OCCLUDER_PARALLAX_PX": MIN_OCCLUDER_PARALLAX_PX},
         "visibility_scope": visibility_scopes(),
     }

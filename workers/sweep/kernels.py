@@ -97,21 +97,29 @@ def plane_point(Q, B, i, x, y, s):  # pragma: no cover - compiled
     return hz, u, v
 
 
+MIN_OCCLUDER_PARALLAX_PX = 0.5
+"""How far (px) a nearer surface of the view must have moved against a point, seen from a camera, to hide the point
+from it (:func:`unhidden`, :mod:`workers.sweep.visibility`)."""
+
+
 @njit(cache=True, inline="always", fastmath=_FAST, error_model="numpy")
-def unhidden(zbuf, zbox, i, u, v, W, H, depth, scale):  # pragma: no cover - compiled
+def unhidden(zbuf, zbox, i, u, v, W, H, depth, scale, parallax):  # pragma: no cover - compiled
     """Whether camera ``i`` sees the point at its pixel (u, v) (inside its W x H image) and ``depth`` (m along its
     axis) past the z-buffered surface of :mod:`workers.sweep.visibility` (zbuf (N, Hm, Wm) float32, zbox (N, 4)
-    int64): depth <= scale x the smallest buffered depth over the four pixels its colour is sampled from
-    (nothing buffered outside the camera's box)."""
+    int64): no buffered depth z_o over the four pixels its colour is sampled from with depth > scale x z_o and
+    parallax x (1/z_o - 1/depth) >= :data:`MIN_OCCLUDER_PARALLAX_PX` (``parallax``: the camera's focal length (px)
+    times its distance from the view's centre (m); nothing buffered outside the camera's box)."""
     xa = np.int64(u)
     ya = np.int64(v)
     xb = xa + 1 if u < W - 1 else xa
     yb = ya + 1 if v < H - 1 else ya
-    zmin = np.inf
-    if (zbox[i, 0] <= xa and xb <= zbox[i, 1] and zbox[i, 2] <= ya and yb <= zbox[i, 3]
+    if not (zbox[i, 0] <= xa and xb <= zbox[i, 1] and zbox[i, 2] <= ya and yb <= zbox[i, 3]
             and yb < zbuf.shape[1] and xb < zbuf.shape[2]):
-        zmin = min(min(zbuf[i, ya, xa], zbuf[i, ya, xb]), min(zbuf[i, yb, xa], zbuf[i, yb, xb]))
-    return depth <= zmin * scale
+        return True
+    for zo in (zbuf[i, ya, xa], zbuf[i, ya, xb], zbuf[i, yb, xa], zbuf[i, yb, xb]):
+        if depth > zo * scale and parallax * (1.0 / zo - 1.0 / depth) >= MIN_OCCLUDER_PARALLAX_PX:
+            return False
+    return True
 
 
 @njit(cache=True, inline="always")
@@ -322,7 +330,7 @@ def _lerp2(a, b, c, d, fx, fy):  # pragma: no cover - compiled
 
 @njit(cache=True, parallel=True, fastmath=_FAST, error_model="numpy")
 def shade(Q, B, s_pix, imgs, sizes, sils, use_hull, centers, vcenter, G, method, d_bnd, k, gcam, fill,
-          out_img, regions, primary, weights, zbuf, zbox, vis_tol, vis_mask):  # pragma: no cover - compiled
+          out_img, regions, primary, weights, zbuf, zbox, vis_tol, vis_mask, parallax):  # pragma: no cover - compiled
     """Colour of each virtual pixel at its chosen depth, by one of the five weightings.
 
     Q (N, 3, 3), B (N, 3) in camera order; s_pix (h, w) float64: each pixel's inverse depth (1/m along
@@ -338,8 +346,9 @@ def shade(Q, B, s_pix, imgs, sizes, sils, use_hull, centers, vcenter, G, method,
     Visibility (on when zbuf is (N, Hm, Wm) float32 rather than empty (0, 0, 0)): zbuf, zbox (N, 4) int64
     are the z-buffers of the view's own surface in each camera (:mod:`workers.sweep.visibility`; depth in m
     along the camera's axis, valid inside box u0, u1, v0, v1). A camera whose image contains the point
-    is dropped when the point's depth in it exceeds (1 + vis_tol) times the smallest buffered depth at
-    the four pixels its colour would be sampled from (a nearer surface of the view covers them): it
+    is dropped when the point's depth in it exceeds (1 + vis_tol) times a buffered depth at the four pixels its
+    colour would be sampled from, that surface having moved against the point by a pixel's fraction or more
+    (:func:`unhidden`, parallax (N,) float64: each camera's focal length times its distance from vcenter): it
     then takes no part, exactly as a camera whose image does not contain the point. When that drops
     every camera that sees the point, all of them take part (no new holes). vis_mask (h, w) bool limits the
     test to its True pixels (the occlusion fill's pixels, RenderOptions.visibility None); empty (0, 0): every
@@ -388,7 +397,8 @@ def shade(Q, B, s_pix, imgs, sizes, sils, use_hull, centers, vcenter, G, method,
                     vs[m] = v
                     cam[m] = i
                     if vis_here:  # the point's depth along camera i: hz / s
-                        seen[m] = unhidden(zbuf, zbox, i, u, v, sizes[i, 0], sizes[i, 1], hz * z, vis_scale)
+                        seen[m] = unhidden(zbuf, zbox, i, u, v, sizes[i, 0], sizes[i, 1], hz * z, vis_scale,
+                                           parallax[i])
                     m += 1
             if vis_here and m > 1:
                 # keep only the cameras nothing of the view hides the point from (in camera order, as if the

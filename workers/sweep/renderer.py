@@ -245,6 +245,7 @@ class SweepRenderer:
         self._sizes = np.array([[c.width, c.height] for c in self.cameras], np.int64)
         self._P = np.stack([c.P for c in self.cameras])
         self._centers = np.stack([c.center for c in self.cameras])
+        self._focals = np.array([max(c.K[0, 0], c.K[1, 1]) for c in self.cameras])
         self._axes = np.stack([c.axis for c in self.cameras])
         self.has_silhouettes = False
         self._gpu = None
@@ -470,7 +471,8 @@ class SweepRenderer:
                           virtual.center, G, METHOD_CODES[opt.method], d_bnd or 1.0, opt.k, gcam,
                           np.asarray(opt.fill, np.uint8), image, regions, primary,
                           weights if weights is not None else np.empty((0, 0, 0), np.float32),
-                          zbuf, zbox, opt.visibility_tolerance, vis_mask)
+                          zbuf, zbox, opt.visibility_tolerance, vis_mask,
+                          self._focals * np.linalg.norm(self._centers - virtual.center, axis=1))
         return image, regions, primary
 
     def _choose(self, Q: np.ndarray, B: np.ndarray, center: np.ndarray, s_planes: np.ndarray, use_hull: bool,

@@ -21,6 +21,16 @@ exactly like a camera whose image does not contain the point. The tolerance is r
 independent of the scene's units; it absorbs the depth change across a tap's footprint on slanted
 surfaces.
 
+A buffered surface counts as in front of the point only where, from camera ``i``, it has moved against the point by
+at least :data:`workers.sweep.kernels.MIN_OCCLUDER_PARALLAX_PX` relative to where the view sees them both:
+``f_i b_i (1/z_o - 1/z)`` px, with ``f_i`` the camera's focal length (px), ``b_i`` its distance from the view's
+centre and ``z_o``, ``z`` the two depths along its axis. A nearer surface that has not moved lies beside the point
+in the camera as it does in the view: a neighbour, caught by the 2x2 footprints at every depth edge (the background
+pixel beside the foreground), not an occluder. Without the rule a camera at the view's own place, which sees exactly
+the view's picture, was dropped there, and the occlusion fill's background pixels sit beside depth edges by
+construction (-4 dB on the demo rig at a camera's place, up to -44 dB on wider rigs; benchmarks/RESULTS.md, the
+viewer's quality levels).
+
 Limits: only occluders that the virtual view itself sees are known (a surface outside the virtual
 frustum, or hidden in the virtual view, cannot block a source here), and a source camera much closer to
 the surface than the virtual one (one virtual pixel covering more than 2x2 of its pixels) gets

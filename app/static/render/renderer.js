@@ -144,6 +144,7 @@ export class BrowserRenderer {
     const dBnd = ["kojima", "kojima_k"].includes(o.method) ? (o.d_bnd ?? this.rig.autoDBnd(virtual, stats.median)) : null;
     const scope = this.rules.visibility_scope[JSON.stringify(o.visibility ?? null)][o.occlusions];
     const visibility = scope === "none" ? null : { zbuffers: this.occlusions.zbuffers(fine, work.depth),
+      parallax: this.parallax(virtual),
       tolerance: o.visibility_tolerance, filledOnly: scope === "filled" };
     const weighting = { method: this.rules.codes.method[o.method], dBnd, k: o.k,
       globalCamera: this.rig.globalCamera(virtual), fill: [o.fill[2], o.fill[1], o.fill[0]] };
@@ -154,6 +155,16 @@ export class BrowserRenderer {
       ms, d_bnd: dBnd, depth_range: [planes.near, planes.far], planes: o.planes, visual_hull: hull,
       depth_found: stats.found ? [1 / stats.maxInverse, 1 / stats.minInverse] : null, coverage: stats.coverage,
     };
+  }
+
+  /** Per camera, its focal length (px) times its distance from ``virtual``'s centre (m): what a depth difference
+   * moves by in its image (workers/sweep/kernels.py unhidden's ``parallax``). */
+  parallax(virtual) {
+    const v = virtual.center;
+    return this.cameras.map((c, i) => {
+      const p = this.rig.centres[i];
+      return Math.max(c.K[0], c.K[4]) * Math.hypot(p[0] - v[0], p[1] - v[1], p[2] - v[2]);
+    });
   }
 
   /** ``options`` over the server's defaults, checked: an Error for a value that is none of the server's choices,

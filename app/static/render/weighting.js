@@ -15,7 +15,8 @@ export class Shading {
 
   /** Shade ``depth`` (a resolve output) of ``virtual`` into ``colour`` and ``regions`` (2D textures) by
    * ``weighting`` ({ method: its code (the render block's rules.codes.method), dBnd, k, globalCamera, fill: RGB }).
-   * ``centres``: the rig cameras' centres; ``visibility``: { zbuffers (Occlusions.zbuffers), tolerance, filledOnly }
+   * ``centres``: the rig cameras' centres; ``visibility``: { zbuffers (Occlusions.zbuffers), parallax (per camera,
+   * BrowserRenderer.parallax), tolerance, filledOnly }
    * for visibility-aware colour (at every pixel, or with filledOnly at the occlusion fill's pixels only), else null. */
   shade(sweep, virtual, centres, depth, weighting, visibility, colour, regions) {
     this.pass.set({
@@ -23,6 +24,7 @@ export class Shading {
       uCentres: centres, uMethod: weighting.method, uDBnd: weighting.dBnd ?? 1.0, uK: weighting.k,
       uGlobal: weighting.globalCamera, uFill: weighting.fill, uVisibility: visibility !== null,
       uZbuf: visibility ? visibility.zbuffers : null, uVisScale: 1 + (visibility ? visibility.tolerance : 0),
+      uParallax: visibility ? visibility.parallax : centres.map(() => 0),
       uFilledOnly: visibility !== null && visibility.filledOnly,
     });
     this.pass.draw(target(this.gl, [colour, regions]));

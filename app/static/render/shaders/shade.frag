@@ -30,18 +30,26 @@ uniform vec3 uFill;              // colour where there is no surface (0..255, RG
 uniform bool uVisibility;
 uniform highp sampler2DArray uZbuf;  // per camera: the nearest depth of the view's surface (m along its axis)
 uniform float uVisScale;         // 1 + the visibility tolerance
+uniform float uParallax[N_CAM];  // per camera: its focal length (px) x its distance from the view's centre (m)
 uniform bool uFilledOnly;        // the visibility test at the filled pixels only
 layout(location = 0) out vec4 oColour;
 layout(location = 1) out vec4 oRegions;  // r: regions / 255, g: (primary + 1) / 255
 
-// Whether camera i sees the point at uv and ``depth`` past the view's surface: depth <= uVisScale x the nearest
-// buffered depth over the four pixels its colour is sampled from (workers/sweep/kernels.py unhidden).
+// Whether camera i sees the point at uv and ``depth`` past the view's surface: no buffered depth d over the four
+// pixels its colour is sampled from with depth > uVisScale x d that has moved against the point by
+// MIN_OCCLUDER_PARALLAX_PX or more (uParallax[i] x (1/d - 1/depth) px; workers/sweep/kernels.py unhidden).
+bool hides(float d, float depth, float parallax) {
+  return depth > d * uVisScale && parallax * (1.0 / d - 1.0 / depth) >= MIN_OCCLUDER_PARALLAX_PX;
+}
+
 bool unhidden(int i, vec2 uv, float depth) {
   ivec2 a = ivec2(floor(uv));
   ivec2 b = min(a + 1, ivec2(uLast[i]));  // as bilinear() samples
-  float near = min(min(texelFetch(uZbuf, ivec3(a, i), 0).x, texelFetch(uZbuf, ivec3(b.x, a.y, i), 0).x),
-                   min(texelFetch(uZbuf, ivec3(a.x, b.y, i), 0).x, texelFetch(uZbuf, ivec3(b, i), 0).x));
-  return depth <= near * uVisScale;
+  ivec2 taps[4] = ivec2[4](a, ivec2(b.x, a.y), ivec2(a.x, b.y), b);
+  for (int t = 0; t < 4; t++) {
+    if (hides(texelFetch(uZbuf, ivec3(taps[t], i), 0).x, depth, uParallax[i])) return false;
+  }
+  return true;
 }
 
 // Whether the resolve output's cost ``c`` is fill.frag's NaN mark (by its bits: a compiler may assume no NaNs).
