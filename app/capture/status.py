@@ -8,7 +8,9 @@
 
 - sets: frame sets sent per second; *spread*: latest minus earliest capture time within a set (median and largest
   of the sets sent since the last line); *tolerance*: the largest spread a set may have; acked and the time from a
-  set sent to its acknowledgement. When no instant is within the tolerance: the smallest spread found.
+  set sent to its acknowledgement. When no set was sent since the last line, why: the service has not acknowledged
+  the sets in flight (how many, the oldest for how long, and how many sets were dropped meanwhile: a service still
+  starting the rig's session, or too slow), or no instant is within the tolerance (the smallest spread found).
 - per camera: frames decoded per second; which clock stamps its frames (``camera``: the camera's own, from RTCP;
   ``file``: a file's; ``arrival``: the stream's timestamps anchored at arrival) and the median of arrival minus
   capture time (transport delay, plus the camera clock's offset from ours for a camera clock); *drops*: frames
@@ -43,7 +45,7 @@ class StatusLine:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="status", daemon=True)
-        self._last = (time.monotonic(), 0, 0)
+        self._last = (time.monotonic(), 0, 0, 0)
 
     def start(self) -> None:
         self._thread.start()
@@ -81,14 +83,18 @@ class StatusLine:
         """The block as text (module docstring)."""
         run = self.run
         now = time.monotonic()
-        t0, sent0, acked0 = self._last
+        t0, sent0, acked0, dropped0 = self._last
         seconds = max(now - t0, 1e-6)
-        sent, acked = run.uplink.sent, run.uplink.acked
-        self._last = (now, sent, acked)
+        sent, acked, dropped = run.uplink.sent, run.uplink.acked, run.uplink.dropped
+        self._last = (now, sent, acked, dropped)
         spreads = run.take_spreads()
+        waiting, oldest = run.uplink.unacknowledged()
         head = [f"live {now - run.started:.0f} s", f"sets {(sent - sent0) / seconds:.1f}/s"]
         if spreads:
             head.append(f"spread p50 {statistics.median(spreads) * 1e3:.1f} ms  max {max(spreads) * 1e3:.1f} ms")
+        elif waiting >= run.uplink.settings.in_flight:  # the uplink is full: sets made are dropped
+            head.append(f"waiting for the service: {waiting} sets unacknowledged, the oldest for {oldest:.1f} s "
+                        f"({dropped - dropped0} dropped meanwhile)")
         elif run.assembler.best_failed_spread is not None:
             head.append(f"no instant within the tolerance: best spread {run.assembler.best_failed_spread * 1e3:.1f} ms")
         head.append(f"(tolerance {run.assembler.tolerance * 1e3:.0f} ms)" if run.assembler.tolerance < float("inf")

@@ -113,6 +113,13 @@ class Uplink:
     def connected(self) -> bool:
         return self._ws is not None
 
+    def unacknowledged(self) -> tuple[int, float]:
+        """How many sets wait for their acknowledgement, and for how long the oldest has (s; 0 when none)."""
+        with self._lock:
+            oldest = min(self._pending.values(), default=None)
+            count = len(self._pending)
+        return count, (time.monotonic() - oldest if oldest is not None else 0.0)
+
     def _run(self) -> None:
         """Read acknowledgements; when the connection is lost, open it again with backoff."""
         backoff = 0.25

@@ -14,6 +14,7 @@ import httpx
 import numpy as np
 import pytest
 import websockets.sync.client as wsclient
+import websockets.sync.server as wsserver
 
 from app.capture.clocks import CaptureClock
 from app.capture.live import LiveRun
@@ -115,8 +116,14 @@ def test_ten_rtsp_cameras_make_sets_of_one_instant_despite_clock_offsets_and_jit
     with RtspServer(cams) as rtsp, Relay(service, rig_id) as relay:
         run = LiveRun.open(service, rig_id, [rtsp.url(n) for n in names], offset_args=[f"{n}={-s * 1e3:g}" for n, s in skew.items()],
                            out=out, status_every=1.0)
-        run.run(seconds=6.0)
-        time.sleep(0.3)
+        thread = started(run)
+        try:  # the first set waits for the rig's session to start: seconds on a loaded machine
+            relay.wait(lambda s: len(relay.sets) >= 30, 60, "after 30 sets")
+        except AssertionError:
+            raise AssertionError(out.getvalue()) from None
+        finally:
+            run.stop()
+            thread.join(15)
     whole = [(h, ks) for _, h, ks in relay.sets if not h["stale"]]
     assert len(whole) >= 15, out.getvalue()
     for header, instants in whole:
@@ -204,6 +211,34 @@ def test_a_source_that_never_answers_is_named_and_the_others_go_on(service):
     assert f"{names[2]}: {silent.url()}: no answer" in events, events
     assert names[0] not in events.split("no answer")[0].splitlines()[-1]
     assert run.readers[0].error is None and run.readers[2].frames == 0
+
+
+def test_the_status_says_when_sets_wait_for_a_service_that_does_not_acknowledge(tmp_path):
+    """A service that takes the uplink and never acknowledges a set: after ``in_flight`` sets the status line says
+    the service is what the sets wait for (not the cameras' spread), and the readers go on."""
+    path = tmp_path / "clip.mp4"
+    writer = H264Writer(path, *SIZE, fps=25)
+    for k in range(10):
+        writer.write(np.full((SIZE[1], SIZE[0], 3), 20 * k, np.uint8))
+    writer.close()
+    hello = {"type": "hello", "cameras": [{"name": n, "width": SIZE[0], "height": SIZE[1]} for n in ("a", "b")]}
+
+    def silent_service(ws) -> None:
+        ws.send(json.dumps(hello))
+        for _ in ws:
+            pass
+
+    out = io.StringIO()
+    with wsserver.serve(silent_service, "127.0.0.1", 0) as server:
+        threading.Thread(target=server.serve_forever, daemon=True).start()
+        run = LiveRun.open(f"http://127.0.0.1:{server.socket.getsockname()[1]}", "rig", [str(path)] * 2,
+                           settings=CaptureSettings(in_flight=2), out=out, status_every=0.5)
+        run.run(seconds=2.0)
+        server.shutdown()
+    assert run.uplink.sent == 2 and run.uplink.dropped > 10 and run.uplink.acked == 0
+    last = [line for line in out.getvalue().splitlines() if line.startswith("live ")][-1]
+    assert "sets 0.0/s  waiting for the service: 2 sets unacknowledged, the oldest for" in last, out.getvalue()
+    assert "no instant within the tolerance" not in last and all(r.fps > 20 for r in run.readers)
 
 
 def test_a_file_plays_at_its_own_rate_over_and_over(tmp_path):
