@@ -22,6 +22,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from benchmarks import _survey_eval as _survey
 from benchmarks._timing import load_average
 from benchmarks._report import RESULTS_DIR, md_table
 from workers.common.datasets import dataset
@@ -36,11 +37,9 @@ try:
 except ImportError:  # pragma: no cover - optional
     pycolmap = None
 
-SYNTH_EPSG = 32632
-SYNTH_ORIGIN = (431000.0, 5205000.0, 400.0)  # UTM 32N near 47 N, 8 E; the scene's z = 0 at 400 m altitude
-SYNTH_DIST = (-0.05, 0.01, 0.0, 0.0)
-ALTITUDE = 60.0
-SYNTH_F35 = 25  # EXIF FocalLengthIn35mmFilm (an integer, as cameras write it): 1.1 % off the true lens
+# The synthetic survey's place, lens and flight: the scale section's (benchmarks._survey_eval), one definition.
+SYNTH_EPSG, SYNTH_ORIGIN, SYNTH_DIST, SYNTH_F35 = _survey.EPSG, _survey.ORIGIN, _survey.DIST, _survey.F35
+ALTITUDE = _survey.ALTITUDE
 DSM_GOAL_GSD = 1.0
 ORTHO_GOAL_DB = 30.0
 FOCAL_GOAL = 0.03
@@ -139,18 +138,19 @@ def synthetic(quick: bool) -> tuple[dict[str, Any], str]:
         t1 = time.perf_counter()
         res = run_pipeline(folder, ReconstructionParams())
         job_s = time.perf_counter() - t1
-        model, ref, prod = res.model, res.georef, res.products
+        model, ref, maps = res.model, res.georef, res.maps
         offset = ref.origin - np.asarray(SYNTH_ORIGIN)  # world (local UTM) + offset = scene frame
-        grid = prod.grid
+        grid = maps.ground.ortho
         truth_bgr, truth_z = true_orthophoto(scene, grid.x0 + offset[0], grid.y0 + offset[1], grid.gsd, grid.width,
                                              grid.height, supersample=3)
         truth = truth_bgr[..., ::-1]
-        dsm = prod.dsm + offset[2]
+        f = maps.ground.factor  # the DSM's cells cover f x f of the orthophoto's (1 at these stills' own size)
+        dsm = np.repeat(np.repeat(maps.dsm(), f, axis=0), f, axis=1) + offset[2]
         known = np.isfinite(dsm) & np.isfinite(truth_z)
         err = np.full(dsm.shape, np.nan)
         err[known] = (dsm[known] - truth_z[known]) / grid.gsd
         e = err[known]
-        ortho = prod.ortho.rgba
+        ortho = maps.orthophoto()
         covered = ortho[..., 3] > 0
         psnr = _psnr(ortho[..., :3][covered], truth[covered])
         # Ground farther than 1 m from any building or tree, and the rest (objects and their edges).
@@ -159,11 +159,13 @@ def synthetic(quick: bool) -> tuple[dict[str, Any], str]:
         open_ground = cv2.erode(flat.astype(np.uint8), np.ones((k, k), np.uint8)).astype(bool)
         regions = {"open_ground": covered & open_ground, "objects_and_edges": covered & ~open_ground}
         psnr_aligned, shift = _shifted_psnr(ortho[..., :3], truth, covered)
+        stereo = _stereo_cells(res.dense.cloud().points, grid, f)
+        by_stereo = {"measured": stereo, "filled": ~stereo}
         xs, ys = grid.centres()
         inside = ((np.abs(xs + offset[0])[None, :] <= area[0] / 2) & (np.abs(ys + offset[1])[:, None] <= area[1] / 2))
         lens = model.report["intrinsics"]
         picture = RESULTS_DIR / "mapping_synthetic_seams.png"
-        _seams_picture(ortho, truth, prod.ortho.source, err, picture)
+        _seams_picture(ortho, truth, maps.sources(), err, picture)
         out.update({
             "job_s": round(job_s, 1), "load_average": [load0, load_average(2)],
             "timings_s": model.report["timings_s"], "gsd_m": grid.gsd, "grid": [grid.width, grid.height],
@@ -174,6 +176,10 @@ def synthetic(quick: bool) -> tuple[dict[str, Any], str]:
             "orthophoto_psnr_by_region_db": {k: _psnr(ortho[..., :3][m], truth[m]) for k, m in regions.items()},
             "orthophoto_region_share": {k: float(m.sum() / covered.sum()) for k, m in regions.items()},
             "orthophoto_shift_to_truth_px": shift,
+            "by_stereo": {k: {"share_of_covered": float((m & covered).sum() / covered.sum()),
+                              "dsm_median_abs_gsd": float(np.median(np.abs(err[m & known]))) if (m & known).any() else None,
+                              "orthophoto_psnr_db": _psnr(ortho[..., :3][m & covered], truth[m & covered])
+                              if (m & covered).any() else None} for k, m in by_stereo.items()},
             "coverage_of_survey_area": float(covered[inside].mean()),
             "focal_px": lens["fx"], "focal_error": lens["fx"] / true_f - 1.0,
             "focal_refined": lens.get("focal_refined"), "focal_images_sigma_px": lens.get("focal_images_sigma_px"),
@@ -181,11 +187,30 @@ def synthetic(quick: bool) -> tuple[dict[str, Any], str]:
             "cameras": _camera_errors(model, cams, offset),
             "georeference": {k: ref.report(model)[k] for k in ("epsg", "camera_position_error_m", "scale")},
             "seams_picture": str(picture.relative_to(RESULTS_DIR.parent)),
+            "coverage_of_registered_footprints": {k: v for k, v in model.report["mapping"]["coverage"].items()
+                                                  if k != "note"},
         })
+        res.discard_work()
         out["gps_prior"] = _gps_prior_trial(frames, cams, work)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return out, _synthetic_md(out)
+
+
+STEREO_LABELS = {"measured": "heights measured by the dense cloud",
+                 "filled": "heights filled where no dense point reaches (fewer photos saw it than a point needs)"}
+
+
+def _stereo_cells(points: np.ndarray, grid, factor: int) -> np.ndarray:
+    """(H, W) bool on the orthophoto's grid: the cells whose heights the dense cloud measured (a DSM cell with
+    dense points, or a gap of at most 3 cells between such cells); the other covered cells' heights are filled
+    (the footprints' edges, which fewer than ``dense_min_views`` photos saw)."""
+    from workers.drone.surface import Grid, cell_medians, coverage_mask
+
+    g = Grid(grid.x0, grid.y0, grid.gsd * factor, -(-grid.width // factor), -(-grid.height // factor))
+    _, counts = cell_medians(np.asarray(points, np.float64), g)
+    cells = np.repeat(np.repeat(coverage_mask(counts, 3), factor, axis=0), factor, axis=1)
+    return cells[:grid.height, :grid.width]
 
 
 def _gps_prior_trial(frames, cams, work: Path) -> dict[str, Any]:
@@ -201,6 +226,7 @@ def _gps_prior_trial(frames, cams, work: Path) -> dict[str, Any]:
         res = run_pipeline(folder, ReconstructionParams(orthophoto=False, dsm=False, gps_prior_m=sigma))
         offset = res.georef.origin - np.asarray(SYNTH_ORIGIN)
         out[name] = _camera_errors(res.model, cams, offset)
+        res.discard_work()
     return out
 
 
@@ -217,6 +243,9 @@ def _synthetic_md(o: dict[str, Any]) -> str:
         ["orthophoto PSNR after the best sub-pixel shift (dB)", o["orthophoto_psnr_aligned_db"], "", ""],
         *[[f"orthophoto PSNR, {k.replace('_', ' ')} ({o['orthophoto_region_share'][k]:.0%} of the cells) (dB)", v,
            "", ""] for k, v in o["orthophoto_psnr_by_region_db"].items()],
+        *[[f"{STEREO_LABELS[k]} ({v['share_of_covered']:.0%} of the covered cells): DSM median abs (GSD) / "
+           "orthophoto PSNR (dB)", f"{v['dsm_median_abs_gsd']:.3f} / {v['orthophoto_psnr_db']:.2f}", "", ""]
+          for k, v in o["by_stereo"].items() if v["dsm_median_abs_gsd"] is not None],
         ["coverage of the surveyed area", o["coverage_of_survey_area"], "", ""],
         ["focal length found (px) / true", f"{o['focal_px']:.1f} / {o['true_focal_px']:.1f}",
          f"within {FOCAL_GOAL:.0%}", "met" if abs(o["focal_error"]) <= FOCAL_GOAL else "**not met**"],
@@ -358,7 +387,8 @@ def real_stills(quick: bool) -> tuple[dict[str, Any], str]:
         res = run_pipeline(media, ReconstructionParams())
         files = work / "out"
         files.mkdir()
-        write_outputs(res, lambda n, b: (files / n).write_bytes(b))
+        write_outputs(res, lambda n: files / n)
+        res.discard_work()
         job_s = time.perf_counter() - t0
         model = res.model
         lens = model.report["intrinsics"]
@@ -386,6 +416,7 @@ def real_stills(quick: bool) -> tuple[dict[str, Any], str]:
             t1 = time.perf_counter()
             with _principal_point_held(key == "ours_selfcal_centre_held"):
                 r = run_pipeline(media, ReconstructionParams(orthophoto=False, dsm=False, **params))
+            r.discard_work()
             out[key] = {**_ate_vs_gps(r.model, names, gps, r.georef.origin),
                         "seconds": round(time.perf_counter() - t1, 1), "focal_px": r.model.report["intrinsics"]["fx"]}
         out["flight_speed_m_s"] = _flight_speed(folder, names, gps)

@@ -27,7 +27,7 @@ from benchmarks.sweep.stereo import REF_SPACINGS, STEREO_CASES, sgbm_disparity
 from workers.common.datasets import dataset
 from workers.drone import dense
 from workers.drone.calibration import from_values
-from workers.drone.pipeline import dense_pass
+from workers.drone.pipeline import run_pipeline
 from workers.drone.params import ReconstructionParams
 from workers.drone.preview import render_preview
 from workers.drone.reconstruction import reconstruct
@@ -185,7 +185,7 @@ def bench_temple(quick: bool) -> tuple[dict, str]:
     axes = [np.linspace(TEMPLE_BOX[0][i], TEMPLE_BOX[1][i], 12) for i in range(3)]
     g = np.stack(np.meshgrid(*axes), -1).reshape(-1, 3)
     views = [_view(c, im) for c, im in zip(rig.cameras, images)]
-    seen = [dense.visible_points(v, g) for v in views]
+    seen = [dense.visible_points(v.camera, g) for v in views]
     res = dense.densify_views(views, g, seen, p)
     out["gt_poses"] = {**_temple_scores(res, views, sils), **_fused_completeness(res, views, sils, p)}
     # our SfM's poses (SIFT, every pair matched) and its sparse points
@@ -201,7 +201,7 @@ def bench_temple(quick: bool) -> tuple[dict, str]:
     seen2 = []
     for f, v in zip(reg, v2):
         obs = np.unique(model.obs_point[model.obs_frame == f])
-        seen2.append(obs if len(obs) >= 30 else dense.visible_points(v, model.points))
+        seen2.append(obs if len(obs) >= 30 else dense.visible_points(v.camera, model.points))
     res2 = dense.densify_views(v2, model.points, seen2, p)
     out["sfm_poses"] = {**_temple_scores(res2, v2, s2), **_fused_completeness(res2, v2, s2, p),
                         "registered": int(len(reg)), "sfm_reprojection_px": model.report["reprojection_error_px"]
@@ -230,16 +230,20 @@ def bench_drone(quick: bool) -> tuple[dict, str]:
     folder = dataset("sfm", "drone_fc350", "images")
     if folder is None:
         return {"skipped": "sfm/drone_fc350 not found"}, "sfm/drone_fc350 not found: skipped.\n"
-    params = ReconstructionParams(fx=702.0, fy=702.0, cx=599.5, cy=449.5, dense=True,
+    # The job's own dense pass (a depth map per registered still, fused per ground tile), without map products.
+    params = ReconstructionParams(fx=702.0, fy=702.0, cx=599.5, cy=449.5, dense=True, georeference="off",
                                   **({"dense_scale": 0.5} if quick else {}))
-    d = _drone_model(quick)
-    model, t_sparse = d["model"], d["seconds"]
-    t0 = time.perf_counter()
-    res = dense_pass(model, folder, params)
-    t_dense = time.perf_counter() - t0
-    rep = res.report
+    out = run_pipeline(folder, params)
+    try:
+        model = out.model
+        t_sparse = out.timings["sparse"]
+        t_dense = out.timings["dense"]
+        rep = out.dense.dense
+        cloud = out.dense.cloud()
+    finally:
+        out.discard_work()
     reg = model.registered
-    img = render_preview(res.cloud.points, res.cloud.colors, model.R[reg], model.t[reg], panel=900)
+    img = render_preview(cloud.points, cloud.colors, model.R[reg], model.t[reg], panel=900)
     top = img[:, 900:1800]
     RESULTS_DIR.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(RESULTS_DIR / "dense_fc350_top.jpg"), top, [cv2.IMWRITE_JPEG_QUALITY, 90])
@@ -290,10 +294,10 @@ def bench_speed(quick: bool) -> tuple[dict, str]:
     frames = load_frames(d["folder"], d["intr"], model.frame_index[reg], 1280)
     views = [dense.View.from_pose(model.frame_name[f], frames[int(model.frame_index[f])], model.K, model.R[f],
                                   model.t[f]) for f in reg]
-    seen = [dense.visible_points(v, model.points) for v in views]
+    seen = [dense.visible_points(v.camera, model.points) for v in views]
     i = len(views) // 2
     nb = dense.select_neighbours(views, model.points, seen, i, 8)
-    near, far = dense.depth_range(views[i], model.points[seen[i]])
+    near, far = dense.depth_range(views[i].camera, model.points[seen[i]])
     ref, nbrs = views[i], [views[j] for j in nb]
     h, w = ref.image.shape[:2]
     out: dict = {"size": [w, h], "neighbours": len(nbrs), "planes": 128, "reference": ref.camera.name}

@@ -1,6 +1,7 @@
 """Drone reconstruction benchmarks (issue 6).
 
-    python -m benchmarks.drone [--quick] [--no-scipy] [--only ba,synthetic,slow_flight,temple,drone_fc350,mapping] [--list]
+    python -m benchmarks.drone [--quick] [--no-scipy] [--only ba,synthetic,slow_flight,temple,drone_fc350,mapping,scale] [--list]
+        [--scale-sizes 28,110,440,1000,28@12mp,28+lens,28@12mp+lens] [--scale-nodes 1,2] [--survey-cache DIR]
 
 1. Bundle adjustment alone on BAL problem-49-7776: our LM (Schur complement) vs scipy
    ``least_squares`` (SciPy cookbook settings; skipped with --quick) vs ``pycolmap.bundle_adjustment``
@@ -16,6 +17,9 @@
 5. ``mapping`` (issue 32, :mod:`benchmarks._drone_mapping`): a synthetic nadir survey against its true
    orthophoto and DSM, and the real stills with no intrinsics given (self-calibration, georeference,
    orthophoto, DSM) beside pycolmap's own self-calibration.
+6. ``scale`` (issue 57, :mod:`benchmarks._drone_scale`): synthetic surveys of 28 to ~1,000 stills (and a 12 MP
+   variant of the smallest; ``+lens``: the job given the true lens) through the service on a Ray cluster of one and of two worker nodes: wall, CPU, peak
+   memory per node, tasks per node, coverage, DSM error and orthophoto PSNR against the truth.
 
 Timings are wall-clock on whatever machine runs this; the load average is recorded beside them.
 pycolmap is a benchmark-only dependency (``pip install .[bench]``).
@@ -35,6 +39,7 @@ import cv2
 import numpy as np
 
 from benchmarks._drone_mapping import bench_mapping
+from benchmarks._drone_scale import SIZES, bench_scale, default_cache, parse_nodes, parse_sizes
 from benchmarks._timing import load_average, timed
 from benchmarks._report import Sections, md_table
 from workers.common.datasets import dataset
@@ -756,6 +761,14 @@ _section("temple", "multiview/temple with ground-truth poses", lambda a: bench_t
 _section("drone_fc350", "sfm/drone_fc350 stills against EXIF GPS", lambda a: bench_fc350(a.quick))
 _section("mapping", "orthophoto and DSM: synthetic survey and real stills, self-calibrated (issue 32)",
          lambda a: bench_mapping(a.quick))
+sections.parser.add_argument("--scale-sizes", default=",".join(SIZES), metavar="SIZE[,SIZE]",
+                             help=f"scale: the surveys to run ({', '.join(SIZES)}; --quick: 28)")
+sections.parser.add_argument("--scale-nodes", default="1,2", help="scale: Ray worker nodes, 1, 2 or 1,2")
+sections.parser.add_argument("--survey-cache", type=Path, default=default_cache(),
+                             help="scale: where the rendered stills are kept between runs (default %(default)s)")
+_section("scale", "a survey of 28 to ~1,000 stills through the service on one and two Ray nodes (issue 57)",
+         lambda a: bench_scale(parse_sizes("28" if a.quick else a.scale_sizes), parse_nodes(a.scale_nodes),
+                               a.survey_cache, sections.previous().get("scale", {})))
 
 
 def markdown(results: dict[str, Any], kept: list[str]) -> str:

@@ -419,7 +419,7 @@ def _record_ms(entry: dict[str, Any]) -> float:
     from workers.workarea import WorkArea
 
     with tempfile.TemporaryDirectory() as tmp:
-        work = WorkArea(str(tmp), "j", {}, store=DirectoryBlobStore(tmp))
+        work = WorkArea.for_job(DirectoryBlobStore(tmp), "j", {})
         record = json.dumps({"entries": [entry] * BLOCK_MAX_PHOTOS, "files": {}}).encode()
         times = []
         for i in range(30):

@@ -8,7 +8,8 @@
   compiled depth searches stressed on random rigs against their plain-numpy definition;
 - inputs built in code: :mod:`harness.photos` (JPEGs, TIFFs), :mod:`harness.takes` (a small recorded take of the
   demo studio: rig, frames, zips, videos), :mod:`harness.bundle_problem` (a bundle adjustment with known truth),
-  :mod:`harness.tenancy` (every route asked with another key's ids).
+  :mod:`harness.surveys` (small geotagged drone surveys), :mod:`harness.tenancy` (every route asked with another
+  key's ids).
 
 It lives beside ``tests/`` and ``benchmarks/`` at the top of the checkout (both run from there: ``python -m pytest``,
 ``python -m benchmarks.<name>``) and is not part of the wheel (``pyproject.toml`` packages ``app`` and ``workers``).

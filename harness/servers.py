@@ -102,7 +102,7 @@ def watch(parent: str, group: str, marker: str, grace_s: str) -> None:
         kill_mentioning(marker)
 
 
-def _alive(pid: int) -> bool:
+def alive(pid: int) -> bool:
     """Whether ``pid`` runs (a zombie waiting to be reaped does not)."""
     try:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
@@ -118,7 +118,7 @@ def stop_group(leader: int, grace_s: float, proc: subprocess.Popen | None = None
         with contextlib.suppress(ProcessLookupError):
             os.kill(leader, signal.SIGTERM)
         deadline = time.monotonic() + grace_s
-        while time.monotonic() < deadline and (proc.poll() is None if proc is not None else _alive(leader)):
+        while time.monotonic() < deadline and (proc.poll() is None if proc is not None else alive(leader)):
             time.sleep(0.1)
     finally:  # even when a second Ctrl-C cuts the wait short
         with contextlib.suppress(ProcessLookupError, PermissionError):

@@ -5,7 +5,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from workers.fanout import FanOut, InProcess
 from workers.settings import WorkerSettings, worker_settings
+from workers.workarea import InputRef, WorkArea
 
 
 @dataclass
@@ -47,5 +49,15 @@ class FakeContext:
     def write_result(self, name: str, data: bytes) -> None:
         self.result_path(name).write_bytes(data)
 
-    def progress(self, fraction: float, stage: str) -> None:
+    def progress(self, fraction: float, stage: str, **counts: Any) -> None:
         self.progress_calls.append((fraction, stage))
+
+    def fanout(self) -> FanOut:
+        return InProcess()
+
+    def work_area(self) -> WorkArea:
+        """Kept in the test's folder across runs of the job (an attempt after a failure finds it)."""
+        return WorkArea.in_folder(self.root / "store")
+
+    def input_ref(self, name: str) -> InputRef:
+        return InputRef(name, path=str(self.input_path(name)))

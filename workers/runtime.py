@@ -13,7 +13,7 @@ store and published to ``jobs/<id>/results`` only when the job function returned
 retried attempt replaces, never mixes with, an earlier one (delivery is at-least-once).
 The Ray task in :mod:`workers.ray_tasks` is a thin wrapper around this generator.
 
-A job that fans out (``ctx.fan_out``, :mod:`workers.fanout`) runs its tasks as Ray tasks when the attempt runs on Ray
+A job that fans out (``ctx.fanout()``, :mod:`workers.fanout`) runs its tasks as Ray tasks when the attempt runs on Ray
 (``on_ray``), else here one after another. Its tasks write into the job's work area in the blob store
 (:mod:`workers.workarea`), which outlives the attempt, and the job publishes those files with its results
 (``ctx.adopt_result``); the work area is deleted once they are published.
@@ -44,7 +44,7 @@ from workers.oom import oom_kills
 from workers.registry import get_kind
 from workers.settings import worker_settings
 from workers.storage import BlobStore, check_key, open_store, storage_full, storage_unavailable
-from workers.workarea import WorkArea, work_prefix
+from workers.workarea import InputRef, WorkArea, work_prefix
 
 _DONE = object()
 
@@ -124,15 +124,15 @@ class StoreJobContext:
             event.update(done=int(done), total=int(total), eta_s=None if eta_s is None else round(float(eta_s), 1))
         self._emit(event)
 
-    @property
-    def parallelism(self) -> int:
-        return self._fan_out.parallelism
-
-    def fan_out(self, fn: Callable[[Any], Any], tasks: Any) -> Iterator[tuple[int, Any]]:
-        return self._fan_out.run(fn, tasks)
+    def fanout(self) -> FanOut:
+        return self._fan_out
 
     def work_area(self) -> WorkArea:
-        return WorkArea(self._store_url, self.job_id, dict(self.inputs), store=self._store)
+        return WorkArea(self._store_url, work_prefix(self.job_id), dict(self.inputs), opened=self._store)
+
+    def input_ref(self, name: str) -> InputRef:
+        label = self.input_meta.get(name, {}).get("filename") or name
+        return InputRef(label, store_url=self._store_url, key=self._key(name))
 
     def adopt_result(self, name: str, work_name: str, size: int) -> None:
         self.adopted[check_key(name)] = (self.work_area().key(work_name), int(size))
@@ -141,6 +141,7 @@ class StoreJobContext:
         """Forget what a run that was cut short staged or adopted (its next run starts over)."""
         _empty(self._staging)
         self.adopted.clear()
+        self._fan_out.runs.clear()
 
 
 def _manifest(staging: Path, summary: dict[str, Any], adopted: dict[str, tuple[str, int]]) -> dict[str, Any]:
@@ -330,7 +331,7 @@ def execute_job(spec: JobSpec, on_ray: bool = False) -> Iterator[dict[str, Any]]
     thread.start()
     try:
         while (event := events.get()) is not _DONE:
-            if isinstance(event, _MainThreadCall):
+            if isinstance(event, _MainThreadCall):  # the job's fan-out waits: see _ray_fan_out
                 event.run()
                 continue
             event["time"] = time.time()

@@ -25,6 +25,7 @@ class WorkerSettings(BaseSettings):
     max_image_pixels: int = Field(50_000_000, ge=1, description="Largest image (width x height) decoded: a 50 MP photo (8160x6120) passes, a 7900x7900 bomb does not.")
     max_video_frames: int = Field(10_000, ge=1, description="Most frames of one uploaded depth sequence (raw YUV or H.264/HEVC video).")
     max_dense_volume: int = Field(300_000_000, ge=1_000_000, description="Most cost-volume cells (depth-map pixels x planes) a dense reconstruction with SGM aggregation may hold at once (about 4 bytes each, twice).")
+    max_map_pixels: int = Field(2_000_000_000, ge=1_000_000, description="Most pixels of one orthophoto (a drone survey's map is made tile by tile, so this bounds the files and the time, not the memory): a job whose map would be larger fails saying which gsd_cm fits.")
     max_zip_members: int = Field(200_000, ge=1, description="Most files in one uploaded zip archive.")
     max_zip_member_bytes: int = Field(512 * MiB, ge=1, description="Largest uncompressed file in an uploaded zip.")
     max_zip_total_bytes: int = Field(4096 * MiB, ge=1, description="Largest uncompressed size of an uploaded zip.")

@@ -21,9 +21,14 @@ router = APIRouter(prefix="/v1/reconstructions", tags=["reconstructions"], depen
 @router.post("", status_code=202, response_model=JobOut, openapi_extra=BATCH_BODY,
              summary="Reconstruct cameras, a point cloud and (for a georeferenced flight) a map from a drone video "
                      "or a zip of ordered images",
-             description="A job with progress per stage (decode, track k/N, initialise, BA iteration i, georeference; "
-                         "with a dense pass: dense depth k/M, dense fusion; with map products: surface model, "
-                         "orthophoto k/N, orthophoto blend). No intrinsics needed: without them the camera is "
+             description="A job with progress per stage and counts (a video: decode, track k/N, initialise, BA "
+                         "iteration i; stills with GPS, a survey of any size: track k/N photos, match k/N pairs, "
+                         "submodels k/N, merge; then georeference; with a dense pass or map products: dense depth "
+                         "k/N, surface model k/N tiles, orthophoto k/N tiles). The stages' work runs as tasks across "
+                         "the Ray cluster, and an attempt after a lost worker resumes from the finished stages. "
+                         "Every registered photo is in the dense cloud and the map; report.json -> mapping says the "
+                         "ground resolution chosen and why, and the share of the photos' footprints covered. "
+                         "No intrinsics needed: without them the camera is "
                          "self-calibrated (focal length from EXIF or DJI telemetry, else a 72 degree field of view; "
                          "radial distortion refined). Stills with EXIF GPS, or a DJI video with its .SRT telemetry "
                          "(uploaded as 'telemetry' or in the video's subtitle stream), are placed in the local UTM "

@@ -21,6 +21,7 @@ from ray.cluster_utils import Cluster  # noqa: E402
 from app.main import create_app  # noqa: E402
 from app.settings import Settings  # noqa: E402
 from harness.photos import FACES_ONLY, batch_files  # noqa: E402
+from harness.scenarios import wait_job, wait_ready  # noqa: E402
 
 
 def main() -> int:
@@ -34,15 +35,9 @@ def main() -> int:
                                 job_resources={"sweepcast_second_node": 1})
             with TestClient(create_app(settings)) as client:
                 deadline = time.monotonic() + 60
-                while client.get("/readyz").status_code != 200:
-                    if time.monotonic() > deadline:
-                        raise SystemExit("not ready")
-                    time.sleep(0.1)
+                wait_ready(client, deadline)
                 job = client.post("/v1/photos/batches", files=batch_files(2), data=FACES_ONLY).json()
-                while (state := client.get(f"/v1/jobs/{job['id']}").json())["state"] not in ("succeeded", "failed"):
-                    if time.monotonic() > deadline:
-                        raise SystemExit(f"job stuck: {state}")
-                    time.sleep(0.1)
+                state = wait_job(client, job["id"], deadline)
         print(json.dumps({
             "state": state["state"],
             "ran_on": state["result"]["worker"]["node_id"] if state["result"] else None,

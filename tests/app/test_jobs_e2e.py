@@ -1,19 +1,14 @@
 """The job system end to end on the real orientation batch job: events, results, cancel, durability."""
 from __future__ import annotations
 
-import json
 import os
 import signal
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import pytest
 
 from harness.photos import FACES_ONLY, batch_files
-
-ROOT = Path(__file__).resolve().parents[2]
+from harness.scenarios import run_scenario
 
 
 def wait_final(client, job_id: str, timeout: float = 120.0) -> dict:
@@ -123,10 +118,7 @@ def test_jobs_queued_when_the_service_stops_complete_after_restart(ray_local, se
 
 @pytest.mark.slow
 def test_a_job_routed_by_resource_runs_on_the_second_node():
-    out = subprocess.run([sys.executable, str(ROOT / "tests/app/cluster_scenario.py")], capture_output=True,
-                         text=True, timeout=300, cwd=ROOT)
-    assert out.returncode == 0, out.stderr[-3000:]
-    result = json.loads(out.stdout.strip().splitlines()[-1])
+    result = run_scenario("tests/app/cluster_scenario.py", 300)
     assert result["state"] == "succeeded"
     assert result["ran_on"] == result["second_node"] != result["head_node"]
 

@@ -2,8 +2,11 @@
 fails the job at once, and the files its tasks write are published with its results."""
 from __future__ import annotations
 
+import importlib
 import os
+import sys
 import time
+import uuid
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Callable
@@ -12,7 +15,10 @@ import pytest
 import ray
 from pydantic import BaseModel
 
+from harness.servers import alive
+from workers import fanout
 from workers.common.jobctx import JobInputError
+from workers.fanout import OnRay
 from workers.registry import JobKind
 from workers.runtime import JobSpec
 from workers.storage import DirectoryBlobStore
@@ -47,8 +53,9 @@ def _sleep_and_tell(seconds: float) -> dict[str, float]:
 
 
 def _four_sleepers(ctx) -> dict:
-    assert ctx.parallelism == 2  # the test cluster's CPUs
-    runs = dict(ctx.fan_out(_sleep_and_tell, [1.0] * 4))
+    fan = ctx.fanout()
+    assert fan.parallelism == 2  # the test cluster's CPUs
+    runs = dict(fan.run(_sleep_and_tell, [1.0] * 4))
     return {"runs": [runs[i] for i in range(4)]}
 
 
@@ -74,7 +81,7 @@ def _crash_once(marker: str) -> str:
 def _crashing_tasks(ctx) -> dict:
     folder = Path(ctx.input_meta["folder"]["path"])  # the test's folder, for the tasks' marks
     markers = [str(folder / f"task-{i}") for i in range(3)]
-    return {"results": [value for _, value in sorted(ctx.fan_out(_crash_once, markers))]}
+    return {"results": [value for _, value in sorted(ctx.fanout().run(_crash_once, markers))]}
 
 
 def test_a_task_whose_worker_dies_is_run_again(ray_local, tmp_path):
@@ -93,7 +100,7 @@ def _refuse(task: int) -> int:
 
 
 def _one_refusing_task(ctx) -> dict:
-    return {"done": [value for _, value in ctx.fan_out(_refuse, [0, 1, 2])]}
+    return {"done": [value for _, value in ctx.fanout().run(_refuse, [0, 1, 2])]}
 
 
 def test_an_input_error_of_a_task_fails_the_job_with_its_message(ray_local, tmp_path):
@@ -102,12 +109,63 @@ def test_an_input_error_of_a_task_fails_the_job_with_its_message(ray_local, tmp_
                           "error": "task 1 cannot be done with this input"}
 
 
+def _refuse_or_import(task: tuple[int, str, str]) -> int:
+    """Task 0 refuses its input once task 1 is half-way through importing ``package`` (its ``__init__`` sleeps)."""
+    index, folder, package = task
+    started = Path(folder) / "started"
+    if index == 0:
+        deadline = time.monotonic() + 60
+        while not started.exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        raise JobInputError("refused while the other task imports")
+    sys.path.insert(0, folder)
+    started.write_text(str(os.getpid()))
+    importlib.import_module(package)
+    return os.getpid()
+
+
+def _read_part(task: tuple[str, str]) -> int:
+    folder, package = task
+    sys.path.insert(0, folder)
+    return importlib.import_module(package).part.VALUE
+
+
+def test_a_task_cut_short_by_the_job_leaves_no_worker_with_a_half_imported_module(ray_local, tmp_path):
+    """The job stops at one task's input error while another task imports a package: Ray's plain cancel raised
+    KeyboardInterrupt inside that import and kept the worker, which ran later tasks with the package half-imported
+    (two CI runs: ``module 'numba' has no attribute 'core'`` in the next render job). The worker is ended instead,
+    and later tasks import the package whole."""
+    package = f"slowpkg_{uuid.uuid4().hex[:8]}"
+    (tmp_path / package).mkdir()
+    (tmp_path / package / "part.py").write_text("VALUE = 7\n")
+    (tmp_path / package / "__init__.py").write_text("from . import part\nimport time\ntime.sleep(5)\n")
+    tasks = [(0, str(tmp_path), package), (1, str(tmp_path), package)]
+    with pytest.raises(JobInputError, match="refused while the other task imports"):
+        list(OnRay().run(_refuse_or_import, tasks))
+    importer = int((tmp_path / "started").read_text())
+    deadline = time.monotonic() + 30
+    while alive(importer) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not alive(importer), "the worker whose import was cut short still runs tasks"
+    assert [value for _, value in OnRay().run(_read_part, [(str(tmp_path), package)] * 4)] == [7] * 4
+
+
+def test_a_task_whose_numba_import_fails_says_so_instead_of_running(monkeypatch):
+    """The task's error names the import; passed over, the task ran on and failed at its first kernel instead."""
+    monkeypatch.setitem(sys.modules, "numba", None)  # what importing it then raises: ImportError
+    ran = []
+    with pytest.raises(ImportError, match="numba"):
+        fanout.run_task(ran.append, 1)
+    assert ran == []
+
+
 def _write_a_file(work) -> int:
     return work.put("files/out/a.txt", b"made by a task")
 
 
 def _publishing_entry(ctx) -> dict:
-    [(_, size)] = list(ctx.fan_out(_write_a_file, [ctx.work_area()]))
+    [(_, size)] = list(ctx.fanout().run(_write_a_file, [ctx.work_area()]))
     ctx.adopt_result("out/a.txt", "files/out/a.txt", size)
     ctx.write_result("summary.txt", b"made by the job")
     return {}

@@ -207,12 +207,12 @@ def test_neighbours_prefer_a_useful_baseline_and_ranges_come_from_the_points():
              for i, x in enumerate((0, 0.1, 0.9, 3.0))]
     rng = np.random.default_rng(0)
     pts = np.column_stack([rng.uniform(-2, 2, 300), rng.uniform(-1.5, 1.5, 300), rng.uniform(9, 11, 300)])
-    seen = [dense.visible_points(v, pts) for v in views]
+    seen = [dense.visible_points(v.camera, pts) for v in views]
     # ~5 deg first, then ~17 deg (a wide baseline still measures depth), never ~0.6 deg
     assert dense.select_neighbours(views, pts, seen, 0, 2) == [2, 3]
-    near, far = dense.depth_range(views[0], pts, margin=0.25, percentile=0)
+    near, far = dense.depth_range(views[0].camera, pts, margin=0.25, percentile=0)
     assert near == pytest.approx(pts[seen[0], 2].min() / 1.25) and far == pytest.approx(pts[seen[0], 2].max() * 1.25)
-    assert dense.depth_range(views[0], pts[:5]) is None
+    assert dense.depth_range(views[0].camera, pts[:5]) is None
 
 
 def test_depth_png_and_ply_round_trip():
@@ -262,7 +262,8 @@ def test_job_with_dense_writes_a_dense_cloud(tmp_path, flight):
     preview = cv2.imdecode(np.frombuffer(ctx.result_path("preview.png").read_bytes(), np.uint8), 1)
     assert preview.shape[0] == 2 * 420  # sparse row + dense row
     stages = [s for _, s in ctx.progress_calls]
-    assert "dense depth 1/12" in stages and "dense depth 12/12" in stages and "dense fusion" in stages
+    assert "dense depth 0/12" in stages and "dense depth 12/12" in stages
+    assert any(s.startswith("surface model") and s.endswith("tiles") for s in stages)  # fusion per ground tile
     fractions = [f for f, _ in ctx.progress_calls]
     assert fractions == sorted(fractions)
     # the dense points agree with the sparse ones: most sparse points have a dense point close by

@@ -2,19 +2,16 @@
 seen straight from above, and the GeoTIFF/LAZ files read back with rasterio's and laspy's own readers."""
 from __future__ import annotations
 
-import io
-
 import cv2
 import laspy
 import numpy as np
 import pytest
 import rasterio
-from rasterio.io import MemoryFile
 
+from workers.camera import Camera, distort_normalised
 from workers.drone.dense.views import View
-from workers.drone.mapfiles import DSM_NODATA, dsm_png, dsm_tif, laz_bytes, orthophoto_png, orthophoto_tif
-from workers.camera import distort_normalised
-from workers.drone.orthophoto import _blend, orthophoto
+from workers.drone.mapfiles import DSM_NODATA, dsm_png, orthophoto_png, write_cog, write_laz
+from workers.drone.orthophoto import _five, _lens_pixel, orthophoto
 from workers.drone.surface import Grid, cell_medians, grid_over, surface_model
 from workers.synth import Material, Plane, Scene, render
 from workers.synth.survey import survey_cameras, true_orthophoto
@@ -59,6 +56,22 @@ def test_surface_model_fills_gaps_inside_and_leaves_outside_empty():
     assert np.isfinite(dsm[hole]).all() and np.abs(dsm[hole]).max() < 0.1
 
 
+def test_a_grid_no_point_reaches_takes_the_ground_level_given_over_the_extent_only():
+    """A map tile at a survey's rim that one photo saw: no dense or sparse point, its footprint's cells still get a
+    height (the ground level below the photos) rather than none; without that level they stay NaN."""
+    grid = Grid(0.0, 10.0, 0.5, 20, 20)
+    extent = np.zeros((20, 20), bool)
+    extent[5:15, 2:12] = True
+    none = np.zeros((0, 3))
+    dsm = surface_model(none, grid, extent=extent, support=none, ground_z=401.5)
+    assert (dsm[extent] == np.float32(401.5)).all() and np.isnan(dsm[~extent]).all()
+    assert np.isnan(surface_model(none, grid, extent=extent, support=none)).all()
+    # one sparse point is a measured height: it wins over the level given
+    one = np.array([[3.0, 5.0, 399.0]])
+    dsm = surface_model(none, grid, extent=extent, support=one, ground_z=401.5)
+    assert np.allclose(dsm[extent], 399.0) and np.isnan(dsm[~extent]).all()
+
+
 def test_orthophoto_of_flat_ground_matches_the_scene_seen_from_above():
     scene = Scene((Plane(material=Material(ColorNoise(scale=3.0, octaves=4, seed=3, contrast=200.0))),))
     cams = survey_cameras((16.0, 12.0), 30.0, width=200, height=150, fov_deg=60.0, jitter_deg=0.5, seed=2)
@@ -78,13 +91,24 @@ def test_orthophoto_of_flat_ground_matches_the_scene_seen_from_above():
     assert psnr > 28.0
 
 
-def test_geotiffs_read_back_with_crs_transform_and_nodata():
+def _cog(tmp_path, name, grid, array, **kw):
+    """Write ``array`` (bands, H, W) through write_cog in two windows (the left and right halves) and open it."""
+    half = grid.width // 2
+    windows = [((0, grid.height, 0, half), array[:, :, :half]), ((0, grid.height, half, grid.width), array[:, :, half:])]
+    path = tmp_path / name
+    write_cog(path, grid, array.shape[0], str(array.dtype), windows, **kw)
+    return rasterio.open(path)
+
+
+def test_geotiffs_written_window_by_window_read_back_with_crs_transform_and_nodata(tmp_path):
     grid = Grid(-12.0, 34.0, 0.25, 80, 60)
     rgba = np.zeros((60, 80, 4), np.uint8)
     rgba[10:50, 10:70] = (200, 120, 40, 255)
-    dsm = np.full((60, 80), np.nan, np.float32)
-    dsm[10:50, 10:70] = np.linspace(0, 5, 60, dtype=np.float32)[None, :]
-    with MemoryFile(orthophoto_tif(rgba, grid, 32632, ORIGIN)) as mem, mem.open() as src:
+    dsm = np.full((60, 80), DSM_NODATA, np.float32)
+    dsm[10:50, 10:70] = ORIGIN[2] + np.linspace(0, 5, 60, dtype=np.float32)[None, :]
+    alpha = [rasterio.enums.ColorInterp.red, rasterio.enums.ColorInterp.green, rasterio.enums.ColorInterp.blue,
+             rasterio.enums.ColorInterp.alpha]
+    with _cog(tmp_path, "o.tif", grid, np.moveaxis(rgba, 2, 0), epsg=32632, origin=ORIGIN, colorinterp=alpha) as src:
         assert src.crs.to_epsg() == 32632 and src.count == 4 and src.dtypes[0] == "uint8"
         assert src.transform.a == 0.25 and src.transform.e == -0.25
         assert (src.transform.c, src.transform.f) == (ORIGIN[0] - 12.0, ORIGIN[1] + 34.0)
@@ -92,28 +116,31 @@ def test_geotiffs_read_back_with_crs_transform_and_nodata():
         assert src.tags(ns="IMAGE_STRUCTURE").get("LAYOUT") == "COG"
         back = src.read()
         assert (back[3][:10] == 0).all() and (back[:, 20, 20] == [200, 120, 40, 255]).all()
+        assert (back[:, 20, 60] == [200, 120, 40, 255]).all()  # from the second window
         # the world position of a pixel: the centre of row 10, column 10
         assert src.xy(10, 10) == (ORIGIN[0] - 12.0 + 10.5 * 0.25, ORIGIN[1] + 34.0 - 10.5 * 0.25)
-    with MemoryFile(dsm_tif(dsm, grid, 32632, ORIGIN)) as mem, mem.open() as src:
+    with _cog(tmp_path, "d.tif", grid, dsm[None], epsg=32632, origin=ORIGIN, nodata=DSM_NODATA, predictor=3) as src:
         assert src.nodata == DSM_NODATA and src.dtypes[0] == "float32" and src.crs.to_epsg() == 32632
         band = src.read(1, masked=True)
         assert band.mask[:10].all() and not band.mask[10:50, 10:70].any()
         assert band[20, 69] == pytest.approx(ORIGIN[2] + 5.0)
-    with MemoryFile(orthophoto_tif(rgba, grid, None, np.zeros(3))) as mem, mem.open() as src:
+    with _cog(tmp_path, "a.tif", grid, np.moveaxis(rgba, 2, 0), epsg=None, origin=np.zeros(3)) as src:
         assert src.crs is None  # an arbitrary frame: no CRS claimed
-    assert orthophoto_png(rgba).startswith(b"\x89PNG") and dsm_png(dsm).startswith(b"\x89PNG")
+    assert orthophoto_png(rgba).startswith(b"\x89PNG") and dsm_png(np.where(dsm > 0, dsm, np.nan)).startswith(b"\x89PNG")
 
 
-def test_laz_reads_back_with_crs_coordinates_and_colours():
-    pts = np.array([[0.0, 0.0, 0.0], [12.3456, -7.25, 3.5]])
-    bgr = np.array([[10, 20, 30], [200, 100, 0]], np.uint8)
-    data = laz_bytes(pts, bgr, 32632, ORIGIN)
-    assert data[:4] == b"LASF"
-    las = laspy.read(io.BytesIO(data))
-    assert las.header.point_format.id == 7 and las.header.version == "1.4"
+def test_laz_written_in_chunks_reads_back_with_crs_coordinates_and_colours(tmp_path):
+    pts = np.array([[0.0, 0.0, 0.0], [12.3456, -7.25, 3.5], [1.0, 2.0, 3.0]])
+    bgr = np.array([[10, 20, 30], [200, 100, 0], [1, 2, 3]], np.uint8)
+    path = tmp_path / "p.laz"
+    assert write_laz(path, [(pts[:2], bgr[:2]), (pts[:0], bgr[:0]), (pts[2:], bgr[2:])], 32632, ORIGIN,
+                     pts.min(axis=0)) == 3
+    assert path.read_bytes()[:4] == b"LASF"
+    las = laspy.read(str(path))
+    assert las.header.point_format.id == 7 and las.header.version == "1.4" and las.header.point_count == 3
     assert las.header.parse_crs().to_epsg() == 32632
     np.testing.assert_allclose(np.column_stack([las.x, las.y, las.z]), pts + ORIGIN, atol=0.0011)
-    assert list(las.red) == [30 * 257, 0] and list(las.blue) == [10 * 257, 200 * 257]
+    assert list(las.red) == [30 * 257, 0, 3 * 257] and list(las.blue) == [10 * 257, 200 * 257, 1 * 257]
 
 
 def test_the_service_starts_without_the_map_libraries():
@@ -127,33 +154,39 @@ def test_the_service_starts_without_the_map_libraries():
     assert out.stdout.strip() == ""
 
 
-@pytest.mark.parametrize("dist", [[-0.09, 0.09], [-0.28, 0.07, 0.001, -0.002], [0.1, -0.2, 0.002, 0.001, 0.05],
-                                  [0.1, -0.2, 0.002, 0.001, 0.05, 0.02, -0.01, 0.003]])
+@pytest.mark.parametrize("dist", [[-0.09, 0.09], [-0.28, 0.07, 0.001, -0.002], [0.1, -0.2, 0.002, 0.001, 0.05]])
 def test_the_orthophotos_lens_model_is_opencvs(dist):
-    """The lens written out (up to k3; projectPoints beyond) lands where cv2.projectPoints puts each point."""
+    """The orthophoto's compiled lens (up to k3) lands where cv2.projectPoints puts each point."""
     rng = np.random.default_rng(0)
-    xn, yn = rng.uniform(-0.9, 0.9, (2, 5000))
+    xn, yn = rng.uniform(-0.9, 0.9, (2, 500))
     K = np.array([[702.0, 0.0, 591.9], [0.0, 705.0, 450.3], [0.0, 0.0, 1.0]])
-    u, v = distort_normalised(xn, yn, K, np.array(dist))
+    d = _five(np.array(dist))
+    got = np.array([_lens_pixel(K[0, 0] * x + K[0, 2], K[1, 1] * y + K[1, 2], K[0, 0], K[1, 1], K[0, 2], K[1, 2], d)
+                    for x, y in zip(xn, yn)])
     cv_dist = np.pad(np.array(dist, np.float64), (0, max(0, 4 - len(dist))))  # OpenCV wants four at least
     want = cv2.projectPoints(np.column_stack([xn, yn, np.ones_like(xn)]), np.zeros(3), np.zeros(3), K,
                              cv_dist)[0].reshape(-1, 2)
-    np.testing.assert_allclose(np.column_stack([u, v]), want, atol=1e-6)
+    np.testing.assert_allclose(got, want, atol=1e-6)
 
 
-def test_blending_two_frames_that_agree_keeps_their_colours():
-    """Two frames with the same colours, each winning half the grid: the multi-band blend gives those colours back
-    (OpenCV's int16 pyramids rounded them 1.3 grey levels darker on average, up to 9 off, when fed 0-255)."""
-    rng = np.random.default_rng(0)
-    H, W = 300, 400
-    image = cv2.GaussianBlur(rng.uniform(40, 200, (H, W, 3)), (0, 0), 1.5).astype(np.uint8)
-    K = np.array([[300.0, 0.0, W / 2], [0.0, 300.0, H / 2], [0.0, 0.0, 1.0]])
-    views = [View.from_pose(str(i), image, K, np.eye(3), np.zeros(3)) for i in range(2)]
-    mapv, mapu = np.mgrid[0:H, 0:W].astype(np.float32)
-    windows = [(0, 0, mapu, mapv, np.ones((H, W), bool))] * 2
-    label = np.zeros((H, W), np.int16)
-    label[:, W // 2:] = 1
-    rgba = _blend(views, windows, label, H, W)
-    diff = rgba[..., :3].astype(float) - image[..., ::-1]
-    assert abs(diff.mean()) < 0.2 and np.abs(diff).max() <= 1
-    assert (rgba[..., 3] == 255).all()
+def test_an_orthophoto_uses_the_corners_the_lens_shows_beyond_the_undistorted_rectangle():
+    """Barrel distortion shows more than the undistorted image's rectangle at the corners: those cells are coloured
+    too (the footprint a survey's coverage is measured against is the image as the lens saw it)."""
+    K = np.array([[100.0, 0.0, 79.5], [0.0, 100.0, 59.5], [0.0, 0.0, 1.0]])
+    dist = np.array([-0.2, 0.0, 0.0, 0.0])
+    cam = Camera("c", K, np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.0, 10.0]), 160, 120)
+    grid = Grid(-14.0, 11.0, 0.05, 560, 440)
+    dsm = np.zeros((grid.height, grid.width), np.float32)
+    image = np.random.default_rng(1).integers(0, 256, (120, 160, 3), np.uint8)
+    out = orthophoto(dsm, grid, [View(cam, image)], dist=dist)
+    xs, ys = grid.centres()
+    X, Y = np.meshgrid(xs, ys)
+    # a ground point at a corner of the undistorted rectangle, and one beyond it that the lens still shows
+    corner = (X > 7.5) & (X < 7.9) & (Y > 5.5) & (Y < 5.9)
+    assert out.rgba[..., 3][corner].all()
+    u, v = distort_normalised(X.ravel() / 10.0, -Y.ravel() / 10.0, K, dist)
+    shown = ((u >= 0) & (u <= 159) & (v >= 0) & (v <= 119)).reshape(X.shape)
+    outside_rectangle = (np.abs(X) > 7.95) | (np.abs(Y) > 5.95)
+    assert (shown & outside_rectangle).sum() > 1000
+    assert (out.rgba[..., 3][shown & outside_rectangle] == 255).mean() > 0.99
+    assert (out.rgba[..., 3][~shown] == 0).all()

@@ -217,3 +217,28 @@ def test_trackers_build_tracks_on_the_flight(flight):
         l1 = x0 @ E.T
         dist = np.abs(np.einsum("ij,ij->i", x1, l1)) / np.linalg.norm(l1[:, :2], axis=1) * flight.K[0, 0]
         assert np.median(dist) < 0.5
+
+
+def test_survey_match_features_from_a_reduced_copy_lie_on_the_full_size_features():
+    # A 1280 x 960 working image: SIFT looks at a copy half as large, and the keypoints come back in the full size's
+    # pixels (pixel centres at integers), where the optical flow measures them again.
+    from workers.drone.survey.sparse import MATCH_MAX_SIDE, match_features
+
+    h, w = 960, 1280
+    assert max(h, w) > MATCH_MAX_SIDE
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    rng = np.random.default_rng(1)
+    img = np.full((h, w), 128.0)
+    centres = []
+    for cy in range(60, h - 40, 80):
+        for cx in range(60, w - 40, 80):
+            c = (cx + rng.uniform(-1, 1), cy + rng.uniform(-1, 1))
+            centres.append(c)
+            img -= 90 * np.exp(-((xx - c[0]) ** 2 + (yy - c[1]) ** 2) / 72.0)
+    k, d = match_features(np.clip(np.rint(img), 0, 255).astype(np.uint8), 4000)
+    assert len(k) == len(d) >= len(centres)
+    c = np.array(centres)
+    dist = np.linalg.norm(k[:, None] - c[None], axis=2)
+    err = k - c[np.argmin(dist, axis=1)]
+    assert np.all(np.abs(np.median(err, axis=0)) < 0.15)  # no offset from the copy's scale
+    assert np.median(dist.min(axis=1)) < 0.5

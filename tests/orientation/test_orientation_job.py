@@ -56,10 +56,10 @@ class FakeContext:
         return self.input_path(name).read_bytes()
 
     def work_area(self) -> WorkArea:
-        return WorkArea(self.store.url, self.job_id, dict(self.inputs), store=self.store)
+        return WorkArea.for_job(self.store, self.job_id, self.inputs)
 
-    def fan_out(self, fn, tasks):
-        return InProcess().run(fn, tasks)
+    def fanout(self) -> InProcess:
+        return InProcess(parallelism=self.parallelism)
 
     def adopt_result(self, name: str, work_name: str, size: int) -> None:
         data = self.store.read(self.work_area().key(work_name))

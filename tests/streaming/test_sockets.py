@@ -11,6 +11,7 @@ import pytest
 import ray
 from starlette.websockets import WebSocketDisconnect
 
+from harness.servers import alive
 from harness.takes import frame_set, jpeg
 from app.routers.rig_sockets import MAX_TEXT_CHARS
 from app.stored_rigs import session_config
@@ -210,6 +211,8 @@ def test_a_crashed_session_restarts_and_reloads_from_the_blob_store(stream_clien
             assert wait_until(lambda: actor.session_info(session["name"])["persisted_seq"] == 2)
         pid = actor.session_info(session["name"])["pid"]
         ray.kill(ray.get_actor(session["name"], namespace=actor.NAMESPACE), no_restart=False)
+        # ray.kill only asks: a request sent before the process is gone is answered by it, as if nothing happened
+        assert wait_until(lambda: not alive(pid), timeout=30)
         ws.send_text(json.dumps({**VIEW, "id": 2, "frame": frame}))
         got, message, _ = receive(ws)
         if got == "json":  # it went to the dead process: reported once, never resent (it might be the cause)

@@ -9,8 +9,8 @@ result file with ``ctx.write_result`` (or into ``ctx.result_path``), and returns
 JSON-able summary that becomes part of the job's result manifest.
 
 A job whose work grows with its input fans out: it splits the work into tasks and runs a module-level function
-over them with ``ctx.fan_out`` (Ray tasks on every CPU of the cluster when the job runs on Ray; sized with
-``ctx.parallelism``); each task reads and writes through ``ctx.work_area()``, a handle on the job's inputs and its
+over them with ``ctx.fanout()`` (Ray tasks on every CPU of the cluster when the job runs on Ray; sized with its
+``parallelism``); each task reads and writes through ``ctx.work_area()``, a handle on the job's inputs and its
 work area in the blob store that any process opens, and the job publishes the files its tasks wrote with
 ``ctx.adopt_result``. The work area outlives an attempt, so a job run again after a lost worker can take up what
 its tasks already finished.
@@ -23,13 +23,13 @@ the job is retried and, when the retries are spent, fails with the exception's s
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Callable, Iterator, Protocol, Sequence, TypeVar
+from typing import TYPE_CHECKING, Any, Protocol
 
 from workers.settings import WorkerSettings
-from workers.workarea import WorkArea
 
-T = TypeVar("T")
-R = TypeVar("R")
+if TYPE_CHECKING:
+    from workers.fanout import FanOut
+    from workers.workarea import InputRef, WorkArea
 
 
 class JobInputError(Exception):
@@ -69,15 +69,16 @@ class JobContext(Protocol):
         also says how many are ``done`` of ``total`` and the seconds it expects to need still (``eta_s``, None
         before it can tell)."""
 
-    parallelism: int
-    """How many of the job's fanned-out tasks can run at once (1 outside Ray)."""
+    def fanout(self) -> "FanOut":
+        """Where the job runs its parallel stages (:mod:`workers.fanout`): Ray tasks across the cluster when the job
+        runs on Ray, else this process; ``fanout().parallelism`` says how many run at once."""
 
-    def fan_out(self, fn: Callable[[T], R], tasks: Sequence[T]) -> Iterator[tuple[int, R]]:
-        """``(i, fn(tasks[i]))`` for every task, in the order they finish (:mod:`workers.fanout`): ``fn`` a
-        module-level function, each task picklable."""
+    def work_area(self) -> "WorkArea":
+        """The job's inputs and its area for intermediate data, readable from every node and kept across its
+        attempts (:mod:`workers.workarea`)."""
 
-    def work_area(self) -> WorkArea:
-        """The job's inputs and work area, for its tasks (:mod:`workers.workarea`)."""
+    def input_ref(self, name: str) -> "InputRef":
+        """Input ``name`` as a task on any node reads it."""
 
     def adopt_result(self, name: str, work_name: str, size: int) -> None:
         """Publish work file ``work_name`` (``size`` bytes) as result ``name`` with the others."""

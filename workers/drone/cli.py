@@ -19,6 +19,7 @@ from pydantic import ValidationError
 from workers.common.cliutil import ProgressBar, format_table
 from workers.common.jobctx import JobInputError
 from workers.common.validation import describe_errors
+from workers.workarea import WorkArea
 
 from .params import ReconstructionParams
 from .pipeline import reconstruct_and_write
@@ -49,7 +50,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="orthophoto.tif (COG) + orthophoto.png (default: on for a georeferenced flight)")
     p.add_argument("--dsm", action=argparse.BooleanOptionalAction, default=None,
                    help="dsm.tif (float32 heights) + dsm.png (default: on for a georeferenced flight)")
-    p.add_argument("--gsd-cm", type=float, help="ground sampling distance of orthophoto and DSM, cm per pixel")
+    p.add_argument("--gsd-cm", type=float, help="ground sampling distance of the orthophoto, cm per pixel (default: "
+                                                "the photos' own)")
+    p.add_argument("--work", type=Path, help="keep the intermediate data in this folder (a run cut short goes on "
+                                             "from its finished stages when started again with the same folder; "
+                                             "deleted on success)")
     p.add_argument("--params", help="further ReconstructionParams as JSON, e.g. '{\"outlier_threshold\": 3}'")
     p.set_defaults(func=_reconstruct)
 
@@ -85,8 +90,9 @@ def _reconstruct(args: argparse.Namespace) -> int:
         telemetry = args.telemetry.read_bytes() if args.telemetry else None
         args.out.mkdir(parents=True, exist_ok=True)
         bar = ProgressBar("reconstruct")
-        out = reconstruct_and_write(args.video, params, calib, telemetry, bar,
-                                    lambda name, data: (args.out / name).write_bytes(data))
+        work = WorkArea.in_folder(args.work) if args.work is not None else None
+        out = reconstruct_and_write(args.video, params, calib, telemetry, bar, lambda name: args.out / name,
+                                    work=work)
     except (JobInputError, ValidationError, json.JSONDecodeError, OSError) as exc:
         if bar is not None:
             bar.close()
@@ -111,15 +117,17 @@ def _reconstruct(args: argparse.Namespace) -> int:
         ["world frame", rep["georeference"]["frame"]],
     ]
     if out.dense is not None:
-        d = out.dense.report
+        d = out.dense.dense
         rows += [["dense depth maps", d["depth_maps"]], ["dense points", d["points"]],
                  ["dense: consistent in >= 3 views", _fmt(d["views_per_point"]["at_least_3"])],
                  ["dense: seconds per depth map (median)", _fmt(d["seconds_per_depth_map"]["median"])]]
     if "mapping" in rep:
         m = rep["mapping"]
-        rows.append(["orthophoto / DSM grid", f"{m['grid']['width']} x {m['grid']['height']} cells of "
-                                              f"{m['gsd'] * 100:.1f} cm" if m["gsd_unit"] == "m" else
+        rows.append(["orthophoto grid", f"{m['grid']['width']} x {m['grid']['height']} cells of "
+                                        f"{m['gsd'] * 100:.1f} cm" if m["gsd_unit"] == "m" else
                      f"{m['grid']['width']} x {m['grid']['height']} cells ({m['gsd_unit']})"])
+        rows.append(["coverage of the photos' footprints (DSM / orthophoto)",
+                     f"{_fmt(m['coverage'].get('dsm'))} / {_fmt(m['coverage'].get('orthophoto'))}"])
     rows.append(["total time (s)", f"{sum(rep['timings_s'].values()):.1f}"])
     print(format_table(["", "value"], rows))
     print(f"results in {args.out}/")

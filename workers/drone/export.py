@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import io
 import json
-import zipfile
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -28,14 +27,27 @@ DEPTH_PNG_LEVELS = 65535
 _PLY_TYPES = {"<f4": "float", "u1": "uchar"}
 
 
-def ply_bytes(points: np.ndarray, colors_bgr: np.ndarray, normals: np.ndarray | None = None,
-              views: np.ndarray | None = None, comment: str = "sweepcast drone reconstruction") -> bytes:
-    """Binary little-endian PLY of points (N, 3) (model units, written as float32) with colours (N, 3) uint8
-    BGR, optionally unit normals ``nx ny nz`` (N, 3) float32 and ``views`` (N,) uint8 (frames that agree on
-    each point), as MeshLab and CloudCompare read it."""
+def ply_fields(normals: bool, views: bool) -> list[tuple[str, str]]:
+    """The vertex properties of our PLY files: x y z, optionally nx ny nz, red green blue, optionally views."""
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
-    fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")] if normals is not None else []
-    fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")] + ([("views", "u1")] if views is not None else [])
+    fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")] if normals else []
+    return fields + [("red", "u1"), ("green", "u1"), ("blue", "u1")] + ([("views", "u1")] if views else [])
+
+
+PLY_DENSE_FIELDS = ply_fields(True, True)
+
+
+def ply_header(count: int, fields: list[tuple[str, str]], comment: str) -> bytes:
+    """The header of a binary little-endian PLY of ``count`` vertices with ``fields``."""
+    return (f"ply\nformat binary_little_endian 1.0\ncomment {comment}\nelement vertex {count}\n"
+            + "".join(f"property {_PLY_TYPES[t]} {name}\n" for name, t in fields) + "end_header\n").encode("ascii")
+
+
+def ply_rows(points: np.ndarray, colors_bgr: np.ndarray, normals: np.ndarray | None = None,
+             views: np.ndarray | None = None) -> bytes:
+    """The vertex rows of points (N, 3) (written as float32) with colours (N, 3) uint8 BGR, optionally normals
+    (N, 3) and views (N,) uint8, in :func:`ply_fields` order (a PLY written in chunks appends these)."""
+    fields = ply_fields(normals is not None, views is not None)
     v = np.empty(len(points), dtype=fields)
     for i, c in enumerate("xyz"):
         v[c] = points[:, i]
@@ -44,9 +56,16 @@ def ply_bytes(points: np.ndarray, colors_bgr: np.ndarray, normals: np.ndarray | 
     v["red"], v["green"], v["blue"] = colors_bgr[:, 2], colors_bgr[:, 1], colors_bgr[:, 0]
     if views is not None:
         v["views"] = views
-    header = (f"ply\nformat binary_little_endian 1.0\ncomment {comment}\nelement vertex {len(v)}\n"
-              + "".join(f"property {_PLY_TYPES[t]} {name}\n" for name, t in fields) + "end_header\n")
-    return header.encode("ascii") + v.tobytes()
+    return v.tobytes()
+
+
+def ply_bytes(points: np.ndarray, colors_bgr: np.ndarray, normals: np.ndarray | None = None,
+              views: np.ndarray | None = None, comment: str = "sweepcast drone reconstruction") -> bytes:
+    """Binary little-endian PLY of points (N, 3) (model units, written as float32) with colours (N, 3) uint8
+    BGR, optionally unit normals ``nx ny nz`` (N, 3) float32 and ``views`` (N,) uint8 (frames that agree on
+    each point), as MeshLab and CloudCompare read it."""
+    return (ply_header(len(points), ply_fields(normals is not None, views is not None), comment)
+            + ply_rows(points, colors_bgr, normals, views))
 
 
 def depth_png(depth: np.ndarray, far: float) -> tuple[bytes, float]:
@@ -62,16 +81,6 @@ def depth_file_name(frame: str) -> str:
     """``<frame name without its image suffix>.png``, safe as a file name in a zip."""
     stem = frame.rsplit(".", 1)[0] if "." in frame else frame
     return ("".join(c if c.isalnum() or c in "-_." else "_" for c in stem) or "frame") + ".png"
-
-
-def depth_zip(frames: Sequence[str], pngs: Sequence[bytes]) -> bytes:
-    """A zip of the depth PNGs, each under :func:`depth_file_name` of its frame (stored: PNG is already
-    compressed)."""
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as zf:
-        for frame, png in zip(frames, pngs):
-            zf.writestr(depth_file_name(frame), png)
-    return buf.getvalue()
 
 
 def _native(model: SparseModel, xy: np.ndarray) -> np.ndarray:

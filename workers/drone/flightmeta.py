@@ -15,7 +15,7 @@ from pathlib import Path
 from workers.common.images import ImageInputError, read_image_size
 from workers.common.jobctx import JobInputError
 
-from .exif import PhotoMeta, read_photo_meta
+from .exif import GeoPoint, PhotoMeta, read_photo_meta
 from .frames import open_media, still_files
 from .selfcal import FocalPrior, default_focal_prior, focal_prior_from_exif, focal_prior_from_telemetry
 from .srt import Telemetry, parse_srt, read_embedded
@@ -67,6 +67,10 @@ class FlightMeta:
         if self.telemetry is not None:
             return f"telemetry {self.telemetry.altitude or 'none'} (metres)"
         return "none"
+
+    def positions_by_name(self) -> dict[str, GeoPoint]:
+        """Stills: file name -> GPS position, for the photos that have one (a survey's plan: blocks, pairs)."""
+        return {n: m.gps for n, m in self.photos.items() if m.gps is not None}
 
 
 def read_flight_meta(media: str | Path, media_name: str | None = None, telemetry: bytes | None = None

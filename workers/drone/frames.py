@@ -136,6 +136,27 @@ def still_files(path: str | Path, name: str | None = None) -> Iterator[tuple[str
                 yield Path(n).name, zf.read(n)
 
 
+def read_stills(path: str | Path, names: list[str], name: str | None = None) -> dict[str, bytes]:
+    """The bytes of the stills called ``names`` (file names as :func:`still_files` gives them) of a zip or folder,
+    reading only those (a task that needs a few photos of a survey of thousands). The zip's limits apply as in
+    :func:`open_media`; a name that is not there is left out."""
+    path = Path(path)
+    want = set(names)
+    out: dict[str, bytes] = {}
+    if path.is_dir():
+        for n in want:
+            p = path / n
+            if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file():
+                out[n] = p.read_bytes()
+        return out
+    with SafeZip(path, label=f"the zip archive {name or path.name}", error=JobInputError) as zf:
+        for member in zf.names():
+            base = Path(member).name
+            if base in want and base not in out and Path(member).suffix.lower() in IMAGE_SUFFIXES:
+                out[base] = zf.read(member)
+    return out
+
+
 def _decode_stills(items, src: MediaSource) -> Iterator[tuple[int, float | None, str, np.ndarray]]:
     """Decode each still (JPEG, PNG, ...) with the service's pixel limit; an image that is not one,
     or too large, is recorded in ``src.errors`` and skipped. A damaged archive stops the job."""
@@ -211,7 +232,7 @@ def select_frames(
     frame_step: int | None = None,
     min_motion: float = 0.004,
     blur_ratio: float = 0.5,
-    max_frames: int = 400,
+    max_frames: int | None = 400,
     max_width: int = 1280,
     stats: SelectionStats | None = None,
     on_decoded: Callable[[int], None] | None = None,
@@ -223,8 +244,8 @@ def select_frames(
     ``min_motion`` of the width since the last kept one (phase correlation of thumbnails).
     A video frame whose sharpness is below ``blur_ratio`` times the median of the last 15 frames
     is skipped and the next sharp one taken instead (but never more than one step late).
-    At most ``max_frames`` frames: the step grows when the length is known, else the stream
-    is cut. Frames are resized to at most ``max_width`` and undistorted with ``intrinsics.dist``;
+    A video gives at most ``max_frames`` frames: the step grows when the length is known, else the
+    stream is cut (stills: every photo, however many). Frames are resized to at most ``max_width`` and undistorted with ``intrinsics.dist``;
     ``intrinsics`` (native resolution) are checked against the first frame's size.
     ``on_decoded(n)`` is called after each decoded frame; ``on_skipped`` receives every decoded
     frame that is not selected (with its working-resolution gray image when it has the first
@@ -232,7 +253,9 @@ def select_frames(
     """
     stats = stats if stats is not None else SelectionStats()
     stride = 1
-    if source.count:
+    if source.kind != "video":
+        max_frames = None
+    elif source.count:
         stride = max(1, math.ceil(source.count / (max_frames * (frame_step or 1))))
     stats.stride = stride
     recent: deque[float] = deque(maxlen=15)
@@ -298,7 +321,7 @@ def select_frames(
             stats.skipped_blurred += 1
             skip("blurred")
             continue
-        if stats.selected >= max_frames:
+        if max_frames is not None and stats.selected >= max_frames:
             stats.truncated = True
             break
         image = bgr if scale == 1.0 else cv2.resize(bgr, stats.working_size, interpolation=cv2.INTER_AREA)

@@ -117,19 +117,22 @@ def frame_positions_from_telemetry(model: SparseModel, telemetry) -> dict[int, G
     return out
 
 
-def georeference(model: SparseModel, positions: dict[int, GeoPoint], source: str, altitude: str) -> Georeference:
+def georeference(model: SparseModel, positions: dict[int, GeoPoint], source: str, altitude: str,
+                 origin: np.ndarray | None = None, epsg: int | None = None) -> Georeference:
     """Fit the robust similarity from the registered frames' camera centres to their GPS positions
-    (:func:`workers.drone.geo.robust_similarity`, in the UTM zone of their centre) and return it; the
-    model is not changed (see :func:`apply`). Raises GeoreferenceError when fewer than three registered
-    frames have a position or they span less than 2 m."""
+    (:func:`workers.drone.geo.robust_similarity`, in the UTM zone of their centre unless ``epsg`` names one) and
+    return it; the model is not changed (see :func:`apply`). ``origin`` (3,): the world frame's origin in UTM
+    (default: their mean easting and northing rounded to 100 m; a survey's submodels share the survey's).
+    Raises GeoreferenceError when fewer than three registered frames have a position or they span less than
+    2 m."""
     frames = np.array(sorted(f for f in positions if model.registered[f]), np.int64)
     if len(frames) < MIN_GPS_FRAMES:
         raise GeoreferenceError(f"{len(frames)} registered frame(s) have a GPS position; georeferencing needs "
                                 f"{MIN_GPS_FRAMES}")
     geo = [positions[int(f)] for f in frames]
     notes = []
-    lat, lon = float(np.mean([g.lat for g in geo])), float(np.mean([g.lon for g in geo]))
-    epsg = utm_epsg(lat, lon)
+    if epsg is None:
+        epsg = survey_epsg(geo)
     xyz = to_projected(geo, epsg)
     if np.isnan(xyz[:, 2]).any():
         known = xyz[~np.isnan(xyz[:, 2]), 2]
@@ -137,7 +140,8 @@ def georeference(model: SparseModel, positions: dict[int, GeoPoint], source: str
         notes.append("some or all GPS altitudes are missing: those frames were assumed at the mean altitude "
                      "(a level flight)")
         altitude = altitude + ", partly assumed"
-    origin = np.array([np.round(xyz[:, 0].mean(), -2), np.round(xyz[:, 1].mean(), -2), 0.0])
+    if origin is None:
+        origin = survey_origin(xyz)
     targets = xyz - origin
     if np.linalg.norm(targets - targets.mean(0), axis=1).max() < MIN_GPS_SPREAD_M:
         raise GeoreferenceError("the GPS positions of the registered frames lie within "
@@ -148,6 +152,17 @@ def georeference(model: SparseModel, positions: dict[int, GeoPoint], source: str
     if fit.collinear:
         notes.append("the GPS positions lie on one line: the roll about it comes from the ground plane")
     return Georeference(fit.sim, epsg, origin, frames, targets, fit, source, altitude, notes)
+
+
+def survey_epsg(positions: list[GeoPoint]) -> int:
+    """The UTM zone (EPSG code) of the positions' mean latitude and longitude."""
+    return utm_epsg(float(np.mean([g.lat for g in positions])), float(np.mean([g.lon for g in positions])))
+
+
+def survey_origin(xyz: np.ndarray) -> np.ndarray:
+    """The world frame's origin (3,) for UTM positions (N, 3): their mean easting and northing rounded to 100 m,
+    altitude 0."""
+    return np.array([np.round(np.nanmean(xyz[:, 0]), -2), np.round(np.nanmean(xyz[:, 1]), -2), 0.0])
 
 
 def level_frame(model: SparseModel) -> Georeference:

@@ -37,8 +37,11 @@ def run_reconstruction(ctx: JobContext) -> dict[str, Any]:
     telemetry = ctx.read_input("telemetry") if "telemetry" in ctx.inputs else None
     # Messages name the file the user sent, not its storage key (or an object store's cache file).
     media_name = ctx.input_meta.get("media", {}).get("filename") or "the media"
+    # The stages' tasks run across the cluster (in the service) and keep their data in the job's work area, so that
+    # another attempt goes on from what this one finished.
     return summary(reconstruct_and_write(ctx.input_path("media"), params, calib, telemetry, ctx.progress,
-                                         ctx.write_result, media_name))
+                                         ctx.result_path, media_name, ctx.fanout(), ctx.work_area(),
+                                         ctx.input_ref("media")))
 
 
 RECONSTRUCT_JOB = JobKind("drone.reconstruct", run_reconstruction, ReconstructionParams)

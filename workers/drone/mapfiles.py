@@ -11,7 +11,10 @@ on start-up (rasterio alone takes ~0.25 s to import).
 """
 from __future__ import annotations
 
-import io
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Iterable
 
 import cv2
 import numpy as np
@@ -22,82 +25,91 @@ from .surface import Grid
 
 DSM_NODATA = -9999.0
 _PREVIEW_SIDE = 1024
+_BLOCK = 512
 
 
-def _crs(epsg: int | None):
+def crs_of(epsg: int | None):
+    """rasterio's CRS of an EPSG code (None: none)."""
     from rasterio.crs import CRS
 
     return CRS.from_epsg(epsg) if epsg is not None else None
 
 
-def _transform(grid: Grid, origin: np.ndarray):
+def transform_of(grid: Grid, origin: np.ndarray):
+    """rasterio's affine transform of ``grid`` in a world frame offset by ``origin`` (3,)."""
     from rasterio.transform import Affine
 
     a, b, c, d, e, f = grid.affine()
     return Affine(a, b, c + float(origin[0]), d, e, f + float(origin[1]))
 
 
-def orthophoto_tif(rgba: np.ndarray, grid: Grid, epsg: int | None, origin: np.ndarray) -> bytes:
-    """COG bytes of an RGBA orthophoto (H, W, 4) uint8 on ``grid`` (its frame offset by ``origin`` (3,):
-    the UTM coordinates of the world frame's zero), in ``epsg`` (None: no CRS)."""
-    from rasterio.enums import ColorInterp
-    from rasterio.io import MemoryFile
+def write_cog(path: Path, grid: Grid, count: int, dtype: str,
+              windows: Iterable[tuple[tuple[int, int, int, int], np.ndarray]], epsg: int | None, origin: np.ndarray,
+              nodata: float | None = None, colorinterp=None, predictor: int | None = None) -> None:
+    """A Cloud-Optimized GeoTIFF at ``path`` of ``count`` bands of ``dtype`` on ``grid`` (offset by ``origin``, CRS
+    ``epsg``), written from ``windows`` ((r0, r1, c0, c1) end exclusive, (bands, h, w) array) one at a time into a
+    tiled GeoTIFF (BigTIFF when it must be), then copied by GDAL's COG driver: DEFLATE, 512 px blocks, overviews by
+    averaging. Cells no window writes stay 0 (``nodata`` names the bands' nodata value)."""
+    import rasterio
+    from rasterio.shutil import copy as rio_copy
+    from rasterio.windows import Window
 
-    h, w = rgba.shape[:2]
-    with MemoryFile() as mem:
-        with mem.open(driver="COG", width=w, height=h, count=4, dtype="uint8", crs=_crs(epsg),
-                      transform=_transform(grid, origin), compress="deflate", blocksize=512,
-                      overview_resampling="average") as dst:
-            dst.write(np.moveaxis(rgba, 2, 0))
-            dst.colorinterp = [ColorInterp.red, ColorInterp.green, ColorInterp.blue, ColorInterp.alpha]
-        return mem.read()
-
-
-def dsm_tif(dsm: np.ndarray, grid: Grid, epsg: int | None, origin: np.ndarray) -> bytes:
-    """COG bytes of a DSM (H, W) float32 (NaN: nodata, written as :data:`DSM_NODATA`) on ``grid``, heights
-    plus ``origin[2]``."""
-    from rasterio.io import MemoryFile
-
-    h, w = dsm.shape
-    data = np.where(np.isfinite(dsm), dsm + float(origin[2]), DSM_NODATA).astype(np.float32)
-    with MemoryFile() as mem:
-        with mem.open(driver="COG", width=w, height=h, count=1, dtype="float32", crs=_crs(epsg),
-                      transform=_transform(grid, origin), compress="deflate", predictor=3, blocksize=512,
-                      nodata=DSM_NODATA, overview_resampling="average") as dst:
-            dst.write(data, 1)
-        return mem.read()
+    scratch = Path(tempfile.mkdtemp(prefix="sweepcast-cog-"))
+    extra = {"predictor": predictor} if predictor else {}
+    try:
+        tmp = scratch / "tiled.tif"
+        with rasterio.open(tmp, "w", driver="GTiff", width=grid.width, height=grid.height, count=count, dtype=dtype,
+                           crs=crs_of(epsg), transform=transform_of(grid, origin), nodata=nodata, tiled=True,
+                           blockxsize=_BLOCK, blockysize=_BLOCK, compress="deflate", bigtiff="IF_SAFER",
+                           **extra) as dst:
+            for (r0, r1, c0, c1), data in windows:
+                dst.write(data, window=Window(c0, r0, c1 - c0, r1 - r0))
+            if colorinterp is not None:
+                dst.colorinterp = colorinterp
+        rio_copy(tmp, path, driver="COG", compress="deflate", blocksize=_BLOCK, overview_resampling="average",
+                 bigtiff="IF_SAFER", **extra)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
-def laz_bytes(points: np.ndarray, colors_bgr: np.ndarray, epsg: int | None, origin: np.ndarray) -> bytes:
-    """LAZ bytes of points (N, 3) in the world frame (written as ``points + origin``, millimetre steps)
-    with colours (N, 3) uint8 BGR, CRS ``epsg`` (None: none)."""
+def write_laz(path: Path, chunks: Iterable[tuple[np.ndarray, np.ndarray]], epsg: int | None, origin: np.ndarray,
+              low: np.ndarray) -> int:
+    """points.laz from chunks of (points (n, 3) in the world frame, colours (n, 3) uint8 BGR), chunk after chunk:
+    LAS 1.4 point format 7, ``points + origin`` in millimetre steps from offsets at ``low + origin`` (``low`` (3,)
+    the cloud's least x, y, z), 16-bit colours, CRS ``epsg`` (None: none). Returns how many points it wrote."""
     import laspy
 
-    xyz = np.asarray(points, np.float64) + np.asarray(origin, np.float64)
     header = laspy.LasHeader(point_format=7, version="1.4")
     header.scales = np.array([0.001, 0.001, 0.001])
-    header.offsets = np.floor(xyz.min(axis=0)) if len(xyz) else np.zeros(3)
+    header.offsets = np.floor(np.asarray(low, np.float64) + np.asarray(origin, np.float64))
     if epsg is not None:
         from pyproj import CRS
 
         header.add_crs(CRS.from_epsg(epsg))
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    colors = np.asarray(colors_bgr, np.uint16) * 257  # 8-bit -> LAS's 16-bit colour
-    las.red, las.green, las.blue = colors[:, 2], colors[:, 1], colors[:, 0]
-    buf = io.BytesIO()
-    las.write(buf, do_compress=True, laz_backend=laspy.LazBackend.Lazrs)
-    return buf.getvalue()
+    total = 0
+    with laspy.open(str(path), mode="w", header=header, do_compress=True, laz_backend=laspy.LazBackend.Lazrs) as out:
+        for pts, cols in chunks:
+            if len(pts) == 0:
+                continue
+            rec = laspy.ScaleAwarePointRecord.zeros(len(pts), header=header)
+            xyz = np.asarray(pts, np.float64) + np.asarray(origin, np.float64)
+            rec.x, rec.y, rec.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+            c = np.asarray(cols, np.uint16) * 257  # 8-bit -> LAS's 16-bit colour
+            rec.red, rec.green, rec.blue = c[:, 2], c[:, 1], c[:, 0]
+            out.write_points(rec)
+            total += len(pts)
+    return total
 
 
-def _fit(h: int, w: int, side: int) -> tuple[int, int]:
+def preview_size(h: int, w: int, side: int = _PREVIEW_SIDE) -> tuple[int, int]:
+    """(width, height) of a preview of an h x w raster: at most ``side`` pixels along its longer side."""
     s = min(1.0, side / max(h, w))
     return max(1, int(round(w * s))), max(1, int(round(h * s)))
 
 
 def orthophoto_png(rgba: np.ndarray, side: int = _PREVIEW_SIDE) -> bytes:
     """A PNG preview (at most ``side`` px) of an RGBA orthophoto (H, W, 4) uint8, transparent outside."""
-    small = cv2.resize(rgba, _fit(*rgba.shape[:2], side), interpolation=cv2.INTER_AREA)
+    small = cv2.resize(rgba, preview_size(*rgba.shape[:2], side), interpolation=cv2.INTER_AREA)
     return encode_png(cv2.cvtColor(small, cv2.COLOR_RGBA2BGRA), level=None)
 
 
@@ -105,7 +117,7 @@ def dsm_png(dsm: np.ndarray, side: int = _PREVIEW_SIDE) -> bytes:
     """A PNG preview of a DSM (H, W): heights coloured from the 2nd to the 98th percentile (turbo) and
     hill-shaded, transparent where NaN."""
     h, w = dsm.shape
-    size = _fit(h, w, side)
+    size = preview_size(h, w, side)
     known = np.isfinite(dsm)
     z = cv2.resize(np.where(known, dsm, np.nanmedian(dsm) if known.any() else 0).astype(np.float32), size,
                    interpolation=cv2.INTER_AREA)

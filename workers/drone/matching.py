@@ -222,3 +222,16 @@ def sift_ratio_matches(desc0: np.ndarray, desc1: np.ndarray, ratio: float = 0.8)
     knn = cv2.BFMatcher(cv2.NORM_L2).knnMatch(desc0, desc1, k=2)
     pairs = [(m.queryIdx, m.trainIdx) for m, n in (x for x in knn if len(x) == 2) if m.distance < ratio * n.distance]
     return np.array(pairs, np.int64).reshape(-1, 2)
+
+
+def sift_ratio_matches_flann(desc0: np.ndarray, desc1: np.ndarray, ratio: float = 0.8, checks: int = 64
+                             ) -> np.ndarray:
+    """:func:`sift_ratio_matches` by FLANN's randomised k-d trees (4 trees, ``checks`` leaves): approximate, a
+    few matches fewer, and many times faster than the brute force on thousands of descriptors (a survey matches
+    thousands of pairs)."""
+    if len(desc0) < 2 or len(desc1) < 2:
+        return np.zeros((0, 2), np.int64)
+    flann = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": checks})
+    knn = flann.knnMatch(np.ascontiguousarray(desc0, np.float32), np.ascontiguousarray(desc1, np.float32), k=2)
+    pairs = [(m.queryIdx, m.trainIdx) for m, n in (x for x in knn if len(x) == 2) if m.distance < ratio * n.distance]
+    return np.array(pairs, np.int64).reshape(-1, 2)

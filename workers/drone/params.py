@@ -61,8 +61,10 @@ class ReconstructionParams(BaseModel):
                           "pass. Default: on for a georeferenced flight.")
     gsd_cm: float | None = Field(
         None, gt=0, le=100_000,
-        description="Ground sampling distance of orthophoto and DSM, centimetres per pixel (georeferenced flights); "
-                    "default: the flight's own (a working-resolution pixel straight below the camera).")
+        description="Ground sampling distance of the orthophoto, centimetres per pixel (georeferenced flights); "
+                    "default: the photos' own (a native pixel straight below the camera at the median depth). The "
+                    "DSM's cell is the depth maps' own, a whole multiple of it, never finer; report.json -> mapping "
+                    "says what was chosen and why.")
 
     frame_step: int | None = Field(None, ge=1, le=10_000,
                                    description="Use every k-th frame; None selects frames adaptively by motion.")
@@ -71,8 +73,21 @@ class ReconstructionParams(BaseModel):
     blur_ratio: float = Field(0.5, ge=0, lt=1,
                               description="Skip a frame whose Laplacian variance is below this fraction of the "
                                           "recent median (0 keeps all).")
-    max_frames: int = Field(400, ge=2, le=5000, description="Most frames tracked; the step grows to fit.")
-    max_width: int = Field(1280, ge=160, le=8192, description="Frames wider than this are downscaled.")
+    max_frames: int = Field(400, ge=2, le=5000, description="Video: most frames tracked; the step grows to fit "
+                                                            "(stills: every photo is used, however many).")
+    max_width: int = Field(1280, ge=160, le=8192, description="Frames wider than this are downscaled for tracking and "
+                                                              "depth maps (the orthophoto samples the photos at their "
+                                                              "own resolution).")
+    submodel_photos: int = Field(
+        150, ge=4, le=100_000,
+        description="Stills with GPS: a survey of more photos is split by position into overlapping submodels of "
+                    "about this many, each reconstructed on its own (across the cluster) and merged by the photos they "
+                    "share and the GPS.")
+    submodel_overlap_m: float | None = Field(
+        None, gt=0, le=100_000,
+        description="Stills with GPS: every photo within this distance (metres) of a submodel's own photos joins it; "
+                    "default: 1.15 times the median distance from a photo to its 6th nearest (in a lawnmower survey: the "
+                    "next flight line and the next photos along it).")
 
     matcher: Literal["fast_lk", "sift"] = Field("fast_lk", description="FAST + optical flow (the paper) or SIFT.")
     fast_threshold: int = Field(20, ge=1, le=255,
@@ -105,8 +120,10 @@ class ReconstructionParams(BaseModel):
 
     dense: bool = Field(False, description="After the sparse model, a dense pass: a depth map per reference frame "
                                            "(plane sweep, ZNCC), fused into dense.ply (points, normals, colours).")
-    dense_frames: int = Field(60, ge=1, le=400,
-                              description="Dense: most reference frames (spread evenly over the registered ones).")
+    dense_frames: int | None = Field(
+        None, ge=2, le=1_000_000,
+        description="Dense: a depth map for this many registered frames, spread evenly (the others are then not in "
+                    "the dense cloud, and report.json -> dense says so); default: every registered frame.")
     dense_neighbours: int = Field(8, ge=1, le=16, description="Dense: neighbours swept against each reference.")
     dense_best_k: int = Field(4, ge=1, le=16,
                               description="Dense: a plane's cost is the mean over the best k neighbours (occlusions).")

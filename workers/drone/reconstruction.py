@@ -80,6 +80,8 @@ class Lens:
     """How far (combined standard deviations) what the images alone say lay from the prior, last time."""
     focal_refined: bool = False
     """Whether the last refinement let the images move the focal length (else it stayed at the prior)."""
+    fixed: bool = False
+    """Held as it is: calibrated elsewhere (a large survey's reference submodel), never refined here."""
 
     def __post_init__(self) -> None:
         self.centre = np.asarray(self.centre, np.float64).copy()
@@ -161,7 +163,11 @@ def _stage(progress: ProgressFn | None, fraction: float, stage: str) -> None:
 # Frames and tracks
 # ---------------------------------------------------------------------------------------------
 @dataclass
-class _Tracked:
+class Tracked:
+    """What the mapping starts from: the tracks over the selected frames, what selection did, each frame's
+    decoded-frame number, time (s, None for stills) and name, the seconds spent decoding and tracking,
+    decoding errors, and the frames selection left out (followed into by optical flow)."""
+
     tracks: TrackSet
     stats: SelectionStats
     index: list[int]
@@ -174,7 +180,7 @@ class _Tracked:
 
 
 def track_media(media: str | Path, intrinsics: Intrinsics, p: ReconstructionParams,
-                progress: ProgressFn | None = None, span: float = 0.55, media_name: str | None = None) -> _Tracked:
+                progress: ProgressFn | None = None, span: float = 0.55, media_name: str | None = None) -> Tracked:
     """Decode, select and track frames of ``media`` (progress from 0 to ``span``); ``media_name``
     names it in messages (see :func:`open_media`)."""
     source = open_media(media, media_name)
@@ -220,7 +226,7 @@ def track_media(media: str | Path, intrinsics: Intrinsics, p: ReconstructionPara
         raise JobInputError(f"{source.name}: only {len(idx)} usable frame(s) of {stats.decoded} decoded; "
                             "a reconstruction needs at least two")
     tracks = tracker.result()
-    return _Tracked(tracks, stats, idx, times, names, time.perf_counter() - t0 - t_track, t_track, source.errors,
+    return Tracked(tracks, stats, idx, times, names, time.perf_counter() - t0 - t_track, t_track, source.errors,
                     side)
 
 
@@ -251,7 +257,10 @@ class _Mapper:
         self.of = tracks.obs_frame[sel]
         self.ot = tracks.obs_track[sel]
         self.xy_raw = tracks.obs_xy[sel]
-        self.xy = self.xy_raw.copy()
+        self.xy = self.undistort(self.xy_raw)
+        if lens is not None:  # a lens calibrated elsewhere: its pinhole and undistorted pixels from the start
+            self.K = lens.K
+            self.track_xy = lens.undistort(tracks.obs_xy)
         self.rgb = tracks.obs_rgb[sel]
         self.valid = np.ones(len(self.of), bool)
         self.by_track = np.argsort(self.ot, kind="stable")
@@ -426,7 +435,8 @@ class _Mapper:
             return None
         options = bundle.BAOptions(max_iterations=iterations, loss=self.p.ba_loss, loss_scale=self.p.ba_loss_scale)
         start = pose_params(self.R[cams], self.t[cams])
-        if self.lens is not None and free_frames is None and len(cams) >= _SELFCAL_MIN_FRAMES:
+        if (self.lens is not None and not self.lens.fixed and free_frames is None
+                and len(cams) >= _SELFCAL_MIN_FRAMES):
             res = self._adjust_lens(start, pts, ci, pj, self.xy_raw[rows], fixed, options, callback)
         else:
             res = bundle.solve(PinholeModel(self.K, len(cams)), start, self.X[pts], ci, pj, self.xy[rows], fixed,
@@ -522,11 +532,22 @@ def reconstruct(media: str | Path, intrinsics: Intrinsics, params: Reconstructio
     and 'localise' (the final joint adjustment included) with fractions up to 0.97 (the caller writes the outputs and reports 'done').
     User-caused failures raise JobInputError; ``media_name`` names the media in their messages.
     """
+    tr = track_media(media, intrinsics, params, progress, media_name=media_name)
+    return map_tracks(tr, intrinsics, params, progress, focal_prior)
+
+
+def map_tracks(tr: Tracked, intrinsics: Intrinsics, params: ReconstructionParams, progress: ProgressFn | None = None,
+               focal_prior: FocalPrior | None = None, lens: Lens | None = None,
+               all_keyframes: bool = False) -> SparseModel:
+    """The mapping half of :func:`reconstruct`: keyframes, the initial pair, registration, bundle adjustment and
+    the frames outside the map, from tracks already made (``tr``; progress from 0.56 to 0.97).
+
+    ``focal_prior``: self-calibrate starting there (see :func:`reconstruct`); ``lens``: instead, a lens calibrated
+    elsewhere (``fixed``), held as it is while the tracked pixels (as that lens saw them) are undistorted with it;
+    neither: ``intrinsics`` as they are (the tracked frames were undistorted with them). ``all_keyframes``: every
+    frame is a keyframe (stills whose tracks do not follow the frame order, as a survey's cross-line matches)."""
     p = params
-    timings: dict[str, float] = {}
-    tr = track_media(media, intrinsics, p, progress, media_name=media_name)
-    timings["decode"] = tr.seconds_decode
-    timings["track"] = tr.seconds_track
+    timings: dict[str, float] = {"decode": tr.seconds_decode, "track": tr.seconds_track}
     tracks, stats = tr.tracks, tr.stats
     if tracks.n_tracks < _MIN_TRACKS:
         raise JobInputError(f"only {tracks.n_tracks} features could be followed across frames; the video may be "
@@ -534,14 +555,13 @@ def reconstruct(media: str | Path, intrinsics: Intrinsics, params: Reconstructio
     intr = intrinsics.scaled(stats.scale)
     K = intr.K
     width = stats.working_size[0]
-    lens = None
     if focal_prior is not None:
         lens = Lens(intr.fx, 0.0, 0.0, np.array([intr.cx, intr.cy]), focal_prior.scaled(stats.scale))
 
     t0 = time.perf_counter()
     _stage(progress, 0.56, "keyframes")
     # SIFT tracks need not follow the frame order; its frames are all keyframes.
-    keyframes = (select_keyframes(tracks, width, p.keyframe_parallax) if p.matcher == "fast_lk"
+    keyframes = (select_keyframes(tracks, width, p.keyframe_parallax) if p.matcher == "fast_lk" and not all_keyframes
                  else np.arange(tracks.n_frames))
     if len(keyframes) < 2:
         raise JobInputError("the camera never moves: tracked features shifted less than "
@@ -679,7 +699,7 @@ def _locate_side(mapper: _Mapper, tracks: TrackSet, view: SideView) -> Located:
     return locate(mapper.X[pt], mapper.undistort(view.xy[rows]), mapper.K, mapper.p.reprojection_threshold, _MIN_PNP)
 
 
-def _assemble(mapper: _Mapper, tracks: TrackSet, intr: Intrinsics, stats: SelectionStats, tr: _Tracked,
+def _assemble(mapper: _Mapper, tracks: TrackSet, intr: Intrinsics, stats: SelectionStats, tr: Tracked,
               keyframes: np.ndarray) -> SparseModel:
     rows, err = mapper.errors()
     pt = mapper.track_point[mapper.ot[rows]]
@@ -705,7 +725,7 @@ def _summary(err: np.ndarray) -> dict[str, float | None]:
     return {"mean": float(e.mean()), "median": float(np.median(e))}
 
 
-def _report(model: SparseModel, tr: _Tracked, p: ReconstructionParams, keyframes: np.ndarray, mapper: _Mapper,
+def _report(model: SparseModel, tr: Tracked, p: ReconstructionParams, keyframes: np.ndarray, mapper: _Mapper,
             localised: int, err0: np.ndarray, err1: np.ndarray, final: bundle.BAResult | None, rounds: int,
             timings: dict[str, float]) -> dict[str, Any]:
     pairs = tr.tracks.pairs
@@ -727,6 +747,9 @@ def _report(model: SparseModel, tr: _Tracked, p: ReconstructionParams, keyframes
     warnings = list(tr.errors[:20])
     if stats.truncated:
         warnings.append(f"stopped after max_frames={p.max_frames} selected frames; the rest of the video was not used")
+    if stats.stride > 1:
+        warnings.append(f"max_frames={p.max_frames}: every {stats.stride}th frame of the video was considered for "
+                        "tracking (the others are posed afterwards against the map where they can be)")
     return {
         "media": {"native_size": list(stats.native_size), "working_size": list(stats.working_size),
                   "scale": stats.scale},

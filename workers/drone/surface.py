@@ -99,19 +99,38 @@ def coverage_mask(counts: np.ndarray, close_cells: int) -> np.ndarray:
     return filled[pad:-pad, pad:-pad].astype(bool)
 
 
-def surface_model(points: np.ndarray, grid: Grid, close_m: float | None = None) -> np.ndarray:
+SUPPORT_GAP = 3.0
+"""Cells from the nearest dense point beyond which the sparse points' heights stand (:func:`surface_model`)."""
+
+
+def surface_model(points: np.ndarray, grid: Grid, close_m: float | None = None,
+                  extent: np.ndarray | None = None, support: np.ndarray | None = None,
+                  ground_z: float | None = None) -> np.ndarray:
     """The DSM (H, W) float32 of dense points (N, 3) on ``grid``: cell medians, empty covered cells
     filled, a 3 x 3 median filter, NaN outside the coverage. ``close_m``: the widest gap in the cloud
     still counted as covered (default 3 cells; holes enclosed by the cloud are filled whatever their
     size). A wider closing reaches into the flight's ragged edge, where few frames saw the ground and
     the fill would invent heights (synthetic survey: closing 2 % of the grid's diagonal instead of 3
-    cells cost the orthophoto 2.4 dB and the DSM RMSE 13.5 instead of 7.4 GSD)."""
+    cells cost the orthophoto 2.4 dB and the DSM RMSE 13.5 instead of 7.4 GSD). ``extent`` (H, W) bool:
+    cells covered besides (the ground the photos saw, :mod:`workers.drone.survey.ground`), filled from
+    the nearest heights where the cloud does not reach. ``support`` (M, 3): sparser points (the sparse model's)
+    whose cell heights stand where the cloud has no point within :data:`SUPPORT_GAP` cells (the ground only one or
+    two photos saw, which no dense point reaches: they give the fill measured heights to start from). ``ground_z``:
+    the height of every covered cell when neither ``points`` nor ``support`` has one in the grid (a map tile at a
+    survey's rim that one photo saw); without it such a grid stays NaN."""
     heights, counts = cell_medians(points, grid)
     close_cells = max(3, int(round(close_m / grid.gsd))) if close_m is not None else 3
     cover = coverage_mask(counts, close_cells)
+    if extent is not None:
+        cover |= extent
+    if support is not None and len(support):
+        sparse, _ = cell_medians(support, grid)
+        far = cv2.distanceTransform((counts == 0).astype(np.uint8), cv2.DIST_L2, 3) > SUPPORT_GAP
+        use = far & np.isfinite(sparse) & cover
+        heights = np.where(use, sparse, heights)
     known = np.isfinite(heights)
     if not known.any():
-        return np.full(heights.shape, np.nan, np.float32)
+        return np.where(cover, np.float32(np.nan if ground_z is None else ground_z), np.float32(np.nan))
     filled = _fill(heights, known, cover)
     smooth = cv2.medianBlur(filled, 3)
     return np.where(cover, smooth, np.nan).astype(np.float32)

@@ -59,10 +59,11 @@ class TrackSet:
         return slice(int(lo), int(hi))
 
 
-def _build(frames: list[np.ndarray], tracks: list[np.ndarray], xys: list[np.ndarray], rgbs: list[np.ndarray],
-           n_frames: int, pairs: list[PairStats]) -> TrackSet:
-    """Assemble observations, keep tracks seen in at least two frames, renumber them; the
-    TrackSet's ``raw_to_track`` maps the given track ids (0..max) to the new ones."""
+def tracks_from_observations(frames: list[np.ndarray], tracks: list[np.ndarray], xys: list[np.ndarray],
+                             rgbs: list[np.ndarray], n_frames: int, pairs: list[PairStats]) -> TrackSet:
+    """Assemble observations (lists of per-source arrays: frame positions (n,) int, track ids (n,) int, pixels
+    (n, 2), colours (n, 3) uint8 BGR), keep tracks seen in at least two frames, renumber them; the TrackSet's
+    ``raw_to_track`` maps the given track ids (0..max) to the new ones."""
     if not frames:
         return TrackSet(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 3), np.uint8),
                         n_frames, pairs)
@@ -80,7 +81,8 @@ def _build(frames: list[np.ndarray], tracks: list[np.ndarray], xys: list[np.ndar
     return TrackSet(f[order], t_new[order].astype(np.int64), xy[order], rgb[order], n_frames, pairs, raw_to_track)
 
 
-def _colours(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
+def colours_at(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """The colours (N, 3) uint8 BGR of ``image`` (H, W, 3) at the pixels nearest ``xy`` (N, 2)."""
     h, w = image.shape[:2]
     u = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, w - 1)
     v = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, h - 1)
@@ -109,7 +111,7 @@ class FlowTracker:
         self._f.append(np.full(len(ids), self.n, np.int64))
         self._t.append(ids)
         self._xy.append(pts.astype(np.float64))
-        self._rgb.append(_colours(frame.image, pts))
+        self._rgb.append(colours_at(frame.image, pts))
 
     def add(self, frame: Frame) -> None:
         """Track into ``frame`` (the next selected frame)."""
@@ -165,7 +167,7 @@ class FlowTracker:
 
     def result(self) -> TrackSet:
         """All tracks seen in at least two frames."""
-        return _build(self._f, self._t, self._xy, self._rgb, self.n, self.pairs)
+        return tracks_from_observations(self._f, self._t, self._xy, self._rgb, self.n, self.pairs)
 
 
 class SiftTracker:
@@ -197,7 +199,7 @@ class SiftTracker:
         self.offsets.append(off)
         self.n_nodes += len(kp)
         self._xy.append(kp.astype(np.float64))
-        self._rgb.append(_colours(frame.image, kp))
+        self._rgb.append(colours_at(frame.image, kp))
         self.prev = frame.gray
         self.n += 1
 
@@ -212,7 +214,7 @@ class SiftTracker:
     def result(self) -> TrackSet:
         """Tracks = connected components of the match graph without two points in one frame."""
         if not self._edges or self.n_nodes == 0:
-            return _build([], [], [], [], self.n, self.pairs)
+            return tracks_from_observations([], [], [], [], self.n, self.pairs)
         a = np.concatenate([e[0] for e in self._edges])
         b = np.concatenate([e[1] for e in self._edges])
         g = coo_matrix((np.ones(len(a)), (a, b)), shape=(self.n_nodes, self.n_nodes))
@@ -227,7 +229,7 @@ class SiftTracker:
         keep = matched & ~np.isin(label, bad)
         xy = np.concatenate(self._xy)
         rgb = np.concatenate(self._rgb)
-        out = _build([node_frame[keep]], [label[keep]], [xy[keep]], [rgb[keep]], self.n, self.pairs)
+        out = tracks_from_observations([node_frame[keep]], [label[keep]], [xy[keep]], [rgb[keep]], self.n, self.pairs)
         # Keys of this tracker are nodes (keypoints), not component labels.
         node_track = np.full(self.n_nodes, -1, np.int64)
         node_track[keep] = out.raw_to_track[label[keep]]

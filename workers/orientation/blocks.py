@@ -106,8 +106,8 @@ def finished_photos(work: WorkArea) -> dict[int, tuple[dict[str, Any], dict[str,
     done: dict[int, tuple[dict[str, Any], dict[str, int]]] = {}
     for name in work.names(RECORDS):
         try:
-            record = json.loads(work.get(name) or b"")
-        except ValueError:
+            record = json.loads(work.get(name))
+        except (ValueError, KeyError):  # unreadable, or deleted since it was listed
             continue
         for entry in record.get("entries", []):
             files = {f: size for f, size in record.get("files", {}).items() if f in files_of(entry)}

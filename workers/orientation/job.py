@@ -84,10 +84,11 @@ def run_orientation_batch(ctx: JobContext) -> dict[str, Any]:
                      done=len(done), total=len(photos))
     todo = [p for p in photos if p.index not in done]
     mode = "sidecar" if params.sidecar else "file"
+    fan = ctx.fanout()
     tasks = [BlockTask(work, block, config, params.force, params.write, mode, ctx.settings.max_image_pixels)
-             for block in plan_blocks(todo, ctx.parallelism)]
+             for block in plan_blocks(todo, fan.parallelism)]
     pace = Pace(len(todo))
-    for _, record in ctx.fan_out(analyse_block, tasks):
+    for _, record in fan.run(analyse_block, tasks, "photos"):
         pace.add(len(record["entries"]))
         for entry in record["entries"]:
             done[entry["index"]] = (entry, {f: record["files"][f] for f in files_of(entry)})

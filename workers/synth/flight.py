@@ -96,7 +96,7 @@ def _rotation(v: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(th) * Kx + (1 - np.cos(th)) * Kx @ Kx
 
 
-def _visible(scene: Scene, cam: Camera) -> Scene:
+def visible_part(scene: Scene, cam: Camera) -> Scene:
     """The scene without the boxes and spheres that lie wholly outside the camera's view (speed)."""
     keep = []
     for obj in scene.objects:
@@ -139,10 +139,10 @@ def render_flight(
             for u in np.linspace(-motion_blur / 2, motion_blur / 2, blur_samples):
                 j = min(max(i + (1 if u >= 0 else -1), 0), n - 1)
                 sub = cam if j == i else interpolate(cam, cameras[j], abs(float(u)))
-                acc += render(_visible(scene, sub), sub, supersample=supersample, with_background=False).image
+                acc += render(visible_part(scene, sub), sub, supersample=supersample, with_background=False).image
             img = acc / blur_samples
         else:
-            img = render(_visible(scene, cam), cam, supersample=supersample, with_background=False).image.astype(np.float64)
+            img = render(visible_part(scene, cam), cam, supersample=supersample, with_background=False).image.astype(np.float64)
         if noise_sigma > 0:
             img = img + rng.normal(0.0, noise_sigma, img.shape)
         frames.append(np.clip(np.rint(img), 0, 255).astype(np.uint8))

@@ -1,6 +1,7 @@
 """Analytic ray casting of a :class:`Scene` into a :class:`Camera`: image, exact depth, silhouette."""
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -67,17 +68,32 @@ def _ray_dirs(camera: Camera, s: int) -> np.ndarray:
     offs = (np.arange(s) + 0.5) / s - 0.5
     u = (np.arange(camera.width)[:, None] + offs[None, :]).ravel()
     v = (np.arange(camera.height)[:, None] + offs[None, :]).ravel()
-    if camera.has_distortion:  # invert the lens model per pixel (iterated well past OpenCV's default 5 steps)
-        uv = np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 1, 2)
-        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-        xn = cv2.undistortPointsIter(uv, camera.K, camera.dist, None, None, crit).reshape(-1, 2)
-        return np.hstack([xn, np.ones((len(xn), 1))]) @ camera.R
+    if camera.has_distortion:
+        xn = _undistorted_rays(camera.K.tobytes(), camera.dist.tobytes(), camera.width, camera.height, s)
+        R = camera.R  # (xn, 1) @ R, written out: no BLAS thread start-up
+        return xn[:, 0:1] * R[0] + xn[:, 1:2] * R[1] + R[2]
     M = camera.R.T @ np.linalg.inv(camera.K)
     D = np.empty((v.size, u.size, 3))
     D[:] = M[:, 2]
     D += u[None, :, None] * M[:, 0]  # broadcasting instead of a BLAS matmul: no thread start-up
     D += v[:, None, None] * M[:, 1]
     return D.reshape(-1, 3)
+
+
+@functools.lru_cache(maxsize=2)
+def _undistorted_rays(K: bytes, dist: bytes, width: int, height: int, s: int) -> np.ndarray:
+    """Normalised undistorted directions (N, 2) of a distorted camera's s x s sub-pixel rays (the lens model
+    inverted per ray, iterated well past OpenCV's default 5 steps); the last two kept (a frame's pixel-centre rays
+    and its sub-pixel rays), for the frames of a flight (one camera, many poses)."""
+    offs = (np.arange(s) + 0.5) / s - 0.5
+    u = (np.arange(width)[:, None] + offs[None, :]).ravel()
+    v = (np.arange(height)[:, None] + offs[None, :]).ravel()
+    uv = np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 1, 2)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+    K3 = np.frombuffer(K, np.float64).reshape(3, 3)
+    xn = cv2.undistortPointsIter(uv, K3, np.frombuffer(dist, np.float64), None, None, crit).reshape(-1, 2)
+    xn.setflags(write=False)
+    return xn
 
 
 def _cast(scene: Scene, camera: Camera, s: int,

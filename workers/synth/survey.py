@@ -27,6 +27,7 @@ import numpy as np
 
 from workers.camera import Camera
 
+from .flight import visible_part
 from .raycast import _cast
 from .scene import Box, Material, Plane, Scene, Sphere
 from .textures import ColorNoise, Noise
@@ -105,12 +106,13 @@ def true_orthophoto(scene: Scene, x0: float, y0: float, gsd: float, width: int, 
     top surface under each cell's centre (-inf where nothing is below).
 
     The rays come from a pinhole camera 1000 km up (parallel within 3 mm of relief displacement over the
-    grid), cast in float64."""
+    grid), cast in float64, against the objects over the grid only (a survey's scene has hundreds)."""
     centre = np.array([x0 + 0.5 * width * gsd, y0 - 0.5 * height * gsd, _FAR])
     f = _FAR / gsd
     K = np.array([[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]])
     R = np.diag([1.0, -1.0, -1.0])  # x east, y (image down) south, z (forward) down
     cam = Camera("orthographic", K, R, -R @ centre, width, height)
+    scene = visible_part(scene, cam)
     depth, _, _ = _cast(scene, cam, 1)
     _, _, colour = _cast(scene, cam, supersample)
     image = colour.reshape(height, supersample, width, supersample, 3).mean(axis=(1, 3))

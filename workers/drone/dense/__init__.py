@@ -1,8 +1,9 @@
 """Dense reconstruction from calibrated, posed images: a depth map per reference frame by plane sweep,
 geometric consistency across neighbours, fusion into one coloured point cloud with normals.
 
-Pipeline (:mod:`.pipeline`: :func:`densify` runs it on a :class:`~workers.drone.reconstruction.SparseModel`,
-:func:`densify_views` on any posed images, :class:`View` objects):
+Pipeline (:mod:`.pipeline`: :func:`densify_views` runs it in one process on any posed images, :class:`View`
+objects; a job runs the same steps as tasks, a depth map per frame and the fusion per ground tile,
+:mod:`workers.drone.survey`):
 
 1. **Neighbours** (:func:`select_neighbours`, :mod:`.neighbours`): for a reference frame, every other frame is
    scored by the sparse points both see, each weighted by the triangulation angle between the two rays (a Gaussian
@@ -38,11 +39,11 @@ from .consistency import Agreement, camera_normals, consistency
 from .depth import DepthMap, depth_map, inverse_depth_planes
 from .fusion import DenseCloud, fuse
 from .homography import plane_samples, sweep_geometry
-from .neighbours import depth_range, select_neighbours, visible_points
-from .pipeline import DenseResult, densify, densify_views, reference_frames
+from .neighbours import depth_range, neighbours_by_centres, select_neighbours, visible_points
+from .pipeline import DenseResult, densify_views, reference_frames
 from .sweep import zncc_sweep
 from .views import View
 
-__all__ = ["Agreement", "DenseCloud", "DenseResult", "DepthMap", "View", "camera_normals", "consistency", "densify",
-           "densify_views", "depth_map", "depth_range", "fuse", "inverse_depth_planes", "plane_samples",
+__all__ = ["Agreement", "DenseCloud", "DenseResult", "DepthMap", "View", "camera_normals", "consistency",
+           "densify_views", "depth_map", "depth_range", "fuse", "inverse_depth_planes", "neighbours_by_centres", "plane_samples",
            "reference_frames", "select_neighbours", "sweep_geometry", "visible_points", "zncc_sweep"]

@@ -185,19 +185,24 @@ def _fuse_view(free, dm, Kinv, K, R, t, image, nK, nKinv, nR, nt, ndepth, nimage
 
 def fuse(views: Sequence[View], depths: Sequence[np.ndarray], neighbours: Sequence[Sequence[int]],
          min_views: int = 3, max_reprojection_px: float = 1.0, max_depth_ratio: float = 0.01,
-         progress: Callable[[int], None] | None = None, max_jump: float = 0.05) -> DenseCloud:
+         progress: Callable[[int], None] | None = None, max_jump: float = 0.05,
+         references: Sequence[int] | None = None, masks: Sequence[np.ndarray | None] | None = None) -> DenseCloud:
     """Fuse the depth maps (one per view, each (h, w) float32 at its view's size, 0 = none) into one cloud.
 
     neighbours[i]: indices of the views checked against view i (the tests of :func:`.consistency.consistency`; all views
     one image size). A pixel whose depth at least ``min_views`` frames agree on (the reference included)
     becomes a point: the mean of the agreeing frames' points and of their colours, the reference's normal
-    (:func:`.consistency.camera_normals`, ``max_jump``). Views are taken in order; the neighbour pixels that agreed are
-    then marked used and never start a point of their own. ``progress(i)`` is called after view i.
+    (:func:`.consistency.camera_normals`, ``max_jump``). Views are taken in order (``references``: only these, in
+    this order; the others serve as neighbours); the neighbour pixels that agreed are then marked used and never
+    start a point of their own. ``masks[i]`` (h, w) bool: the only pixels of view i that may start a point (a
+    ground tile's, :mod:`workers.drone.survey.surface`). ``progress(i)`` is called after view i.
     Compiled, one pass over the pixels per reference (:func:`_fuse_view`)."""
     used = [np.zeros(d.shape, bool) for d in depths]
     pts, cols, nrms, cnts = [], [], [], []
-    for i, (view, dm) in enumerate(zip(views, depths)):
-        free = np.where(used[i], 0.0, dm).astype(np.float32)
+    for i in (range(len(views)) if references is None else references):
+        view, dm = views[i], depths[i]
+        blocked = used[i] if masks is None or masks[i] is None else used[i] | ~masks[i]
+        free = np.where(blocked, 0.0, dm).astype(np.float32)
         nb = [j for j in neighbours[i] if j != i]
         h, w = dm.shape
         hn, wn = (depths[nb[0]].shape if nb else (1, 1))

@@ -10,10 +10,9 @@ import numpy as np
 
 from ..export import depth_file_name, depth_png
 from ..params import ReconstructionParams
-from ..reconstruction import SparseModel
 from .depth import depth_map
 from .fusion import DenseCloud, fuse
-from .neighbours import depth_range, select_neighbours, visible_points
+from .neighbours import depth_range, select_neighbours
 from .views import View
 
 ProgressFn = Callable[[float, str], None]
@@ -21,7 +20,7 @@ ProgressFn = Callable[[float, str], None]
 
 @dataclass
 class DenseResult:
-    """What :func:`densify` made: the fused ``cloud``, the reference frames' ``names`` and ``depths``
+    """What :func:`densify_views` made: the fused ``cloud``, the reference frames' ``names`` and ``depths``
     ((h, w) float32 each, 0 = none, at the dense resolution), their 16-bit ``pngs`` and a JSON-able ``report``."""
 
     cloud: DenseCloud
@@ -40,33 +39,10 @@ def reference_frames(registered: np.ndarray, count: int) -> np.ndarray:
     return reg[pick]
 
 
-def densify(model: SparseModel, images: dict[int, np.ndarray], p: ReconstructionParams,
-            progress: ProgressFn | None = None) -> DenseResult:
-    """The dense pass over a sparse model (:class:`~workers.drone.reconstruction.SparseModel`).
-
-    images: frame position in the model -> (h, w, 3) uint8 BGR at the working resolution, for (at least)
-    the frames :func:`reference_frames` picks (``model.registered``, ``p.dense_frames``; see
-    :func:`workers.drone.frames.load_frames`); p: the :class:`~workers.drone.params.ReconstructionParams`
-    (its ``dense_*`` fields). Each reference's neighbours are chosen among the other references, so every
-    neighbour has a depth map to check consistency against. ``progress(fraction, stage)`` goes from 0 to 1
-    with stages 'dense depth k/M' (one per depth map) and 'dense fusion'. Raises ValueError when fewer than
-    two registered frames have images."""
-    refs = [int(f) for f in reference_frames(model.registered, p.dense_frames) if int(f) in images]
-    if len(refs) < 2:
-        raise ValueError("a dense reconstruction needs at least two registered frames")
-    views = [View.from_pose(model.frame_name[f], images[f], model.K, model.R[f], model.t[f]).scaled(p.dense_scale)
-             for f in refs]
-    # what each frame sees of the sparse points: its bundle-adjustment observations, else the points in view
-    seen = []
-    for f, v in zip(refs, views):
-        obs = np.unique(model.obs_point[model.obs_frame == f])
-        seen.append(obs if len(obs) >= 30 else visible_points(v, model.points))
-    return densify_views(views, model.points, seen, p, progress)
-
-
 def densify_views(views: Sequence[View], points: np.ndarray, seen: Sequence[np.ndarray], p: ReconstructionParams,
                   progress: ProgressFn | None = None) -> DenseResult:
-    """:func:`densify` on posed views (each one its own reference, the others its candidate neighbours):
+    """The dense pass over posed views (each one its own reference, the others its candidate neighbours), in this
+    process (a job's dense pass runs as tasks per depth map and per ground tile, :mod:`workers.drone.survey`):
     points (P, 3) the sparse points, seen[i] the indices of those view i sees (neighbour choice and depth
     range); p the ``dense_*`` settings (:class:`~workers.drone.params.ReconstructionParams` or anything
     with those attributes)."""
@@ -81,7 +57,7 @@ def densify_views(views: Sequence[View], points: np.ndarray, seen: Sequence[np.n
         if progress is not None:
             progress(0.9 * i / len(views), f"dense depth {i + 1}/{len(views)}")
         nb = select_neighbours(views, points, seen, i, p.dense_neighbours)
-        rng_ = depth_range(view, points[seen[i]] if len(seen[i]) >= 10 else points)
+        rng_ = depth_range(view.camera, points[seen[i]] if len(seen[i]) >= 10 else points)
         item: dict[str, Any] = {"frame": view.camera.name, "neighbours": [views[j].camera.name for j in nb]}
         items.append(item)
         if not nb or rng_ is None:
