@@ -19,8 +19,9 @@ peak resident memory) for the job's report (:func:`stage_summary`: tasks per nod
   raised, is tried again by Ray (``TASK_RETRIES``; its output is written atomically, so a second run replaces the
   first). A user's input error (:class:`~workers.common.jobctx.JobInputError`) is the same every time: it is raised
   here at once, never tried again; the store's own condition (full, unavailable) as itself, for the runtime to wait
-  out; any other error that survived the retries as :class:`FanoutError` naming the stage. Where the job was routed to nodes by custom resources (``SWEEPCAST_JOB_RESOURCES``), its tasks go
-  to those nodes too (spread by their CPUs; elsewhere only if such a node dies).
+  out; any other error that survived the retries as :class:`FanoutError` naming the stage. Where the job was routed
+  to nodes by custom resources (``SWEEPCAST_JOB_RESOURCES``), its tasks go to those nodes too (spread by their
+  CPUs; elsewhere only if such a node dies).
 """
 from __future__ import annotations
 

@@ -153,6 +153,12 @@ class SparseModel:
     """The world frame in words once the model was moved into one (:mod:`workers.drone.georef`); None: the
     reconstruction's own frame."""
 
+    def points_by_frame(self) -> list[np.ndarray]:
+        """Per frame (F entries), the indices (int64) into ``points`` of its observations, in their order."""
+        order = np.argsort(self.obs_frame, kind="stable")
+        bounds = np.searchsorted(self.obs_frame[order], np.arange(len(self.registered) + 1))
+        return [self.obs_point[order[bounds[f]:bounds[f + 1]]] for f in range(len(self.registered))]
+
 
 def _stage(progress: ProgressFn | None, fraction: float, stage: str) -> None:
     if progress is not None:

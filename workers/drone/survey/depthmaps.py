@@ -54,13 +54,12 @@ def plan_depth_maps(model: SparseModel, job: MapJob, refs: np.ndarray, by_view: 
     model merged from submodels, whose neighbouring photos observe points of different submodels, needs that)."""
     p = job.params
     centres = np.stack([camera_centre(model.R[f], model.t[f]) for f in refs])
-    order = np.argsort(model.obs_frame, kind="stable")
-    bounds = np.searchsorted(model.obs_frame[order], np.arange(len(model.registered) + 1))
+    observed = model.points_by_frame()
     point_tree = cKDTree(model.points[:, :2]) if len(model.points) else None
     cameras = [job.dense_camera(pose_of(model, f)) for f in refs]
     seen = []
     for f, cam in zip(refs, cameras):
-        obs = np.unique(model.obs_point[order[bounds[f]:bounds[f + 1]]])
+        obs = np.unique(observed[f])
         if (by_view or len(obs) < MIN_OBSERVED) and point_tree is not None:
             near = np.asarray(point_tree.query_ball_point(cam.center[:2], _reach(model, cam)), np.int64)
             obs = near[visible_points(cam, model.points[near])] if len(near) else near

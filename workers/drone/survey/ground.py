@@ -47,10 +47,9 @@ def frame_ground_heights(model: SparseModel) -> np.ndarray:
     median where it observes fewer than 10; NaN for unregistered frames)."""
     out = np.full(len(model.registered), np.nan)
     overall = float(np.median(model.points[:, 2])) if len(model.points) else 0.0
-    order = np.argsort(model.obs_frame, kind="stable")
-    bounds = np.searchsorted(model.obs_frame[order], np.arange(len(model.registered) + 1))
+    seen = model.points_by_frame()
     for f in np.flatnonzero(model.registered):
-        pts = model.obs_point[order[bounds[f]:bounds[f + 1]]]
+        pts = seen[f]
         out[f] = float(np.median(model.points[pts, 2])) if len(pts) >= 10 else overall
     return out
 
@@ -65,10 +64,11 @@ def image_border(width: int, height: int, per_side: int) -> np.ndarray:
                            np.column_stack([np.zeros_like(s), (1 - s) * h])])
 
 
-def footprints(model: SparseModel, per_side: int = 8) -> dict[int, np.ndarray]:
+def footprints(model: SparseModel, per_side: int = 8, heights: np.ndarray | None = None) -> dict[int, np.ndarray]:
     """Frame -> its footprint (K, 2) world x, y (module docstring) for every registered frame of a model in a level
-    world frame (z up). Pixels are the working resolution's; a self-calibrated lens's border is undistorted first."""
-    heights = frame_ground_heights(model)
+    world frame (z up). Pixels are the working resolution's; a self-calibrated lens's border is undistorted first.
+    ``heights``: each frame's ground height when already known (:func:`frame_ground_heights`)."""
+    heights = frame_ground_heights(model) if heights is None else heights
     border = image_border(model.width, model.height, per_side)
     if model.lens is not None:
         border = model.lens.undistort(border)
@@ -94,10 +94,9 @@ def flight_gsd(model: SparseModel) -> float:
     frames of the median depth of the sparse points each sees, over the focal length. Raises ValueError when no
     registered frame sees ten points."""
     depths = []
-    order = np.argsort(model.obs_frame, kind="stable")
-    bounds = np.searchsorted(model.obs_frame[order], np.arange(len(model.registered) + 1))
+    seen = model.points_by_frame()
     for f in np.flatnonzero(model.registered):
-        pts = model.points[model.obs_point[order[bounds[f]:bounds[f + 1]]]]
+        pts = model.points[seen[f]]
         if len(pts) >= 10:
             z = pts @ model.R[f][2] + model.t[f][2]
             if (z > 0).any():

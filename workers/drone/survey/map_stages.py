@@ -74,7 +74,8 @@ def dense_and_map(stages: Stages, model: SparseModel, photos: PhotoSource, param
     if len(refs) < 2:
         raise JobInputError(f"a dense reconstruction needs two registered frames; {len(refs)} registered")
     unit = "m" if georeferenced else "model units"
-    prints = footprints(model)
+    below = frame_ground_heights(model)
+    prints = footprints(model, heights=below)
     try:  # before any depth map: a map too large for the service's limit is refused at once
         ground = plan_ground(model, prints, gsd, params.dense_scale, unit, max_pixels, stages.fanout.parallelism)
     except ValueError as exc:
@@ -89,12 +90,11 @@ def dense_and_map(stages: Stages, model: SparseModel, photos: PhotoSource, param
     made = [m for m in depth if "skipped" not in m]
     neighbours = {m["model_frame"]: tuple(m["neighbour_frames"]) for m in made}
     tiles = [t for t in ground.tiles() if overlapping(prints, ground.bounds(t))]
-    below = frame_ground_heights(model)
     above = _height_above_ground(model, below)
     reach = int(math.ceil(FOOTPRINT_SLACK * above / ground.dsm.gsd))
     surface = stages.map("surface model", surface_tile, [_surface_item(job, model, ground, t, prints, neighbours, reach,
                                                                        below) for t in tiles], (cut1, cut2),
-                         finished=lambda it: _found(stages, tile_name("surface", it.tile)), unit="tiles")
+                         finished=lambda it: stages.found(tile_name("surface", it.tile)), unit="tiles")
     maps = MapTiles(stages.work, ground, tiles)
     dense = _dense_report(params, refs, depth, skipped, surface, len(model.points), stages, model)
     zs = [m["z_range"][0] for m in surface if m["z_range"] is not None]
@@ -105,15 +105,11 @@ def dense_and_map(stages: Stages, model: SparseModel, photos: PhotoSource, param
         weights = _weights(model, sharpness, depth)
         ortho = stages.map("orthophoto", ortho_tile, [_ortho_item(job, model, ground, t, tiles, prints, weights, above)
                                                        for t in tiles], (cut2, hi),
-                           finished=lambda it: _found(stages, tile_name("ortho", it.tile)), unit="tiles")
+                           finished=lambda it: stages.found(tile_name("ortho", it.tile)), unit="tiles")
     else:
         ortho = []
     out.mapping = _mapping_report(ground, surface, ortho, unit)
     return out
-
-
-def _found(stages: Stages, name: str) -> dict[str, Any] | None:
-    return stages.work.get_json(name + ".json") if stages.work.exists(name + ".json") else None
 
 
 def _found_depths(stages: Stages, item) -> list[dict[str, Any]] | None:

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..evaluation import Sim3
 from ..geo import SimilarityFit
-from ..geometry import camera_centre
+from ..geometry import camera_centre, skew
 from ..georef import Georeference, apply
 from ..reconstruction import SparseModel
 
@@ -26,10 +26,6 @@ GPS_SIGMA_FLOOR_M = 0.05
 """The GPS terms' standard deviation is the submodel's own fit RMSE, at least this (exact synthetic GPS)."""
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def _rotation_vector(R: np.ndarray) -> np.ndarray:
     return cv2.Rodrigues(np.asarray(R, np.float64))[0].ravel()
 
@@ -37,7 +33,7 @@ def _rotation_vector(R: np.ndarray) -> np.ndarray:
 def _jacobian(X: np.ndarray, c: np.ndarray) -> np.ndarray:
     """d X' / d (omega, tau, sigma) (3, 7) of X' = X + sigma (X - c) + omega x (X - c) + tau."""
     v = X - c
-    return np.hstack([-_skew(v), np.eye(3), v[:, None]])
+    return np.hstack([-skew(v), np.eye(3), v[:, None]])
 
 
 def _poses(model: SparseModel) -> dict[int, tuple[np.ndarray, np.ndarray]]:

@@ -73,7 +73,7 @@ def survey_sparse(stages: Stages, media: InputRef, meta: FlightMeta, intrinsics:
 
     blocks = stages.map("track", track_block, [BlockItem(job, b, tuple(int(i) for i in ph)) for b, ph in
                                                enumerate(plan.blocks)], (_at(span, 0.0), _at(span, _TRACK)),
-                        finished=lambda it: _found(stages, block_name(it.block)), unit="photos",
+                        finished=lambda it: stages.found(block_name(it.block)), unit="photos",
                         count=lambda it: len(it.photos))
     failed = {int(k): v for m in blocks for k, v in m["failed"].items()}
     bad = np.zeros(len(names), bool)
@@ -81,7 +81,7 @@ def survey_sparse(stages: Stages, media: InputRef, meta: FlightMeta, intrinsics:
     pairs = [tuple(int(v) for v in pr) for pr in plan.pairs if not bad[pr[0]] and not bad[pr[1]]]
     chunks = [tuple(pairs[k:k + PAIRS_PER_TASK]) for k in range(0, len(pairs), PAIRS_PER_TASK)]
     matched = stages.map("match", match_pairs, [PairsItem(job, c, ch) for c, ch in enumerate(chunks)],
-                         (_at(span, _TRACK), _at(span, _MATCH)), finished=lambda it: _found(stages, pairs_name(it.chunk)),
+                         (_at(span, _TRACK), _at(span, _MATCH)), finished=lambda it: stages.found(pairs_name(it.chunk)),
                          unit="pairs", count=lambda it: len(it.pairs))
     chunk_photos = [np.unique(np.asarray(ch, np.int64)) for ch in chunks]
     flow = [tuple(r) for m in blocks for r in m["flow_pairs"]]
@@ -142,7 +142,7 @@ def _map_submodels(stages: Stages, plan: SurveyPlan, item, calibrate: bool, span
     if calibrate:
         for s in order:
             results[s] = stages.map("submodel lens", map_submodel, [item(s, None)], (span[0], span[0]),
-                                    finished=lambda it: _found(stages, submodel_name(it.index)),
+                                    finished=lambda it: stages.found(submodel_name(it.index)),
                                     unit=f"(calibrating the lens on {len(plan.submodels[s].members)} photos)")[0]
             if "failed" not in results[s]:
                 lens = load_submodel(stages.work, s)[0].lens
@@ -152,14 +152,9 @@ def _map_submodels(stages: Stages, plan: SurveyPlan, item, calibrate: bool, span
     rest = [s for s in order if s not in results]
     mid = span[0] + (span[1] - span[0]) * (n - len(rest)) / max(n, 1)
     metas = stages.map("submodels", map_submodel, [item(s, lens) for s in rest], (mid, span[1]),
-                       finished=lambda it: _found(stages, submodel_name(it.index)), unit="submodels")
+                       finished=lambda it: stages.found(submodel_name(it.index)), unit="submodels")
     results.update(zip(rest, metas))
     return results
-
-
-def _found(stages: Stages, name: str) -> dict[str, Any] | None:
-    """A task's stored result (``<name>.json``), None when it has not run."""
-    return stages.work.get_json(name + ".json") if stages.work.exists(name + ".json") else None
 
 
 def _at(span: tuple[float, float], share: float) -> float:

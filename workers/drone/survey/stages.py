@@ -80,6 +80,10 @@ class Stages:
                                **stage_summary(self.fanout.runs.get(stage, []))}
         return out
 
+    def found(self, name: str) -> dict[str, Any] | None:
+        """A task's stored result (``<name>.json`` in the work area), None when it has not run."""
+        return self.work.get_json(name + ".json") if self.work.exists(name + ".json") else None
+
     def once(self, stage: str, fn: Callable[[], R], at: float) -> R:
         """A step in the job's own process whose result the work area keeps: run it unless an earlier attempt did."""
         name = f"stages/{stage.replace(' ', '_')}.pkl"
