@@ -14,6 +14,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
+from workers.common.denormals import flushed_denormals
 from workers.orientation.geometry import Box
 from workers.orientation.parts import load_cascade
 
@@ -150,7 +151,8 @@ class YuNetFaceFinder:
         ph, pw = -(-h // step) * step, -(-w // step) * step
         padded = cv2.copyMakeBorder(gray, 0, ph - h, 0, pw - w, cv2.BORDER_CONSTANT, value=0)
         x = np.ascontiguousarray(np.broadcast_to(padded.astype(np.float32)[None, None], (1, 3, ph, pw)))
-        out = dict(zip(self._outputs, self._session.run(self._outputs, {self._input: x})))
+        with flushed_denormals():
+            out = dict(zip(self._outputs, self._session.run(self._outputs, {self._input: x})))
         found = [_decode_grid(out, stride, pw // stride, self.score_floor) for stride in YUNET_STRIDES]
         boxes = np.concatenate([b for b, _ in found])
         scores = np.concatenate([s for _, s in found])

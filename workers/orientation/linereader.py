@@ -23,6 +23,7 @@ from typing import AbstractSet, Literal, Sequence
 import cv2
 import numpy as np
 
+from workers.common.denormals import flushed_denormals
 from workers.orientation.textlines import TextLine
 from workers.orientation.words import OcrWord, confident, real_words
 
@@ -230,7 +231,8 @@ class TesseractLines:
         api = self._api(lang)
         api.SetImage(Image.fromarray(page))
         api.SetSourceResolution(300)
-        api.Recognize()
+        with flushed_denormals():
+            api.Recognize()
         level, out = tesserocr.RIL.WORD, []
         iterator = api.GetIterator()
         if iterator is None:
@@ -256,7 +258,8 @@ class TesseractLines:
         api = self._api("osd")
         api.SetImage(Image.fromarray(page))
         api.SetSourceResolution(300)
-        found = api.DetectOrientationScript()
+        with flushed_denormals():
+            found = api.DetectOrientationScript()
         return found.get("script_name") if found else None
 
     def read(self, gray: np.ndarray, lines: Sequence[TextLine], vocabulary: AbstractSet[str], lang: str = "eng",

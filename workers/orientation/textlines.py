@@ -28,6 +28,7 @@ from typing import Callable, Literal
 import cv2
 import numpy as np
 
+from workers.common.denormals import flushed_denormals
 from workers.orientation.quantize import Precision, gate_model, one_core_session
 
 Axis = Literal["h", "v"]
@@ -173,7 +174,8 @@ class LineDetector:
         """(text probability map (h, w) float32 in [0, 1], its scale relative to ``gray``) for ``gray`` ((H, W) uint8)
         resized so that its long side is ``side`` px (:func:`network_input`; the map cut back to the copy)."""
         x, (nh, nw) = network_input(gray, side)
-        out = self._session.run(None, {self._input: x})[0][0, 0]
+        with flushed_denormals():
+            out = self._session.run(None, {self._input: x})[0][0, 0]
         return out[:nh, :nw], nw / gray.shape[1]
 
     def lines(self, gray: np.ndarray, side: int) -> tuple[list[TextLine], list[TextLine], float]:
