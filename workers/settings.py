@@ -54,7 +54,7 @@ class WorkerSettings(BaseSettings):
                           "wfrench, ...), else the wordfreq package's lists.")
     orientation_gate_precision: Literal["auto", "int8", "float"] = Field(
         "float", description="Orientation: the text-line gate's network in float (float), in 8-bit integers (int8: "
-                             "~0.6x its CPU, so a photo with neither faces nor text ~0.8x, but a few text photos "
+                             "~0.6-0.8x its CPU, so a photo with neither faces nor text ~0.8-0.9x, but a few text photos "
                              "fewer decided), or in 8 bits where the CPU has integer dot-product instructions (auto: "
                              "x86 VNNI). The 8-bit model is built once per machine into model_cache_dir and checked "
                              "against the float model first.")

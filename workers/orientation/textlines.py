@@ -38,7 +38,7 @@ large (or as large as it is) and the factor it actually has."""
 
 GATE_PIXELS = 480 * 360
 """Pixels of the copy the gate's first pass looks at (a 4:3 photo at 480 x 360, a square one at 416 x 416, a long
-receipt at 810 x 213). The detector's cost grows with the pixels (about 35 ms of one core for these, 160 ms for four
+receipt at 810 x 213). The detector's cost grows with the pixels (about 35 ms of one core for these on this project's AMD EPYC machine, 53 ms on an Intel Xeon, 160 ms for four
 times as many, on this project's benchmark machine); a pixel budget rather than a long side keeps the lines of a long
 receipt as tall as a photo's (at 480 px on its long side, a receipt's lines were 3 px tall and ran together)."""
 GATE_MAX_SIDE = 1024
@@ -162,7 +162,7 @@ def model_path() -> Path:
 class LineDetector:
     """The DB text-line detector on one core (callers run photos in parallel processes). Thread-safe: onnxruntime
     sessions may be run from several threads. ``precision``: the network in float (``float``), in 8-bit integers
-    (``int8``: about 0.6x the CPU, a few lines fewer; :mod:`workers.orientation.quantize`), or in 8 bits where the CPU
+    (``int8``: about 0.6-0.8x the CPU, a few lines fewer; :mod:`workers.orientation.quantize`), or in 8 bits where the CPU
     runs them fast (``auto``). ``model`` (a float ONNX file) replaces rapidocr's."""
 
     def __init__(self, model: Path | None = None, precision: Precision = "float") -> None:
