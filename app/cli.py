@@ -11,13 +11,17 @@ import sys
 import time
 from pathlib import Path
 
-ENGINE_CLIS = (
-    "workers.orientation.cli",
-    "workers.depth.cli",
-    "workers.faces.cli",
-    "workers.sweep.cli",
-    "workers.drone.cli",
-)
+ENGINE_CLIS = {
+    "workers.orientation.cli": ("orient",),
+    "workers.depth.cli": ("depth",),
+    "workers.faces.cli": ("face",),
+    "workers.sweep.cli": ("render",),
+    "workers.drone.cli": ("reconstruct",),
+    "app.keys_cli": ("keys",),
+}
+"""The modules that add the engine and key verbs (their ``register``), and the verbs each adds: a command line naming
+one of them imports that module alone (the others' engines cost a second and a half of CPU to import: ``sweepcast
+orient`` over a library starts that much sooner)."""
 
 
 def _is_loopback(host: str) -> bool:
@@ -227,9 +231,10 @@ def cmd_models(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
-def build_parser(engines: bool = True) -> argparse.ArgumentParser:
+def build_parser(engines: bool = True, command: str | None = None) -> argparse.ArgumentParser:
     """Every verb; ``engines=False`` leaves out the keys and engine verbs, whose modules import the engines (a second
-    of CPU: the service's own verbs, run at every container start, do without)."""
+    of CPU: the service's own verbs, run at every container start, do without); with ``command`` one of those verbs
+    (:data:`ENGINE_CLIS`), only its module's verbs are added."""
     parser = argparse.ArgumentParser(prog="sweepcast", description="sweepcast: the service and its engines from the command line.")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -295,10 +300,8 @@ def build_parser(engines: bool = True) -> argparse.ArgumentParser:
         return parser
     import importlib
 
-    from app import keys_cli
-
-    keys_cli.register(sub)
-    for module in ENGINE_CLIS:
+    named = [module for module, verbs in ENGINE_CLIS.items() if command in verbs]
+    for module in named or ENGINE_CLIS:
         importlib.import_module(module).register(sub)
     return parser
 
@@ -341,7 +344,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     command = _command(argv)
     _use_service_kernel_cache(argv, command)
-    args = build_parser(engines=command not in OWN_COMMANDS).parse_args(argv)
+    args = build_parser(engines=command not in OWN_COMMANDS, command=command).parse_args(argv)
     return int(args.func(args) or 0)
 
 
