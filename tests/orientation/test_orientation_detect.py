@@ -196,8 +196,8 @@ def test_the_haar_scan_follows_the_photos_short_side():
 class _SeesNothing:
     """A YuNet finder that finds no face anywhere (what YuNet does on aerial photos and textures)."""
 
-    def find(self, view, scan_size):
-        return []
+    def find_turned(self, gray, scan_size, rotations):
+        return {r: [] for r in rotations}
 
 
 class _SpyPaper:

@@ -12,7 +12,7 @@ import pytest
 from workers.common.datasets import data_root, dataset
 from workers.orientation.detect import DetectorConfig, get_detector
 from workers.orientation.faces import YuNetFaceFinder
-from workers.orientation.onnxshape import free_input_size
+from workers.orientation.onnxshape import free_input_size, grey_input
 from workers.orientation.textlines import model_path
 
 YUNET = data_root().parent / "models" / "yunet" / "face_detection_yunet_2023mar.onnx"
@@ -32,6 +32,34 @@ def test_freeing_the_input_size_keeps_what_the_model_computes():
     got = after.run(None, {after.get_inputs()[0].name: x})[0]
     np.testing.assert_array_equal(got, want)
     assert after.get_inputs()[0].shape[2:] == ["rows", "columns"]
+
+
+def test_a_grey_input_computes_what_the_colour_model_computes_on_a_grey_image():
+    original = model_path().read_bytes()  # a colour model: three channels into an ungrouped first convolution
+    grey = grey_input(original)
+    page = np.random.default_rng(2).uniform(-1, 1, (1, 1, 96, 160)).astype(np.float32)
+    colour, one = _session(original), _session(grey)
+    want = colour.run(None, {colour.get_inputs()[0].name: np.repeat(page, 3, axis=1)})[0]
+    got = one.run(None, {one.get_inputs()[0].name: page})[0]
+    np.testing.assert_allclose(got, want, atol=1e-5)
+    assert one.get_inputs()[0].shape[1] == 1
+
+
+@pytest.mark.parametrize("reader, group", [("Relu", None), ("Conv", 3)])
+def test_a_model_whose_input_is_not_read_by_a_plain_convolution_keeps_its_channels(reader: str, group: int | None):
+    from workers.orientation.onnxshape import _model_class
+
+    model = _model_class()()
+    image = model.graph.input.add()
+    image.name = "image"
+    for length in (1, 3, 8, 8):
+        image.type.tensor_type.shape.dim.add().dim_value = length
+    node = model.graph.node.add(op_type=reader, input=["image", "w"], output=["out"])
+    if group is not None:
+        node.attribute.add(name="group", i=group)
+    model.graph.initializer.add(name="w", dims=[3, 1, 3, 3], data_type=1, raw_data=bytes(4 * 27))
+    with pytest.raises(ValueError, match="not read by ungrouped float convolutions"):
+        grey_input(model.SerializeToString())
 
 
 @pytest.mark.parametrize("junk", [b"", b"not a model at all", b"\x08\x07\x12\x04junk"])

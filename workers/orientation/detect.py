@@ -342,7 +342,7 @@ class YuNetDetector:
         faces: list[Face] = []
         seen: list[Track] = []
         for scan_size in self.scan_sizes:
-            faces = self._faces_at(gray.shape, views, scan_size, seen)
+            faces = self._faces_at(gray, views, scan_size, seen)
             if faces:
                 break
         if self.paper is not None and seen and decide(faces).rotation is None:
@@ -350,11 +350,10 @@ class YuNetDetector:
             faces = fuse_paper(faces, haar_only_not_decisive(paper, seen))
         return faces
 
-    def _faces_at(self, shape: tuple[int, ...], views: dict[int, np.ndarray], scan_size: int,
+    def _faces_at(self, gray: np.ndarray, views: dict[int, np.ndarray], scan_size: int,
                   seen: list[Track]) -> list[Face]:
-        finder = self._finder.get()
-        height, width = shape[:2]
-        tracks = group_tracks({r: finder.find(v, scan_size) for r, v in views.items()}, width, height)
+        height, width = gray.shape[:2]
+        tracks = group_tracks(self._finder.get().find_turned(gray, scan_size, ROTATIONS), width, height)
         seen.extend(tracks)
         accepted = yunet_votes(tracks, self.min_score, self.margin)
         if self._verifier is not None:

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from workers.common.denormals import flushed_denormals
-from workers.orientation.geometry import Box
+from workers.orientation.geometry import Box, rotate_view
 from workers.orientation.parts import load_cascade
 
 HAAR_FACE_CASCADE = Path(cv2.data.haarcascades) / "haarcascade_frontalface_alt.xml"
@@ -136,12 +136,17 @@ class YuNetFaceFinder:
         self._input = self._session.get_inputs()[0].name
         self.score_floor = score_floor
 
-    def find(self, view: np.ndarray, scan_size: int) -> list[Candidate]:
-        """Faces in ``view`` ((H, W) uint8 grey), searched on a copy at most ``scan_size`` px on its long
-        side, with their scores in [0, 1]; boxes in view px."""
-        scan, s = _shrink(view, scan_size)
-        boxes, scores = self.detect(scan)
-        return [Candidate(tuple(float(v) / s for v in box), float(score)) for box, score in zip(boxes, scores)]
+    def find_turned(self, gray: np.ndarray, scan_size: int, rotations: Sequence[int]) -> dict[int, list[Candidate]]:
+        """The faces in each view ``rotate_view(gray, r)`` (``gray`` (H, W) uint8) for ``r`` in ``rotations``,
+        searched on a copy at most ``scan_size`` px on its long side, with their scores in [0, 1]; boxes in view px.
+        One copy is shrunk, then turned (the turn of a shrunk copy is the shrunk copy of the turn)."""
+        scan, s = _shrink(gray, scan_size)
+        found = {}
+        for rotation in rotations:
+            boxes, scores = self.detect(rotate_view(scan, rotation))
+            found[rotation] = [Candidate(tuple(float(v) / s for v in box), float(score))
+                               for box, score in zip(boxes, scores)]
+        return found
 
     def detect(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(boxes (n, 4) float32 x, y, w, h px of ``gray``, scores (n,) float32 in [0, 1], best first) of the faces
@@ -150,7 +155,7 @@ class YuNetFaceFinder:
         step = YUNET_STRIDES[-1]
         ph, pw = -(-h // step) * step, -(-w // step) * step
         padded = cv2.copyMakeBorder(gray, 0, ph - h, 0, pw - w, cv2.BORDER_CONSTANT, value=0)
-        x = np.ascontiguousarray(np.broadcast_to(padded.astype(np.float32)[None, None], (1, 3, ph, pw)))
+        x = padded.astype(np.float32)[None, None]  # one grey channel (_yunet_session)
         with flushed_denormals():
             out = dict(zip(self._outputs, self._session.run(self._outputs, {self._input: x})))
         found = [_decode_grid(out, stride, pw // stride, self.score_floor) for stride in YUNET_STRIDES]
@@ -186,21 +191,17 @@ def _ort_load_errors() -> tuple[type[Exception], ...]:
 
 
 def _yunet_session(model: Path):
-    """An onnxruntime session (one thread) of the YuNet ``model`` with its input's height and width made free.
-    Raises FileNotFoundError when the file is missing or is not a YuNet model."""
-    import onnxruntime
-
-    from workers.orientation.onnxshape import free_input_size
+    """An onnxruntime session (one thread) of the YuNet ``model`` with its input's height and width made free and its
+    three colour channels folded into one grey channel (:func:`~workers.orientation.onnxshape.grey_input`: the
+    detector is given grey photos, so the three channels were always equal). Raises FileNotFoundError when the file is
+    missing or is not a YuNet model."""
+    from workers.orientation.onnxshape import free_input_size, grey_input
+    from workers.orientation.quantize import one_core_session
 
     if not model.is_file():
         raise FileNotFoundError(f"YuNet model not found: {model}")
-    options = onnxruntime.SessionOptions()
-    options.intra_op_num_threads = 1  # callers run photos in parallel processes, one core each
-    options.inter_op_num_threads = 1
-    options.log_severity_level = 3
     try:
-        graph = free_input_size(model.read_bytes(), {2: "height", 3: "width"})
-        session = onnxruntime.InferenceSession(graph, options, providers=["CPUExecutionProvider"])
+        session = one_core_session(grey_input(free_input_size(model.read_bytes(), {2: "height", 3: "width"})))
     except (ValueError, RuntimeError, *_ort_load_errors()) as exc:
         raise FileNotFoundError(f"cannot load the YuNet model {model}: {exc}") from None
     names = {o.name for o in session.get_outputs()}

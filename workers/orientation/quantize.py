@@ -56,15 +56,17 @@ class GateModel:
     detail: str
 
 
-def one_core_session(model: Path):
-    """An onnxruntime session of ``model`` on one core (callers run photos in parallel processes, one core each)."""
+def one_core_session(model: Path | bytes):
+    """An onnxruntime session of ``model`` (a file, or a model's bytes) on one core (callers run photos in parallel
+    processes, one core each)."""
     import onnxruntime
 
     options = onnxruntime.SessionOptions()
     options.intra_op_num_threads = 1
     options.inter_op_num_threads = 1
     options.log_severity_level = 3
-    return onnxruntime.InferenceSession(str(model), options, providers=["CPUExecutionProvider"])
+    source = model if isinstance(model, bytes) else str(model)
+    return onnxruntime.InferenceSession(source, options, providers=["CPUExecutionProvider"])
 
 
 def int8_fast() -> bool:
