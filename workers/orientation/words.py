@@ -24,6 +24,7 @@ upright reads as nonsense upside down.
 """
 from __future__ import annotations
 
+import re
 import statistics
 import unicodedata
 from dataclasses import dataclass
@@ -50,7 +51,7 @@ REAL_WORD_HEIGHT_RATIO = 2.5
 _STROKES = frozenset("iljtf")
 _NON_LATIN_FROM = 0x0370
 """Code points from Greek upwards are not Latin (Latin, its extensions and IPA lie below)."""
-_NON_LATIN_CHAR = chr(_NON_LATIN_FROM)
+_BEYOND_LATIN = re.compile(f"[^\\x00-{chr(_NON_LATIN_FROM - 1)}]")
 _DENSE_SCRIPTS_FROM = 0x0E00
 """Code points from Thai upwards (Thai, Hangul, CJK, kana) are the dense scripts; Latin, Greek, Cyrillic, Hebrew and
 Arabic lie below."""
@@ -120,9 +121,11 @@ def _script(text: str) -> str:
 
 @lru_cache(maxsize=4)
 def _scripts_of(vocabulary: AbstractSet[str]) -> frozenset[str]:
-    """The scripts the word lists hold words of (``LATIN`` always: the English OCR's words are looked up in them,
-    installed or not)."""
-    return frozenset({"LATIN"} | {_script(word) for word in vocabulary if word and max(word) >= _NON_LATIN_CHAR})
+    """The scripts the word lists hold letters of (``LATIN`` always: the English OCR's words are looked up in them,
+    installed or not). One pass of a regular expression over the words joined (a tenth of a second for Debian's
+    800,000 words, where a loop over the words took half a second of each worker's first text photo)."""
+    letters = set(_BEYOND_LATIN.findall("\n".join(vocabulary)))
+    return frozenset({"LATIN"} | {_script(ch) for ch in letters if ch.isalpha()})
 
 
 def _is_dense(text: str) -> bool:
