@@ -46,7 +46,7 @@ def test_a_grey_input_computes_what_the_colour_model_computes_on_a_grey_image():
 
 
 @pytest.mark.parametrize("reader, group", [("Relu", None), ("Conv", 3)])
-def test_a_model_whose_input_is_not_read_by_a_plain_convolution_keeps_its_channels(reader: str, group: int | None):
+def test_a_model_whose_input_is_not_read_by_a_plain_convolution_is_not_made_grey(reader: str, group: int | None):
     from workers.orientation.onnxshape import _model_class
 
     model = _model_class()()

@@ -4,8 +4,9 @@ Some models declare a fixed input size although their graph has none (YuNet decl
 with -1 and its upsampling uses scales), and onnxruntime refuses any other size. :func:`free_input_size` rewrites
 only the declared shapes; :func:`grey_input` makes a colour model take one grey channel. They read the model with the
 few messages of ONNX's schema they change (``onnx.proto``'s field numbers), built here with protobuf (a dependency of
-onnxruntime); every other field of the model is kept as protobuf keeps fields it does not know, in their order. Importing the ``onnx`` package for this would cost most of a second
-in every process that builds a detector (its ``ml_dtypes`` extension).
+onnxruntime); every other field of the model is kept as protobuf keeps fields it does not know, in their order.
+Importing the ``onnx`` package for this would cost most of a second in every process that builds a detector (its
+``ml_dtypes`` extension).
 """
 from __future__ import annotations
 

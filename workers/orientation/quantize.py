@@ -1,19 +1,20 @@
 """The text-line gate's network in 8-bit integers, for a library that trades a few text decisions for speed.
 
-The gate (:mod:`workers.orientation.textlines`) runs on every photo that no face decides, so its network is most of
-what such a photo costs. onnxruntime's static quantization (QDQ format: per-channel signed 8-bit weights, unsigned
-8-bit activations whose ranges come from a calibration run) turns rapidocr's float model into one that runs on the
-CPU's integer dot-product instructions (VNNI) in ~0.6x the time (31 against 50 ms a 480 x 352 copy, one core of this
-project's AMD EPYC machine; on an Intel Xeon, with the float network's denormals flushed
-(:mod:`workers.common.denormals`), 41 against 53 ms, ~0.8x). Its map is close to the float one but not the same: in a
-run of ``benchmarks.orientation_text`` with it as the gate (2026-12-06, 10:32-11:17 UTC), the gate found lines in 589 of 608 text trials where the float one
+The gate (:mod:`workers.orientation.textlines`) runs on every photo that no face decides, so its network is most of what
+such a photo costs. onnxruntime's static quantization (QDQ format: per-channel signed 8-bit weights, unsigned 8-bit
+activations whose ranges come from a calibration run) turns rapidocr's float model into one that runs on the CPU's
+integer dot-product instructions (VNNI) in ~0.6x the time (31 against 50 ms a 480 x 352 copy, one core of this project's
+AMD EPYC machine; on an Intel Xeon, with the float network's denormals flushed (:mod:`workers.common.denormals`), 41
+against 53 ms, ~0.8x). Its map is close to the float one but not the same: in a run of ``benchmarks.orientation_text``
+with it as the gate (2026-12-06, 10:32-11:17 UTC), the gate found lines in 589 of 608 text trials where the float one
 had found 595 (the run before), looked closer at small print in 18 rather than 29, and the engine decided 454 of the 500
 held-out text trials where with the float gate and the same decoding it decided 459 (that engine's trials, 11:29-11:35
-UTC; 0 wrong either way), while the median CPU of a photo with neither faces nor text fell from ~100 to 83 ms. So it is a setting (``SWEEPCAST_ORIENTATION_GATE_PRECISION``: ``int8``, or ``auto`` for 8 bits where the CPU
-has VNNI), not the default. Used only screening photos (8 bits first, the float network on any photo with a line in
-it) it saved nothing: the screen's pass costs about as much as it saves, since a third of the photos go on. Without
-VNNI (AVX2 alone) onnxruntime's signed-weight kernels may saturate and are no faster than the float ones, so ``auto``
-keeps the float model there (:func:`int8_fast`).
+UTC; 0 wrong either way), while the median CPU of a photo with neither faces nor text fell from ~100 to 83 ms. So it is
+a setting (``SWEEPCAST_ORIENTATION_GATE_PRECISION``: ``int8``, or ``auto`` for 8 bits where the CPU has VNNI), not the
+default. Used only screening photos (8 bits first, the float network on any photo with a line in it) it saved nothing:
+the screen's pass costs about as much as it saves, since a third of the photos go on. Without VNNI (AVX2 alone)
+onnxruntime's signed-weight kernels may saturate and are no faster than the float ones, so ``auto`` keeps the float
+model there (:func:`int8_fast`).
 
 The calibration images are generated here (:func:`calibration_pages`): pages and scenes with lines of text at many
 sizes, contrasts and both axes, over paper, gradients and textures. No photo of the benchmarks shapes the ranges.

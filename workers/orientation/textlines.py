@@ -39,8 +39,9 @@ large (or as large as it is) and the factor it actually has."""
 GATE_PIXELS = 480 * 360
 """Pixels of the copy the gate's first pass looks at (a 4:3 photo at 480 x 360, a square one at 416 x 416, a long
 receipt at 810 x 213). The detector's cost grows with the pixels (about 35 ms of one core for these, 160 ms for four
-times as many, on the AMD EPYC of this project's benchmarks; 53 ms for these on an Intel Xeon); a pixel budget rather than a long side keeps the lines of a long
-receipt as tall as a photo's (at 480 px on its long side, a receipt's lines were 3 px tall and ran together)."""
+times as many, on the AMD EPYC of this project's benchmarks; 53 ms for these on an Intel Xeon); a pixel budget rather
+than a long side keeps the lines of a long receipt as tall as a photo's (at 480 px on its long side, a receipt's lines
+were 3 px tall and ran together)."""
 GATE_MAX_SIDE = 1024
 """... and its long side at most this (px): a panorama or a till roll is not stretched into a thread."""
 PROBABILITY_THRESHOLD = 0.3
