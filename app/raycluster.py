@@ -19,13 +19,15 @@ from workers.settings import WorkerSettings
 log = logging.getLogger("sweepcast.ray")
 
 
-def connect(address: str | None, num_cpus: int | None = None, env: dict[str, str] | None = None) -> bool:
+def connect(address: str | None, num_cpus: int | None = None, env: dict[str, str] | None = None,
+            idle_workers: int | None = None) -> bool:
     """Initialise Ray in this process; return True when this call started it (and so owns it).
 
     The embedded default starts a local cluster on loopback without the dashboard, with Ray's
     token authentication off (it listens on loopback only). A real cluster keeps its own
     security settings: see the README's scale-out section for the token. ``env`` is set on
-    every worker process that runs this service's tasks.
+    every worker process that runs this service's tasks. ``idle_workers``: the worker processes
+    a local cluster keeps alive when idle (:func:`idle_worker_limit`); a real cluster's are its own.
     """
     import ray
 
@@ -40,9 +42,21 @@ def connect(address: str | None, num_cpus: int | None = None, env: dict[str, str
     else:
         os.environ.setdefault("RAY_AUTH_MODE", "disabled")
         temp_dir = os.path.join(tempfile.gettempdir(), "sweepcast-ray")
-        ray.init(num_cpus=num_cpus, include_dashboard=False, _temp_dir=temp_dir, **kwargs)
+        ray.init(num_cpus=num_cpus, include_dashboard=False, _temp_dir=temp_dir,
+                 _system_config={"num_workers_soft_limit": idle_worker_limit(num_cpus, idle_workers)}, **kwargs)
     log.info("Ray ready: %s", ray.cluster_resources())
     return True
+
+
+def idle_worker_limit(num_cpus: int | None, setting: int | None = None) -> int:
+    """The worker processes a local cluster of ``num_cpus`` (None: this machine's) keeps when idle: ``setting``, else
+    twice the CPUs, at most the CPUs + 8. Ray's own default, one per CPU, ends the workers a batch job's blocks ran in
+    as soon as they idle (a second), since the job's own task holds a worker while it waits: each library then paid
+    their start again (Python, the engine's imports, its detectors: 2-3 s of CPU each)."""
+    if setting is not None:
+        return setting
+    cpus = num_cpus or os.cpu_count() or 1
+    return min(2 * cpus, cpus + 8)
 
 
 _early: tuple[Settings, Future[bool]] | None = None
@@ -111,7 +125,7 @@ def _connect_as(settings: Settings, join: bool = False) -> bool:
                   "started again", settings.ray_address, code, JOIN_FAILED_EXIT_CODE)
         logging.shutdown()
         os._exit(JOIN_FAILED_EXIT_CODE)
-    return connect(settings.ray_address, settings.ray_num_cpus, worker_env(settings))
+    return connect(settings.ray_address, settings.ray_num_cpus, worker_env(settings), settings.ray_idle_workers)
 
 
 def worker_env(settings: Settings) -> dict[str, str]:

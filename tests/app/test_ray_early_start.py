@@ -13,7 +13,7 @@ def fake_connect(monkeypatch):
     calls: list[tuple] = []
     release = threading.Event()
 
-    def connect(address, num_cpus=None, env=None):
+    def connect(address, num_cpus=None, env=None, idle_workers=None):
         calls.append((address, num_cpus, threading.current_thread().name))
         release.wait(10)
         if address == "ray://unreachable":

@@ -13,7 +13,7 @@ from workers.common.errors import InputError
 from workers.common.images import EmptyImage
 from workers.orientation.errors import TruncatedImage
 from workers.orientation.exif import read_exif, write_orientation
-from workers.orientation.geometry import ROTATIONS, rotate_view, view_box_to_image
+from workers.orientation.geometry import ROTATIONS, TurnedViews, rotate_view, view_box_to_image
 from workers.orientation.orient import analyze, orient_file
 
 
@@ -32,6 +32,15 @@ def test_views_are_clockwise_turns():
     assert rotate_view(image, 90).tolist() == [[3, 0], [4, 1], [5, 2]]
     assert rotate_view(image, 270).tolist() == [[2, 5], [1, 4], [0, 3]]
     assert rotate_view(image, 180).tolist() == [[5, 4, 3], [2, 1, 0]]
+
+
+def test_turned_views_are_made_when_first_asked_for_and_kept():
+    image = np.arange(6, dtype=np.uint8).reshape(2, 3)
+    views = TurnedViews(image)
+    assert len(views) == 0  # nothing turned yet
+    assert views[90].tolist() == [[3, 0], [4, 1], [5, 2]]
+    assert views[90] is views[90] and set(views) == {90}
+    assert views[0] is image
 
 
 def _face(rotation: int, decisive: bool = True) -> Face:

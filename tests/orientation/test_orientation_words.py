@@ -43,7 +43,7 @@ def test_a_script_no_word_list_holds_is_known_by_tesseracts_dictionary():
 
 
 def test_word_lists_are_read_from_a_folder(tmp_path):
-    (tmp_path / "english").write_text("Receipt\nTotal\n\n")
+    (tmp_path / "english").write_bytes(b"Receipt \r\nTOTAL\n\n")  # spaces, CRLF and case do not matter
     (tmp_path / "README.select-wordlist").write_text("not words\n")
     (tmp_path / "words").symlink_to(tmp_path / "english")
     assert word_lists(tmp_path) == frozenset({"receipt", "total"})

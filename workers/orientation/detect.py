@@ -38,7 +38,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from workers.orientation.faces import Candidate, HaarFaceFinder, LongSideScan, ShortSideScan, YuNetFaceFinder
-from workers.orientation.geometry import ROTATIONS, Box, image_box_to_view, iou, rotate_view, view_box_to_image
+from workers.orientation.geometry import (ROTATIONS, Box, TurnedViews, image_box_to_view, iou, rotate_view,
+                                          view_box_to_image)
 from workers.orientation.parts import PartSpec, PartVerifier, face_crop
 from workers.orientation.text import RejectReason, TextCue, get_text_cue, text_status
 from workers.settings import WorkerSettings
@@ -338,7 +339,7 @@ class YuNetDetector:
             self._verifier.get()
 
     def upright_faces(self, gray: np.ndarray) -> list[Face]:
-        views = {r: rotate_view(gray, r) for r in ROTATIONS}
+        views = TurnedViews(gray)
         faces: list[Face] = []
         seen: list[Track] = []
         for scan_size in self.scan_sizes:
@@ -350,7 +351,7 @@ class YuNetDetector:
             faces = fuse_paper(faces, haar_only_not_decisive(paper, seen))
         return faces
 
-    def _faces_at(self, gray: np.ndarray, views: dict[int, np.ndarray], scan_size: int,
+    def _faces_at(self, gray: np.ndarray, views: TurnedViews, scan_size: int,
                   seen: list[Track]) -> list[Face]:
         height, width = gray.shape[:2]
         tracks = group_tracks(self._finder.get().find_turned(gray, scan_size, ROTATIONS), width, height)
@@ -365,7 +366,7 @@ class YuNetDetector:
             faces.append(Face(box, rotation, cand.score, parts, "yunet", decisive))
         return faces
 
-    def _part_accepts(self, tracks: list[Track], views: dict[int, np.ndarray],
+    def _part_accepts(self, tracks: list[Track], views: TurnedViews,
                       votes: dict[tuple[int, int], tuple[tuple[str, ...], bool]]
                       ) -> dict[tuple[int, int], tuple[tuple[str, ...], bool]]:
         """(track, view) -> (parts, True) for detections whose Haar parts confirm them in their view.
