@@ -6,10 +6,12 @@ from app import raycluster
 from app.settings import Settings
 
 
-def test_the_idle_workers_kept_are_twice_the_cpus_at_most_eight_more_unless_set():
+def test_the_idle_workers_kept_are_twice_the_cpus_at_most_eight_more_unless_set(monkeypatch):
     assert raycluster.idle_worker_limit(2) == 4
     assert raycluster.idle_worker_limit(16) == 24
     assert raycluster.idle_worker_limit(2, 3) == 3
+    monkeypatch.setattr(raycluster, "usable_cores", lambda: 3)  # no CPU count given: the cores this process may use
+    assert raycluster.idle_worker_limit(None) == 6
 
 
 def test_a_local_cluster_is_started_with_that_limit_and_a_real_cluster_keeps_its_own(monkeypatch):

@@ -31,6 +31,7 @@ import sys
 from pathlib import Path
 
 from workers.common.cliutil import ProgressBar, format_table
+from workers.common.cores import usable_cores
 from workers.common.images import MAX_PIXELS_ENV, max_pixels_from_env
 from workers.common.models import models_dir
 from workers.common.pace import Pace
@@ -94,14 +95,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="where a run keeps what it decided, for the next one (default: STEM.state.jsonl beside "
                         "--report, else a file in ~/.cache/sweepcast/orient for these PATHs)")
     p.set_defaults(func=_orient)
-
-
-def usable_cores() -> int:
-    """The cores this process may run on (its CPU affinity where the system says), at least 1."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # macOS, Windows
-        return max(1, os.cpu_count() or 1)
 
 
 def _positive(text: str) -> int:
