@@ -18,7 +18,7 @@ from app.uploads import check_size, read_upload
 from workers.common.errors import InputError
 from workers.common.models import models_dir
 from workers.orientation.detect import detector_config
-from workers.orientation.job import BATCH_JOB, OrientationBatchParams
+from workers.orientation.job import BATCH_JOB, OrientationBatchParams, batch_input_name
 from workers.orientation.orient import DetectorConfig, OrientationReport, analyze, get_detector, orient_file
 
 _MEDIA = {"jpeg": "image/jpeg", "webp": "image/webp", "tiff": "image/tiff", "png": "image/png"}
@@ -134,7 +134,8 @@ async def create_batch(files: list[UploadFile] = File(..., description="the phot
     for f in files:
         check_size(f, svc.settings.max_upload_bytes)
     uploads = [
-        Upload(f"photo-{i:04d}", f.file, {"filename": f.filename or f"photo-{i:04d}", "content_type": f.content_type})
+        Upload(batch_input_name(i), f.file,
+               {"filename": f.filename or batch_input_name(i), "content_type": f.content_type})
         for i, f in enumerate(files)
     ]
     return job_accepted(await create_job(svc, who, BATCH_JOB, OrientationBatchParams(force=force, sidecar=sidecar, text=text), uploads))

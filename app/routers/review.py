@@ -1,8 +1,10 @@
 """The review queue of a photo batch: the photos the engine left for a person, and what that person decides.
 
 ``/review/{job id}`` serves the page (``app/static/review/``, like the viewer: not under ``/v1``, the page sends the
-API key it is given); its data comes from ``/v1/photos/batches/{job id}/review`` and its thumbnails from the job's
-results (``review/NNNN.jpg``, made by the job). A decision is written with the engine's lossless writers into a new
+API key it is given); its data comes from ``/v1/photos/batches/{job id}/review`` and its thumbnails from
+``/v1/photos/batches/{job id}/photos/{index}/thumbnail``, made from the uploaded photo when the page asks for one (the
+batch itself makes none: most photos left for a person are never looked at, and a thumbnail costs about a tenth of what
+analysing a photo does). A decision is written with the engine's lossless writers into a new
 fixed file of the job and recorded in its ``report.json`` as a person's decision.
 """
 from __future__ import annotations
@@ -17,7 +19,7 @@ from typing import Any, Literal
 
 from fastapi import APIRouter, Depends
 from fastapi import Path as PathParam
-from fastapi.responses import FileResponse
+from fastapi.responses import FileResponse, Response
 from pydantic import BaseModel, Field
 
 from app.auth import principal, require_key
@@ -27,8 +29,8 @@ from app.jobstore import JobState
 from app.routers.jobs import load_job
 from app.services import Services, run_compute, services
 from workers.common.errors import InputError
-from workers.orientation.job import BATCH_JOB, fixed_name, record_review, summary_of
-from workers.orientation.review import ReviewChoice, needs_review, write_choice
+from workers.orientation.job import BATCH_JOB, batch_input_name, fixed_name, record_review, summary_of
+from workers.orientation.review import ReviewChoice, needs_review, thumbnail, write_choice
 from workers.runtime import results_prefix
 
 PAGE = Path(__file__).resolve().parents[1] / "static" / "review"
@@ -60,8 +62,8 @@ class ReviewItem(BaseModel):
 
     index: int
     filename: str
-    thumbnail: str | None = Field(description="the thumbnail's result name (GET /v1/jobs/{id}/results/{name}): the "
-                                              "stored pixels, EXIF ignored, at most 320 px long")
+    thumbnail: str = Field(description="the photo's thumbnail (GET, with the API key): its stored pixels, EXIF "
+                                       "ignored, at most 320 px long")
     reason: str | None = Field(description="why the engine left it: no_cue, conflicting_rotations, low_confidence, "
                                            "or conflicting_metadata (the file's own orientations disagree)")
     message: str = Field(description="the engine's own words")
@@ -97,10 +99,11 @@ def _entries(svc: Services, job_id: str) -> list[dict[str, Any]]:
     return json.loads(svc.store.read(f"{results_prefix(job_id)}/{REPORT}"))
 
 
-def _item(entry: dict[str, Any]) -> ReviewItem:
+def _item(job_id: str, entry: dict[str, Any]) -> ReviewItem:
     report = entry["report"]
     reason = report.get("reject_reason") or ("conflicting_metadata" if report.get("conflicts") else None)
-    return ReviewItem(index=entry["index"], filename=entry["filename"], thumbnail=entry.get("thumbnail"), reason=reason,
+    return ReviewItem(index=entry["index"], filename=entry["filename"], reason=reason,
+                      thumbnail=f"/v1/photos/batches/{job_id}/photos/{entry['index']}/thumbnail",
                       message=report.get("message", ""), engine_rotation_degrees=report.get("rotation_degrees"),
                       accepted_rotations=report.get("accepted_rotations", []),
                       text_rotation_degrees=(report.get("text") or {}).get("rotation_degrees"),
@@ -115,7 +118,7 @@ async def review_queue(job_id: str, svc: Services = Depends(services),
                        who: Principal = Depends(principal)) -> ReviewQueue:
     await _batch(job_id, svc, who)
     entries = await asyncio.to_thread(_entries, svc, job_id)
-    items = [_item(e) for e in entries if needs_review(e.get("report"))]
+    items = [_item(job_id, e) for e in entries if needs_review(e.get("report"))]
     return ReviewQueue(job_id=job_id, photos=len(entries), items=items,
                        reviewed=sum(i.review is not None for i in items))
 
@@ -173,7 +176,33 @@ def _decide(svc: Services, job: Any, index: int, choice: ReviewChoice, mode: str
         result.update(files=sorted(files.values(), key=lambda f: f["name"]), summary=summary_of(entries))
         if not svc.jobs.replace_result(job.id, result):
             raise ApiError(409, f"job {job.id} changed while the decision was written", "job_changed")
-        return _item(next(e for e in entries if e["index"] == index))
+        return _item(job.id, next(e for e in entries if e["index"] == index))
+
+
+@router.get("/{job_id}/photos/{index}/thumbnail", response_class=Response,
+            responses={200: {"content": {"image/jpeg": {}}, "description": "a JPEG at most 320 px long"},
+                       404: {"description": "not a photo batch, or it has no photo with that index"},
+                       422: {"description": "the photo cannot be decoded (its entry in report.json says why)"}},
+            summary="A small JPEG of one photo of a batch, as the engine analysed it: its stored pixels (EXIF "
+                    "ignored), at most 320 px long, in colour where the format allows; made from the upload when "
+                    "asked for (the review page asks as a photo scrolls into view)")
+async def photo_thumbnail(job_id: str,
+                          index: int = PathParam(ge=0, le=MAX_INDEX, description="the photo's index in the batch"),
+                          svc: Services = Depends(services), who: Principal = Depends(principal)) -> Response:
+    job = await load_job(job_id, svc, who)
+    if job.kind != BATCH_JOB.name:
+        raise ApiError(404, f"job {job_id} is not a photo batch (it is {job.kind})", "not_a_photo_batch")
+    name = batch_input_name(index)
+    if name not in job.inputs:
+        raise ApiError(404, f"batch {job_id} has no photo {index} (it has {len(job.inputs)})", "photo_not_found")
+    filename = str((job.input_meta or {}).get(name, {}).get("filename") or name)
+    data = await asyncio.to_thread(svc.store.read, job.inputs[name])
+    try:
+        small = await run_compute(svc, thumbnail, data, filename, svc.settings.max_image_pixels)
+    except InputError as exc:
+        raise exc.about(f"photo {index}") from None
+    # the upload never changes, so neither does its thumbnail: the page's browser keeps it while the job lasts
+    return Response(small, media_type="image/jpeg", headers={"Cache-Control": "private, max-age=86400"})
 
 
 @page_router.get("/review/{job_id}", include_in_schema=False)

@@ -38,10 +38,13 @@ def test_a_persons_choice_is_written_losslessly_and_recorded_as_theirs(client_fa
     queue = client.get(f"/v1/photos/batches/{job}/review").json()
     assert queue["photos"] == 2 and queue["reviewed"] == 0
     assert [(i["index"], i["reason"], i["review"]) for i in queue["items"]] == [(0, "no_cue", None), (1, "no_cue", None)]
-    thumb = client.get(f"/v1/jobs/{job}/results/{queue['items'][0]['thumbnail']}")
-    assert thumb.status_code == 200
-    small = cv2.imdecode(np.frombuffer(thumb.content, np.uint8), cv2.IMREAD_COLOR)
-    assert small.shape[:2] == (240, 320)  # the stored pixels (800 x 600), 320 px long, in colour
+    thumbs = [client.get(item["thumbnail"]) for item in queue["items"]]
+    assert [t.status_code for t in thumbs] == [200, 200] and {t.headers["content-type"] for t in thumbs} == {"image/jpeg"}
+    small = [cv2.imdecode(np.frombuffer(t.content, np.uint8), cv2.IMREAD_COLOR) for t in thumbs]
+    assert [s.shape for s in small] == [(240, 320, 3), (300, 200, 3)]  # 320 px long at most, never enlarged, colour
+    expected = cv2.resize(asymmetric_image(600, 800), (320, 240), interpolation=cv2.INTER_AREA)
+    assert np.abs(small[0].astype(int) - expected).mean() < 6  # the stored pixels, as stored (EXIF ignored)
+    assert not [f for f in client.get(f"/v1/jobs/{job}").json()["result"]["files"] if f["name"].endswith(".jpg")]
 
     item = client.post(f"/v1/photos/batches/{job}/review/0", json={"rotation_degrees": 90, "reviewer": " Ada "})
     assert item.status_code == 200, item.text
@@ -87,6 +90,8 @@ def test_review_errors_are_json_and_change_nothing(client_factory):
     error("GET", "/v1/photos/batches/nope/review", 404, "job_not_found")
     error("POST", f"/v1/photos/batches/{job}/review/7", 404, "photo_not_found",
           json={"rotation_degrees": 90, "reviewer": "Ada"})
+    error("GET", f"/v1/photos/batches/{job}/photos/2/thumbnail", 404, "photo_not_found")
+    error("GET", "/v1/photos/batches/nope/photos/0/thumbnail", 404, "job_not_found")
     for body in ({"rotation_degrees": 45, "reviewer": "Ada"}, {"rotation_degrees": 90, "reviewer": "   "},
                  {"rotation_degrees": 90}, {"rotation_degrees": 90, "reviewer": "Ada", "force": True}):
         r = client.post(f"/v1/photos/batches/{job}/review/0", json=body)

@@ -1,11 +1,11 @@
 """A photo batch in blocks: the unit of work the batch job fans out (:mod:`workers.fanout`) and resumes.
 
 A block is a run of consecutive photos of the batch. :func:`analyse_block` runs in any process of the cluster: it
-reads each photo from the job's inputs, analyses it (and tags it), writes the fixed file and the review thumbnail
-into the job's work area (``files/<result name>``), then, last, its record ``blocks/<first>-<last>.json``:
-``{"entries": [report.json entry, ...], "files": {result name: size}}``. A record present means the block is done:
-an attempt of the job run again (a lost worker, a restart of the service) finds the records of the blocks an earlier
-attempt finished (:func:`finished_photos`) and analyses only the other photos.
+reads each photo from the job's inputs, analyses it (and tags it), writes the fixed file into the job's work area
+(``files/<result name>``), then, last, its record ``blocks/<first>-<last>.json``: ``{"entries": [report.json entry,
+...], "files": {result name: size}}``. A record present means the block is done: an attempt of the job run again (a
+lost worker, a restart of the service) finds the records of the blocks an earlier attempt finished
+(:func:`finished_photos`) and analyses only the other photos.
 
 Blocks are sized by :func:`block_sizes`: several per CPU so that the last ones finish together, and at most
 ``BLOCK_MAX_PHOTOS`` photos so that a lost worker loses little and progress comes often.
@@ -26,7 +26,6 @@ from workers.common.errors import InputError
 from workers.orientation.headers import sniff_format
 from workers.orientation.metadata import WriteMode
 from workers.orientation.orient import analyze, orient_file
-from workers.orientation.review import needs_review, thumbnail
 from workers.workarea import WorkArea
 
 BLOCK_MAX_PHOTOS = 8
@@ -116,17 +115,17 @@ def finished_photos(work: WorkArea) -> dict[int, tuple[dict[str, Any], dict[str,
 
 
 def files_of(entry: dict[str, Any]) -> set[str]:
-    """The result files an entry names (its fixed file, its thumbnail)."""
-    return {name for name in (entry.get("fixed_file"), entry.get("thumbnail")) if name}
+    """The result files an entry names (its fixed file)."""
+    return {entry["fixed_file"]} if entry.get("fixed_file") else set()
 
 
 def process_photo(task: BlockTask, photo: PhotoRef, detector: OrientationDetector,
                   files: dict[str, int]) -> dict[str, Any]:
-    """The report.json entry of one photo; its fixed file and thumbnail written to the work area (``files``: result
-    name -> size, added to)."""
+    """The report.json entry of one photo; its fixed file written to the work area (``files``: result name -> size,
+    added to)."""
     index, filename = photo.index, photo.filename
     entry: dict[str, Any] = {"index": index, "input": photo.name, "filename": filename, "report": None,
-                             "error": None, "fixed_file": None, "note": None, "thumbnail": None, "review": None}
+                             "error": None, "fixed_file": None, "note": None, "review": None}
 
     def keep(name: str, data: bytes) -> str:
         files[name] = task.work.put(f"{FILES}/{name}", data)
@@ -148,8 +147,6 @@ def process_photo(task: BlockTask, photo: PhotoRef, detector: OrientationDetecto
         else:
             report = analyze(data, detector, task.max_pixels, filename, mode=task.mode)
         entry["report"] = report.model_dump(mode="json")
-        if needs_review(entry["report"]):
-            entry["thumbnail"] = keep(review_thumbnail_name(index), thumbnail(data, filename, task.max_pixels))
     except InputError as exc:  # the photo's own problem (ExifTool's included): this photo fails, the others go on
         entry["error"] = {"code": exc.code, "message": str(exc)}
     return entry
@@ -164,10 +161,6 @@ def _one_opencv_thread() -> Iterator[None]:
         yield
     finally:
         cv2.setNumThreads(threads)
-
-
-def review_thumbnail_name(index: int) -> str:
-    return f"review/{index:04d}.jpg"
 
 
 def fixed_name(index: int, filename: str, fmt: str) -> str:

@@ -5,11 +5,9 @@ original file name. Results:
 
 - ``report.json``: a list with one entry per photo, in input order:
   ``{"index", "input", "filename", "report": OrientationReport | null, "error": {"code", "message"} | null,
-  "fixed_file": "fixed/0003-IMG_1234.jpg" | null, "note": str | null, "thumbnail": "review/0003.jpg" | null,
-  "review": null}`` (``review``: a person's decision, added by the review page's API:
-  :func:`record_review`);
-- ``review/<index>.jpg``: a small thumbnail of each photo that needs a person (rejected, or orientations that
-  conflict: :func:`workers.orientation.review.needs_review`), for the review page (``/review/<job id>``);
+  "fixed_file": "fixed/0003-IMG_1234.jpg" | null, "note": str | null, "review": null}`` (``review``: a person's
+  decision, added by the review page's API: :func:`record_review`; the page's thumbnails are made when it asks,
+  ``app/routers/review.py``);
 - ``fixed/<index>-<sanitised name>.<ext>``: each photo (JPEG, WebP, TIFF, PNG) whose tag was written;
 - ``fixed/<index>-<sanitised name>.<ext>.xmp``: the XMP sidecar of each HEIF, AVIF or RAW photo (or of
   every photo with ``sidecar``) whose orientation was written.
@@ -32,7 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from workers.common.jobctx import JobContext, JobInputError
 from workers.common.pace import Pace, describe_seconds
 from workers.orientation.blocks import (FILES, BlockTask, PhotoRef, analyse_block, files_of, finished_photos,
-                                        fixed_name, plan_blocks, review_thumbnail_name, sanitize_filename)
+                                        fixed_name, plan_blocks, sanitize_filename)
 from workers.orientation.detect import Method, detector_config, face_detector
 from workers.orientation.review import ChoiceWrite, needs_review
 from workers.registry import JobKind
@@ -148,7 +146,12 @@ def summary_of(entries: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-__all__ = ["BATCH_JOB", "JOBS", "OrientationBatchParams", "fixed_name", "record_review", "review_thumbnail_name",
+def batch_input_name(index: int) -> str:
+    """The input name of a batch's photo ``index`` (0-based, in upload order)."""
+    return f"photo-{index:04d}"
+
+
+__all__ = ["BATCH_JOB", "JOBS", "OrientationBatchParams", "batch_input_name", "fixed_name", "record_review",
            "run_orientation_batch", "sanitize_filename", "summary_of"]
 
 BATCH_JOB = JobKind("orientation.batch", run_orientation_batch, OrientationBatchParams)

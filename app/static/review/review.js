@@ -1,6 +1,7 @@
 // The review page of a photo batch (/review/<job id>): each photo the engine left for a person, its four turns side
 // by side, one click or key to pick the upright one or to leave it. Data: GET /v1/photos/batches/<id>/review;
-// thumbnails: the job's results (review/NNNN.jpg, made by the job), fetched only when a photo scrolls into view;
+// thumbnails: GET /v1/photos/batches/<id>/photos/<index>/thumbnail (made when asked), fetched only when a photo
+// scrolls into view;
 // a decision: POST /v1/photos/batches/<id>/review/<index> {rotation_degrees, reviewer}.
 // The API helper is the viewer's (app/static/api.js, served under /viewer/).
 import { api, rememberKey, startingKey } from "/viewer/api.js";
@@ -110,7 +111,7 @@ const observer = new IntersectionObserver((entries) => {
 
 async function loadThumbnail(item, section) {
   try {
-    const response = await api(`/v1/jobs/${encodeURIComponent(state.job)}/results/${item.thumbnail}`, state.key);
+    const response = await api(item.thumbnail, state.key);
     const url = URL.createObjectURL(await response.blob());
     section.querySelectorAll("img").forEach((img) => { img.src = url; });
     state.loaded += 1;
