@@ -175,6 +175,28 @@ def test_a_photo_unchanged_since_a_run_is_not_even_read_and_one_moved_is_read_on
     assert reads == ["moved.jpg"]  # remembered where it is now
 
 
+def test_copies_of_one_photo_in_several_albums_are_each_remembered_where_they_are(tmp_path, fake, monkeypatch):
+    from workers.orientation import library
+
+    [original] = photos(tmp_path / "lib" / "2024", 1)
+    for album in ("holiday", "best of"):  # the same bytes, three places (a library's usual duplicates)
+        (tmp_path / "lib" / album).mkdir()
+        shutil.copy2(original, tmp_path / "lib" / album / original.name)
+    report = ["--report", str(tmp_path / "report")]
+    assert run(["orient", str(tmp_path / "lib"), "--jobs", "1", *report]) == 0
+    real, reads = library._read, []
+    monkeypatch.setattr(library, "_read", lambda path: (reads.append(path), real(path))[1])
+
+    def no_engine(config):
+        raise AssertionError("the engine was built for a library with nothing left to analyse")
+
+    monkeypatch.setattr(cli, "get_detector", no_engine)
+    for _ in range(2):  # the state file as the first run left it, then as a resumed run compacts it
+        assert run(["orient", str(tmp_path / "lib"), "--jobs", "1", *report]) == 0
+        assert reads == []  # no copy read again: each place has its own size and time
+        assert [row["decision"] for row in rows(tmp_path / "report", tmp_path / "lib")] == ["rotated"] * 3
+
+
 def test_a_photo_named_twice_is_analysed_once(tmp_path, fake):
     [path] = photos(tmp_path / "lib", 1)
     assert run(["orient", str(tmp_path / "lib"), str(path), "--jobs", "1", "--report", str(tmp_path / "r")]) == 0

@@ -73,29 +73,37 @@ class LibraryState:
     def __init__(self, path: Path, fingerprint: str, resume: bool = True) -> None:
         self.path = path
         self.fingerprint = fingerprint
-        self.rows: dict[str, dict[str, Any]] = self._read() if resume else {}
+        self.rows: dict[str, dict[str, Any]] = {}
+        """Hash -> the row of a photo with those bytes (its result; at any of its places)."""
+        self._at: dict[str, tuple[str, list[int]]] = {}
+        """Path -> (the hash of the photo recorded there, its size and modification time then): every place of the
+        same bytes (a library holds copies of one photo in several albums)."""
+        if resume:
+            self._read()
         self._used: set[str] = set()
         self._hashed: set[str] = set()
         """The paths whose bytes this run hashed: their rows with other hashes are out of date."""
-        self._at: dict[str, str] = {row["path"]: sha for sha, row in self.rows.items() if row.get("stat")}
-        """Path -> the hash of the row recorded there (with its stat)."""
         path.parent.mkdir(parents=True, exist_ok=True)
         self._out: TextIO = open(path, "a" if resume else "w", encoding="utf-8")
 
-    def _read(self) -> dict[str, dict[str, Any]]:
-        rows: dict[str, dict[str, Any]] = {}
+    def _read(self) -> None:
         try:
             lines = self.path.read_text(encoding="utf-8").splitlines()
         except FileNotFoundError:
-            return rows
+            return
         for line in lines:
             try:
                 row = json.loads(line)
             except ValueError:  # the last line of a run killed while writing it
                 continue
             if isinstance(row, dict) and row.get("fingerprint") == self.fingerprint and "sha256" in row:
-                rows[row["sha256"]] = row
-        return rows
+                self._place(row)
+
+    def _place(self, row: dict[str, Any]) -> None:
+        """``row`` is what its bytes decide, and where they were found (when its size and time were known)."""
+        self.rows[row["sha256"]] = row
+        if row.get("stat"):
+            self._at[row["path"]] = (row["sha256"], list(row["stat"]))
 
     def known(self, options: LibraryOptions) -> set[str]:
         """Hashes of the photos a run with ``options`` need not analyse."""
@@ -104,12 +112,12 @@ class LibraryState:
     def unchanged(self, path: Path, options: LibraryOptions) -> str | None:
         """The hash of the photo at ``path`` when a row a run with ``options`` may reuse was recorded there and the
         file still has the size and modification time it had then (it is not read); else None."""
-        sha = self._at.get(str(path))
+        sha, stat = self._at.get(str(path), (None, None))
         row = self.rows.get(sha) if sha is not None else None
-        if row is None or row["path"] != str(path) or (options.changes_files and row["writes"]):
+        if row is None or (options.changes_files and row["writes"]):
             return None
         try:
-            return sha if list(file_stat(path)) == row["stat"] else None
+            return sha if list(file_stat(path)) == stat else None
         except OSError:
             return None
 
@@ -119,9 +127,9 @@ class LibraryState:
         row = self.rows[sha256]
         self._used.add(sha256)
         self._hashed.add(str(path))
-        if stat is not None and (row["path"], row.get("stat")) != (str(path), list(stat)):
-            row.update(path=str(path), stat=list(stat))
-            self._at[row["path"]] = sha256
+        if stat is not None and self._at.get(str(path)) != (sha256, list(stat)):
+            row = {**row, "path": str(path), "stat": list(stat)}
+            self._place(row)
             self._append(row)
         report = OrientationReport.model_validate(row["report"])
         return Result(path, report, f"unchanged since the last run: {row['action']}", written_to=[],
@@ -146,8 +154,7 @@ class LibraryState:
         row = {"sha256": sha, "fingerprint": self.fingerprint, "writes": writes, "path": str(result.path),
                "stat": list(stat) if stat else None, "format": result.format, "action": result.action,
                "report": result.report.model_dump(mode="json", exclude={"elapsed_ms"}) | {"elapsed_ms": 0.0}}
-        self.rows[sha] = row
-        self._at[row["path"]] = sha
+        self._place(row)
         self._used.add(sha)
         self._append(row)
 
@@ -156,13 +163,18 @@ class LibraryState:
         self._out.flush()
 
     def close(self, complete: bool, paths: Iterable[Path] = ()) -> None:
-        """Close the file; after a ``complete`` run, keep only the rows of this run's photos: used or recorded, or at
-        one of ``paths`` that this run did not hash (skipped as already tagged)."""
+        """Close the file; after a ``complete`` run, keep only the rows of this run's photos (``paths``): one for each
+        of their places whose bytes this run used or recorded, or did not hash (skipped as already tagged), and the
+        rows used with no place known."""
         self._out.close()
         if not complete:
             return
-        unhashed = {str(p) for p in paths} - self._hashed
-        kept = [row for sha, row in self.rows.items() if sha in self._used or row["path"] in unhashed]
+        run = {str(p) for p in paths}
+        unhashed = run - self._hashed
+        kept = [{**self.rows[sha], "path": path, "stat": stat} for path, (sha, stat) in self._at.items()
+                if path in run and sha in self.rows and (sha in self._used or path in unhashed)]
+        placed = {row["sha256"] for row in kept}
+        kept += [row for sha, row in self.rows.items() if sha in self._used and sha not in placed]
         replace_file(self.path, "".join(json.dumps(row) + "\n" for row in kept).encode())
 
 
