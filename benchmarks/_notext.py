@@ -37,6 +37,7 @@ DEBIAN_PACKAGES = ("gnome-backgrounds", "mate-backgrounds", "mypaint-data-extras
 _WALLPAPERS = ("/usr/share/backgrounds/gnome", "/usr/share/backgrounds/mate/abstract", "/usr/share/backgrounds/mate/desktop")
 _LEFT_OUT = {"pixels-d.webp", "pixels-l.webp",  # icons
              "Float-into-MATE.png", "GreenTraditional.jpg",  # the MATE logo and its name
+             "MATE-Stripes-Dark.png", "MATE-Stripes-Light.png",  # the same, in their alpha (blank without it)
              "Arc-Colors-Transparent-Wallpaper.png",  # an alpha mask, white when flattened
              "Elephants_3840x2160.jpg", "Elephants_5640x3172.jpg"}  # the same picture as Elephants.jpg
 _SKIMAGE = ("retina.jpg", "microaneurysms.png", "coffee.png", "chelsea.png", "camera.png", "horse.png")
@@ -44,11 +45,28 @@ _SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".JPG")
 
 
 def _load(path: Path) -> np.ndarray | None:
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
+    image = _flattened(cv2.imread(str(path), cv2.IMREAD_UNCHANGED))
     if image is None:
         return None
     s = MAX_SIDE / max(image.shape[:2])
     return cv2.resize(image, None, fx=s, fy=s, interpolation=cv2.INTER_AREA) if s < 1 else image
+
+
+def _flattened(image: np.ndarray | None) -> np.ndarray | None:
+    """BGR uint8 of an image read as stored (grey, 16-bit, alpha): a wallpaper with an alpha channel drawn over mid
+    grey, as a desktop shows it over its colour (MATE's Silk, Spring, Waves and Stripes are a white or black layer
+    whose picture is all in its alpha: without it they were blank pages, four identical photos of nothing in the
+    library)."""
+    if image is None:
+        return None
+    if image.dtype == np.uint16:
+        image = (image >> 8).astype(np.uint8)
+    if image.ndim == 2:
+        return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    if image.shape[2] == 4:
+        alpha = image[..., 3:].astype(np.float32) / 255.0
+        return np.round(image[..., :3].astype(np.float32) * alpha + 128.0 * (1.0 - alpha)).astype(np.uint8)
+    return image
 
 
 def _files(folder: Path | None, names: tuple[str, ...] | None = None) -> list[Path]:

@@ -70,8 +70,9 @@ MEGAPIXELS = 12.0
 QUALITY = 92
 TURN = 90
 """Clockwise degrees that show each stored photo upright (what the engine must find)."""
-LIBRARY_VERSION = 1
-"""Part of the cached library's manifest: a change in how photos are made builds the library again."""
+LIBRARY_VERSION = 2
+"""Part of the cached library's manifest: a change in how photos are made builds the library again (so does another
+set of sources: a library built before the no-text set's Debian packages were installed is not reused after)."""
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp")
 
 sections = Sections("orientation_library", __doc__)
@@ -132,23 +133,27 @@ def _camera_jpeg(upright: np.ndarray) -> bytes:
 def build_library(count: int, folder: Path) -> list[dict[str, str]]:
     """The library's photos (``{"file", "class", "source"}``), made into ``folder`` unless already there."""
     manifest_path = folder / "manifest.json"
+    sources = _sources()
+    used = {name: 0 for name in sources}
+    plan = []  # (class, source name, its loader, a mirror image)
+    for cls in _classes(count):
+        k = used[cls]
+        used[cls] += 1
+        name, load = sources[cls][k % len(sources[cls])]
+        plan.append((cls, name, load, bool((k // len(sources[cls])) % 2)))
     if manifest_path.exists():
         manifest = json.loads(manifest_path.read_text())
-        if manifest.get("version") == LIBRARY_VERSION and len(manifest["photos"]) == count \
+        if manifest.get("version") == LIBRARY_VERSION \
+                and [(p["class"], p["source"]) for p in manifest["photos"]] == [(c, n) for c, n, _, _ in plan] \
                 and all((folder / "photos" / p["file"]).is_file() for p in manifest["photos"]):
             return manifest["photos"]
     shutil.rmtree(folder, ignore_errors=True)
     (folder / "photos").mkdir(parents=True)
-    sources = _sources()
-    used = {name: 0 for name in sources}
     photos = []
     start = time.perf_counter()
-    for i, cls in enumerate(_classes(count)):
-        k = used[cls]
-        used[cls] += 1
-        name, load = sources[cls][k % len(sources[cls])]
+    for i, (cls, name, load, mirrored) in enumerate(plan):
         image = load()
-        if (k // len(sources[cls])) % 2:  # second time round: the mirror image
+        if mirrored:  # second time round: the mirror image
             image = cv2.flip(image, 1)
         file = f"{i:05d}-{cls}-{name[:60]}.jpg".replace(" ", "_").replace("/", "_")
         (folder / "photos" / file).write_bytes(_camera_jpeg(image))
