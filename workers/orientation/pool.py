@@ -28,8 +28,8 @@ from workers.common.errors import InputError
 from workers.orientation.library import LibraryOptions, PathOutcome, Result, orient_path
 
 IN_FLIGHT_PER_HELPER = 2
-PRELOAD = ("workers.orientation.pool", "rapidocr.main")
-"""What the helpers' fork server imports once (:func:`_context`): the engine, and the text recogniser's package."""
+PRELOAD = ("workers.orientation.pool", "onnxruntime")
+"""What the helpers' fork server imports once (:func:`_context`): the engine, and onnxruntime (its networks')."""
 
 _worker: dict[str, object] = {}
 

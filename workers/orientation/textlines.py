@@ -152,11 +152,12 @@ class LineScan:
         return [a for a in sorted(totals, key=lambda a: -totals[a]) if totals[a] > 0]
 
 
-def model_path() -> Path:
-    """The detector's ONNX file inside the installed ``rapidocr`` package (FileNotFoundError when it is not there)."""
-    path = Path(str(resources.files("rapidocr") / "models" / _MODEL_FILE))
+def model_path(name: str = _MODEL_FILE, what: str = "text detector") -> Path:
+    """The ONNX file ``name`` inside the installed ``rapidocr`` package (default: the detector's; FileNotFoundError,
+    naming ``what`` it is, when it is not there)."""
+    path = Path(str(resources.files("rapidocr") / "models" / name))
     if not path.is_file():
-        raise FileNotFoundError(f"the text detector model {path} is missing (reinstall rapidocr)")
+        raise FileNotFoundError(f"the {what} model {path} is missing (reinstall rapidocr)")
     return path
 
 
