@@ -318,7 +318,7 @@ def upload_library(base: str, pid: int, files: list[Path], batch: int, in_flight
                     time.sleep(0.2)
                 entries = (http.get(f"/v1/jobs/{job['id']}/results/report.json").json()
                            if job["state"] == "succeeded" else [])
-                jobs[k] = {"state": job["state"], "error": job["error"], "upload_s": uploaded,
+                jobs[k] = {"id": job["id"], "state": job["state"], "error": job["error"], "upload_s": uploaded,
                            "batch_s": time.perf_counter() - t0, "entries": entries}
 
     cpu0, busy0, start = tree_cpu_seconds(pid, reaped=True), machine_busy_seconds(), time.perf_counter()
@@ -337,7 +337,7 @@ def upload_library(base: str, pid: int, files: list[Path], batch: int, in_flight
             "photos_per_s": len(files) / wall, "server_cpu_ms_per_photo": 1000 * cpu / len(files),
             "machine_busy_ms_per_photo": 1000 * busy / len(files),
             "median_upload_s": statistics.median(j["upload_s"] for j in jobs),
-            "median_batch_s": statistics.median(j["batch_s"] for j in jobs),
+            "median_batch_s": statistics.median(j["batch_s"] for j in jobs), "job_ids": [j["id"] for j in jobs],
             "decisions": _tally([(e["filename"], "error" if e["error"] else e["report"]["rotation_degrees"])
                                  for e in entries])}
 
@@ -349,6 +349,8 @@ def bench_http(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     with tempfile.TemporaryDirectory(prefix="sweepcast-bench-http-") as tmp, served(ROOT, Path(tmp), yunet) as app:
         out = upload_library(app.base, app.proc.pid, files, _batch(args, len(files)), args.in_flight)
         out["next"] = upload_library(app.base, app.proc.pid, files, _batch(args, len(files)), args.in_flight)
+        out["review"] = review_thumbnails(app.base, app.proc.pid, out["next"]["job_ids"][0])
+    review = out["review"]
     rows = [[label, r["photos_per_s"], r["wall_s"], r["server_cpu_ms_per_photo"], r["machine_busy_ms_per_photo"],
              r["median_upload_s"], r["median_batch_s"]]
             for label, r in (("first, after the service's start", out), ("the next, on the same service", out["next"]))]
@@ -361,8 +363,28 @@ def bench_http(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
           + md_table(["library", "photos/s", "wall s", "server CPU ms/photo", "machine busy ms/photo",
                       "median upload s", "median batch s (upload to done)"], rows)
           + f"\n\nDecisions: {_tally_text(out['decisions'])}; the next library's the same: "
-            f"{out['next']['decisions'] == out['decisions']}.\n")
+            f"{out['next']['decisions'] == out['decisions']}.\n\n"
+            f"The review page of that library's first batch: its {review['thumbnails']} photos left for a person, each "
+            f"thumbnail made when the page asks for it: {review['server_cpu_ms_per_thumbnail']:.1f} ms of the "
+            f"service's CPU each, {review['median_ms']:.0f} ms from request to answer (median, one at a time).\n")
     return out, md
+
+
+def review_thumbnails(base: str, pid: int, job_id: str) -> dict[str, Any]:
+    """Every thumbnail of batch ``job_id``'s review queue fetched in turn, as its review page asks for them."""
+    import httpx
+
+    with httpx.Client(base_url=base, timeout=60.0) as http:
+        items = http.get(f"/v1/photos/batches/{job_id}/review").raise_for_status().json()["items"]
+        times = []
+        cpu0 = tree_cpu_seconds(pid, reaped=True)
+        for item in items:
+            t0 = time.perf_counter()
+            http.get(item["thumbnail"]).raise_for_status()
+            times.append(1000 * (time.perf_counter() - t0))
+        cpu = tree_cpu_seconds(pid, reaped=True) - cpu0
+    return {"thumbnails": len(items), "server_cpu_ms_per_thumbnail": 1000 * cpu / max(1, len(items)),
+            "median_ms": statistics.median(times) if times else 0.0}
 
 
 def _batch(args: argparse.Namespace, photos: int) -> int:
@@ -492,7 +514,7 @@ def _photo_cpu_ms(photos_dir: Path, photos: list[dict[str, str]], per_class: int
             report = analyze(data, detector, filename=p["file"])
             times.append(1000 * (time.thread_time() - t0))
             entry = {"index": 0, "input": "photo-0000", "filename": p["file"], "report": report.model_dump(mode="json"),
-                     "error": None, "fixed_file": None, "note": None, "thumbnail": None, "review": None}
+                     "error": None, "fixed_file": None, "note": None, "review": None}
         out[cls] = statistics.median(times)
     return out, entry
 
