@@ -27,6 +27,11 @@ each part writes its own section of RESULTS.md:
   Section ``streaming_browser_cost``.
 - ``latency``: time from a pointer move to the new frame on screen in the viewer page, browser mode against server
   mode, the same drags in the same page (SwiftShader here). Section ``streaming_browser_latency``.
+- ``flicker``: the demo recording (the ball circling) through a fixed view at two azimuths, each frame set drawn
+  by the server's renderer and by the browser's at the viewer's quality levels, the depth searched anew and held
+  where the scene stood still (the server's ``previous``, the browser's ``hold``): the mean absolute change between
+  consecutive frames on the pixels whose true colour stayed the same, and the browser's frames against the server's.
+  Section ``streaming_browser_flicker``.
 - ``first_frame``: the viewer page opened as a new user opens it (Render auto, Quality auto) in a browser without a
   GPU: plain headless Chromium (``--disable-gpu``; Debian's Chromium still offers WebGL2 there, on SwiftShader) and
   with SwiftShader asked for (a CPU rasteriser, which the page now sends to the server at once), and
@@ -622,6 +627,76 @@ def first_frame(quick: bool) -> tuple[dict, str]:
     return {"load_before": load_before, "settle": settled, "runs": runs, "quick": quick}, "\n".join(md)
 
 
+# --- flicker ----------------------------------------------------------------------------------------
+FLICKER_AZIMUTHS = (-13.0, -33.0)
+
+
+def still_pixels(truths: list[np.ndarray]) -> list[np.ndarray]:
+    """Per pair of consecutive true views, the pixels whose colour stayed the same, away from any change (5 x 5)."""
+    kernel = np.ones((5, 5), np.uint8)
+    return [cv2.erode((np.abs(b.astype(int) - a).max(axis=2) == 0).astype(np.uint8), kernel).astype(bool)
+            for a, b in zip(truths, truths[1:])]
+
+
+def flicker_of(images: list[np.ndarray], still: list[np.ndarray]) -> float:
+    """Mean over consecutive frames of the mean absolute change (levels) on the still pixels."""
+    return float(np.mean([np.abs(b.astype(float) - a).mean(axis=2)[m].mean()
+                          for a, b, m in zip(images, images[1:], still)]))
+
+
+def flicker(quick: bool) -> tuple[dict, str]:
+    size = (160, 120) if quick else (320, 240)
+    count = 6 if quick else 12
+    rig = demo_rig(10, size)
+    scenes = [demo_scene((f % count) / count) for f in range(count + 1)]
+    sets = [[v.image for v in render_views(scene, list(rig.cameras))] for scene in scenes]
+    backgrounds = [v.background for v in render_views(scenes[0], list(rig.cameras))]
+    factor = source_factor(rig, *size)
+    small = shrunk_rig(rig, factor)
+    atlases = [frame_atlas(frames, rig, factor) for frames in sets]
+    rows, out = [], {}
+    with static_site() as base, chromium() as browser:
+        page = browser.new_page()
+        page.goto(f"{base}/render/renderer.js")
+        for azimuth in FLICKER_AZIMUTHS:
+            virtual = orbit_camera(orbit_frame(rig), Orbit(azimuth=azimuth), 50.0, size)
+            still = still_pixels([render_views(scene, [virtual], with_background=False)[0].image for scene in scenes])
+            for level in ("fast", "best"):
+                options = {"planes": 48, "coarse_to_fine": True, **LEVELS[level]}
+                server = SweepRenderer(small, shrunk_images(sets[0], small), device="cpu",
+                                       backgrounds=shrunk_images(backgrounds, small))
+                served: dict[str, list[np.ndarray]] = {"searched": [], "held": []}
+                previous = None
+                for k, frames in enumerate(sets):
+                    if k:
+                        server.set_frames(shrunk_images(frames, small))
+                    served["searched"].append(server.render(virtual, RenderOptions(**options)).image)
+                    previous = server.render(virtual, RenderOptions(**options), previous=previous)
+                    served["held"].append(previous.image)
+                drawn = {}
+                for how in ("searched", "held"):
+                    b = render_in_browser(page, render_spec(rig), atlases[0], frame_atlas(backgrounds, rig, factor),
+                                          virtual, factor, options, later=tuple(atlases[1:]), hold=how == "held")
+                    drawn[how] = [*b["images"], b["image"]]
+                entry = {f"{who} {how}": flicker_of(images[how], still)
+                         for who, images in (("server", served), ("browser", drawn)) for how in ("searched", "held")}
+                entry["browser_vs_server_db"] = float(np.mean([psnr(a, b) for a, b in zip(drawn["held"],
+                                                                                            served["held"])]))
+                out[f"{azimuth:g} {level}"] = entry
+                print(json.dumps({f"{azimuth:g} {level}": entry}), flush=True)
+                rows.append([f"azimuth {azimuth:g}", level, entry["server searched"], entry["server held"],
+                             entry["browser searched"], entry["browser held"], entry["browser_vs_server_db"]])
+    md = (f"The demo recording ({count} frames of the ball circling, {size[0]}x{size[1]}, 48 planes, "
+          "coarse-to-fine), one fixed view per row, drawn frame set after frame set by the server's renderer and by "
+          "the browser's (SwiftShader): the depth searched anew each time, or held where the nearest cameras saw no "
+          "change since the last frame (`workers/sweep/temporal.py`, `app/static/render/temporal.js`). Flicker: the "
+          "mean absolute change (levels) between consecutive frames on the pixels whose true colour stayed the same; "
+          "PSNR: the browser's held frames against the server's.\n\n"
+          + md_table(["view", "level", "server, searched", "server, held", "browser, searched", "browser, held",
+                      "browser vs server held, PSNR dB"], rows))
+    return {"size": list(size), "frames": count, "views": out}, md
+
+
 sections = Sections("streaming_browser", __doc__)
 sections.parser.add_argument("--quick", action="store_true", help="half-size views / fewer repeats")
 sections.parser.add_argument("--webgl", choices=["swiftshader", "gpu"], default="swiftshader",
@@ -636,6 +711,8 @@ sections.part("fps", "browser render time per view size, planes and options (and
 sections.part("cost", "what browser-rendering viewers cost the server", lambda a: cost(a.quick, a.chromium))
 sections.part("latency", "pointer move to frame on screen, browser mode against server mode",
               lambda a: latency(a.quick, a.size))
+sections.part("flicker", "the demo recording through a fixed view: flicker, searched and held, server and browser",
+              lambda a: flicker(a.quick))
 sections.part("first_frame", "the viewer page's first view without a GPU", lambda a: first_frame(a.quick))
 
 

@@ -73,7 +73,7 @@ def png_b64(image: np.ndarray) -> str:
     return base64.b64encode(cv2.imencode(".png", image)[1].tobytes()).decode()
 
 
-_RENDER = """async ({spec, atlas, background, camera, factor, options, overlay, repeat, sgmBlock}) => {
+_RENDER = """async ({spec, atlas, background, camera, factor, options, overlay, repeat, sgmBlock, later, hold}) => {
   const { BrowserRenderer } = await import("/render/renderer.js");
   const { Camera } = await import("/render/camera.js");
   const { capabilities } = await import("/render/gl.js");
@@ -103,7 +103,14 @@ _RENDER = """async ({spec, atlas, background, camera, factor, options, overlay, 
   }
   const b64 = (array) => { let s = ""; const u = new Uint8Array(array.buffer);
     for (let i = 0; i < u.length; i += 8192) s += String.fromCharCode(...u.subarray(i, i + 8192)); return btoa(s); };
-  const out = { info, times, gpu: caps.gpu, image: b64(r.readImage()), depth: b64(r.readDepth()) };
+  const images = [];
+  for (const next of later) {  // newer frame sets of the same view
+    images.push(b64(r.readImage()));
+    r.frames.setFrames(await bitmap(next), spec.atlas_columns);
+    info = r.render(view, options, { hold });
+    r.present(overlay);
+  }
+  const out = { info, times, gpu: caps.gpu, image: b64(r.readImage()), depth: b64(r.readDepth()), images };
   r.dispose();
   canvas.remove();
   return out;
@@ -112,20 +119,26 @@ _RENDER = """async ({spec, atlas, background, camera, factor, options, overlay, 
 
 def render_in_browser(page: Any, spec: dict, atlas: np.ndarray, background: np.ndarray | None, camera: Camera,
                       factor: int, options: dict, overlay: str = "none", repeat: int = 1,
-                      sgm_block: int | None = None) -> dict:
+                      sgm_block: int | None = None, later: tuple[np.ndarray, ...] = (), hold: bool = True) -> dict:
     """Render ``camera``'s view with the browser renderer in ``page`` (on a page of a site serving app/static):
     spec from :func:`workers.streaming.browser.render_spec`, frame and background atlases (BGR) from
     :func:`workers.streaming.browser.frame_atlas` at ``factor``. Returns the renderer's info, ``times`` (ms per
     render until the GPU has drawn it, ``repeat`` of them), ``gpu`` (the WebGL renderer string), ``image``
     (h, w, 3) uint8 BGR as presented and ``depth`` (h, w, 4) float32 (inverse depth or 0, plane or -1, sub-plane
-    offset, cost). sgm_block: the lines a semi-global draw advances (the renderer's choice for its GPU if None)."""
+    offset, cost). sgm_block: the lines a semi-global draw advances (the renderer's choice for its GPU if None).
+    later: atlases of newer frame sets, uploaded in turn after the timed renders and the same view drawn on each,
+    with ``hold`` its depth kept where the scene stood still; what is returned is then the last one's, and
+    ``images`` those presented before it (the first set's, then each later one's but the last)."""
     out = page.evaluate(_RENDER, {
         "spec": spec, "atlas": png_b64(atlas), "background": None if background is None else png_b64(background),
         "camera": {"K": camera.K.tolist(), "R": camera.R.tolist(), "t": camera.t.tolist(), "width": camera.width,
                    "height": camera.height},
         "factor": factor, "options": options, "overlay": overlay, "repeat": repeat, "sgmBlock": sgm_block,
+        "later": [png_b64(a) for a in later], "hold": hold,
     })
     h, w = camera.height, camera.width
     rgba = np.frombuffer(base64.b64decode(out["image"]), np.uint8).reshape(h, w, 4)
     depth = np.frombuffer(base64.b64decode(out["depth"]), np.float32).reshape(h, w, 4)
-    return {**out, "image": np.ascontiguousarray(rgba[:, :, 2::-1]), "depth": depth}
+    earlier = [np.frombuffer(base64.b64decode(b), np.uint8).reshape(h, w, 4)[:, :, 2::-1] for b in out["images"]]
+    return {**out, "image": np.ascontiguousarray(rgba[:, :, 2::-1]), "depth": depth,
+            "images": [np.ascontiguousarray(e) for e in earlier]}

@@ -107,10 +107,11 @@ export class BrowserScene {
   }
 
   /** Render ``camera`` with ``options`` and show it with ``overlay``: the renderer's info, ``ms`` the time until
-   * the GPU has drawn it (a one-pixel readback waits for it). */
+   * the GPU has drawn it (a one-pixel readback waits for it). The same view of a newer frame set (a recording
+   * playing, the live stream) keeps its depth where the scene stood still, as the server's viewer does. */
   draw(camera, options, overlay) {
     const t0 = performance.now();
-    const info = this.renderer.render(camera, options);
+    const info = this.renderer.render(camera, options, { hold: true });
     this.renderer.present(overlay);
     this.renderer.finish();
     return { ...info, ms: performance.now() - t0 };

@@ -213,6 +213,34 @@ def test_with_the_fill_visibility_applies_at_the_filled_pixels_only_as_on_the_se
     assert own < 0.25 * other, f"where the rules differ the browser is {own:.1f} levels from its own, {other:.1f} from the other"
 
 
+@pytest.mark.parametrize("occlusions", ["keep", "fill"])
+def test_a_view_drawn_on_the_next_frame_set_keeps_its_depth_where_nothing_moved_as_the_server(page, occlusions):
+    """The demo's ball moves between two frame sets and nothing else does: the server's render with the previous one
+    (held where still) and the browser's drawn with ``hold`` on the same two sets are the same view."""
+    rig = demo_rig(10, (192, 144))
+    camera = orbit_camera(orbit_frame(rig), Orbit(azimuth=-13.0), 50.0, VIEW)
+    sets = [render_views(demo_scene(p), list(rig.cameras)) for p in (0.0, 1 / 12)]
+    frames = [[v.image for v in views] for views in sets]
+    backgrounds = [v.background for v in sets[0]]
+    options = {"planes": 48, "coarse_to_fine": True, "aggregation": "sgm", "occlusions": occlusions}
+    factor = source_factor(rig, camera.width, camera.height)
+    small = shrunk_rig(rig, factor)
+    server = SweepRenderer(small, shrunk_images(frames[0], small), device="cpu",
+                           backgrounds=shrunk_images(backgrounds, small))
+    first = server.render(camera, RenderOptions(**options))
+    server.set_frames(shrunk_images(frames[1], small))
+    searched = server.render(camera, RenderOptions(**options))
+    kept = server.render(camera, RenderOptions(**options), previous=first)
+    assert kept.held.mean() > 0.3 and (kept.plane_index != searched.plane_index).any()  # the hold changes the view
+    browser = render_in_browser(page, render_spec(rig), frame_atlas(frames[0], rig, factor), frame_atlas(
+        backgrounds, rig, factor), camera, factor, options, later=(frame_atlas(frames[1], rig, factor),))
+    assert browser["info"]["held"]
+    assert_same_view(kept, browser)
+    differ = kept.plane_index != searched.plane_index  # where holding made the difference: the browser held too
+    assert (browser["depth"][:, :, 1][differ].astype(np.int32) == kept.plane_index[differ]).mean() > 0.8
+    assert browser["info"]["d_bnd"] == pytest.approx(kept.d_bnd, rel=1e-5)
+
+
 def test_options_the_browser_does_not_render_are_refused(page, studio):
     rig, frames, backgrounds = studio
     camera = orbit_camera(orbit_frame(rig), Orbit(), 50.0, VIEW)

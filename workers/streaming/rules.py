@@ -24,6 +24,7 @@ from workers.sweep.layout import MAX_BITS, Z_MIN
 from workers.sweep.occlusion import CONFIRM_TOLERANCE_PX
 from workers.sweep.renderer import AUTO_BLEND_FRACTION, FALLBACK_SPACING_RAD, REFINE_RADIUS, RenderOptions
 from workers.sweep.rig import NEAR_FAR_RATIO
+from workers.sweep.temporal import NEAREST_CAMERAS, STILL_LEVELS
 from workers.sweep.weighting import METHOD_CODES
 
 from .params import Viewpoint
@@ -97,7 +98,9 @@ def renderer_rules() -> dict[str, Any]:
     - ``glsl``: the depth search's constants the shaders take as ``#define`` s: ``Z_MIN`` (a point this close to a
       camera's centre plane gets no vote), ``SEARCH_BITS`` (samples at 1 / 2**bits px), ``REFINE_RADIUS`` (the
       coarse choices around a pixel's parent that set its planes), ``CONFIRM_TOLERANCE_PX`` (the cross-view check),
-      ``MIN_OCCLUDER_PARALLAX_PX`` (how far a nearer surface must have moved against a point to hide it);
+      ``MIN_OCCLUDER_PARALLAX_PX`` (how far a nearer surface must have moved against a point to hide it),
+      ``STILL_LEVELS`` and ``NEAREST_CAMERAS`` (what a still scene is, for a view drawn again on a newer frame set:
+      :mod:`workers.sweep.temporal`);
     - ``visibility_scope``: where the colour is visibility-aware, by visibility and occlusions
       (:func:`visibility_scopes`).
     """
@@ -109,6 +112,7 @@ def renderer_rules() -> dict[str, Any]:
         "constants": {"near_far_ratio": NEAR_FAR_RATIO, "fallback_spacing_rad": FALLBACK_SPACING_RAD,
                       "auto_blend_fraction": AUTO_BLEND_FRACTION},
         "glsl": {"Z_MIN": Z_MIN, "SEARCH_BITS": MAX_BITS, "REFINE_RADIUS": REFINE_RADIUS,
-                 "CONFIRM_TOLERANCE_PX": CONFIRM_TOLERANCE_PX, "MIN_OCCLUDER_PARALLAX_PX": MIN_OCCLUDER_PARALLAX_PX},
+                 "CONFIRM_TOLERANCE_PX": CONFIRM_TOLERANCE_PX, "MIN_OCCLUDER_PARALLAX_PX": MIN_OCCLUDER_PARALLAX_PX,
+                 "STILL_LEVELS": STILL_LEVELS, "NEAREST_CAMERAS": NEAREST_CAMERAS},
         "visibility_scope": visibility_scopes(),
     }

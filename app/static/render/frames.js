@@ -2,11 +2,13 @@
 // likewise, and the silhouettes made from them (workers/sweep/silhouette.py): foreground where the largest
 // channel difference exceeds the threshold, cleaned by an opening and a closing with the server's disk, then
 // dilated by the hull margin (a square). Frame sets arrive as one image, an atlas of the cameras' frames in
-// rig order, ``columns`` cells per row, each cell the size of the largest camera image.
+// rig order, ``columns`` cells per row, each cell the size of the largest camera image. Every set is followed by its
+// ChangeTracker (temporal.js: which camera pixels changed in which set).
 import { release, target, textureArray } from "./gl.js";
 import { Pass } from "./pass.js";
+import { ChangeTracker, SHADERS as TEMPORAL_SHADERS } from "./temporal.js";
 
-export const SHADERS = ["fullscreen.vert", "silhouette.frag", "background.frag"];
+export const SHADERS = ["fullscreen.vert", "silhouette.frag", "background.frag", ...TEMPORAL_SHADERS];
 
 /** The cell (column, row) of camera ``i`` in an atlas of ``columns`` cells per row. */
 export function atlasCell(i, columns) {
@@ -14,8 +16,9 @@ export function atlasCell(i, columns) {
 }
 
 export class FrameSet {
-  /** sizes: [[w, h]] per camera (at the source factor); silhouettes: {threshold, clean: [[dx, dy]], dilate}. */
-  constructor(gl, sizes, silhouettes) {
+  /** sizes: [[w, h]] per camera (at the source factor); silhouettes: {threshold, clean: [[dx, dy]], dilate};
+   * defines: the renderer's (the server's STILL_LEVELS for the change tracker). */
+  constructor(gl, sizes, silhouettes, defines) {
     this.gl = gl;
     this.sizes = sizes;
     this.width = Math.max(...sizes.map((s) => s[0]));
@@ -32,12 +35,14 @@ export class FrameSet {
     this.modelPass = new Pass(gl, "background.frag");
     this.model = null; // live: the float background model, two arrays (ping-pong)
     this.flaggedRun = 0;
+    this.changes = new ChangeTracker(gl, this.width, this.height, this.layers, defines);
     this.fill(this.silhouettes, 1);
   }
 
   /** Upload an atlas (ImageBitmap, canvas or image) of the frames; ``columns`` cells per row. */
   setFrames(atlas, columns) {
     this.upload(this.images, atlas, columns);
+    this.changes.update(this.images);
     if (this.backgrounds) this.makeSilhouettes();
   }
 
@@ -104,6 +109,7 @@ export class FrameSet {
    * silhouettes against the model (none while there is no model), then updates the model outside them. */
   observeLive(isBackground, rate) {
     const gl = this.gl;
+    this.changes.update(this.images); // every set, a background one too (the server's set_frames)
     if (isBackground) {
       this.flaggedRun += 1;
       if (!this.model) {
@@ -161,6 +167,7 @@ export class FrameSet {
 
   dispose() {
     release(this.gl, this.images, this.backgrounds, this.silhouettes, this.scratch, ...(this.model || []));
+    this.changes.dispose();
     this.silhouettePass.dispose();
     this.modelPass.dispose();
   }

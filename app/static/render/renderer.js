@@ -5,6 +5,7 @@
 //   r.useFactor(r.rig.sourceFor(w, h).factor);                   // frames at the size the view needs
 //   r.frames.setBackgrounds(bitmap, columns); r.frames.setFrames(bitmap, columns);
 //   const info = r.render(orbitCamera(hello.orbit, orbit, fov, w, h), { method: "kojima", planes: 48 });
+//   r.frames.setFrames(next, columns); r.render(sameCamera, sameOptions, { hold: true });  // no flicker
 //   r.present("none");                                           // to the canvas
 //
 // Options are the server's RenderOptions: their defaults, choices, the codes the shaders take and the fill's
@@ -22,9 +23,19 @@ import { Rig } from "./rig.js";
 import { MAX_PLANES as SGM_MAX_PLANES, MAX_VOLUME_BYTES, SemiGlobal, SHADERS as SGM_SHADERS, volumeBytes } from "./semiglobal.js";
 import { loadShaders } from "./programs.js";
 import { DepthStatistics, SHADERS as STATISTICS_SHADERS } from "./statistics.js";
+import { Hold } from "./temporal.js";
 import { Shading, SHADERS as WEIGHTING_SHADERS } from "./weighting.js";
 
 export class Unsupported extends Error {}
+
+/** Options that only colour a depth: a render that differs from the last in these alone may keep its depth. */
+const COLOUR_OPTIONS = ["method", "d_bnd", "k", "visibility", "visibility_tolerance", "fill"];
+
+/** What a render's depth depends on besides the frames: the view, its planes and the depth options. */
+function viewSignature(virtual, planes, options) {
+  const depthOptions = Object.entries(options).filter(([name]) => !COLOUR_OPTIONS.includes(name));
+  return JSON.stringify([virtual.K, virtual.R, virtual.t, virtual.width, virtual.height, planes, depthOptions]);
+}
 
 /** Which of the given options the browser cannot render (null when it can): the viewer then asks the server.
  * (The depth search's step is the server's finest: BrowserRenderer.render refuses a coarser subpixel_bits.) */
@@ -53,6 +64,8 @@ class Workspace {
     this.ssd = f(); this.votes = f(); this.ssdRows = f(); this.votesRows = f();
     this.stateA = [f(), f()]; this.stateB = [f(), f()];
     this.depth = f();
+    this.kept = f(); // the last render's resolve output (render swaps it with depth)
+    this.spare = f();
     this.colour = texture2d(gl, "rgba8", w, h);
     this.regions = texture2d(gl, "rgba8", w, h);
     this.final = texture2d(gl, "rgba8", w, h);
@@ -60,7 +73,7 @@ class Workspace {
 
   dispose() {
     release(this.gl, this.ssd, this.votes, this.ssdRows, this.votesRows, ...this.stateA, ...this.stateB, this.depth,
-      this.colour, this.regions, this.final);
+      this.kept, this.spare, this.colour, this.regions, this.final);
   }
 }
 
@@ -78,6 +91,7 @@ export class BrowserRenderer {
     this.rules = spec.rules;
     this.rig = new Rig(spec);
     const defines = { N_CAM: this.rig.size, PALETTE: spec.style.palette.length, ...ruleDefines(spec.rules) };
+    this.defines = defines;
     this.cost = new Cost(gl, defines);
     this.window = new WindowAggregation(gl, this.cost);
     this.semiGlobal = new SemiGlobal(gl, this.window);
@@ -85,6 +99,8 @@ export class BrowserRenderer {
     this.shading = new Shading(gl, defines);
     this.presenter = new Presenter(gl, spec.style, defines);
     this.statistics = new DepthStatistics(gl);
+    this.holder = new Hold(gl, defines);
+    this.lastView = null; // what the last render was of: render's ``hold`` keeps its depth
     this.factor = null;
     this.frames = null;
     this.work = null;
@@ -98,7 +114,8 @@ export class BrowserRenderer {
     this.factor = factor;
     this.cameras = this.rig.camerasAt(factor);
     if (this.frames) this.frames.dispose();
-    this.frames = new FrameSet(this.gl, this.cameras.map((c) => [c.width, c.height]), this.spec.silhouettes);
+    this.frames = new FrameSet(this.gl, this.cameras.map((c) => [c.width, c.height]), this.spec.silhouettes,
+      this.defines);
     return true;
   }
 
@@ -113,9 +130,12 @@ export class BrowserRenderer {
 
   /**
    * Render ``virtual`` (a Camera) with ``options`` (RenderOptions' fields): the view in work.colour, its
-   * depth in work.depth. Returns { ms, d_bnd, depth_range, depth_found, coverage, planes, visual_hull }.
+   * depth in work.depth. Returns { ms, d_bnd, depth_range, depth_found, coverage, planes, visual_hull, held }.
+   * ``hold``: where the last render was of the same view with the same planes and depth options on an earlier (or
+   * the same) frame set, keep its depth (and fill, and derived D_bnd) wherever the scene stood still since
+   * (temporal.js; the server's ``previous``); ``held`` says whether it did.
    */
-  render(virtual, options = {}) {
+  render(virtual, options = {}, { hold = false } = {}) {
     const o = this.options(options);
     if (!this.frames) throw new Error("no frames yet: call useFactor and upload a frame set first");
     const t0 = performance.now();
@@ -136,12 +156,26 @@ export class BrowserRenderer {
     const half = coarseToFine ? virtual.scaled(0.5) : null;
     this.checkVolumes(virtual, half, o, fillOcclusions);
     const work = this.workspace(virtual.width, virtual.height);
+    const last = this.lastView;
+    this.lastView = null; // until this render is done (one that fails leaves nothing to hold)
+    [work.depth, work.kept] = [work.kept, work.depth]; // the last render's depth stays, the new one is drawn apart
     const fine = { ...sweep, geometry: sweepGeometry(virtual, this.cameras) };
     gl.disable(gl.BLEND);
     const volume = this.chooseDepth(sweep, fine, half, o, fillOcclusions, work);
     if (fillOcclusions) this.occlusions.fill(fine, volume, work.depth, fillAlongRows(virtual, this.rig.centres));
+    const view = { signature: viewSignature(virtual, planes, o), work, frames: this.frames,
+      frameSet: this.frames.changes.frameSet };
+    const held = hold && last !== null && last.signature === view.signature && last.work === work
+      && last.frames === this.frames && last.frameSet <= view.frameSet;
+    if (held) {
+      this.holder.hold(fine, virtual, this.rig.centres, work.depth, work.kept, this.frames.changes, last.frameSet,
+        work.spare);
+      [work.depth, work.spare] = [work.spare, work.depth];
+    }
     const stats = this.statistics.of(work.depth);
-    const dBnd = ["kojima", "kojima_k"].includes(o.method) ? (o.d_bnd ?? this.rig.autoDBnd(virtual, stats.median)) : null;
+    let dBnd = ["kojima", "kojima_k"].includes(o.method) ? (o.d_bnd ?? this.rig.autoDBnd(virtual, stats.median)) : null;
+    if (held && o.d_bnd == null && last.dBnd != null && dBnd !== null) dBnd = last.dBnd; // the same viewpoint's
+    this.lastView = { ...view, dBnd };
     const scope = this.rules.visibility_scope[JSON.stringify(o.visibility ?? null)][o.occlusions];
     const visibility = scope === "none" ? null : { zbuffers: this.occlusions.zbuffers(fine, work.depth),
       parallax: this.parallax(virtual),
@@ -153,7 +187,7 @@ export class BrowserRenderer {
     const ms = performance.now() - t0;
     return {
       ms, d_bnd: dBnd, depth_range: [planes.near, planes.far], planes: o.planes, visual_hull: hull,
-      depth_found: stats.found ? [1 / stats.maxInverse, 1 / stats.minInverse] : null, coverage: stats.coverage,
+      depth_found: stats.found ? [1 / stats.maxInverse, 1 / stats.minInverse] : null, coverage: stats.coverage, held,
     };
   }
 
@@ -269,7 +303,7 @@ export class BrowserRenderer {
     for (const w of [this.work, this.coarse]) if (w) w.dispose();
     if (this.frames) this.frames.dispose();
     for (const part of [this.cost, this.window, this.semiGlobal, this.occlusions, this.shading, this.presenter,
-      this.statistics]) part.dispose();
+      this.statistics, this.holder]) part.dispose();
   }
 }
 
