@@ -3,7 +3,7 @@
 ``/review/{job id}`` serves the page (``app/static/review/``, like the viewer: not under ``/v1``, the page sends the
 API key it is given); its data comes from ``/v1/photos/batches/{job id}/review`` and its thumbnails from
 ``/v1/photos/batches/{job id}/photos/{index}/thumbnail``, made from the uploaded photo when the page asks for one (the
-batch itself makes none: most photos left for a person are never looked at, and a thumbnail costs about a tenth of what
+batch itself makes none: most photos left for a person are never looked at, and a thumbnail costs about a fifth of what
 analysing a photo does). A decision is written with the engine's lossless writers into a new
 fixed file of the job and recorded in its ``report.json`` as a person's decision.
 """
