@@ -182,7 +182,10 @@ def _decide(svc: Services, job: Any, index: int, choice: ReviewChoice, mode: str
 @router.get("/{job_id}/photos/{index}/thumbnail", response_class=Response,
             responses={200: {"content": {"image/jpeg": {}}, "description": "a JPEG at most 320 px long"},
                        404: {"description": "not a photo batch, or it has no photo with that index"},
-                       422: {"description": "the photo cannot be decoded (its entry in report.json says why)"}},
+                       **{status: {"description": f"the uploaded photo has no picture to show ({why}; its entry in "
+                                                  "report.json says so too)"}
+                          for status, why in ((400, "empty_file, bad_image"), (413, "too_many_pixels"),
+                                              (415, "not_an_image, unsupported_format"), (422, "corrupt_image"))}},
             summary="A small JPEG of one photo of a batch, as the engine analysed it: its stored pixels (EXIF "
                     "ignored), at most 320 px long, in colour where the format allows; made from the upload when "
                     "asked for (the review page asks as a photo scrolls into view)")

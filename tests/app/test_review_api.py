@@ -91,6 +91,8 @@ def test_review_errors_are_json_and_change_nothing(client_factory):
     error("POST", f"/v1/photos/batches/{job}/review/7", 404, "photo_not_found",
           json={"rotation_degrees": 90, "reviewer": "Ada"})
     error("GET", f"/v1/photos/batches/{job}/photos/2/thumbnail", 404, "photo_not_found")
+    empty = finished_batch(client, [("files", ("empty.jpg", b"", "image/jpeg"))])
+    error("GET", f"/v1/photos/batches/{empty}/photos/0/thumbnail", 400, "empty_file")
     error("GET", "/v1/photos/batches/nope/photos/0/thumbnail", 404, "job_not_found")
     for body in ({"rotation_degrees": 45, "reviewer": "Ada"}, {"rotation_degrees": 90, "reviewer": "   "},
                  {"rotation_degrees": 90}, {"rotation_degrees": 90, "reviewer": "Ada", "force": True}):
