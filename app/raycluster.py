@@ -50,10 +50,10 @@ def connect(address: str | None, num_cpus: int | None = None, env: dict[str, str
 
 
 def idle_worker_limit(num_cpus: int | None, setting: int | None = None) -> int:
-    """The worker processes a local cluster of ``num_cpus`` (None: the cores this process may use) keeps when idle: ``setting``, else
-    twice the CPUs, at most the CPUs + 8. Ray's own default, one per CPU, ends the workers a batch job's blocks ran in
-    as soon as they idle (a second), since the job's own task holds a worker while it waits: each library then paid
-    their start again (Python, the engine's imports, its detectors: 2-3 s of CPU each)."""
+    """The worker processes a local cluster of ``num_cpus`` (None: the cores this process may use) keeps when idle:
+    ``setting``, else twice the CPUs, at most the CPUs + 8. Ray's own default, one per CPU, ends the workers a batch
+    job's blocks ran in as soon as they idle (a second), since the job's own task holds a worker while it waits: each
+    library then paid their start again (Python, the engine's imports, its detectors: 2-3 s of CPU each)."""
     if setting is not None:
         return setting
     cpus = num_cpus or usable_cores()

@@ -649,11 +649,13 @@ def flicker(quick: bool) -> tuple[dict, str]:
     count = 6 if quick else 12
     rig = demo_rig(10, size)
     scenes = [demo_scene((f % count) / count) for f in range(count + 1)]
-    sets = [[v.image for v in render_views(scene, list(rig.cameras))] for scene in scenes]
-    backgrounds = [v.background for v in render_views(scenes[0], list(rig.cameras))]
+    views = [render_views(scene, list(rig.cameras)) for scene in scenes]
+    sets = [[v.image for v in each] for each in views]
+    backgrounds = [v.background for v in views[0]]
     factor = source_factor(rig, *size)
     small = shrunk_rig(rig, factor)
     atlases = [frame_atlas(frames, rig, factor) for frames in sets]
+    background_atlas, spec = frame_atlas(backgrounds, rig, factor), render_spec(rig)
     rows, out = [], {}
     with static_site() as base, chromium() as browser:
         page = browser.new_page()
@@ -675,8 +677,8 @@ def flicker(quick: bool) -> tuple[dict, str]:
                     served["held"].append(previous.image)
                 drawn = {}
                 for how in ("searched", "held"):
-                    b = render_in_browser(page, render_spec(rig), atlases[0], frame_atlas(backgrounds, rig, factor),
-                                          virtual, factor, options, later=tuple(atlases[1:]), hold=how == "held")
+                    b = render_in_browser(page, spec, atlases[0], background_atlas, virtual, factor, options,
+                                          later=tuple(atlases[1:]), hold=how == "held")
                     drawn[how] = [*b["images"], b["image"]]
                 entry = {f"{who} {how}": flicker_of(images[how], still)
                          for who, images in (("server", served), ("browser", drawn)) for how in ("searched", "held")}

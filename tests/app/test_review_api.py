@@ -39,7 +39,8 @@ def test_a_persons_choice_is_written_losslessly_and_recorded_as_theirs(client_fa
     assert queue["photos"] == 2 and queue["reviewed"] == 0
     assert [(i["index"], i["reason"], i["review"]) for i in queue["items"]] == [(0, "no_cue", None), (1, "no_cue", None)]
     thumbs = [client.get(item["thumbnail"]) for item in queue["items"]]
-    assert [t.status_code for t in thumbs] == [200, 200] and {t.headers["content-type"] for t in thumbs} == {"image/jpeg"}
+    assert [t.status_code for t in thumbs] == [200, 200]
+    assert {t.headers["content-type"] for t in thumbs} == {"image/jpeg"}
     small = [cv2.imdecode(np.frombuffer(t.content, np.uint8), cv2.IMREAD_COLOR) for t in thumbs]
     assert [s.shape for s in small] == [(240, 320, 3), (300, 200, 3)]  # 320 px long at most, never enlarged, colour
     expected = cv2.resize(asymmetric_image(600, 800), (320, 240), interpolation=cv2.INTER_AREA)

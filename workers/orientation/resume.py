@@ -172,7 +172,7 @@ class LibraryState:
         run = {str(p) for p in paths}
         unhashed = run - self._hashed
         kept = [{**self.rows[sha], "path": path, "stat": stat} for path, (sha, stat) in self._at.items()
-                if path in run and sha in self.rows and (sha in self._used or path in unhashed)]
+                if path in run and (sha in self._used or path in unhashed)]
         placed = {row["sha256"] for row in kept}
         kept += [row for sha, row in self.rows.items() if sha in self._used and sha not in placed]
         replace_file(self.path, "".join(json.dumps(row) + "\n" for row in kept).encode())

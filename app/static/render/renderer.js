@@ -163,10 +163,10 @@ export class BrowserRenderer {
     gl.disable(gl.BLEND);
     const volume = this.chooseDepth(sweep, fine, half, o, fillOcclusions, work);
     if (fillOcclusions) this.occlusions.fill(fine, volume, work.depth, fillAlongRows(virtual, this.rig.centres));
-    const view = { signature: viewSignature(virtual, planes, o), work, frames: this.frames,
+    // (the same signature means the same size, so work.kept holds that render's depth; a frame set only counts up)
+    const view = { signature: viewSignature(virtual, planes, o), frames: this.frames,
       frameSet: this.frames.changes.frameSet };
-    const held = hold && last !== null && last.signature === view.signature && last.work === work
-      && last.frames === this.frames && last.frameSet <= view.frameSet;
+    const held = hold && last !== null && last.signature === view.signature && last.frames === this.frames;
     if (held) {
       this.holder.hold(fine, virtual, this.rig.centres, work.depth, work.kept, this.frames.changes, last.frameSet,
         work.spare);
