@@ -4,6 +4,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import time
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import AsyncIterator
@@ -148,6 +149,22 @@ async def _start_ray(svc: Services) -> None:
     await svc.dispatcher.start()
     if svc.settings.ray_address:  # a cluster of its own: its head can be lost and come back
         await watch_ray(svc)
+    elif svc.ray_owned and svc.settings.warm_workers:
+        await _prepare_workers(svc)
+
+
+async def _prepare_workers(svc: Services) -> None:
+    """The embedded cluster's idle workers made ready for batch jobs (:mod:`workers.prewarm`), in the background."""
+    count = raycluster.idle_worker_limit(svc.settings.ray_num_cpus, svc.settings.ray_idle_workers)
+    started = time.monotonic()
+    try:
+        ready = await asyncio.to_thread(raycluster.prepare_workers, count)
+    except Exception as exc:  # noqa: BLE001 - the first tasks then do it themselves, as without the warm-up
+        log.warning("the Ray workers could not be made ready ahead: %s: %s", type(exc).__name__, exc)
+        return
+    engines = sorted({str(r["engine"]) for r in ready})
+    log.info("%d Ray worker processes ready for batch jobs in %.1f s (orientation engine: %s)",
+             len({r["pid"] for r in ready}), time.monotonic() - started, ", ".join(engines))
 
 
 async def fetch_missing_models(settings: Settings) -> None:

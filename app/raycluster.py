@@ -49,6 +49,18 @@ def connect(address: str | None, num_cpus: int | None = None, env: dict[str, str
     return True
 
 
+def prepare_workers(count: int, timeout_s: float = 300.0) -> list[dict[str, Any]]:
+    """Make ``count`` of the local cluster's worker processes ready for batch jobs (:mod:`workers.prewarm`), each in a
+    task of its own; what each said. Blocks until they are (at most ``timeout_s``)."""
+    import ray
+
+    from workers.ray_tasks import prepare_worker_task
+
+    with tempfile.TemporaryDirectory(prefix="sweepcast-prewarm-") as barrier:
+        refs = [prepare_worker_task.remote(barrier, count) for _ in range(count)]
+        return ray.get(refs, timeout=timeout_s)
+
+
 def idle_worker_limit(num_cpus: int | None, setting: int | None = None) -> int:
     """The worker processes a local cluster of ``num_cpus`` (None: the cores this process may use) keeps when idle:
     ``setting``, else twice the CPUs, at most the CPUs + 8. Ray's own default, one per CPU, ends the workers a batch

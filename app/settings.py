@@ -104,6 +104,10 @@ class Settings(WorkerSettings):
     warm_kernels: bool = Field(True, description="At start-up, compile every engine's kernels into the cache in a "
                                                  "background process (`sweepcast warmup`), so that no request waits "
                                                  "for a compile; a warm cache makes it take seconds.")
+    warm_workers: bool = Field(True, description="At start-up, the local Ray cluster's idle workers (ray_idle_workers) "
+                                                 "import the engines and build the orientation engine in the "
+                                                 "background (workers/prewarm.py), so the first photo library after "
+                                                 "a start does not pay for it (2-3 s of CPU per worker process).")
 
     max_rig_cameras: int = Field(64, ge=2, description="Most cameras in one rig.")
     max_recording_frames: int = Field(3000, ge=1, description="Most frames per camera in one recording.")

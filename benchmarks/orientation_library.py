@@ -283,13 +283,14 @@ def bench_cli(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
 # ---- the service ----------------------------------------------------------------------------------------------------
 
 @contextlib.contextmanager
-def served(cwd: Path, tmp: Path, yunet: Path | None) -> Iterator[Any]:
-    """The service from ``cwd``'s code (its own local Ray, every core), settled after its start."""
+def served(cwd: Path, tmp: Path, yunet: Path | None, **env: str) -> Iterator[Any]:
+    """The service from ``cwd``'s code (its own local Ray, every core; ``env``: more settings), settled after its
+    start (``app.settled``: what that took, :func:`settle_server`)."""
     tmp.mkdir(parents=True, exist_ok=True)
     env = {"SWEEPCAST_DATA_DIR": str(tmp / "data"), "SWEEPCAST_ORIENTATION_YUNET_MODEL": str(yunet) if yunet else None,
-           "SWEEPCAST_DEMO_RIG": "false", "SWEEPCAST_WARM_KERNELS": "false", "PYTHONPATH": str(cwd)}
+           "SWEEPCAST_DEMO_RIG": "false", "SWEEPCAST_WARM_KERNELS": "false", "PYTHONPATH": str(cwd), **env}
     with serve_app(env, log=tmp / "server.log", cwd=cwd) as app:
-        settle_server(app.base, app.proc.pid, tree_cpu_seconds, interval_s=1.0, timeout_s=300.0)
+        app.settled = settle_server(app.base, app.proc.pid, tree_cpu_seconds, interval_s=1.0, timeout_s=300.0)
         yield app
 
 
@@ -346,24 +347,36 @@ def bench_http(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     photos_dir, photos = _library(args)
     yunet = _yunet()
     files = [photos_dir / p["file"] for p in photos]
+    batch = _batch(args, len(files))
     with tempfile.TemporaryDirectory(prefix="sweepcast-bench-http-") as tmp, served(ROOT, Path(tmp), yunet) as app:
-        out = upload_library(app.base, app.proc.pid, files, _batch(args, len(files)), args.in_flight)
-        out["next"] = upload_library(app.base, app.proc.pid, files, _batch(args, len(files)), args.in_flight)
+        out = upload_library(app.base, app.proc.pid, files, batch, args.in_flight)
+        out["start"] = app.settled
+        out["next"] = upload_library(app.base, app.proc.pid, files, batch, args.in_flight)
         out["review"] = review_thumbnails(app.base, app.proc.pid, out["next"]["job_ids"][0])
+    with tempfile.TemporaryDirectory(prefix="sweepcast-bench-http-") as tmp, \
+            served(ROOT, Path(tmp), yunet, SWEEPCAST_WARM_WORKERS="false") as app:
+        out["cold"] = upload_library(app.base, app.proc.pid, files, batch, args.in_flight)
+        out["cold"]["start"] = app.settled
     review = out["review"]
     rows = [[label, r["photos_per_s"], r["wall_s"], r["server_cpu_ms_per_photo"], r["machine_busy_ms_per_photo"],
-             r["median_upload_s"], r["median_batch_s"]]
-            for label, r in (("first, after the service's start", out), ("the next, on the same service", out["next"]))]
+             r["median_upload_s"], r["median_batch_s"], r["start"]["server_tree_cpu_s"] if "start" in r else ""]
+            for label, r in (("first, after the service's start", out), ("the next, on the same service", out["next"]),
+                             ("first, workers not made ready at the start (`SWEEPCAST_WARM_WORKERS=false`)",
+                              out["cold"]))]
     md = (f"### The batch route\n\nThe service (its local Ray on every core; YuNet {'on' if yunet else 'not installed'}, "
           f"the text cue on) and one client uploading the library ({len(photos)} photos) as `POST "
           f"/v1/photos/batches` of {out['batch']} photos, {out['in_flight']} uploads at once, each batch followed to "
-          "its end; then the same library again, as the next library a running service gets (its workers started). "
-          "CPU: the server's processes (its Ray workers included, those ended meanwhile too); machine: every core's "
-          "busy time (the client's included: it runs on the same cores).\n\n"
+          "its end, once the service has settled after its start (its Ray workers made ready for batch jobs: "
+          "`SWEEPCAST_WARM_WORKERS`, the default); then the same library again, as the next library a running "
+          "service gets; then the first library of a service started without that warm-up, as earlier releases "
+          "started. CPU: the server's processes (its Ray workers included, those ended meanwhile too); machine: every "
+          "core's busy time (the client's included: it runs on the same cores); start-up CPU: the server's processes "
+          "from its start until it settled, before the library.\n\n"
           + md_table(["library", "photos/s", "wall s", "server CPU ms/photo", "machine busy ms/photo",
-                      "median upload s", "median batch s (upload to done)"], rows)
+                      "median upload s", "median batch s (upload to done)", "start-up CPU s"], rows)
           + f"\n\nDecisions: {_tally_text(out['decisions'])}; the next library's the same: "
-            f"{out['next']['decisions'] == out['decisions']}.\n\n"
+            f"{out['next']['decisions'] == out['decisions']}; without the warm-up: "
+            f"{out['cold']['decisions'] == out['decisions']}.\n\n"
             f"The review page of that library's first batch: its {review['thumbnails']} photos left for a person, each "
             f"thumbnail made when the page asks for it: {review['server_cpu_ms_per_thumbnail']:.1f} ms of the "
             f"service's CPU each, {review['median_ms']:.0f} ms from request to answer (median, one at a time).\n")

@@ -8,12 +8,15 @@ os.environ.setdefault("RAY_AUTH_MODE", "disabled")
 # The loopback S3 server takes any credentials; set them before Ray starts so its workers see them too.
 os.environ.setdefault("AWS_ACCESS_KEY_ID", "sweepcast-test")
 os.environ.setdefault("AWS_SECRET_ACCESS_KEY", "sweepcast-test")
-# One kernel cache for the run, its servers and their Ray workers: the checkout's (a fresh clone compiles its
-# kernels once, as CI does, and never reads or fills the user's cache the service defaults to); no background
-# warm-up competing for the CPU.
+# One kernel cache and one model cache for the run, its servers and their Ray workers: the checkout's (a fresh clone
+# compiles its kernels and builds its models once, as CI does, and never reads or fills the user's caches the service
+# defaults to); no background warm-up competing for the CPU.
 os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                                                       "sweepcast-data", "cache", "numba"))
+os.environ.setdefault("SWEEPCAST_MODEL_CACHE_DIR", os.path.join(os.path.dirname(os.path.dirname(
+    os.path.abspath(__file__))), "sweepcast-data", "cache", "models"))  # the models built here (the word lists)
 os.environ.setdefault("SWEEPCAST_WARM_KERNELS", "false")
+os.environ.setdefault("SWEEPCAST_WARM_WORKERS", "false")
 
 import pytest  # noqa: E402
 

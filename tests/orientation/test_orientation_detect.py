@@ -121,6 +121,30 @@ def test_parts_confirm_a_real_face_upright_and_not_upside_down():
 
 
 @pytest.mark.skipif(FACES is None, reason="needs $SWEEPCAST_DATA/faces/dev")
+def test_the_search_around_a_face_finds_it_at_its_size_and_not_at_others():
+    """Searched only where and at the sizes a region says, the Haar search finds the face the whole view's search
+    finds (the box a search of the region at every size finds); a region whose sizes leave the face out finds nothing
+    (the small windows, most of the CPU, are not searched for a large face)."""
+    import cv2
+
+    from workers.orientation.detect import HAAR_MIN_NEIGHBORS, HAAR_SCALE_FACTOR, HAAR_SCAN, Track, search_regions
+    from workers.orientation.faces import HaarFaceFinder, Region
+    from workers.orientation.geometry import iou
+
+    gray = cv2.imread(str(FACES / REAL[0]), cv2.IMREAD_GRAYSCALE)
+    finder = HaarFaceFinder(HAAR_SCAN, HAAR_SCALE_FACTOR, HAAR_MIN_NEIGHBORS)
+    (face,) = finder.find(gray)
+    x, y, w, h = face.box
+    (around,) = search_regions([Track((x + 0.1 * w, y + 0.15 * h, 0.8 * w, 0.8 * h))], gray.shape)  # YuNet's box
+    assert around.sides[0] < w < around.sides[1]
+    (found,) = finder.find(gray, [around])
+    assert found == finder.find(gray, [Region(around.box, (1.0, float(max(gray.shape))))])[0]
+    assert iou(found.box, face.box) > 0.8
+    assert finder.find(gray, [Region(around.box, (w / 4, w / 2))]) == []
+    assert finder.find(gray, [Region(around.box, (2 * w, 4 * w))]) == []
+
+
+@pytest.mark.skipif(FACES is None, reason="needs $SWEEPCAST_DATA/faces/dev")
 def test_dog_photo_is_never_given_a_wrong_rotation():
     import cv2
 
@@ -241,7 +265,8 @@ def test_a_haar_face_yunet_did_not_see_votes_but_cannot_decide():
     kept = haar_only_not_decisive([on_it, elsewhere], seen)
     assert kept[0].decisive and not kept[1].decisive
     assert decide(kept[1:]).rotation is None and decide(kept[1:]).reason == "low_confidence"
-    (x, y, w, h), = search_regions(seen, (300, 400))
+    (region,) = search_regions(seen, (300, 400))
+    x, y, w, h = region.box
     assert x < 100 and y < 100 and x + w > 150 and y + h > 160 and x >= 0 and y >= 0  # around YuNet's face, grown
 
 

@@ -355,6 +355,55 @@ def test_the_cue_decides_text_with_only_what_pip_installed(no_system_text_data, 
     assert cue.upright(turned(sign_photo(), rotation)).rotation == rotation
 
 
+def test_the_word_lists_are_read_once_then_loaded_from_the_cache_until_one_changes(tmp_path, monkeypatch):
+    lists = tmp_path / "dict"
+    lists.mkdir()
+    (lists / "english").write_text("Receipt\ntotal\nthank\n")
+    monkeypatch.setenv("SWEEPCAST_MODEL_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(textdata, "CACHE_FROM_WORDS", 1)
+    textdata.find_vocabulary.cache_clear()
+    vocabulary, source = textdata.find_vocabulary(lists)
+    assert source == str(lists) and {"receipt", "total", "thank"} <= set(textdata.word_lists(lists))
+    assert all(w in vocabulary for w in ("receipt", "total", "thank")) and len(list((tmp_path / "cache").iterdir())) == 1
+
+    def unread(folder):
+        raise AssertionError("the word lists were read again")
+
+    monkeypatch.setattr(textdata, "word_lists", unread)
+    textdata.find_vocabulary.cache_clear()  # another process
+    again, _ = textdata.find_vocabulary(lists)
+    assert "thank" in again and len(again) == 3
+    monkeypatch.undo()
+    monkeypatch.setenv("SWEEPCAST_MODEL_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(textdata, "CACHE_FROM_WORDS", 1)
+    (lists / "french").write_text("merci\n")  # a list added: read again
+    textdata.find_vocabulary.cache_clear()
+    textdata.word_lists.cache_clear()
+    changed, _ = textdata.find_vocabulary(lists)
+    assert "merci" in changed and "thank" in changed
+    textdata.find_vocabulary.cache_clear()
+
+
+def test_a_damaged_or_unwritable_cache_builds_the_vocabulary_in_memory(tmp_path, monkeypatch):
+    lists = tmp_path / "dict"
+    lists.mkdir()
+    (lists / "english").write_text("receipt\n")
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("a file where the cache folder should be")
+    monkeypatch.setattr(textdata, "CACHE_FROM_WORDS", 1)
+    monkeypatch.setenv("SWEEPCAST_MODEL_CACHE_DIR", str(blocker / "models"))
+    textdata.find_vocabulary.cache_clear()
+    assert "receipt" in textdata.find_vocabulary(lists)[0]
+    monkeypatch.setenv("SWEEPCAST_MODEL_CACHE_DIR", str(tmp_path / "cache"))
+    textdata.find_vocabulary.cache_clear()
+    textdata.find_vocabulary(lists)
+    (cached,) = (tmp_path / "cache").iterdir()
+    cached.write_bytes(b"not an archive")
+    textdata.find_vocabulary.cache_clear()
+    assert "receipt" in textdata.find_vocabulary(lists)[0]
+    textdata.find_vocabulary.cache_clear()
+
+
 def test_the_engine_without_its_text_cue_works_on_faces_only(monkeypatch):
     def missing() -> None:
         raise FileNotFoundError("the text detector model is missing (reinstall rapidocr)")

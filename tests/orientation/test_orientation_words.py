@@ -55,3 +55,15 @@ def test_word_lists_are_read_from_a_folder(tmp_path):
 def test_the_installed_word_lists_know_common_words():
     vocabulary = word_lists(__import__("pathlib").Path("/usr/share/dict"))
     assert {"receipt", "total", "thank"} <= vocabulary
+
+
+def test_a_vocabulary_knows_its_words_and_scripts_and_nothing_else():
+    from workers.orientation.words import Vocabulary, scripts_of
+
+    words = {"receipt", "total", "straße", "שלום"}
+    vocabulary = Vocabulary.of(words)
+    assert len(vocabulary) == 4 and all(w in vocabulary for w in words)
+    assert "Receipt" not in vocabulary and "receipts" not in vocabulary and "" not in vocabulary and 7 not in vocabulary
+    assert scripts_of(vocabulary) == scripts_of(frozenset(words)) == {"LATIN", "HEBREW"}
+    hebrew = OcrWord("שלום", 95.0, (0, 0, 40, 10))
+    assert known(hebrew, vocabulary) and known(OcrWord("Total:", 95.0), vocabulary)

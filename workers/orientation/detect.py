@@ -28,6 +28,7 @@ The decision (:func:`decide`) needs exactly one accepted view and at least one d
 """
 from __future__ import annotations
 
+import math
 import threading
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
@@ -37,7 +38,8 @@ from typing import Callable, Generic, Literal, Protocol, Sequence, TypeVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from workers.orientation.faces import Candidate, HaarFaceFinder, LongSideScan, ShortSideScan, YuNetFaceFinder
+from workers.orientation.faces import (Candidate, HaarFaceFinder, LongSideScan, Region, ShortSideScan,
+                                      YuNetFaceFinder)
 from workers.orientation.geometry import (ROTATIONS, Box, TurnedViews, image_box_to_view, iou, rotate_view,
                                           view_box_to_image)
 from workers.orientation.parts import PartSpec, PartVerifier, face_crop
@@ -203,22 +205,24 @@ class PaperDetector:
             finder.get()
         self._verifier.get()
 
-    def upright_faces(self, gray: np.ndarray, regions: Sequence[Box] | None = None) -> list[Face]:
-        """The paper's accepted faces in the four views of ``gray``; with ``regions`` (boxes in ``gray``'s px), only
-        faces inside them are searched (the combined detector's YuNet faces, :func:`search_regions`)."""
+    def upright_faces(self, gray: np.ndarray, regions: Sequence[Region] | None = None) -> list[Face]:
+        """The paper's accepted faces in the four views of ``gray``; with ``regions`` (``gray``'s px), only faces
+        inside them, of their sizes, are searched (around the combined detector's YuNet faces,
+        :func:`search_regions`)."""
         for finder in self._finders:
             faces = self._search(gray, finder.get(), regions)
             if faces:
                 return faces
         return []
 
-    def _search(self, gray: np.ndarray, finder: HaarFaceFinder, regions: Sequence[Box] | None) -> list[Face]:
+    def _search(self, gray: np.ndarray, finder: HaarFaceFinder, regions: Sequence[Region] | None) -> list[Face]:
         verifier = self._verifier.get()
         height, width = gray.shape[:2]
         faces = []
         for rotation in ROTATIONS:
             view = rotate_view(gray, rotation)
-            within = None if regions is None else [image_box_to_view(b, rotation, width, height) for b in regions]
+            within = None if regions is None else [
+                Region(image_box_to_view(r.box, rotation, width, height), r.sides) for r in regions]
             for cand in finder.find(view, within):
                 crop = face_crop(view, cand.box)
                 parts = verifier.parts(crop) if crop is not None else ()
@@ -286,16 +290,21 @@ Haar face box takes in more forehead and chin than YuNet's): a face elsewhere co
 (:func:`haar_only_not_decisive`), so the rest of the photo is not searched."""
 
 
-def search_regions(seen: Sequence[Track], shape: tuple[int, ...]) -> list[Box]:
+def search_regions(seen: Sequence[Track], shape: tuple[int, ...]) -> list[Region]:
     """The regions (image px, clipped to ``shape``) the paper's search looks at: every YuNet face, grown by
-    ``HAAR_REGION_PAD``."""
+    ``HAAR_REGION_PAD``, for faces of the sizes that could overlap it enough to decide (IoU above ``_SAME_FACE_IOU``,
+    :func:`haar_only_not_decisive`): a square of side ``a`` and a ``w`` x ``h`` box overlap at most
+    ``min(a², wh) / max(a², wh)``, so ``a`` lies between ``sqrt(IoU wh)`` and ``sqrt(wh / IoU)``. A face of another
+    size could only leave the photo undecided; the small windows, most of the search's CPU, are left out for large
+    faces."""
     height, width = shape[:2]
     out = []
     for track in seen:
         x, y, w, h = track.box
         pad = HAAR_REGION_PAD * max(w, h)
         x0, y0 = max(0.0, x - pad), max(0.0, y - pad)
-        out.append((x0, y0, min(float(width), x + w + pad) - x0, min(float(height), y + h + pad) - y0))
+        box = (x0, y0, min(float(width), x + w + pad) - x0, min(float(height), y + h + pad) - y0)
+        out.append(Region(box, (math.sqrt(_SAME_FACE_IOU * w * h), math.sqrt(w * h / _SAME_FACE_IOU))))
     return out
 
 

@@ -23,6 +23,15 @@ HAAR_FACE_CASCADE = Path(cv2.data.haarcascades) / "haarcascade_frontalface_alt.x
 
 
 @dataclass(frozen=True)
+class Region:
+    """Where a face search looks: ``box`` (x, y, w, h) px, and the least and greatest side (px) of the faces it looks
+    for there (``sides``)."""
+
+    box: Box
+    sides: tuple[float, float]
+
+
+@dataclass(frozen=True)
 class Candidate:
     """A face candidate in one view: box (x, y, w, h) in view px, YuNet score (None for Haar)."""
 
@@ -82,10 +91,12 @@ class HaarFaceFinder:
         self.scale_factor = scale_factor
         self.min_neighbors = min_neighbors
 
-    def find(self, view: np.ndarray, within: Sequence[Box] | None = None) -> list[Candidate]:
-        """Faces in ``view`` ((H, W) uint8 grey), boxes in view px; with ``within`` (boxes in view px), only the
-        faces inside those regions: the scan is planned and equalised as for the whole view, and searched only there
-        (windows wholly inside a region give the same detections)."""
+    def find(self, view: np.ndarray, within: Sequence[Region] | None = None) -> list[Candidate]:
+        """Faces in ``view`` ((H, W) uint8 grey), boxes in view px; with ``within``, only the faces inside each
+        region's box (view px) whose side is within its ``sides`` (view px): the scan is planned and equalised as for
+        the whole view, and searched only there, at the pyramid's scales of those sides widened by one step (a
+        window wholly inside a region, at a scale searched, gives the same detection; the step keeps the neighbours
+        a detection at the edge of the range is grouped with)."""
         s, smallest, largest = self.scan.plan(*view.shape[:2])
         if s < 1.0:
             size = (max(1, round(view.shape[1] * s)), max(1, round(view.shape[0] * s)))
@@ -94,17 +105,26 @@ class HaarFaceFinder:
         else:
             scan = view
         scan = cv2.equalizeHist(scan)
-        regions = [(0, 0, scan.shape[1], scan.shape[0])] if within is None else [
-            _scaled_region(box, s, scan.shape) for box in within]
+        searches = [((0, 0, scan.shape[1], scan.shape[0]), smallest, largest)] if within is None else [
+            self._scaled(region, s, scan.shape, smallest, largest) for region in within]
         found = []
-        for x0, y0, x1, y1 in regions:
-            if x1 - x0 < smallest or y1 - y0 < smallest:
+        for (x0, y0, x1, y1), least, most in searches:
+            if x1 - x0 < least or y1 - y0 < least or (most and least > most):
                 continue
             boxes = self._cascade.detectMultiScale(scan[y0:y1, x0:x1], scaleFactor=self.scale_factor,
-                                                   minNeighbors=self.min_neighbors, minSize=(smallest, smallest),
-                                                   maxSize=(largest, largest))
+                                                   minNeighbors=self.min_neighbors, minSize=(least, least),
+                                                   maxSize=(most, most))
             found += [Candidate(((x + x0) / s, (y + y0) / s, w / s, h / s), None) for x, y, w, h in boxes]
         return found
+
+    def _scaled(self, region: Region, s: float, shape: tuple[int, ...], smallest: int,
+                largest: int) -> tuple[tuple[int, int, int, int], int, int]:
+        """((x0, y0, x1, y1), least and greatest face side) of ``region`` in the scan scaled by ``s`` (``largest`` 0:
+        no greatest side)."""
+        lo, hi = region.sides
+        least = max(smallest, int(lo * s / self.scale_factor))
+        most = int(np.ceil(hi * s * self.scale_factor))
+        return _scaled_region(region.box, s, shape), least, min(most, largest) if largest else most
 
 
 def _scaled_region(box: Box, s: float, shape: tuple[int, ...]) -> tuple[int, int, int, int]:

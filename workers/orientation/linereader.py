@@ -26,7 +26,7 @@ import numpy as np
 
 from workers.common.denormals import flushed_denormals
 from workers.orientation.textlines import TextLine
-from workers.orientation.words import OcrWord, confident, real_words
+from workers.orientation.words import Lexicon, OcrWord, confident, real_words
 
 Reader = Literal["tesseract", "recognizer", "script"]
 
@@ -158,7 +158,7 @@ def _line_of(word: OcrWord, rows: Sequence[tuple[int, int]]) -> int:
 
 
 def summarise(reader: Reader, turn: int, words: Sequence[OcrWord], line_of: Sequence[int],
-              vocabulary: AbstractSet[str]) -> LineReading:
+              vocabulary: Lexicon) -> LineReading:
     """One reading summed up: ``words`` (each on the strip ``line_of`` says) with ``vocabulary`` (lower case)."""
     real = real_words(words, vocabulary)
     index = {id(w): i for w, i in zip(words, line_of)}
@@ -266,13 +266,13 @@ class TesseractLines:
             found = api.DetectOrientationScript()
         return found.get("script_name") if found else None
 
-    def read(self, gray: np.ndarray, lines: Sequence[TextLine], vocabulary: AbstractSet[str], lang: str = "eng",
+    def read(self, gray: np.ndarray, lines: Sequence[TextLine], vocabulary: Lexicon, lang: str = "eng",
              reader: Reader = "tesseract") -> PairVerdict:
         """``lines`` (one axis, px of ``gray``) read both ways up in ``lang``."""
         strips = [cut_strip(gray, ln, STRIP_HEIGHT) for ln in lines]
         return self.read_strips(strips, lines[0], vocabulary, lang, reader)
 
-    def read_strips(self, strips: Sequence[np.ndarray], line: TextLine, vocabulary: AbstractSet[str],
+    def read_strips(self, strips: Sequence[np.ndarray], line: TextLine, vocabulary: Lexicon,
                     lang: str = "eng", reader: Reader = "tesseract") -> PairVerdict:
         """Strips cut from lines of ``line``'s axis, read as cut and turned 180 degrees."""
         readings = []
@@ -309,7 +309,7 @@ class RecognizerLines:
         probabilities = self._session.run(None, {self._input: recognizer_input(strip)})[0][0]
         return ctc_decode(probabilities, self._characters)
 
-    def read(self, gray: np.ndarray, lines: Sequence[TextLine], vocabulary: AbstractSet[str]) -> PairVerdict:
+    def read(self, gray: np.ndarray, lines: Sequence[TextLine], vocabulary: Lexicon) -> PairVerdict:
         """``lines`` (one axis, px of ``gray``) read both ways up; each line's words carry its confidence."""
         strips = [cut_strip(gray, ln, RECOGNIZER_HEIGHT, RECOGNIZER_MAX_ASPECT) for ln in lines]
         readings = []

@@ -33,6 +33,7 @@ from workers.orientation.linereader import (RECOGNIZER_LINES, STRIP_HEIGHT, TESS
 from workers.orientation.textdata import Tessdata, find_tessdata, find_vocabulary
 from workers.orientation.geometry import rotate_view
 from workers.orientation.textlines import LineScan, LoadImage, TextLine, get_line_detector, upscaler
+from workers.orientation.words import Lexicon
 from workers.settings import worker_settings
 
 RejectReason = Literal["no_cue", "conflicting_rotations", "low_confidence"]
@@ -84,7 +85,7 @@ class TextCue:
     """The gate, then the line readers (module docstring). Thread-safe; built once per process
     (:func:`get_text_cue`)."""
 
-    def __init__(self, tessdata: Tessdata | None, vocabulary: frozenset[str], vocabulary_source: str,
+    def __init__(self, tessdata: Tessdata | None, vocabulary: Lexicon, vocabulary_source: str,
                  recognizer: bool = True) -> None:
         self.detector = get_line_detector()
         self.tessdata = tessdata

@@ -9,13 +9,21 @@ word lists (``wamerican``, ``wngerman``, ``wfrench``, ...). The settings ``SWEEP
 """
 from __future__ import annotations
 
+import contextlib
 import glob
+import hashlib
+import json
+import os
+import tempfile
+import zipfile
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
+import numpy as np
+
 from workers.common.packages import package_version
-from workers.orientation.words import word_lists
+from workers.orientation.words import Vocabulary, word_lists
 
 DEBIAN_TESSDATA = "/usr/share/tesseract-ocr/*/tessdata"
 """Where Debian's tesseract packages keep their models (one folder per major version)."""
@@ -73,17 +81,80 @@ def find_tessdata(setting: Path | None = None) -> Tessdata | None:
     return None
 
 
+VOCABULARY_FORMAT = 1
+"""Part of the cached vocabulary's key: a change in how it is built or stored builds it again."""
+CACHE_FROM_WORDS = 10_000
+"""Word lists of fewer words are built in memory each time (milliseconds), not cached: they cost nothing to build,
+and a test's lists, new files in every run, would pile up in the cache."""
+
+
 @lru_cache(maxsize=4)
-def find_vocabulary(setting: Path | None = None) -> tuple[frozenset[str], str]:
+def find_vocabulary(setting: Path | None = None) -> tuple[Vocabulary, str]:
     """(every word the word lists hold, lower case; where they came from): the folder ``setting`` names, else
     Debian's ``/usr/share/dict`` when it holds lists, else the packaged ``wordfreq`` lists
-    (``WORDFREQ_LANGUAGES``)."""
+    (``WORDFREQ_LANGUAGES``).
+
+    Built once per set of word lists and kept in the model cache (``SWEEPCAST_MODEL_CACHE_DIR``) as a
+    :class:`~workers.orientation.words.Vocabulary`, under a key that changes when a word list is changed, added or
+    removed (:func:`vocabulary_origin`): every other process loads it in milliseconds. Where the cache cannot be
+    written or read, it is built in memory, as before."""
+    path = _vocabulary_file(setting)
+    cached = _load_vocabulary(path) if path is not None else None
+    if cached is not None:
+        return cached
+    words, source = _read_vocabulary(setting)
+    vocabulary = Vocabulary.of(words)
+    if path is not None and len(vocabulary) >= CACHE_FROM_WORDS:
+        _save_vocabulary(path, vocabulary, source)
+    return vocabulary, source
+
+
+def _read_vocabulary(setting: Path | None) -> tuple[frozenset[str], str]:
     if setting is not None:
         return word_lists(Path(setting)), str(setting)
     debian = word_lists(DEBIAN_WORDLISTS)
     if debian:
         return debian, str(DEBIAN_WORDLISTS)
     return wordfreq_vocabulary()
+
+
+def _vocabulary_file(setting: Path | None) -> Path | None:
+    """Where the vocabulary of these word lists is cached (None: no cache folder can be named)."""
+    from workers.orientation.quantize import cache_dir
+
+    key = json.dumps([VOCABULARY_FORMAT, vocabulary_origin(setting), WORDFREQ_LANGUAGES], default=str)
+    try:
+        return cache_dir() / f"wordlists-{hashlib.sha256(key.encode()).hexdigest()[:16]}.npz"
+    except (OSError, RuntimeError):  # no home folder to put the default cache in
+        return None
+
+
+def _load_vocabulary(path: Path) -> tuple[Vocabulary, str] | None:
+    try:
+        with np.load(path, allow_pickle=False) as stored:
+            hashes, scripts, source = stored["hashes"], stored["scripts"], stored["source"]
+            return Vocabulary(hashes, frozenset(str(s) for s in scripts)), str(source)
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile):  # missing, or damaged: built again
+        return None
+
+
+def _save_vocabulary(path: Path, vocabulary: Vocabulary, source: str) -> None:
+    """Written whole or not at all (a temporary file renamed): processes building it at once each write a whole
+    copy, and a reader never sees half of one."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=path.stem, suffix=".tmp")
+    except OSError:  # a read-only cache: every process builds its own, as before
+        return
+    try:
+        with os.fdopen(handle, "wb") as out:
+            np.savez(out, hashes=vocabulary.hashes, scripts=np.array(sorted(vocabulary.scripts)),
+                     source=np.array(source))
+        os.chmod(temporary, 0o644)  # as the other built models: readable by every user of the cache
+        os.replace(temporary, path)
+    except OSError:  # a full disk: the same
+        with contextlib.suppress(OSError):
+            os.unlink(temporary)
 
 
 @lru_cache(maxsize=1)

@@ -24,13 +24,16 @@ upright reads as nonsense upside down.
 """
 from __future__ import annotations
 
+import hashlib
 import re
 import statistics
 import unicodedata
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import AbstractSet, Iterable
+from typing import AbstractSet, Iterable, Union
+
+import numpy as np
 
 from workers.orientation.geometry import Box
 
@@ -99,11 +102,60 @@ def _core(text: str) -> str:
     return text.strip(".,:;!?()[]{}\"'`-_/|*")
 
 
-def known(word: OcrWord, vocabulary: AbstractSet[str]) -> bool:
+class Vocabulary:
+    """Words (lower case) looked up by a 64-bit hash of each (BLAKE2b of the UTF-8 bytes): a sorted (n,) uint64 array
+    ``hashes`` and the scripts the words hold letters of (``scripts``, as :func:`scripts_of` says). Debian's 790,000
+    words as a Python set cost each process that reads text half a second to build (0.2 s to unpickle), and their
+    scripts 0.1 s more; as this array they load from the model cache in milliseconds
+    (:func:`workers.orientation.textdata.find_vocabulary`). Two strings share a hash with a chance of about 1 in
+    2^64 per pair: a string read from noise that is no word is taken for one of 790,000 words about once in 2e13
+    lookups."""
+
+    def __init__(self, hashes: np.ndarray, scripts: frozenset[str]) -> None:
+        self.hashes = hashes
+        self.scripts = scripts
+
+    @classmethod
+    def of(cls, words: Iterable[str]) -> "Vocabulary":
+        """The vocabulary of ``words`` (lower case)."""
+        words = frozenset(words)
+        digests = b"".join(_digest(w) for w in words)
+        return cls(np.unique(np.frombuffer(digests, "<u8")), _scripts_of(words))
+
+    def __contains__(self, word: object) -> bool:
+        if not isinstance(word, str):
+            return False
+        h = np.uint64(word_hash(word))
+        i = int(np.searchsorted(self.hashes, h))
+        return i < len(self.hashes) and self.hashes[i] == h
+
+    def __len__(self) -> int:
+        return len(self.hashes)
+
+
+def word_hash(word: str) -> int:
+    """The 64-bit hash :class:`Vocabulary` keeps of ``word`` (the same in every process, unlike ``hash``)."""
+    return int.from_bytes(_digest(word), "little")
+
+
+def _digest(word: str) -> bytes:
+    return hashlib.blake2b(word.encode("utf-8", "surrogatepass"), digest_size=8).digest()
+
+
+Lexicon = Union[AbstractSet[str], Vocabulary]
+"""The words a dictionary check looks in: a set of words, or a :class:`Vocabulary`."""
+
+
+def scripts_of(lexicon: Lexicon) -> frozenset[str]:
+    """The scripts ``lexicon``'s words hold letters of (``LATIN`` always)."""
+    return lexicon.scripts if isinstance(lexicon, Vocabulary) else _scripts_of(frozenset(lexicon))
+
+
+def known(word: OcrWord, vocabulary: Lexicon) -> bool:
     """A dictionary knows ``word``: the word lists (``vocabulary``, lower case; punctuation around the word stripped)
     when they hold words of its script, else Tesseract's own (the dense scripts always)."""
     script = _script(word.text)
-    if _is_dense(word.text) or (script != "LATIN" and script not in _scripts_of(frozenset(vocabulary))):
+    if _is_dense(word.text) or (script != "LATIN" and script not in scripts_of(vocabulary)):
         return word.dictionary is True
     return _core(word.text).lower() in vocabulary
 
@@ -141,7 +193,7 @@ def confident(word: OcrWord, min_letters: int) -> bool:
             and letters >= TEXT_WORD_LETTER_SHARE * len(word.text))
 
 
-def real_words(words: Iterable[OcrWord], vocabulary: AbstractSet[str] = frozenset()) -> list[OcrWord]:
+def real_words(words: Iterable[OcrWord], vocabulary: Lexicon = frozenset()) -> list[OcrWord]:
     """The real words of one reading (module docstring): confident, known to a dictionary (``vocabulary``: the word
     lists, lower case; or Tesseract's flag), not strokes only, horizontal, and on lines of one letter size."""
     found = []
