@@ -158,7 +158,7 @@ async def _prepare_workers(svc: Services) -> None:
     count = raycluster.idle_worker_limit(svc.settings.ray_num_cpus, svc.settings.ray_idle_workers)
     started = time.monotonic()
     try:
-        ready = await asyncio.to_thread(raycluster.prepare_workers, count)
+        ready = await raycluster.prepare_workers(count)
     except Exception as exc:  # noqa: BLE001 - the first tasks then do it themselves, as without the warm-up
         log.warning("the Ray workers could not be made ready ahead: %s: %s", type(exc).__name__, exc)
         return

@@ -1,6 +1,7 @@
 """Connecting to Ray: a local cluster by default, an existing one when an address is set."""
 from __future__ import annotations
 
+import asyncio
 import logging
 import os
 import shutil
@@ -49,16 +50,16 @@ def connect(address: str | None, num_cpus: int | None = None, env: dict[str, str
     return True
 
 
-def prepare_workers(count: int, timeout_s: float = 300.0) -> list[dict[str, Any]]:
+async def prepare_workers(count: int, timeout_s: float = 300.0) -> list[dict[str, Any]]:
     """Make ``count`` of the local cluster's worker processes ready for batch jobs (:mod:`workers.prewarm`), each in a
-    task of its own; what each said. Blocks until they are (at most ``timeout_s``)."""
-    import ray
-
+    task of its own; what each said. The tasks are awaited on the event loop (at most ``timeout_s``): a service
+    stopped meanwhile leaves no thread waiting on Ray."""
     from workers.ray_tasks import prepare_worker_task
 
     with tempfile.TemporaryDirectory(prefix="sweepcast-prewarm-") as barrier:
         refs = [prepare_worker_task.remote(barrier, count) for _ in range(count)]
-        return ray.get(refs, timeout=timeout_s)
+        async with asyncio.timeout(timeout_s):
+            return [await ref for ref in refs]
 
 
 def idle_worker_limit(num_cpus: int | None, setting: int | None = None) -> int:

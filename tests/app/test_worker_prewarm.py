@@ -2,6 +2,7 @@
 orientation engine a batch job would build."""
 from __future__ import annotations
 
+import asyncio
 import os
 import time
 
@@ -25,6 +26,6 @@ def test_a_prepared_worker_holds_the_engine_a_batch_job_builds_and_waits_for_the
 def test_the_service_prepares_each_idle_worker_in_a_process_of_its_own(ray_local):
     from app import raycluster
 
-    ready = raycluster.prepare_workers(2, timeout_s=120)
+    ready = asyncio.run(raycluster.prepare_workers(2, timeout_s=120))
     assert len({r["pid"] for r in ready}) == 2 and os.getpid() not in {r["pid"] for r in ready}
     assert all(r["engine"] for r in ready)

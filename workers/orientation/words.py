@@ -125,7 +125,7 @@ class Vocabulary:
     def __contains__(self, word: object) -> bool:
         if not isinstance(word, str):
             return False
-        h = np.uint64(word_hash(word))
+        h = np.uint64(int.from_bytes(_digest(word), "little"))
         i = int(np.searchsorted(self.hashes, h))
         return i < len(self.hashes) and self.hashes[i] == h
 
@@ -133,12 +133,8 @@ class Vocabulary:
         return len(self.hashes)
 
 
-def word_hash(word: str) -> int:
-    """The 64-bit hash :class:`Vocabulary` keeps of ``word`` (the same in every process, unlike ``hash``)."""
-    return int.from_bytes(_digest(word), "little")
-
-
 def _digest(word: str) -> bytes:
+    """The 8 bytes of ``word``'s hash (little-endian; the same in every process, unlike ``hash``)."""
     return hashlib.blake2b(word.encode("utf-8", "surrogatepass"), digest_size=8).digest()
 
 
