@@ -42,6 +42,12 @@ export function rigUniforms(sweep) {
   };
 }
 
+/** rigUniforms, and what a pass that looks back from the view's pixels at the rig cameras takes besides: each
+ * pixel's ray (uG), the view's centre (uEye) and the rig cameras' centres (uCentres, ``centres``). */
+export function viewUniforms(sweep, virtual, centres) {
+  return { ...rigUniforms(sweep), uG: glMatrices([sweep.geometry.G]), uEye: virtual.center, uCentres: centres };
+}
+
 /** The planes' uniforms (inverse depth of plane 0, step, count) of ``planes`` (inversePlanes). */
 export function planeUniforms(planes) {
   return { uS0: planes.s0, uDs: planes.ds, uPlanes: planes.count };

@@ -4,7 +4,7 @@
 // previous render's resolve output at the pixels whose nearest cameras see them unchanged since (hold.frag).
 import { release, target, textureArray } from "./gl.js";
 import { Pass } from "./pass.js";
-import { glMatrices, rigUniforms } from "./planes.js";
+import { viewUniforms } from "./planes.js";
 
 export const SHADERS = ["fullscreen.vert", "rig.glsl", "track.frag", "hold.frag"];
 
@@ -54,8 +54,8 @@ export class Hold {
    * (the new one). ``sweep``: the new render's ({ geometry, cameras, frames }); ``centres``: the rig's. */
   hold(sweep, virtual, centres, depth, previous, tracker, since, out) {
     this.pass.set({
-      ...rigUniforms(sweep), uDepth: depth, uPrevious: previous, uChanged: tracker.changes, uSince: since,
-      uG: glMatrices([sweep.geometry.G]), uEye: virtual.center, uCentres: centres,
+      ...viewUniforms(sweep, virtual, centres), uDepth: depth, uPrevious: previous, uChanged: tracker.changes,
+      uSince: since,
     });
     this.pass.draw(target(this.gl, [out]));
   }

@@ -2,7 +2,7 @@
 // (workers/sweep/weighting.py; the formulas are in shaders/shade.frag), D_bnd derived from the rig when not given.
 import { target } from "./gl.js";
 import { Pass } from "./pass.js";
-import { glMatrices, rigUniforms } from "./planes.js";
+import { viewUniforms } from "./planes.js";
 
 export const SHADERS = ["fullscreen.vert", "rig.glsl", "shade.frag"];
 
@@ -20,9 +20,8 @@ export class Shading {
    * for visibility-aware colour (at every pixel, or with filledOnly at the occlusion fill's pixels only), else null. */
   shade(sweep, virtual, centres, depth, weighting, visibility, colour, regions) {
     this.pass.set({
-      ...rigUniforms(sweep), uDepth: depth, uG: glMatrices([sweep.geometry.G]), uEye: virtual.center,
-      uCentres: centres, uMethod: weighting.method, uDBnd: weighting.dBnd ?? 1.0, uK: weighting.k,
-      uGlobal: weighting.globalCamera, uFill: weighting.fill, uVisibility: visibility !== null,
+      ...viewUniforms(sweep, virtual, centres), uDepth: depth, uMethod: weighting.method,
+      uDBnd: weighting.dBnd ?? 1.0, uK: weighting.k, uGlobal: weighting.globalCamera, uFill: weighting.fill, uVisibility: visibility !== null,
       uZbuf: visibility ? visibility.zbuffers : null, uVisScale: 1 + (visibility ? visibility.tolerance : 0),
       uParallax: visibility ? visibility.parallax : centres.map(() => 0),
       uFilledOnly: visibility !== null && visibility.filledOnly,
