@@ -56,6 +56,7 @@ import websockets
 
 from benchmarks._report import Sections, md_table
 from benchmarks._timing import settle_server
+from benchmarks.sweep.common import still_between
 from harness.browser import chromium, render_in_browser, static_site
 from workers.common.datasets import dataset
 from workers.common.imagemetrics import psnr
@@ -631,13 +632,6 @@ def first_frame(quick: bool) -> tuple[dict, str]:
 FLICKER_AZIMUTHS = (-13.0, -33.0)
 
 
-def still_pixels(truths: list[np.ndarray]) -> list[np.ndarray]:
-    """Per pair of consecutive true views, the pixels whose colour stayed the same, away from any change (5 x 5)."""
-    kernel = np.ones((5, 5), np.uint8)
-    return [cv2.erode((np.abs(b.astype(int) - a).max(axis=2) == 0).astype(np.uint8), kernel).astype(bool)
-            for a, b in zip(truths, truths[1:])]
-
-
 def flicker_of(images: list[np.ndarray], still: list[np.ndarray]) -> float:
     """Mean over consecutive frames of the mean absolute change (levels) on the still pixels."""
     return float(np.mean([np.abs(b.astype(float) - a).mean(axis=2)[m].mean()
@@ -662,7 +656,8 @@ def flicker(quick: bool) -> tuple[dict, str]:
         page.goto(f"{base}/render/renderer.js")
         for azimuth in FLICKER_AZIMUTHS:
             virtual = orbit_camera(orbit_frame(rig), Orbit(azimuth=azimuth), 50.0, size)
-            still = still_pixels([render_views(scene, [virtual], with_background=False)[0].image for scene in scenes])
+            truths = [render_views(scene, [virtual], with_background=False)[0].image for scene in scenes]
+            still = [still_between(a, b) for a, b in zip(truths, truths[1:])]
             for level in ("fast", "best"):
                 options = {"planes": 48, "coarse_to_fine": True, **LEVELS[level]}
                 server = SweepRenderer(small, shrunk_images(sets[0], small), device="cpu",

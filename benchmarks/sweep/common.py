@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 
+import cv2
 import numpy as np
 
 from workers.camera import Camera
@@ -69,3 +70,10 @@ def leave_one_out(files: dict[int, str], sources: list[int], target: int, w: int
     inputs = Rig(tuple(c for c, k in zip(rig.cameras, views) if k != target),
                  tuple(f for f, k in zip(rig.image_files, views) if k != target))
     return inputs, rig.cameras[views.index(target)]
+
+
+def still_between(earlier: np.ndarray, later: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels whose true colour is the same in two consecutive true views ((H, W, 3) uint8), away
+    from any change (eroded 5 x 5): where a flicker measure looks, since nothing there should change."""
+    same = np.abs(later.astype(int) - earlier).max(axis=2) == 0
+    return cv2.erode(same.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)

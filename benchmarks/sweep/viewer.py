@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from benchmarks._report import md_table
-from benchmarks.sweep.common import interleaved, leave_one_out
+from benchmarks.sweep.common import interleaved, leave_one_out, still_between
 from benchmarks.sweep.stereo import REF_SPACINGS, STEREO_CASES, sgbm_dibr
 from workers.common.datasets import dataset
 from workers.common.imagemetrics import psnr
@@ -271,8 +271,7 @@ def flicker(quick: bool) -> dict:
                 now[(name, "searched")] = renderer.render(virtual, opt)
                 now[(name, "held")] = renderer.render(virtual, opt, previous=prev[1][(name, "held")] if prev else None)
             if prev is not None:
-                still = np.abs(truth.image.astype(int) - prev[0].image).max(axis=2) == 0
-                still = cv2.erode(still.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+                still = still_between(prev[0].image, truth.image)
                 for key, res in now.items():
                     last = prev[1][key]
                     m = still & np.isfinite(res.depth) & np.isfinite(last.depth)
