@@ -26,16 +26,14 @@ _POLL_S = 0.05
 def prepare_worker(barrier: Path, count: int, timeout_s: float = BARRIER_TIMEOUT_S) -> dict[str, object]:
     """Import what a batch job's tasks import and build this process's orientation engine for the deployment's
     settings (as a batch job configures it); then wait until ``count`` processes have arrived at ``barrier`` (a folder)
-    or ``timeout_s`` passed. Returns this process's id, the engine's name (None when the settings name no engine that
-    can be built: the job will say why) and the seconds spent preparing."""
-    started = time.perf_counter()
+    or ``timeout_s`` passed. Returns this process's id and the engine's name (None when the settings name no engine
+    that can be built: the job will say why)."""
     from workers.fanout import run_task
     from workers.runtime import execute_job  # noqa: F401 - what a job's own task imports
 
     engine, _ = run_task(_engine_name, None)  # as a block runs: numba on the task's CPU, then the engine
-    seconds = time.perf_counter() - started
     _arrive(Path(barrier), count, timeout_s)
-    return {"pid": os.getpid(), "engine": engine, "seconds": round(seconds, 3)}
+    return {"pid": os.getpid(), "engine": engine}
 
 
 def _engine_name(_: None) -> str | None:
