@@ -75,6 +75,12 @@ PAPER_TOLERANCE = 16
 PAPER_MIN_WHITE = 180
 INK_BELOW_WHITE = 40
 """A pixel of such a page is ink when it is this many grey levels darker than its paper white."""
+INK_MIN_PROBABILITY = 0.1
+"""... and when the first pass's map reaches at least this text probability somewhere in the page's ink: small print
+shows there as text the network half saw (in the benchmarks' text trials, every page whose closer look found a line
+had 0.35 or more; the receipt of this project's tests 0.46 sideways), a paper texture as nothing at all (0.02-0.06 on
+the no-text set's papers, whose closer look cost 0.36 s each and found nothing). A third of DB's binarisation
+threshold (``PROBABILITY_THRESHOLD``) keeps that margin."""
 REFINE_BELOW_PX = 9.0
 """The gate looks again, closer, at the lines it found when their median height in its copy is under this (px): lines
 of a few pixels run into each other (a receipt's close lines came out as blocks of two or three), and their
@@ -183,19 +189,25 @@ class LineDetector:
     def lines(self, gray: np.ndarray, side: int) -> tuple[list[TextLine], list[TextLine], float]:
         """(the lines in ``gray`` ((H, W) uint8), the thin ones (too small to keep), both in px of ``gray``; the
         scale of the detector's copy)."""
+        found, thin, scale, _ = self._lines_and_map(gray, side)
+        return found, thin, scale
+
+    def _lines_and_map(self, gray: np.ndarray, side: int) -> tuple[list[TextLine], list[TextLine], float, np.ndarray]:
+        """:meth:`lines`, and the probability map they came from (:meth:`probability`)."""
         prob, scale = self.probability(gray, side)
         lines, thin = lines_from_map(prob)
-        return [ln.scaled(1.0 / scale) for ln in lines], [ln.scaled(1.0 / scale) for ln in thin], scale
+        return [ln.scaled(1.0 / scale) for ln in lines], [ln.scaled(1.0 / scale) for ln in thin], scale, prob
 
     def scan(self, gray: np.ndarray, load: LoadImage | None = None) -> LineScan:
         """The gate on ``gray`` ((H, W) uint8, the stored image or a reduced copy): its lines (px of ``gray``), with the
         second, closer pass over the region where small print shows (module docstring). ``load`` gives a larger decode
         of the same photo when the closer look needs more pixels than ``gray`` has (default: ``gray`` upscaled)."""
-        found, thin, scale = self.lines(gray, gate_side(gray.shape))
+        found, thin, scale, prob = self._lines_and_map(gray, gate_side(gray.shape))
         load = load or upscaler(gray)
         if len(thin) >= ZOOM_MIN_THIN and len(thin) >= ZOOM_THIN_SHARE * len(found):
             region, closer, max_side = _region(thin, gray.shape), scale * ZOOM_FACTOR, ZOOM_MAX_SIDE
-        elif len(found) < ZOOM_BELOW_LINES and (ink := ink_region(gray)) is not None:
+        elif (len(found) < ZOOM_BELOW_LINES and (ink := ink_region(gray)) is not None
+              and _peak(prob, ink, scale) >= INK_MIN_PROBABILITY):
             region, closer, max_side = ink, scale * ZOOM_FACTOR, ZOOM_MAX_SIDE
         elif found and (small := _small_lines(found, scale)):
             region = _region(small, gray.shape)
@@ -279,6 +291,14 @@ def _small_lines(lines: list[TextLine], scale: float) -> list[TextLine]:
     if not on_axis or float(np.median([ln.height for ln in on_axis])) * scale >= REFINE_BELOW_PX:
         return []
     return on_axis
+
+
+def _peak(prob: np.ndarray, region: tuple[int, int, int, int], scale: float) -> float:
+    """The highest text probability of ``prob`` (a map ``scale`` times its image) inside ``region`` (x0, y0, x1, y1 px
+    of the image)."""
+    x0, y0, x1, y1 = (int(v * scale) for v in region)
+    inside = prob[y0:y1 + 1, x0:x1 + 1]
+    return float(inside.max()) if inside.size else 0.0
 
 
 def _inside(line: TextLine, box: tuple[int, int, int, int]) -> bool:
