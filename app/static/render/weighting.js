@@ -21,7 +21,8 @@ export class Shading {
   shade(sweep, virtual, centres, depth, weighting, visibility, colour, regions) {
     this.pass.set({
       ...viewUniforms(sweep, virtual, centres), uDepth: depth, uMethod: weighting.method,
-      uDBnd: weighting.dBnd ?? 1.0, uK: weighting.k, uGlobal: weighting.globalCamera, uFill: weighting.fill, uVisibility: visibility !== null,
+      uDBnd: weighting.dBnd ?? 1.0, uK: weighting.k, uGlobal: weighting.globalCamera, uFill: weighting.fill,
+      uVisibility: visibility !== null,
       uZbuf: visibility ? visibility.zbuffers : null, uVisScale: 1 + (visibility ? visibility.tolerance : 0),
       uParallax: visibility ? visibility.parallax : centres.map(() => 0),
       uFilledOnly: visibility !== null && visibility.filledOnly,
