@@ -25,6 +25,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from workers.common.spawn import niced
+
 log = logging.getLogger("sweepcast.kernels")
 
 WARMUP_NICENESS = 19
@@ -128,9 +130,8 @@ class KernelWarmup:
         env = {**os.environ, "NUMBA_CACHE_DIR": str(cache_dir)}
         out = subprocess.PIPE if report else subprocess.DEVNULL
         # its own process group: it compiles in one process per core, and stop() ends them all
-        proc = subprocess.Popen([sys.executable, "-m", "workers.warmup", *engines], env=env, stdout=out,
-                                stdin=subprocess.DEVNULL, preexec_fn=lambda: os.nice(WARMUP_NICENESS),
-                                start_new_session=True)
+        proc = subprocess.Popen(niced([sys.executable, "-m", "workers.warmup", *engines], WARMUP_NICENESS), env=env,
+                                stdout=out, stdin=subprocess.DEVNULL, start_new_session=True)
         log.info("compiling the kernels of %s in the background (pid %d; each engine logs when it is done) into %s",
                  ", ".join(engines or ENGINES), proc.pid, cache_dir)
         warmup = cls(proc)

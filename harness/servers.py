@@ -9,13 +9,12 @@ None of them outlives the process that started it, however that process ends:
 - any other death (SIGKILL, SIGTERM without that handler) runs nothing in the dying process, so each
   server has a watchdog process beside it (:func:`watch`) that stops it once its starter's pid is
   gone. The service, in its own process group, also gets SIGTERM from the kernel when the thread
-  that started it dies (``PR_SET_PDEATHSIG``, Linux): start servers from a thread that lives as
+  that started it dies (``setpriv --pdeathsig``, Linux): start servers from a thread that lives as
   long as they should.
 """
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import glob
 import os
 import pwd
@@ -29,7 +28,9 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Iterator
+
+from workers.common.spawn import dying_with_parent
 
 
 class Unavailable(RuntimeError):
@@ -41,7 +42,6 @@ ROOT = Path(__file__).resolve().parents[1]
 CHECKOUT_KERNEL_CACHE = ROOT / "sweepcast-data" / "cache" / "numba"
 """The checkout's kernel cache: the tests use it (conftest), so servers started from here load the kernels an
 earlier test compiled instead of compiling them."""
-PR_SET_PDEATHSIG = 1
 WATCH_PERIOD_S = 0.2
 
 
@@ -62,22 +62,6 @@ def exit_on_sigterm() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
-
-
-def _die_with_parent(sig: int = signal.SIGTERM) -> Callable[[], None] | None:
-    """A ``preexec_fn`` that makes the kernel send ``sig`` to the child when the thread that started
-    it dies (prctl PR_SET_PDEATHSIG); None off Linux. libc is loaded here, not in the forked child."""
-    if not sys.platform.startswith("linux"):
-        return None
-    prctl = ctypes.CDLL(None, use_errno=True).prctl
-    parent = os.getpid()
-
-    def preexec() -> None:
-        prctl(PR_SET_PDEATHSIG, sig, 0, 0, 0)
-        if os.getppid() != parent:  # the parent died before prctl took effect: nobody would tell us
-            os._exit(1)
-
-    return preexec
 
 
 def start_watchdog(*, group: int | None = None, marker: str | None = None, grace_s: float = 20.0
@@ -314,9 +298,9 @@ def serve_app(env: dict[str, str | None], log: Path | None = None, args: tuple[s
     env = {k: v for k, v in merged.items() if v is not None}
     out = open(log, "wb") if log is not None else subprocess.DEVNULL
     try:
-        proc = subprocess.Popen([python, "-m", "app", "serve", "--port", str(port), *args], cwd=cwd,
-                                env=env, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                start_new_session=True, preexec_fn=_die_with_parent())
+        proc = subprocess.Popen(dying_with_parent([python, "-m", "app", "serve", "--port", str(port), *args]),
+                                cwd=cwd, env=env, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                start_new_session=True)
         dog = start_watchdog(group=proc.pid)
         try:
             app = ServedApp(f"http://127.0.0.1:{port}", proc, log)

@@ -58,6 +58,7 @@ def _kernels_compiled_beside_the_tests(request):
     import sys
     from pathlib import Path
 
+    from workers.common.spawn import niced
     from workers.warmup import is_current
 
     cache = Path(os.environ["NUMBA_CACHE_DIR"])
@@ -65,9 +66,9 @@ def _kernels_compiled_beside_the_tests(request):
         yield
         return
     cache.mkdir(parents=True, exist_ok=True)
-    proc = subprocess.Popen([sys.executable, "-m", "workers.warmup", "--jobs", "1"], stdin=subprocess.DEVNULL,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
-                            preexec_fn=lambda: os.nice(19))
+    proc = subprocess.Popen(niced([sys.executable, "-m", "workers.warmup", "--jobs", "1"], 19),
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
     try:
         yield
     finally:

@@ -33,8 +33,9 @@ def test_a_person_picks_the_upright_turn_with_the_keyboard_and_leaves_one_with_a
             try:
                 page = browser.new_page(viewport={"width": 1100, "height": 800})
                 page.goto(f"{base}/review/{job}")
-                page.wait_for_function("() => window.reviewState.items.length === 2 && window.reviewState.loaded >= 1",
-                                       timeout=30_000)
+                page.wait_for_function("() => window.reviewState.items.length === 2 && Array.from(document"
+                                       ".querySelectorAll('.item:first-child .option img')).every(i => i.complete"
+                                       " && i.naturalWidth > 0)", timeout=30_000)
                 # the four turns of the first photo show its thumbnail, turned by CSS
                 turns = page.eval_on_selector_all(".item:first-child .option img",
                                                   "imgs => imgs.map(i => [i.complete && i.naturalWidth, i.style.transform])")

@@ -15,16 +15,15 @@ answers them with their status, a batch records them per photo, and retrying a j
 """
 from __future__ import annotations
 
-import ctypes
 import os
 import shutil
-import signal
 import subprocess
 import threading
 import weakref
 from dataclasses import dataclass
 
 from workers.common.errors import InputError
+from workers.common.spawn import dying_with_parent
 from workers.settings import worker_settings
 
 EXIFTOOL_ENV = "SWEEPCAST_EXIFTOOL"
@@ -60,21 +59,6 @@ def exiftool_binary() -> str:
     return worker_settings().exiftool.strip() or "exiftool"
 
 
-try:  # looked up here: the child may only call it (no loading, no allocating, after fork)
-    _PRCTL = ctypes.CDLL(None, use_errno=True).prctl
-except (OSError, AttributeError):  # not Linux
-    _PRCTL = None
-_PR_SET_PDEATHSIG = 1
-
-
-def _end_with_creator() -> None:
-    """In the child, before exec: SIGTERM it when the thread that started it ends (Linux). exiftool with
-    ``-stay_open`` does not stop at the end of its input, so a process whose user was killed would
-    otherwise run on forever."""
-    if _PRCTL is not None:
-        _PRCTL(_PR_SET_PDEATHSIG, signal.SIGTERM)
-
-
 def _stop(proc: subprocess.Popen) -> None:
     """Ask exiftool to stop, then kill it (its owner is gone or the interpreter is exiting)."""
     if proc.poll() is not None:
@@ -93,8 +77,10 @@ class _Process:
     goes (its thread ended), at interpreter exit, and by the kernel when the starting thread dies."""
 
     def __init__(self, path: str) -> None:
-        self._proc = subprocess.Popen([path, "-stay_open", "True", "-@", "-"], stdin=subprocess.PIPE,
-                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=_end_with_creator)
+        # stopped by the kernel when the starting thread ends: -stay_open does not stop at the end of its input,
+        # so the process of a killed user would otherwise run on forever
+        self._proc = subprocess.Popen(dying_with_parent([path, "-stay_open", "True", "-@", "-"]),
+                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         self._seq = 0
         self.close = weakref.finalize(self, _stop, self._proc)
 

@@ -113,7 +113,9 @@ async function loadThumbnail(item, section) {
   try {
     const response = await api(item.thumbnail, state.key);
     const url = URL.createObjectURL(await response.blob());
-    section.querySelectorAll("img").forEach((img) => { img.src = url; });
+    const images = Array.from(section.querySelectorAll("img"));
+    images.forEach((img) => { img.src = url; });
+    await Promise.all(images.map((img) => img.decode()));  // counted once it can be drawn, not when asked for
     state.loaded += 1;
   } catch (error) {
     say(`thumbnail of ${item.filename}: ${error.message}`, true);
