@@ -1,7 +1,8 @@
 """The local cluster's worker processes made ready at the service's start, before the first batch needs them.
 
 A Ray worker process pays once in its life for what a batch job's task needs: the job's and the fan-out's imports
-(numba, OpenCV, onnxruntime), and the orientation engine (its networks, cascades and word lists). Paid in the first
+(numba, OpenCV, onnxruntime), and the orientation engine (its networks, cascades and word lists, and what its text cue
+sets up at its first text photo: :mod:`workers.orientation.rehearsal`). Paid in the first
 tasks, it made the first photo library after a start about a quarter slower than the next (five worker processes
 started and built the engine during a 200-photo library: a batch job's own task holds a worker while its blocks run
 in others; ``benchmarks/RESULTS.md``, orientation_library). At start-up the service asks each of the idle workers its
@@ -38,13 +39,16 @@ def prepare_worker(barrier: Path, count: int, timeout_s: float = BARRIER_TIMEOUT
 
 def _engine_name(_: None) -> str | None:
     from workers.orientation.detect import detector_config, get_detector
+    from workers.orientation.rehearsal import rehearse
     from workers.settings import worker_settings
 
     settings = worker_settings()
     try:
-        return get_detector(detector_config(settings, settings.models_dir)).name
+        engine = get_detector(detector_config(settings, settings.models_dir))
     except (ValueError, OSError):  # a YuNet model named but missing: the first job reports it
         return None
+    rehearse(engine)  # what the first text photo would set up (its Tesseract objects), on the thread blocks run on
+    return engine.name
 
 
 def _arrive(barrier: Path, count: int, timeout_s: float) -> None:
