@@ -45,14 +45,16 @@ def _running(proc: subprocess.Popen, program: str, timeout: float = 10.0) -> boo
 @pytest.mark.skipif(not ON_LINUX_WITH_SETPRIV, reason="needs Linux and util-linux's setpriv")
 def test_a_child_ends_with_the_thread_that_started_it():
     started: list[subprocess.Popen] = []
+    ran: list[bool] = []
 
     def work() -> None:
         started.append(subprocess.Popen(dying_with_parent(["sleep", "60"])))
-        assert _running(started[0], "sleep")
+        ran.append(_running(started[0], "sleep"))
 
     thread = threading.Thread(target=work)
     thread.start()
     thread.join()
+    assert ran == [True]
     assert _ended(started[0])
     assert started[0].returncode == -15  # SIGTERM, from the kernel
 
