@@ -365,9 +365,9 @@ def goal_lines(rows: list[dict], speed_rows: dict) -> list[str]:
     return lines
 
 
-def box_summary(rows: list[dict]) -> str:
-    """Fast's and best's PSNR on the studio's box beside their PSNR on the same views as a whole (ranges, dB)."""
-    boxed = [r for r in rows if r.get("box_psnr")]
+def box_summary(boxed: list[dict]) -> str:
+    """Fast's and best's PSNR on the studio's box beside their PSNR on the same views as a whole (ranges, dB), over
+    the quality rows that scored the box."""
     span = lambda key, name: (f"{min(r[key][name] for r in boxed):.1f}-"  # noqa: E731
                               f"{max(r[key][name] for r in boxed):.1f}")
     return "; ".join(f"{label}: {span('box_psnr', name)} dB on the box, {span('psnr', name)} on the whole views"
@@ -411,7 +411,7 @@ def markdown(results: dict) -> str:
         band,
         "PSNR on the studio's box, the pixels where the truth sees it. Issue 58 saw the sphere's flowers smeared over its "
         "sides at azimuth -33: the box is wrapped in the same photograph (flower.jpg, workers/synth/rigs.py "
-        f"studio_scene), and its sides show the flower in the ray-cast truth too. {box_summary(rows)}",
+        f"studio_scene), and its sides show the flower in the ray-cast truth too. {box_summary(boxed)}",
         md_table(["view", *[short[n] for n in OPTIONS]], [[r["case"], *[r["box_psnr"][n] for n in OPTIONS]]
                                                           for r in boxed]),
         "Views that stand on a rig camera: keeping the depth copies that camera whatever the depth. The camera sees "
