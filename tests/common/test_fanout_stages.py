@@ -43,6 +43,23 @@ def test_on_ray_puts_every_result_in_its_place_and_records_the_node(ray_local):
         fan.map("refuse", refuse, list(range(6)))
 
 
+def test_on_ray_keeps_one_task_submitted_per_cpu_and_runs_them_all(ray_local):
+    import ray
+
+    outstanding = []
+
+    def wait(refs, timeout_s):  # what the job's main thread does, recording how many tasks it waits on
+        outstanding.append(len(refs))
+        return ray.wait(refs, num_returns=1, timeout=timeout_s)
+
+    fan = OnRay(wait)
+    items = list(range(3 * fan.parallelism + 1))
+    assert fan.map("squares", square, items) == [i * i for i in items]
+    # the rest are submitted as these finish, never queued at once for Ray to start worker processes for
+    assert max(outstanding) == fan.in_flight == fanout.IN_FLIGHT_PER_CPU * fan.parallelism
+    assert sum(1 for n in outstanding if n == fan.in_flight) >= len(items) - fan.in_flight
+
+
 def test_a_bug_in_a_task_fails_the_stage_naming_it(ray_local, monkeypatch):
     # One retry, not none: Ray's forced cancel is asynchronous, and the worker it ends (the test before this one
     # cancels its stage's other tasks) was once handed this task first (CI, 2026-12-07: WorkerCrashedError). The bug

@@ -192,7 +192,10 @@ def _decode_grid(out: dict[str, np.ndarray], stride: int, cols: int,
                  floor: float) -> tuple[np.ndarray, np.ndarray]:
     """(boxes (n, 4) x, y, w, h px, scores (n,)) of the cells of YuNet's ``stride`` grid (``cols`` cells a row)
     scoring at least ``floor``: a cell's box is centred at (cell + offset) x stride, its size exp(size) x stride."""
-    score = np.sqrt(np.clip(out[f"cls_{stride}"][0, :, 0], 0, 1) * np.clip(out[f"obj_{stride}"][0, :, 0], 0, 1))
+    cls = out[f"cls_{stride}"][0, :, 0]
+    if not len(cls) or float(cls.max()) < floor * floor * (1 - 1e-6):  # score <= sqrt(cls): none can reach the floor
+        return np.zeros((0, 4), np.float32), np.zeros(0, np.float32)
+    score = np.sqrt(np.clip(cls, 0, 1) * np.clip(out[f"obj_{stride}"][0, :, 0], 0, 1))
     cells = np.flatnonzero(score >= floor)
     pred = out[f"bbox_{stride}"][0][cells]
     cx = (cells % cols + pred[:, 0]) * stride

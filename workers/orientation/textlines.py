@@ -175,13 +175,14 @@ class LineDetector:
 
     def __init__(self, model: Path | None = None, precision: Precision = "float") -> None:
         self.model = gate_model(model or model_path(), precision, lambda page: network_input(page, max(page.shape))[0])
-        self._session = one_core_session(self.model.path)
+        self._session = _grey_session(self.model.path)
         self._input = self._session.get_inputs()[0].name
+        self._channels = int(self._session.get_inputs()[0].shape[1])
 
     def probability(self, gray: np.ndarray, side: int) -> tuple[np.ndarray, float]:
         """(text probability map (h, w) float32 in [0, 1], its scale relative to ``gray``) for ``gray`` ((H, W) uint8)
         resized so that its long side is ``side`` px (:func:`network_input`; the map cut back to the copy)."""
-        x, (nh, nw) = network_input(gray, side)
+        x, (nh, nw) = network_input(gray, side, self._channels)
         with flushed_denormals():
             out = self._session.run(None, {self._input: x})[0][0, 0]
         return out[:nh, :nw], nw / gray.shape[1]
@@ -235,10 +236,24 @@ class LineDetector:
         return [ln.scaled(1.0 / factor, (x0, y0)) for ln in lines]
 
 
-def network_input(gray: np.ndarray, side: int) -> tuple[np.ndarray, tuple[int, int]]:
-    """(the network's input (1, 3, H', W') float32 in [-1, 1], the copy's (h, w) px inside it) for ``gray`` ((H, W)
-    uint8) resized so that its long side is ``side`` px (one scale for both axes), padded with its edge to multiples
-    of 32 px (the network's stride)."""
+def _grey_session(model: Path):
+    """A one-core session of the gate's ``model`` taking one grey channel (:func:`~workers.orientation.onnxshape.
+    grey_input`: the page is grey, so its three channels were always equal; the first convolution then costs a third,
+    about 2 % of the network), or of ``model`` as it is where its input cannot be folded (an 8-bit model)."""
+    from workers.orientation.onnxshape import grey_input
+
+    data = model.read_bytes()
+    try:
+        return one_core_session(grey_input(data))
+    except ValueError:
+        return one_core_session(data)
+
+
+def network_input(gray: np.ndarray, side: int, channels: int = 3) -> tuple[np.ndarray, tuple[int, int]]:
+    """(the network's input (1, ``channels``, H', W') float32 in [-1, 1], the copy's (h, w) px inside it) for ``gray``
+    ((H, W) uint8) resized so that its long side is ``side`` px (one scale for both axes), padded with its edge to
+    multiples of 32 px (the network's stride); its channels are the grey copy repeated (the model reads RGB, or one
+    grey channel once folded: :func:`_grey_session`)."""
     h, w = gray.shape[:2]
     s = side / max(h, w)
     nh, nw = max(1, round(h * s)), max(1, round(w * s))
@@ -246,7 +261,7 @@ def network_input(gray: np.ndarray, side: int) -> tuple[np.ndarray, tuple[int, i
     ph, pw = -(-nh // 32) * 32, -(-nw // 32) * 32
     small = cv2.copyMakeBorder(small, 0, ph - nh, 0, pw - nw, cv2.BORDER_REPLICATE)
     x = (small.astype(np.float32) * (2.0 / 255.0) - 1.0)[None, None]  # the model's (x / 255 - 0.5) / 0.5
-    return np.ascontiguousarray(np.repeat(x, 3, axis=1)), (nh, nw)
+    return (np.ascontiguousarray(np.repeat(x, channels, axis=1)) if channels > 1 else x), (nh, nw)
 
 
 def upscaler(gray: np.ndarray) -> LoadImage:
