@@ -170,8 +170,8 @@ def model_path(name: str = _MODEL_FILE, what: str = "text detector") -> Path:
 class LineDetector:
     """The DB text-line detector on one core (callers run photos in parallel processes). Thread-safe: onnxruntime
     sessions may be run from several threads. ``precision``: the network in float (``float``), in 8-bit integers
-    (``int8``: about 0.6-0.8x the CPU, a few lines fewer; :mod:`workers.orientation.quantize`), or in 8 bits where the CPU
-    runs them fast (``auto``). ``model`` (a float ONNX file) replaces rapidocr's."""
+    (``int8``: about 0.6-0.8x the CPU, a few lines fewer; :mod:`workers.orientation.quantize`), or in 8 bits where the
+    CPU runs them fast (``auto``). ``model`` (a float ONNX file) replaces rapidocr's."""
 
     def __init__(self, model: Path | None = None, precision: Precision = "float") -> None:
         self.model = gate_model(model or model_path(), precision, lambda page: network_input(page, max(page.shape))[0])
