@@ -6,12 +6,12 @@ from app import raycluster
 from app.settings import Settings
 
 
-def test_the_idle_workers_kept_are_twice_the_cpus_at_most_eight_more_unless_set(monkeypatch):
-    assert raycluster.idle_worker_limit(2) == 4
+def test_the_idle_workers_kept_are_twice_the_cpus_and_two_at_most_eight_more_unless_set(monkeypatch):
+    assert raycluster.idle_worker_limit(2) == 6
     assert raycluster.idle_worker_limit(16) == 24
     assert raycluster.idle_worker_limit(2, 3) == 3
     monkeypatch.setattr(raycluster, "usable_cores", lambda: 3)  # no CPU count given: the cores this process may use
-    assert raycluster.idle_worker_limit(None) == 6
+    assert raycluster.idle_worker_limit(None) == 8
 
 
 def test_a_local_cluster_is_started_with_that_limit_and_a_real_cluster_keeps_its_own(monkeypatch):
@@ -20,9 +20,9 @@ def test_a_local_cluster_is_started_with_that_limit_and_a_real_cluster_keeps_its
                                  init=lambda **kwargs: calls.append(kwargs))
     monkeypatch.setitem(sys.modules, "ray", fake)
     assert raycluster.connect(None, 2) is True
-    assert calls[-1]["_system_config"] == {"num_workers_soft_limit": 4}
-    assert raycluster.connect(None, 2, idle_workers=6) is True
     assert calls[-1]["_system_config"] == {"num_workers_soft_limit": 6}
+    assert raycluster.connect(None, 2, idle_workers=3) is True
+    assert calls[-1]["_system_config"] == {"num_workers_soft_limit": 3}
     assert raycluster.connect("head:6379", None) is True
     assert calls[-1]["address"] == "head:6379" and "_system_config" not in calls[-1]
 
