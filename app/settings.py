@@ -37,9 +37,9 @@ class Settings(WorkerSettings):
     ray_address: str | None = Field(None, description="Existing Ray cluster (host:port or ray://...); default: start a local one.")
     ray_num_cpus: int | None = Field(None, ge=1, description="CPUs of the local Ray cluster (default: all).")
     ray_idle_workers: int | None = Field(None, ge=1, description="Worker processes the local Ray cluster keeps "
-                                         "when idle (default: twice its CPUs and two, at most its CPUs + 8). A batch job's "
-                                         "own task waits in one worker while its blocks run in others: Ray's "
-                                         "default (one per CPU) ended those others after each library, and the "
+                                         "when idle (default: twice its CPUs and two, at most its CPUs + 8). A "
+                                         "batch job's own task waits in one worker while its blocks run in others: "
+                                         "Ray's default (one per CPU) ended those others after each library, and the "
                                          "next library started them again (2-3 s of CPU each: imports, detectors).")
     ray_join_node: bool = Field(False, description="With ray_address: first join the cluster as a node without CPUs "
                                 "(`ray start --address --num-cpus=0`: the local raylet a driver needs), while the service "

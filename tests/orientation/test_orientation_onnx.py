@@ -45,6 +45,22 @@ def test_a_grey_input_computes_what_the_colour_model_computes_on_a_grey_image():
     assert one.get_inputs()[0].shape[1] == 1
 
 
+def test_the_text_gate_reads_one_grey_channel_and_finds_what_the_colour_model_finds():
+    from workers.orientation.textlines import LineDetector, network_input
+
+    page = np.full((240, 320), 235, np.uint8)
+    for row in range(40, 200, 30):
+        cv2.putText(page, "orientation of a page", (16, row), cv2.FONT_HERSHEY_SIMPLEX, 0.7, 20, 2)
+    gate = LineDetector(precision="float")
+    assert gate._session.get_inputs()[0].shape[1] == 1
+    colour = _session(model_path().read_bytes())
+    x, (nh, nw) = network_input(page, 320)
+    want = colour.run(None, {colour.get_inputs()[0].name: x})[0][0, 0, :nh, :nw]
+    got, _ = gate.probability(page, 320)
+    np.testing.assert_allclose(got, want, atol=1e-4)
+    assert float(want.max()) > 0.9  # the page's lines are there to find
+
+
 @pytest.mark.parametrize("reader, group", [("Relu", None), ("Conv", 3)])
 def test_a_model_whose_input_is_not_read_by_a_plain_convolution_is_not_made_grey(reader: str, group: int | None):
     from workers.orientation.onnxshape import _model_class

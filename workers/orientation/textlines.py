@@ -237,9 +237,10 @@ class LineDetector:
 
 
 def _grey_session(model: Path):
-    """A one-core session of the gate's ``model`` taking one grey channel (:func:`~workers.orientation.onnxshape.
-    grey_input`: the page is grey, so its three channels were always equal; the first convolution then costs a third,
-    about 2 % of the network), or of ``model`` as it is where its input cannot be folded (an 8-bit model)."""
+    """A one-core session of the gate's ``model`` made to take one grey channel
+    (:func:`~workers.orientation.onnxshape.grey_input`: the page is grey, so its three channels were always equal; the
+    first convolution then costs a third, about 2 % of the network), or of ``model`` as it is where its input cannot be
+    folded (an 8-bit model)."""
     from workers.orientation.onnxshape import grey_input
 
     data = model.read_bytes()
