@@ -52,7 +52,8 @@ idle one, whatever ``enable_worker_prestart`` says (its debug log: "Prestarting 
 and available CPUs 4 num idle workers 0"). Such a process imports Ray and, here, never ran a task: 0.75 s of CPU each.
 With every block of a batch submitted at once, a 200-photo library on two cores (batches of 50, two at once) started
 three or four during the first library after the service's start and one or two during each later one; with one task
-per CPU, two or three during the first and none after."""
+per CPU, two or three during the first and none after; with two idle workers more as well, none
+(:func:`app.raycluster.idle_worker_limit`)."""
 _RAY_OWN = ("CPU", "GPU", "memory", "object_store_memory")
 
 Wait = Callable[[list[Any], float], tuple[list[Any], list[Any]]]
