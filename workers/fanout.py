@@ -219,22 +219,25 @@ class OnRay(FanOut):
         pending: dict[Any, tuple[int, str | None]] = {}  # ref -> (item, the node it was pinned to)
         queued = iter(enumerate(items))
 
-        def submit(count: int, node: str | None = None) -> None:
-            for i, item in itertools.islice(queued, count):
-                if placements is not None:
-                    node = node or next(placements)
-                where = _pinned(node) if node is not None else {"scheduling_strategy": "SPREAD"}
-                pending[run_block_task.options(max_retries=TASK_RETRIES, retry_exceptions=True,
-                                               name=f"sweepcast {stage}", **where).remote(fn, item)] = (i, node)
-                node = None
+        def submit(node: str | None = None) -> None:
+            """The next item, if any: pinned to ``node``, else to the next node in turn (or spread by Ray)."""
+            if (queued_item := next(queued, None)) is None:
+                return
+            i, item = queued_item
+            if node is None and placements is not None:
+                node = next(placements)
+            where = _pinned(node) if node is not None else {"scheduling_strategy": "SPREAD"}
+            pending[run_block_task.options(max_retries=TASK_RETRIES, retry_exceptions=True,
+                                           name=f"sweepcast {stage}", **where).remote(fn, item)] = (i, node)
 
         try:
-            submit(self.in_flight)
+            for _ in range(self.in_flight):
+                submit()
             while pending:
                 ready, _ = self._wait(list(pending), WAIT_S)
                 for ref in ready:
                     i, node = pending.pop(ref)
-                    submit(1, node)  # to the CPU that just freed, before this result is read
+                    submit(node)  # to the CPU that just freed, before this result is read
                     yield i, self._result(stage, ref)
         finally:
             # The job stopped early (an error, a cancel): its other tasks need not run. Forced: Ray's plain cancel
