@@ -13,7 +13,8 @@ from workers.orientation import text as text_mod
 from workers.orientation import textdata, textlines
 from workers.orientation.detect import Decision, DetectorConfig, Engine, Face, decide, fuse_paper, get_detector
 from workers.orientation.geometry import ROTATIONS, rotate_view
-from workers.orientation.linereader import LineReading, cut_strip, dark_on_light, decide_pair, turn_of
+from workers.orientation.linereader import (EARLY_LINES, EARLY_MIN_REAL, TESSERACT_LINES, LineReading, PairVerdict,
+                                            cut_strip, dark_on_light, decide_pair, decided_early, turn_of)
 from workers.orientation.orient import analyze, combine_cues
 from workers.orientation.text import TextCue, TextResult, get_text_cue, text_status
 from workers.orientation.textlines import TextLine, gate_side, get_line_detector, ink_region, lines_from_map
@@ -167,6 +168,19 @@ def test_a_reading_decides_with_real_words_on_several_lines_many_times_the_other
     assert decide_pair(_reading(0, 6, 3), _reading(180, 3, 2)).turn is None  # not clearly more one way up
 
 
+def test_the_first_lines_decide_alone_only_by_a_wide_margin():
+    def early(a, b):
+        return decided_early(PairVerdict(a, b, decide_pair(a, b).turn)).turn
+
+    assert early(_reading(0, 6, 2), _reading(180, 0, 0)) == 0
+    assert early(_reading(90, 1, 1), _reading(270, 7, 3)) == 270
+    assert early(_reading(0, 5, 3), _reading(180, 0, 0)) is None  # the whole batch's rule would decide: read on
+    assert early(_reading(0, 11, 4), _reading(180, 2, 2)) is None  # not six times the other way up
+    assert early(_reading(0, 8, 1), _reading(180, 0, 0)) is None  # one line
+    confident = LineReading("tesseract", 0, 12, 0, 0, (), 12, 4)
+    assert decide_pair(confident, _reading(180, 0, 0)).turn == 0 and early(confident, _reading(180, 0, 0)) is None
+
+
 def test_without_a_dictionary_many_confident_words_one_way_up_decide():
     def reading(turn, confident, lines, real=0):
         return LineReading("tesseract", turn, confident, real, 0, (), confident, lines)
@@ -216,9 +230,27 @@ def test_a_page_of_text_is_decided_by_its_lines(rotation):
     result = CUE.upright(_gray(turned(text_page(), rotation)))
     assert result.rotation == rotation and result.reason is None, result
     assert result.how == "tesseract" and result.lines >= 10
+    assert len(result.readings) == 1  # the first lines alone, by a wide margin
     this = next(r for v in result.readings for r in (v.first, v.second) if r.turn == rotation)
-    assert this.real >= 10 and this.lines >= 5
+    assert this.real >= EARLY_MIN_REAL and 2 <= this.lines <= EARLY_LINES
     assert "dictionary words" in result.summary()
+
+
+def test_a_page_whose_longest_lines_are_codes_reads_on_past_them(monkeypatch):
+    """The first lines (the longest) are numbers and codes: no wide margin there, the rest of the batch decides."""
+    codes = ["4711 0815 2024 9921 7734 5512 0091 3301 8812 0034 7", "REF 88231-77 / 0042-1199 / 5531-08 / 7723-0012 X",
+             "00 17 35 98 44 12 73 55 02 61 90 18 27 64 39 81", "ID 7781-2201-9934-1120-5567-0032-8841-2290 ZQ"]
+    page = text_page(2000, 1100, codes + LINES[:6], scale=1.2)
+    read, batches = CUE.tesseract.read, []
+
+    def counted(image, lines, *args):
+        batches.append(len(lines))
+        return read(image, lines, *args)
+
+    monkeypatch.setattr(CUE.tesseract, "read", counted)
+    result = CUE.upright(_gray(turned(page, 90)))
+    assert result.rotation == 90 and result.how == "tesseract", result
+    assert batches == [EARLY_LINES, TESSERACT_LINES[0] - EARLY_LINES] and len(result.readings) == 1
 
 
 @pytest.mark.parametrize("rotation", ROTATIONS)

@@ -1,5 +1,5 @@
-"""The order in which the text cue's readers read a page: the cheapest first, a page's own script model as soon as
-English reads nothing on it."""
+"""The order in which the text cue's readers read a page: the cheapest first (Tesseract's first lines in two halves),
+a page's own script model as soon as English reads nothing on it."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -73,23 +73,32 @@ def _read(readers: Readers) -> list[PairVerdict]:
 def test_a_page_english_reads_nothing_on_is_read_by_its_script_model_before_the_other_readers():
     readers = Readers("Arabic", {"script": 180})
     readings = _read(readers)
-    assert readers.asked == ["tesseract 8 lines", "osd", "script Arabic+eng"]
+    assert readers.asked == ["tesseract 4 lines", "tesseract 4 lines", "osd", "script Arabic+eng"]
     assert readings[-1].turn == 180
 
 
 def test_when_the_script_model_decides_nothing_the_english_readers_go_on_and_osd_is_not_asked_again():
     readers = Readers("Hebrew", {"recognizer": 90})
     _read(readers)
-    assert readers.asked == ["tesseract 8 lines", "osd", "script Hebrew+eng", "tesseract 16 lines", "recognizer"]
+    assert readers.asked == ["tesseract 4 lines", "tesseract 4 lines", "osd", "script Hebrew+eng", "tesseract 16 lines",
+                             "recognizer"]
 
 
 def test_a_latin_page_english_reads_nothing_on_keeps_the_english_readers_order():
     readers = Readers("Latin", {})
     _read(readers)
-    assert readers.asked == ["tesseract 8 lines", "osd", "tesseract 16 lines", "recognizer"]
+    assert readers.asked == ["tesseract 4 lines", "tesseract 4 lines", "osd", "tesseract 16 lines", "recognizer"]
 
 
 def test_a_page_english_reads_is_never_asked_for_its_script():
     readers = Readers("Arabic", {"tesseract": 0})
     _read(readers)
-    assert readers.asked == ["tesseract 8 lines"]
+    assert readers.asked == ["tesseract 4 lines"]  # nine real words on three lines: the first half decides
+
+
+def test_the_first_lines_without_a_wide_margin_are_read_with_the_rest_of_the_batch():
+    readers = Readers("Arabic", {"tesseract": 0})
+    readers._verdict = lambda reader: PairVerdict(LineReading(reader, 0, 4, 4, 2), LineReading(reader, 180))
+    readings = _read(readers)
+    assert readers.asked == ["tesseract 4 lines", "tesseract 4 lines"]  # 4 real words, then 8 on the batch: decided
+    assert readings[-1].turn == 0 and readings[-1].first.real == 8

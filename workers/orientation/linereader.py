@@ -67,6 +67,15 @@ CONFIDENT_RATIO = 4.0
 """... this many times the confident words of the same strips read the other way up (at least 1 counted there).
 Strips are text lines the detector found, read upside down they give next to no confident word of four letters; the
 stricter counts than the real-word rule's stand for the dictionary's check."""
+EARLY_LINES = 4
+"""Tesseract reads the first batch of lines in two halves: the first this many lines decide alone only by a wide
+margin (:func:`decided_early`), else the rest of the batch is read and the whole batch decides by the rule above. Most
+text photos read many real words one way up and next to none the other on their first lines: half the reading."""
+EARLY_MIN_REAL = 2 * MIN_REAL
+"""The wide margin: at least this many real words on ``MIN_LINES`` lines, ..."""
+EARLY_RATIO = 2 * RATIO
+"""... and this many times the other way up's (at least 1 counted there); the confident-word rule does not decide
+early."""
 
 
 @dataclass(frozen=True)
@@ -181,6 +190,15 @@ def joined(a: PairVerdict, b: PairVerdict) -> PairVerdict:
         return LineReading(x.reader, x.turn, x.words + y.words, x.real + y.real, x.lines + y.lines,
                            (x.sample + y.sample)[:6], x.confident + y.confident, x.confident_lines + y.confident_lines)
     return decide_pair(add(a.first, b.first), add(a.second, b.second))
+
+
+def decided_early(verdict: PairVerdict) -> PairVerdict:
+    """``verdict`` (the first ``EARLY_LINES`` lines of a batch) decided by the wide margin of ``EARLY_MIN_REAL`` and
+    ``EARLY_RATIO`` alone (turn None when it does not decide so)."""
+    for a, b in ((verdict.first, verdict.second), (verdict.second, verdict.first)):
+        if a.real >= EARLY_MIN_REAL and a.lines >= MIN_LINES and a.real >= EARLY_RATIO * max(b.real, 1):
+            return PairVerdict(verdict.first, verdict.second, a.turn)
+    return PairVerdict(verdict.first, verdict.second, None)
 
 
 def decide_pair(first: LineReading, second: LineReading, min_real: int = MIN_REAL, ratio: float = RATIO,

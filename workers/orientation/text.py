@@ -27,9 +27,9 @@ from typing import Literal
 
 import numpy as np
 
-from workers.orientation.linereader import (RECOGNIZER_LINES, STRIP_HEIGHT, TESSERACT_LINES,
-                                            PairVerdict, Reader, RecognizerLines, TesseractLines, cut_strip, joined,
-                                            strip_page)
+from workers.orientation.linereader import (EARLY_LINES, RECOGNIZER_LINES, STRIP_HEIGHT, TESSERACT_LINES,
+                                            PairVerdict, Reader, RecognizerLines, TesseractLines, cut_strip,
+                                            decided_early, joined, strip_page)
 from workers.orientation.textdata import Tessdata, find_tessdata, find_vocabulary
 from workers.orientation.geometry import rotate_view
 from workers.orientation.textlines import LineScan, LoadImage, TextLine, get_line_detector, upscaler
@@ -137,13 +137,21 @@ class TextCue:
 
     def _readings(self, image: np.ndarray, lines: list[TextLine]):
         """Each reader's reading of ``lines`` (one axis, px of ``image``), cheapest first, as (verdict, script seen):
-        Tesseract's English on the first lines, then on more; PaddleOCR's recogniser; a Tesseract script model for the
+        Tesseract's English on the first lines (their first half alone where it decides by a wide margin,
+        ``EARLY_LINES``), then on more; PaddleOCR's recogniser; a Tesseract script model for the
         script its OSD sees on the lines. Where English reads no word it knows on the first lines either way up, the
         script is asked first (``SCRIPT_FIRST``): a page in Arabic or Hebrew is read by its own model without the
         English readers' every line both ways up (most of its CPU), a page in Latin script goes on as before."""
         script: _ScriptReading | None = None
         if self.tesseract is not None:
-            verdict = self.tesseract.read(image, lines[:TESSERACT_LINES[0]], self.vocabulary)
+            verdict = self.tesseract.read(image, lines[:EARLY_LINES], self.vocabulary)
+            early = decided_early(verdict)
+            if early.turn is not None:
+                yield early, None
+                return
+            if len(lines) > EARLY_LINES:
+                verdict = joined(verdict, self.tesseract.read(image, lines[EARLY_LINES:TESSERACT_LINES[0]],
+                                                              self.vocabulary))
             if SCRIPT_FIRST and verdict.turn is None and not (verdict.first.real or verdict.second.real):
                 script = self._script(image, lines)
                 if script.model is not None:
