@@ -195,22 +195,19 @@ def joined(a: PairVerdict, b: PairVerdict) -> PairVerdict:
 def decided_early(verdict: PairVerdict) -> PairVerdict:
     """``verdict`` (the first ``EARLY_LINES`` lines of a batch) decided by the wide margin of ``EARLY_MIN_REAL`` and
     ``EARLY_RATIO`` alone (turn None when it does not decide so)."""
-    for a, b in ((verdict.first, verdict.second), (verdict.second, verdict.first)):
-        if a.real >= EARLY_MIN_REAL and a.lines >= MIN_LINES and a.real >= EARLY_RATIO * max(b.real, 1):
-            return PairVerdict(verdict.first, verdict.second, a.turn)
-    return PairVerdict(verdict.first, verdict.second, None)
+    return decide_pair(verdict.first, verdict.second, EARLY_MIN_REAL, EARLY_RATIO, confident=False)
 
 
 def decide_pair(first: LineReading, second: LineReading, min_real: int = MIN_REAL, ratio: float = RATIO,
-                min_lines: int = MIN_LINES) -> PairVerdict:
+                min_lines: int = MIN_LINES, confident: bool = True) -> PairVerdict:
     """The turn two readings of the same strips 180 degrees apart decide: the one with at least ``min_real`` real
     words on ``min_lines`` lines and ``ratio`` times the other's real words (at least 1 counted there); or, failing
     that, with ``CONFIDENT_MIN`` confident words on ``CONFIDENT_LINES`` lines and ``CONFIDENT_RATIO`` times the
-    other's, while the other reads no more real words."""
+    other's, while the other reads no more real words (``confident`` False: the real-word rule alone)."""
     for a, b in ((first, second), (second, first)):
         if a.real >= min_real and a.lines >= min_lines and a.real >= ratio * max(b.real, 1):
             return PairVerdict(first, second, a.turn)
-    for a, b in ((first, second), (second, first)):
+    for a, b in ((first, second), (second, first)) if confident else ():
         if (a.confident >= CONFIDENT_MIN and a.confident_lines >= CONFIDENT_LINES
                 and a.confident >= CONFIDENT_RATIO * max(b.confident, 1) and a.real >= b.real):
             return PairVerdict(first, second, a.turn)
